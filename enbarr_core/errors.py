@@ -1,0 +1,42 @@
+"""The error hierarchy of Enbarr.
+
+Every error a user can cause (a profile, a parameter, a message, device bytes) is an
+``EnbarrError`` whose message names what is wrong and where. The command line prints it
+without a traceback and exits non-zero.
+"""
+
+from __future__ import annotations
+
+
+class EnbarrError(Exception):
+    """Base class of all errors Enbarr raises on purpose."""
+
+
+class ProfileError(EnbarrError):
+    """A vessel profile is invalid: names the file, the key path and what was expected."""
+
+    def __init__(self, message: str, *, path: str | None = None, key: str | None = None):
+        self.path = path
+        self.key = key
+        where = ': '.join(part for part in (path, key) if part)
+        super().__init__(f'{where}: {message}' if where else message)
+
+
+class RegistryError(EnbarrError):
+    """A plugin or core node name is unknown or its entry point is broken."""
+
+
+class ConfigurationError(EnbarrError):
+    """A node's parameters are inconsistent (e.g. a thruster geometry that cannot yaw)."""
+
+
+class AllocationError(ConfigurationError):
+    """A thruster layout cannot produce a required degree of freedom."""
+
+
+class DeviceError(EnbarrError):
+    """A device answered with bytes that break its protocol, or did not answer."""
+
+
+class RecorderError(EnbarrError):
+    """A bag cannot be written where asked."""

@@ -1,0 +1,1 @@
+"""Core nodes: thin translators between messages and the algorithms in ``algorithms``."""

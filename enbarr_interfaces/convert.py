@@ -1,0 +1,137 @@
+"""Conversions between standard messages and numpy arrays.
+
+One place for them, so every node agrees on component order and units:
+``nu``/``tau`` are ``[u, v, w, p, q, r]`` / ``[X, Y, Z, K, M, N]`` (linear then angular),
+quaternions are ``[x, y, z, w]``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Twist, Vector3, Wrench
+import numpy as np
+from numpy.typing import NDArray
+from rcl_interfaces.msg import ParameterType, ParameterValue
+
+NS_PER_S = 1_000_000_000
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """``builtin_interfaces/Time`` -> integer nanoseconds."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def ns_to_stamp(ns: int, out: Time | None = None) -> Time:
+    """Integer nanoseconds -> ``builtin_interfaces/Time`` (filled in place when ``out``)."""
+    out = out if out is not None else Time()
+    out.sec, out.nanosec = divmod(int(ns), NS_PER_S)
+    return out
+
+
+def vector3_to_array(v: Vector3) -> NDArray[np.float64]:
+    return np.array((v.x, v.y, v.z))
+
+
+def set_vector3(v: Vector3, a: Any) -> None:
+    v.x, v.y, v.z = float(a[0]), float(a[1]), float(a[2])
+
+
+def quaternion_to_array(q: Any) -> NDArray[np.float64]:
+    """``geometry_msgs/Quaternion`` -> ``[x, y, z, w]``."""
+    return np.array((q.x, q.y, q.z, q.w))
+
+
+def set_quaternion(q: Any, a: Any) -> None:
+    q.x, q.y, q.z, q.w = float(a[0]), float(a[1]), float(a[2]), float(a[3])
+
+
+def twist_to_nu(t: Twist) -> NDArray[np.float64]:
+    """``geometry_msgs/Twist`` -> nu = [u, v, w, p, q, r] [m/s, rad/s]."""
+    return np.array((t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z))
+
+
+def set_twist(t: Twist, nu: Any) -> None:
+    set_vector3(t.linear, nu[:3])
+    set_vector3(t.angular, nu[3:6])
+
+
+def wrench_to_tau(w: Wrench) -> NDArray[np.float64]:
+    """``geometry_msgs/Wrench`` -> tau = [X, Y, Z, K, M, N] [N, N m]."""
+    return np.array((w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z))
+
+
+def set_wrench(w: Wrench, tau: Any) -> None:
+    set_vector3(w.force, tau[:3])
+    set_vector3(w.torque, tau[3:6])
+
+
+def set_covariance3(field: Any, cov: NDArray[np.float64]) -> None:
+    """Write a 3x3 covariance into a ``float64[9]`` message field, row-major."""
+    field[:] = np.asarray(cov, dtype=float).reshape(9)
+
+
+def all_finite(*arrays: Any) -> bool:
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+def parameter_value_to_python(value: ParameterValue) -> Any:
+    """The typed content of an ``rcl_interfaces/ParameterValue`` (``None`` when NOT_SET)."""
+    t = value.type
+    if t == ParameterType.PARAMETER_BOOL:
+        return bool(value.bool_value)
+    if t == ParameterType.PARAMETER_INTEGER:
+        return int(value.integer_value)
+    if t == ParameterType.PARAMETER_DOUBLE:
+        return float(value.double_value)
+    if t == ParameterType.PARAMETER_STRING:
+        return str(value.string_value)
+    if t == ParameterType.PARAMETER_BYTE_ARRAY:
+        return bytes(b[0] if isinstance(b, bytes) else b for b in value.byte_array_value)
+    if t == ParameterType.PARAMETER_BOOL_ARRAY:
+        return [bool(v) for v in value.bool_array_value]
+    if t == ParameterType.PARAMETER_INTEGER_ARRAY:
+        return [int(v) for v in value.integer_array_value]
+    if t == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        return [float(v) for v in value.double_array_value]
+    if t == ParameterType.PARAMETER_STRING_ARRAY:
+        return [str(v) for v in value.string_array_value]
+    return None
+
+
+def python_to_parameter_value(value: Any) -> ParameterValue:
+    """A Python bool/int/float/str (or homogeneous list of them) -> ``ParameterValue``."""
+    pv = ParameterValue()
+    if isinstance(value, bool):
+        pv.type, pv.bool_value = ParameterType.PARAMETER_BOOL, value
+    elif isinstance(value, int):
+        pv.type, pv.integer_value = ParameterType.PARAMETER_INTEGER, value
+    elif isinstance(value, float):
+        pv.type, pv.double_value = ParameterType.PARAMETER_DOUBLE, value
+    elif isinstance(value, str):
+        pv.type, pv.string_value = ParameterType.PARAMETER_STRING, value
+    elif isinstance(value, (list, tuple)) and value and all(isinstance(v, bool) for v in value):
+        pv.type, pv.bool_array_value = ParameterType.PARAMETER_BOOL_ARRAY, list(value)
+    elif isinstance(value, (list, tuple)) and value and all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value):
+        pv.type, pv.integer_array_value = ParameterType.PARAMETER_INTEGER_ARRAY, list(value)
+    elif isinstance(value, (list, tuple)) and value and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        pv.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+        pv.double_array_value = [float(v) for v in value]
+    elif isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+        pv.type, pv.string_array_value = ParameterType.PARAMETER_STRING_ARRAY, list(value)
+    else:
+        raise TypeError(f'cannot carry {value!r} in an rcl_interfaces/ParameterValue')
+    return pv
+
+
+def parameter_value_is_finite(value: ParameterValue) -> bool:
+    """False when a double (or double array) value holds NaN or Inf."""
+    if value.type == ParameterType.PARAMETER_DOUBLE:
+        return math.isfinite(value.double_value)
+    if value.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        return all(math.isfinite(v) for v in value.double_array_value)
+    return True

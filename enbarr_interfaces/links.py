@@ -1,0 +1,208 @@
+"""The in-process fast path: composed nodes hand messages to each other as direct calls.
+
+Why: in rclpy every topic hop costs a DDS round trip plus an executor dispatch (about
+0.4 ms of CPU each on the reference machine), so a five-hop IMU -> thruster chain cannot run at
+400 Hz. A ``LinkBus`` exists per rclpy ``Context``. A node publishes a *fast* topic through a
+``LinkPublisher``: every in-process ``LinkSubscription`` of the same resolved name is called
+synchronously with the message object, and the message goes out over DDS only while some
+other process (``ros2 topic echo``, a recorder elsewhere, a node in another group) subscribes.
+A ``LinkSubscription`` with no publisher in its process falls back to an ordinary ROS
+subscription when the bus is connected, so a chain split over processes (profile groups) or
+fed by a third-party node still works. See ``docs/architecture.md``.
+
+Rules that follow: a fast topic has its producer(s) in one process; a published message is
+never modified afterwards (subscribers may keep it, e.g. a recorder's queue); callbacks are
+short and must not block (they run on the publisher's thread); a callback that raises is logged and
+counted, and never breaks the publisher or the other subscribers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import threading
+from typing import Any, TYPE_CHECKING
+import weakref
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
+    from rclpy.publisher import Publisher
+    from rclpy.subscription import Subscription
+
+    from .topics import TopicSpec
+
+Callback = Callable[[Any], None]
+
+
+class LinkSubscription:
+    """An in-process subscriber of one resolved topic."""
+
+    def __init__(self, bus: LinkBus, node: Node, spec: TopicSpec, name: str,
+                 callback: Callback) -> None:
+        self.bus = bus
+        self.node = node
+        self.spec = spec
+        self.name = name
+        self.callback = callback
+        self.errors = 0
+        self.ros_subscription: Subscription | None = None
+
+    @property
+    def local(self) -> bool:
+        """True when fed by in-process publishers, False when through DDS."""
+        return self.ros_subscription is None
+
+    def deliver(self, msg: Any) -> None:
+        try:
+            self.callback(msg)
+        except Exception as err:  # noqa: BLE001 - one faulty node must not stop the chain
+            self.errors += 1
+            self.node.get_logger().error(
+                f'callback for {self.name} failed ({self.errors} so far): {err!r}',
+                throttle_duration_sec=1.0)
+
+    def destroy(self) -> None:
+        self.bus._remove_subscription(self)
+        if self.ros_subscription is not None:
+            self.node.destroy_subscription(self.ros_subscription)
+            self.ros_subscription = None
+
+
+class LinkPublisher:
+    """Publishes to in-process subscribers directly and to DDS only when it has readers."""
+
+    def __init__(self, bus: LinkBus, node: Node, spec: TopicSpec, name: str,
+                 ros_publisher: Publisher) -> None:
+        self.bus = bus
+        self.node = node
+        self.spec = spec
+        self.name = name
+        self.ros_publisher = ros_publisher
+        self._subscribers: tuple[LinkSubscription, ...] = ()
+
+    @property
+    def topic_name(self) -> str:
+        return self.name
+
+    def publish(self, msg: Any) -> None:
+        for sub in self._subscribers:
+            sub.deliver(msg)
+        # get_subscription_count() counts DDS readers only: in-process link subscribers never
+        # create one, so this is non-zero exactly when someone outside the fast path listens.
+        if self.ros_publisher.get_subscription_count():
+            self.ros_publisher.publish(msg)
+
+    def destroy(self) -> None:
+        self.bus._remove_publisher(self)
+        self.node.destroy_publisher(self.ros_publisher)
+
+
+class LinkBus:
+    """All link publishers and subscriptions of one rclpy ``Context``."""
+
+    _buses: weakref.WeakKeyDictionary[Any, LinkBus] = weakref.WeakKeyDictionary()
+    _buses_lock = threading.Lock()
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._publishers: dict[str, list[LinkPublisher]] = {}
+        self._subscriptions: dict[str, list[LinkSubscription]] = {}
+        self._connected = False
+        self._taps: list[Callable[[LinkPublisher], None]] = []
+
+    @classmethod
+    def of(cls, context: Any) -> LinkBus:
+        """The bus of ``context`` (created on first use)."""
+        with cls._buses_lock:
+            bus = cls._buses.get(context)
+            if bus is None:
+                bus = cls._buses[context] = LinkBus()
+            return bus
+
+    # -- creation ---------------------------------------------------------------------------
+    def create_publisher(self, node: Node, spec: TopicSpec) -> LinkPublisher:
+        name = node.resolve_topic_name(spec.name)
+        pub = LinkPublisher(self, node, spec, name, node.create_publisher(
+            spec.msg_type, spec.name, spec.qos))
+        with self._lock:
+            self._publishers.setdefault(name, []).append(pub)
+            subs = list(self._subscriptions.get(name, ()))
+            taps = list(self._taps)
+        for sub in subs:
+            if sub.ros_subscription is not None:
+                # It fell back to DDS before this publisher existed: switch it to the link.
+                sub.node.destroy_subscription(sub.ros_subscription)
+                sub.ros_subscription = None
+        self._rewire(name)
+        for tap in taps:
+            tap(pub)
+        return pub
+
+    def create_subscription(self, node: Node, spec: TopicSpec,
+                            callback: Callback) -> LinkSubscription:
+        name = node.resolve_topic_name(spec.name)
+        sub = LinkSubscription(self, node, spec, name, callback)
+        with self._lock:
+            self._subscriptions.setdefault(name, []).append(sub)
+            has_local = bool(self._publishers.get(name))
+            connected = self._connected
+        if has_local:
+            self._rewire(name)
+        elif connected:
+            self._fall_back(sub)
+        return sub
+
+    def connect(self) -> None:
+        """Give every subscription without an in-process publisher a DDS subscription.
+
+        Called once all nodes of a process exist (``bringup`` does it); subscriptions created
+        afterwards decide at creation.
+        """
+        with self._lock:
+            self._connected = True
+            pending = [s for name, subs in self._subscriptions.items()
+                       if not self._publishers.get(name) for s in subs
+                       if s.ros_subscription is None]
+        for sub in pending:
+            self._fall_back(sub)
+
+    def add_tap(self, tap: Callable[[LinkPublisher], None]) -> None:
+        """Call ``tap`` for every link publisher, now and when one is created (recorders)."""
+        with self._lock:
+            self._taps.append(tap)
+            pubs = [p for ps in self._publishers.values() for p in ps]
+        for pub in pubs:
+            tap(pub)
+
+    def remove_tap(self, tap: Callable[[LinkPublisher], None]) -> None:
+        with self._lock:
+            if tap in self._taps:
+                self._taps.remove(tap)
+
+    def local_topics(self) -> dict[str, TopicSpec]:
+        """Resolved names and specs of the topics published through this bus."""
+        with self._lock:
+            return {name: pubs[0].spec for name, pubs in self._publishers.items() if pubs}
+
+    # -- internals --------------------------------------------------------------------------
+    def _fall_back(self, sub: LinkSubscription) -> None:
+        sub.ros_subscription = sub.node.create_subscription(
+            sub.spec.msg_type, sub.spec.name, sub.deliver, sub.spec.qos)
+
+    def _rewire(self, name: str) -> None:
+        with self._lock:
+            subs = tuple(s for s in self._subscriptions.get(name, ()) if s.ros_subscription is None)
+            for pub in self._publishers.get(name, ()):
+                pub._subscribers = subs
+
+    def _remove_publisher(self, pub: LinkPublisher) -> None:
+        with self._lock:
+            pubs = self._publishers.get(pub.name, [])
+            if pub in pubs:
+                pubs.remove(pub)
+
+    def _remove_subscription(self, sub: LinkSubscription) -> None:
+        with self._lock:
+            subs = self._subscriptions.get(sub.name, [])
+            if sub in subs:
+                subs.remove(sub)
+        self._rewire(sub.name)

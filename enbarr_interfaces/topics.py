@@ -1,0 +1,112 @@
+"""Every topic of the Enbarr graph: name, standard message type, QoS, units and frame.
+
+Standard message types only, so no compiled interface package is needed. SI units and
+REP-103 / REP-105 frames everywhere (body ``base_link`` is FLU, world ``odom`` is ENU);
+normalized -1..1 values appear only at the operator's stick and at the thruster output.
+The mapping from the messages of the original Enbarr README is in ``docs/interfaces.md``.
+
+Topic names are relative, so a profile's ``namespace`` and ``remappings`` apply to them.
+``fast=True`` marks the topics of the IMU -> thruster chain: between nodes composed in one
+process they travel as direct calls (see ``enbarr_interfaces.links``), and they reach DDS only
+when something outside the process subscribes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import Parameter
+from rclpy.qos import (
+    DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
+from sensor_msgs.msg import Imu, JointState, MagneticField
+
+#: Commands and events: nothing may be lost, a short queue.
+COMMAND_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE)
+#: High-rate streams: the newest sample matters, late ones are worthless.
+SENSOR_QOS = qos_profile_sensor_data
+
+BODY_FRAME = 'base_link'
+WORLD_FRAME = 'odom'
+IMU_FRAME = 'imu_link'
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One topic of the contract."""
+
+    name: str
+    msg_type: type
+    qos: QoSProfile
+    units: str
+    frame: str
+    description: str
+    fast: bool = False
+
+    @property
+    def type_name(self) -> str:
+        """``pkg/msg/Type`` as used in bags and by ``ros2 topic``."""
+        module = self.msg_type.__module__.split('.')[0]
+        return f'{module}/msg/{self.msg_type.__name__}'
+
+
+IMU_RAW = TopicSpec(
+    'imu/data_raw', Imu, SENSOR_QOS,
+    'angular_velocity rad/s, linear_acceleration m/s^2 (specific force, +9.81 z at rest)',
+    IMU_FRAME, 'Raw IMU sample from the IMU plugin; orientation_covariance[0] = -1 (none).',
+    fast=True)
+IMU_MAG = TopicSpec(
+    'imu/mag', MagneticField, SENSOR_QOS, 'tesla', IMU_FRAME,
+    'Magnetometer sample from the IMU plugin, same stamp as imu/data_raw.', fast=True)
+IMU = TopicSpec(
+    'imu/data', Imu, SENSOR_QOS,
+    'orientation (quaternion, odom ENU <- imu_link), rad/s bias-corrected, m/s^2',
+    IMU_FRAME, 'Filtered IMU with covariances, from the orientation filter.', fast=True)
+SURFACE_TWIST = TopicSpec(
+    'surface_command/twist', TwistStamped, COMMAND_QOS, 'm/s, rad/s', BODY_FRAME,
+    'Velocity the operator or a mission asks for. Stamped: stale commands are refused.')
+SURFACE_IO = TopicSpec(
+    'surface_command/io', Parameter, COMMAND_QOS, 'plugin-defined', '',
+    'IO request from the surface: name = executor, value = typed request.')
+TRAJECTORY_REQUEST = TopicSpec(
+    'trajectory_request', TwistStamped, COMMAND_QOS, 'm/s, rad/s', BODY_FRAME,
+    'Validated velocity goal from the command receiver (zero on failsafe).', fast=True)
+IO_REQUEST = TopicSpec(
+    'io_request', Parameter, COMMAND_QOS, 'plugin-defined', '',
+    'Validated IO request: name = executor (e.g. manipulator, gpio_12), value = request.')
+IO_STATE = TopicSpec(
+    'io_state', Parameter, COMMAND_QOS, 'plugin-defined', '',
+    'State of an IO plugin after it acted: name = executor, value = new state.')
+TRAJECTORY_CORRECTED = TopicSpec(
+    'trajectory_corrected', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
+    'Generalized force tau from the control loop.', fast=True)
+THRUSTER_COMMANDS = TopicSpec(
+    'thruster_commands', JointState, SENSOR_QOS, 'normalized -1..1 (effort)', BODY_FRAME,
+    'Per-thruster command: name[i] = thruster, effort[i] = -1 (full reverse) .. 1 (full '
+    'forward). header.stamp = stamp of the IMU sample it answers.', fast=True)
+THRUSTER_OUTPUT = TopicSpec(
+    'thruster_output', JointState, SENSOR_QOS, 'normalized -1..1 (effort)', BODY_FRAME,
+    'What a thruster plugin actually applied, including neutral on timeout and shutdown.',
+    fast=True)
+SIM_IMU = TopicSpec(
+    'sim/imu', Imu, SENSOR_QOS, 'as imu/data, exact', IMU_FRAME,
+    'Simulator ground truth at the IMU: true orientation, rate and specific force.',
+    fast=True)
+SIM_ODOMETRY = TopicSpec(
+    'sim/odometry', Odometry, SENSOR_QOS, 'm, m/s, rad/s', WORLD_FRAME,
+    'Simulator ground truth pose (odom ENU) and body velocity (child frame base_link).')
+SIM_THRUST = TopicSpec(
+    'sim/thrust', JointState, SENSOR_QOS, 'N (effort)', BODY_FRAME,
+    'Thrust each simulated thruster produces, applied by the simulator.', fast=True)
+DIAGNOSTICS = TopicSpec(
+    '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
+    'Counters and states of nodes (rejected commands, failsafe, timeouts).')
+
+ALL_TOPICS: tuple[TopicSpec, ...] = (
+    IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
+    TRAJECTORY_CORRECTED, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
+    DIAGNOSTICS)

@@ -1,0 +1,48 @@
+"""Common part of IO plugins: act on ``io_request`` messages addressed to one executor.
+
+An IO plugin has an executor name (the README's ``args``): the stepper uses its ``executor``
+parameter as is, the GPIO plugin makes ``gpio_<pin>``. Requests for other executors are
+ignored; requests for this one with a value of the wrong type are refused, logged and
+counted. After acting, the plugin publishes its new state on ``io_state`` under its executor
+name.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rcl_interfaces.msg import Parameter
+
+from enbarr_core.node import EnbarrNode
+from enbarr_interfaces import convert, topics
+
+
+class IoPluginNode(EnbarrNode):
+    """Subclasses set ``executor_name`` and implement ``act(value) -> str | None`` (a refusal)."""
+
+    executor_name: str = ''
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.handled = 0
+        self.refused = 0
+        self._state_pub = self.create_link_publisher(topics.IO_STATE)
+        self.create_link_subscription(topics.IO_REQUEST, self._on_request)
+
+    def _on_request(self, msg: Parameter) -> None:
+        if msg.name != self.executor_name:
+            return
+        value = convert.parameter_value_to_python(msg.value)
+        reason = self.act(value)
+        if reason:
+            self.refused += 1
+            self.get_logger().warn(f'{self.executor_name}: refused {value!r}: {reason}')
+        else:
+            self.handled += 1
+
+    def act(self, value: Any) -> str | None:
+        raise NotImplementedError
+
+    def publish_state(self, value: Any) -> None:
+        self._state_pub.publish(Parameter(name=self.executor_name,
+                                          value=convert.python_to_parameter_value(value)))

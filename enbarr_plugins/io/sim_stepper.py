@@ -1,0 +1,66 @@
+"""Simulated stepper motor (the README's manipulator): ``io_request`` int32 = steps to move.
+
+The position moves toward its target at ``max_rate`` steps/s, within ``[min_position,
+max_position]`` (a request beyond them is refused, as a real manipulator's end stops would
+demand); ``io_state`` carries the position while it changes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from enbarr_core.params import ParamSpec
+
+from .base import IoPluginNode
+
+SPECS = [
+    ParamSpec('executor', '', 'Executor name this stepper answers to (default: node name)',
+              read_only=True),
+    ParamSpec('max_rate', 400.0, 'Step rate', 'steps/s', 1.0, 1e5),
+    ParamSpec('min_position', -10000, 'Lowest position (end stop)', 'steps', -2**31, 2**31 - 1),
+    ParamSpec('max_position', 10000, 'Highest position (end stop)', 'steps', -2**31, 2**31 - 1),
+    ParamSpec('update_rate', 20.0, 'Rate of the simulated motion', 'Hz', 1.0, 1000.0,
+              read_only=True),
+]
+
+
+class SimStepperNode(IoPluginNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'manipulator', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, self._build, self._apply)
+        self.executor_name = self.settings['executor'] or self.get_name()
+        self.position = 0.0
+        self.target = 0
+        self.create_timer(1.0 / self.settings['update_rate'], self._move)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> dict[str, Any]:
+        if v['min_position'] > v['max_position']:
+            raise ValueError('min_position must not exceed max_position')
+        return v
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        self.settings = v
+
+    def act(self, value: Any) -> str | None:
+        if isinstance(value, bool) or not isinstance(value, int):
+            return 'expected an integer number of steps'
+        target = self.target + value
+        s = self.settings
+        if not s['min_position'] <= target <= s['max_position']:
+            return (f'target {target} is outside [{s["min_position"]}, '
+                    f'{s["max_position"]}] steps')
+        self.target = target
+        return None
+
+    def _move(self) -> None:
+        error = self.target - self.position
+        if error == 0:
+            return
+        step = self.settings['max_rate'] / self.settings['update_rate']
+        self.position = float(self.target) if abs(error) <= step else (
+            self.position + step * (1 if error > 0 else -1))
+        self.publish_state(int(round(self.position)))

@@ -1,0 +1,36 @@
+"""Build script of the ``enbarr`` ament_python package.
+
+Runtime dependencies are pinned in ``requirements.txt`` (installed by ``./dev``), not in
+``install_requires``: in a ROS 2 workspace rosdep and the distribution provide them, and
+setuptools must not try to fetch them during ``colcon build``.
+"""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'enbarr'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(include=['enbarr_core*', 'enbarr_plugins*', 'enbarr_interfaces*']),
+    package_data={'': ['py.typed']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/params', glob('params/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='Enbarr maintainers',
+    maintainer_email='maintainers@enbarr.invalid',
+    description='Control stack for low-cost marine vehicles, composed from vessel profiles.',
+    license='MIT',
+    entry_points={
+        'console_scripts': [
+            'enbarr = enbarr_core.cli:main',
+            'bringup = enbarr_core.cli:bringup_main',
+        ],
+    },
+)
