@@ -56,8 +56,8 @@ def declare_thrusters(node: Node) -> tuple[Thruster, ...]:
             try:
                 out.append(Thruster(n, tuple(v[p + 'position']), tuple(v[p + 'direction']),
                                     v[p + 'max_forward'], v[p + 'max_reverse']))
-            except ValueError as err:
-                raise ValueError(f'thruster {n!r}: {err}') from err
+            except (ValueError, ConfigurationError) as err:  # Thruster names itself
+                raise ValueError(str(err)) from err
         return tuple(out)
 
     return SettingsBinding(node, specs, build, lambda _: None).settings

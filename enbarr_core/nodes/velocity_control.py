@@ -1,7 +1,8 @@
 """Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``trajectory_corrected``.
 
 The README's ``control_loop_pi.py``, built as a PID with anti-windup and model-based
-feed-forward (``algorithms.velocity_control``). It runs once per filtered IMU sample, with dt
+feed-forward (``algorithms.velocity_control``) behind a reference model that turns a step in
+the goal into a reachable velocity trajectory. It runs once per filtered IMU sample, with dt
 from the sample stamps. Rates p, q, r are measured by the gyro; roll and pitch feed the
 leveling term. Linear velocity is not measured by an IMU: unless ``velocity_topic`` names an
 ``nav_msgs/Odometry`` source (a DVL, an acoustic or visual odometry), surge, sway and heave run
@@ -23,22 +24,28 @@ from enbarr_interfaces import convert, topics
 from enbarr_interfaces.topics import TopicSpec
 
 from ..algorithms.kinematics import quat_to_euler
-from ..algorithms.velocity_control import VelocityControlSettings, VelocityController
+from ..algorithms.velocity_control import (
+    VelocityControlSettings, VelocityController, VelocityReference)
 from ..node import EnbarrNode
 from ..params import ParamSpec
 
 _DOF = 'surge, sway, heave, roll, pitch, yaw'
 SPECS = [
-    ParamSpec('kp', [20.0, 20.0, 20.0, 2.0, 2.0, 2.0], f'Proportional gains ({_DOF})',
+    ParamSpec('kp', [20.0, 20.0, 20.0, 4.0, 4.0, 4.0], f'Proportional gains ({_DOF})',
               'N/(m/s), N m/(rad/s)', 0.0, 1e4),
-    ParamSpec('ki', [2.0, 2.0, 2.0, 1.0, 1.0, 1.0], f'Integral gains ({_DOF})',
+    ParamSpec('ki', [2.0, 2.0, 2.0, 8.0, 8.0, 8.0], f'Integral gains ({_DOF})',
               'N/m, N m/rad', 0.0, 1e4),
     ParamSpec('kd', [0.0, 0.0, 0.0, 0.0, 0.0, 0.0], f'Derivative gains on measurement ({_DOF})',
               'N/(m/s^2), N m/(rad/s^2)', 0.0, 1e3),
-    ParamSpec('integral_limit', [20.0, 20.0, 20.0, 2.0, 2.0, 2.0],
+    ParamSpec('integral_limit', [20.0, 20.0, 20.0, 3.0, 3.0, 3.0],
               f'Clamp of the integral contribution ({_DOF})', 'N, N m', 0.0, 1e4),
     ParamSpec('tau_max', [80.0, 80.0, 120.0, 10.0, 10.0, 10.0], f'Output limits ({_DOF})',
               'N, N m', 1e-6, 1e5),
+    ParamSpec('reference_time_constant', [0.4, 0.4, 0.4, 0.2, 0.2, 0.2],
+              f'Time constants of the goal reference model ({_DOF})', 's', 1e-3, 60.0),
+    ParamSpec('max_accel', [0.5, 0.5, 0.5, 2.0, 2.0, 2.0],
+              f'Acceleration limits of the reference model ({_DOF})', 'm/s^2, rad/s^2', 1e-3,
+              100.0),
     ParamSpec('level_gain', 2.0, 'Roll/pitch leveling: rate setpoint -k * angle', '1/s', 0.0,
               100.0),
     ParamSpec('derivative_filter', 0.02, 'Time constant of the derivative filter', 's', 1e-4,
@@ -79,6 +86,9 @@ def build_settings(v: dict[str, Any]) -> tuple[VelocityControlSettings, dict[str
         inertia=tuple(a + b for a, b in zip(rigid, added)), level_gain=v['level_gain'],
         derivative_filter=v['derivative_filter'])
     settings.validate()
+    for k in ('reference_time_constant', 'max_accel'):
+        if len(v[k]) != 6:
+            raise ValueError(f'{k}: expected 6 values, got {len(v[k])}')
     return settings, v
 
 
@@ -88,6 +98,7 @@ class VelocityControlNode(EnbarrNode):
     def __init__(self, node_name: str = 'control_loop', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.controller: VelocityController | None = None
+        self.reference: VelocityReference | None = None
         self.output = None
         self._goal = np.zeros(6)
         self._goal_ns: int | None = None
@@ -109,6 +120,10 @@ class VelocityControlNode(EnbarrNode):
             self.controller = VelocityController(settings)
         else:
             self.controller.settings = settings
+        reference = VelocityReference(v['reference_time_constant'], v['max_accel'])
+        if self.reference is not None:  # keep the trajectory in progress: no jump
+            reference.nu_ref = self.reference.nu_ref
+        self.reference = reference
         self._goal_timeout_ns = int(v['goal_timeout'] * 1e9)
         self._max_gap_ns = int(v['max_gap'] * 1e9)
 
@@ -127,6 +142,7 @@ class VelocityControlNode(EnbarrNode):
         last, self._last_ns = self._last_ns, t
         if last is None or t - last > self._max_gap_ns or t <= last:
             self.controller.reset()
+            self.reference.reset()
             return
         now = self.get_clock().now().nanoseconds
         goal = self._goal if (self._goal_ns is not None
@@ -134,7 +150,10 @@ class VelocityControlNode(EnbarrNode):
         omega = convert.vector3_to_array(msg.angular_velocity)
         roll, pitch, _ = quat_to_euler(convert.quaternion_to_array(msg.orientation))
         nu = np.concatenate((self._linear, omega))
-        self.output = self.controller.step(goal, nu, (t - last) * 1e-9, roll=roll, pitch=pitch)
+        dt = (t - last) * 1e-9
+        nu_ref, nu_ref_dot = self.reference.step(goal, dt)
+        self.output = self.controller.step(nu_ref, nu, dt, nu_d_dot=nu_ref_dot, roll=roll,
+                                           pitch=pitch)
         w = WrenchStamped()
         w.header.stamp = msg.header.stamp
         w.header.frame_id = topics.BODY_FRAME

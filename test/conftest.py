@@ -1,0 +1,60 @@
+"""Shared test setup: keep ROS traffic on this machine, in a private domain, and give node
+tests a private rclpy context and a bounded spin helper."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+import os
+import sys
+import time
+
+# Before anything imports rclpy: never leave the machine, never meet another run.
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+os.environ.pop('ROS_LOCALHOST_ONLY', None)
+sys.path.insert(0, os.path.dirname(__file__))  # test helpers (bagtools)
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def context() -> Iterator[object]:
+    """A private, initialized rclpy Context, shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    ctx = Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def executor(context: object) -> Iterator[object]:
+    from rclpy.executors import SingleThreadedExecutor
+    ex = SingleThreadedExecutor(context=context)
+    try:
+        yield ex
+    finally:
+        for node in list(ex.get_nodes()):
+            ex.remove_node(node)
+            node.destroy_node()
+        ex.shutdown()
+
+
+def spin_until(executor: object, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
+    """Spin ``executor`` until ``condition()`` holds or ``timeout`` [s] passes (never a fixed
+    sleep: cross-process discovery alone can take 2.5 s)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+    return condition()
+
+
+@pytest.fixture
+def spin() -> Callable[..., bool]:
+    return spin_until
