@@ -83,6 +83,10 @@ class SegmentedBagWriter:
         if not self.knows_type(msgtype):
             self.unknown_types.add(msgtype)
             return False
+        known = self.topics.get(topic)
+        if known is not None and known.type != msgtype:
+            raise RecorderError(f'topic {topic} changed type from {known.type} to {msgtype}')
+        data = self._exact(msgtype, data)
         seg = self._segment
         if seg is not None and time.monotonic() - seg.opened >= self.segment_seconds:
             self.flush()
@@ -91,12 +95,10 @@ class SegmentedBagWriter:
             seg = self._open_segment()
         conn = seg.connections.get(topic)
         if conn is None:
-            known = self.topics.setdefault(topic, _Topic(topic, msgtype))
-            if known.type != msgtype:
-                raise RecorderError(f'topic {topic} changed type from {known.type} to {msgtype}')
+            self.topics.setdefault(topic, _Topic(topic, msgtype))
             conn = seg.connections[topic] = seg.writer.add_connection(
                 topic, msgtype, typestore=self.typestore)
-        seg.writer.write(conn, timestamp_ns, self._exact(msgtype, data))
+        seg.writer.write(conn, timestamp_ns, data)
         seg.count += 1
         self.topics[topic].count += 1
         return True
@@ -110,8 +112,11 @@ class SegmentedBagWriter:
         decoding; payloads from DDS are exact already and pass unchanged.
         """
         msgdef = self.typestore.get_msgdef(msgtype)
-        decode = msgdef.deserialize_cdr_le if data[1] else msgdef.deserialize_cdr_be
-        _, pos = decode(memoryview(data)[4:], 0, msgdef.cls, self.typestore)
+        try:
+            decode = msgdef.deserialize_cdr_le if data[1] else msgdef.deserialize_cdr_be
+            _, pos = decode(memoryview(data)[4:], 0, msgdef.cls, self.typestore)
+        except Exception as err:  # noqa: BLE001 - the decoder raises many types on bad bytes
+            raise RecorderError(f'{len(data)} bytes are not a CDR {msgtype}: {err!r}') from err
         end = 4 + pos
         return data if len(data) <= end + 3 else data[:end]
 

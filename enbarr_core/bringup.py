@@ -199,7 +199,11 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        shutdown_nodes(nodes)
+        if check_only:  # nothing ran: no safe state to publish, nothing to record
+            for n in reversed(nodes):
+                _safely(n.destroy_node, f'destroying {n.get_name()}')
+        else:
+            shutdown_nodes(nodes)
         executor.shutdown()
         rclpy.try_shutdown(context=context)
     return 0
@@ -251,17 +255,21 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
 
 
 def _stop_children(procs: dict[str, subprocess.Popen[bytes]]) -> None:
-    for p in procs.values():
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + GRACE_SECONDS
-    for g, p in procs.items():
-        try:
-            p.wait(max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            log.error('group %s did not stop in %.0f s: killed', g, GRACE_SECONDS)
-            p.kill()
-            p.wait()
+    """SIGINT every group, the recorder last so that it records the others' safe state."""
+    first = {g: p for g, p in procs.items() if g != RECORDER_GROUP}
+    last = {g: p for g, p in procs.items() if g == RECORDER_GROUP}
+    for batch in (first, last):
+        for p in batch.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + GRACE_SECONDS
+        for g, p in batch.items():
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.error('group %s did not stop in %.0f s: killed', g, GRACE_SECONDS)
+                p.kill()
+                p.wait()
 
 
 def _die_with_parent() -> None:

@@ -191,6 +191,9 @@ def _read_yaml(path: Path) -> dict[str, Any]:
         text = path.read_text(encoding='utf-8')
     except OSError as err:
         raise ProfileError(f'cannot read: {err.strerror}', path=str(path)) from err
+    except UnicodeDecodeError as err:
+        raise ProfileError(f'not UTF-8 text: byte {err.start}: {err.reason}',
+                           path=str(path)) from err
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as err:
@@ -392,7 +395,10 @@ def _apply_set(merged: dict[str, Any], item: str, origins: dict[str, str]) -> No
     try:
         value = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ProfileError(f'--set {item!r}: value is not valid YAML: {err}') from err
+        mark = getattr(err, 'problem_mark', None)
+        at = f' at column {mark.column + 1}' if mark else ''
+        problem = getattr(err, 'problem', None) or str(err).replace('\n', ' ')
+        raise ProfileError(f'--set {item!r}: value is not valid YAML{at}: {problem}') from err
     value = _parameter_value(value, '--set', f'{node}.{param}')
     nodes[node].setdefault('parameters', {})[param] = value
     origins[f'nodes.{node}.parameters.{param}'] = '--set'
