@@ -23,9 +23,10 @@ import threading
 from typing import Any, TYPE_CHECKING
 import weakref
 
+from rclpy.event_handler import PublisherEventCallbacks, UnsupportedEventTypeError
+
 if TYPE_CHECKING:
     from rclpy.node import Node
-    from rclpy.publisher import Publisher
     from rclpy.subscription import Subscription
 
     from .topics import TopicSpec
@@ -70,14 +71,25 @@ class LinkSubscription:
 class LinkPublisher:
     """Publishes to in-process subscribers directly and to DDS only when it has readers."""
 
-    def __init__(self, bus: LinkBus, node: Node, spec: TopicSpec, name: str,
-                 ros_publisher: Publisher) -> None:
+    def __init__(self, bus: LinkBus, node: Node, spec: TopicSpec, name: str) -> None:
         self.bus = bus
         self.node = node
         self.spec = spec
         self.name = name
-        self.ros_publisher = ros_publisher
         self._subscribers: tuple[LinkSubscription, ...] = ()
+        # DDS readers of this topic, kept by the publisher's "matched" event when the RMW
+        # offers it (no per-message query); None: ask get_subscription_count() each time.
+        self._dds_readers: int | None = None
+        try:
+            self.ros_publisher = node.create_publisher(
+                spec.msg_type, spec.name, spec.qos,
+                event_callbacks=PublisherEventCallbacks(matched=self._on_matched))
+            self._dds_readers = self.ros_publisher.get_subscription_count()
+        except UnsupportedEventTypeError:
+            self.ros_publisher = node.create_publisher(spec.msg_type, spec.name, spec.qos)
+
+    def _on_matched(self, status: Any) -> None:
+        self._dds_readers = status.current_count
 
     @property
     def topic_name(self) -> str:
@@ -86,9 +98,12 @@ class LinkPublisher:
     def publish(self, msg: Any) -> None:
         for sub in self._subscribers:
             sub.deliver(msg)
-        # get_subscription_count() counts DDS readers only: in-process link subscribers never
-        # create one, so this is non-zero exactly when someone outside the fast path listens.
-        if self.ros_publisher.get_subscription_count():
+        # Only DDS readers count: in-process link subscribers never create one, so this is
+        # non-zero exactly when someone outside the fast path listens.
+        readers = self._dds_readers
+        if readers is None:
+            readers = self.ros_publisher.get_subscription_count()
+        if readers:
             self.ros_publisher.publish(msg)
 
     def destroy(self) -> None:
@@ -121,8 +136,7 @@ class LinkBus:
     # -- creation ---------------------------------------------------------------------------
     def create_publisher(self, node: Node, spec: TopicSpec) -> LinkPublisher:
         name = node.resolve_topic_name(spec.name)
-        pub = LinkPublisher(self, node, spec, name, node.create_publisher(
-            spec.msg_type, spec.name, spec.qos))
+        pub = LinkPublisher(self, node, spec, name)
         with self._lock:
             self._publishers.setdefault(name, []).append(pub)
             subs = list(self._subscriptions.get(name, ()))
