@@ -44,6 +44,7 @@ from .profile import GroupSpec, NodeSpec, Profile, RecordSpec
 
 log = logging.getLogger('enbarr.bringup')
 RECORDER_NODE = 'recorder'
+_RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 RECORDER_GROUP = 'recorder'
 GRACE_SECONDS = 10.0
 
@@ -90,13 +91,21 @@ def _construct(profile: Profile, spec: NodeSpec, context: Context) -> Node:
     cli_args = ['--ros-args']
     for src, dst in spec.remappings:
         cli_args += ['-r', f'{src}:={dst}']
-    where = spec.origin or profile.path
+    where, key = spec.origin or profile.path, f'nodes.{spec.name}'
     try:
         return cls(node_name=spec.name, namespace=spec.namespace, context=context,
                    parameter_overrides=overrides, cli_args=cli_args,
                    use_global_arguments=False)
     except EnbarrError as err:
-        raise ProfileError(str(err), path=where, key=f'nodes.{spec.name}') from err
+        param = getattr(err, 'parameter', None)
+        if param is not None:  # point at the file that set the value, if a profile did
+            if param in spec.parameters:
+                key = f'nodes.{spec.name}.parameters.{param}'
+                where = profile.where(key)
+            elif param in profile.parameters:
+                key = f'parameters.{param}'
+                where = profile.where(key)
+        raise ProfileError(str(err), path=where, key=key) from err
     except (ValueError, TypeError) as err:  # rclpy refusing a name, a remap, a value
         raise ProfileError(f'{spec.plugin}: {err}', path=where,
                            key=f'nodes.{spec.name}') from err
@@ -108,7 +117,8 @@ def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) ->
         node = by_name.get(spec.name)
         if node is None:
             continue
-        declared = sorted(node._parameters)  # what the node declared (rclpy keeps them here)
+        declared = sorted(p for p in node._parameters  # what the node declared
+                          if p not in _RCLPY_PARAMETERS)
         for name in spec.parameters:
             if not node.has_parameter(name):
                 key = f'nodes.{spec.name}.parameters.{name}'
@@ -116,7 +126,7 @@ def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) ->
                 hint = f' (did you mean {close[0]!r}?)' if close else ''
                 raise ProfileError(
                     f'node {spec.name!r} ({spec.plugin}) has no parameter {name!r}{hint}; '
-                    f'it has: {", ".join(p for p in declared if p != "use_sim_time")}',
+                    f'it has: {", ".join(declared)}',
                     path=profile.where(key), key=key)
     if group is None:
         for name in profile.parameters:
@@ -169,9 +179,21 @@ class _Stop:
             signal.signal(sig, old)
 
 
+#: How long a Python thread may hold the GIL while another waits [s] (CPython default 5 ms).
+#: The chain thread wakes 400 times a second and must not wait behind a busy recorder or
+#: executor thread for a whole default interval: that alone would break the 2 ms latency goal.
+GIL_SWITCH_INTERVAL = 0.0005
+
+
+def configure_process() -> None:
+    """Process-wide settings for running nodes (bringup and the benchmark both call it)."""
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+
+
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
               check_only: bool = False) -> int:
     """Run the nodes of ``group`` (all when None) in this process until stopped."""
+    configure_process()
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[Node] = []

@@ -27,7 +27,15 @@ class RegistryError(EnbarrError):
 
 
 class ConfigurationError(EnbarrError):
-    """A node's parameters are inconsistent (e.g. a thruster geometry that cannot yaw)."""
+    """A node's parameters are wrong or inconsistent (e.g. a geometry that cannot yaw).
+
+    ``parameter`` names the parameter at fault when one is, so that bringup can point at the
+    profile file that set it.
+    """
+
+    def __init__(self, message: str, *, parameter: str | None = None):
+        self.parameter = parameter
+        super().__init__(message)
 
 
 class AllocationError(ConfigurationError):

@@ -17,6 +17,7 @@ from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -122,15 +123,21 @@ class SettingsBinding(Generic[S]):
         for spec in specs:
             try:
                 node.declare_parameter(spec.name, spec.default, spec.descriptor())
-            except Exception as err:  # rclpy raises several types for a bad override
+            except InvalidParameterTypeException as err:
+                given = getattr(node, '_parameter_overrides', {}).get(spec.name)
+                got = f', got {given.value!r}' if given is not None else ''
                 raise ConfigurationError(
-                    f'node {node.get_name()!r}: parameter {spec.name!r}: {err} '
-                    f'(expected {_type_text(spec)})') from err
+                    f'node {node.get_name()!r}: parameter {spec.name!r}: expected '
+                    f'{_type_text(spec)}{got}', parameter=spec.name) from err
+            except Exception as err:  # rclpy refuses values out of the declared range
+                raise ConfigurationError(f'node {node.get_name()!r}: parameter '
+                                         f'{spec.name!r}: {err}', parameter=spec.name) from err
         values = self.values()
         for spec in specs:
             reason = spec.check(values[spec.name])
             if reason:
-                raise ConfigurationError(f'node {node.get_name()!r}: parameter {reason}')
+                raise ConfigurationError(f'node {node.get_name()!r}: parameter {reason}',
+                                         parameter=spec.name)
         try:
             self.settings: S = build(values)
         except ValueError as err:
