@@ -66,11 +66,12 @@ def run_ros(args: argparse.Namespace) -> dict[str, Any]:
 
     from enbarr_interfaces.links import LinkBus
 
-    from .bringup import build_nodes, shutdown_nodes
+    from .bringup import build_nodes, configure_process, shutdown_nodes
     from .profile import apply_environment
 
     prof = _chain_profile(args)
     apply_environment(prof)
+    configure_process()
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
