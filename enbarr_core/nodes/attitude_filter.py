@@ -86,6 +86,8 @@ class AttitudeFilterNode(EnbarrNode):
             return
         last, self._last_ns = self._last_ns, t
         if last is None or t - last > self._max_gap_ns:
+            if last is not None:  # a gap (not the first sample): dropped and counted
+                self.rejected += 1
             self.filter.reset()
             return
         if t <= last:
