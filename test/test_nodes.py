@@ -718,3 +718,31 @@ def test_simulator_truth_and_sim_imu_errors(context, executor):
     assert raw[stamps[0]].orientation_covariance[0] == -1.0
     m = np.array([convert.vector3_to_array(mags[s].magnetic_field) for s in stamps])
     assert m.mean(axis=0) == pytest.approx([0.0, 1.8e-5, -4.8e-5], abs=2e-7)
+
+
+def test_velocity_control_drops_out_of_order_imu(context, executor):
+    """A late or repeated IMU stamp is dropped and counted; the loop state is kept (a reset
+    would drop the reference model's velocity and jolt the commanded force)."""
+    node = add(executor, VelocityControlNode(node_name='control_loop', context=context))
+    feeder = probe(context, executor, 'feeder')
+    imu_pub = feeder.create_link_publisher(topics.IMU)
+    goal_pub = feeder.create_link_publisher(topics.TRAJECTORY_REQUEST)
+    taus: list[np.ndarray] = []
+    feeder.create_link_subscription(
+        topics.TRAJECTORY_CORRECTED, lambda m: taus.append(convert.wrench_to_tau(m.wrench)))
+    LinkBus.of(context).connect()
+    goal = TwistStamped()
+    goal.twist.linear.x = 0.3
+    goal_pub.publish(goal)
+    t = 1_000_000_000
+    for _ in range(50):
+        t += 10_000_000
+        imu_pub.publish(_imu(t, rate_z=0.0))
+    ref_before = node.reference.nu_ref.copy()
+    assert ref_before[0] > 0.1 and len(taus) == 49
+    imu_pub.publish(_imu(t - 5_000_000, rate_z=0.0))  # from the past
+    imu_pub.publish(_imu(t, rate_z=0.0))              # repeated
+    assert node.rejected == 2 and len(taus) == 49
+    np.testing.assert_array_equal(node.reference.nu_ref, ref_before)
+    imu_pub.publish(_imu(t + 10_000_000, rate_z=0.0))
+    assert len(taus) == 50 and abs(taus[-1][0] - taus[-2][0]) < 0.5

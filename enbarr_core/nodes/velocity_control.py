@@ -104,6 +104,7 @@ class VelocityControlNode(EnbarrNode):
         self._goal_ns: int | None = None
         self._last_ns: int | None = None
         self._linear = np.full(3, math.nan)
+        self.rejected = 0
         self.binding = self.bind_settings(SPECS, build_settings, self._apply)
         self._pub = self.create_link_publisher(topics.TRAJECTORY_CORRECTED)
         self.create_link_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
@@ -139,8 +140,12 @@ class VelocityControlNode(EnbarrNode):
 
     def _on_imu(self, msg: Imu) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
-        last, self._last_ns = self._last_ns, t
-        if last is None or t - last > self._max_gap_ns or t <= last:
+        last = self._last_ns
+        if last is not None and t <= last:  # out of order or repeated: drop, keep the state
+            self.rejected += 1
+            return
+        self._last_ns = t
+        if last is None or t - last > self._max_gap_ns:
             self.controller.reset()
             self.reference.reset()
             return
