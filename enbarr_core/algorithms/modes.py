@@ -1,0 +1,133 @@
+"""Operator modes of a DP vessel driven by a DualShock 4 (CS Saucer manual, section 3.2.5).
+
+The vessel starts in manual mode: the sticks command surge, sway and yaw force. Triangle asks
+for automatic mode (hold the pose where the vessel is), square for guidance (follow the
+configured path), and the manual button returns to manual. A request is refused, with a
+reason, when it is unsafe: automatic or guidance need a fresh pose estimate, guidance needs
+a path. Losing the joystick (no sample for ``joy_timeout``), or the pose estimate going stale
+while the vessel is automatic, falls back to manual with zero force.
+
+Joystick conventions are those of ``sensor_msgs/Joy`` (ds4_driver with standard messages, the
+Linux joystick driver): sticks in -1..1, up and left positive, which matches REP-103 FLU:
+stick up = surge ahead, stick left = sway to port, right stick left = yaw counter-clockwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import enum
+import math
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+class Mode(enum.Enum):
+    MANUAL = 'manual'
+    AUTOMATIC = 'automatic'
+    GUIDANCE = 'guidance'
+
+
+@dataclass(frozen=True)
+class Ds4Mapping:
+    """Which ``Joy`` axis and button does what (indices of ``axes``/``buttons``)."""
+
+    axis_surge: int = 1        # left stick, up = +1
+    axis_sway: int = 0         # left stick, left = +1
+    axis_yaw: int = 3          # right stick, left = +1
+    button_automatic: int = 2  # triangle
+    button_guidance: int = 3   # square
+    button_manual: int = 0     # cross
+    deadzone: float = 0.05     # |axis| below this reads 0
+
+    def validate(self) -> None:
+        for name in ('axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic',
+                     'button_guidance', 'button_manual'):
+            if getattr(self, name) < 0:
+                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
+        buttons = (self.button_automatic, self.button_guidance, self.button_manual)
+        if len(set(buttons)) != 3:
+            raise ValueError(f'mode buttons must differ, got {buttons}')
+        if not 0.0 <= self.deadzone < 1.0:
+            raise ValueError(f'deadzone must be in [0, 1), got {self.deadzone}')
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A mode change, or a refused request (``accepted`` False, ``reason`` says why)."""
+
+    requested: Mode
+    previous: Mode
+    accepted: bool
+    reason: str
+
+
+class ModeManager:
+    """Turns joystick samples and estimator health into the operator mode and manual force."""
+
+    def __init__(self, mapping: Ds4Mapping = Ds4Mapping(),
+                 tau_max: Sequence[float] = (1.0, 1.0, 0.1), joy_timeout: float = 0.5) -> None:
+        mapping.validate()
+        self.mapping = mapping
+        self.tau_max = np.asarray(tau_max, dtype=float)
+        self.joy_timeout = joy_timeout
+        self.mode = Mode.MANUAL
+        self.tau_manual: NDArray[np.float64] = np.zeros(3)
+        self.rejected_samples = 0
+        self._buttons: tuple[int, ...] = ()
+        self._last_joy: float | None = None
+
+    def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float,
+               estimate_fresh: bool, has_path: bool) -> list[Transition]:
+        """One ``Joy`` sample at time ``now`` [s]. Non-finite axes or missing indices
+        reject the whole sample (counted), as if it never arrived."""
+        m = self.mapping
+        try:
+            sticks = [axes[m.axis_surge], axes[m.axis_sway], axes[m.axis_yaw]]
+            pressed_now = [buttons[i] for i in (m.button_automatic, m.button_guidance,
+                                                m.button_manual)]
+        except IndexError:
+            self.rejected_samples += 1
+            return []
+        if not all(math.isfinite(a) and abs(a) <= 1.0 + 1e-6 for a in sticks):
+            self.rejected_samples += 1
+            return []
+        self._last_joy = now
+        sticks = [0.0 if abs(a) < m.deadzone else max(-1.0, min(1.0, a)) for a in sticks]
+        self.tau_manual = self.tau_max * np.array(sticks)
+        previous = dict(zip((m.button_automatic, m.button_guidance, m.button_manual),
+                            self._buttons or (0, 0, 0)))
+        self._buttons = tuple(pressed_now)
+        out = []
+        for button, mode in ((m.button_manual, Mode.MANUAL),
+                             (m.button_automatic, Mode.AUTOMATIC),
+                             (m.button_guidance, Mode.GUIDANCE)):
+            index = (m.button_automatic, m.button_guidance, m.button_manual).index(button)
+            if pressed_now[index] and not previous[button]:  # rising edge
+                out.append(self.request(mode, estimate_fresh, has_path))
+        return out
+
+    def request(self, mode: Mode, estimate_fresh: bool, has_path: bool) -> Transition:
+        previous = self.mode
+        if mode is previous:
+            return Transition(mode, previous, False, f'already {mode.value}')
+        if mode is not Mode.MANUAL and not estimate_fresh:
+            return Transition(mode, previous, False, 'no fresh pose estimate')
+        if mode is Mode.GUIDANCE and not has_path:
+            return Transition(mode, previous, False, 'no path configured')
+        self.mode = mode
+        return Transition(mode, previous, True, 'operator request')
+
+    def check(self, now: float, estimate_fresh: bool) -> Transition | None:
+        """Supervise: joystick loss or a stale estimate in automatic -> manual, zero force."""
+        if self._last_joy is not None and now - self._last_joy > self.joy_timeout:
+            self.tau_manual = np.zeros(3)
+            self._last_joy = None
+            previous, self.mode = self.mode, Mode.MANUAL
+            return Transition(Mode.MANUAL, previous, True, 'joystick lost')
+        if self.mode is not Mode.MANUAL and not estimate_fresh:
+            previous, self.mode = self.mode, Mode.MANUAL
+            self.tau_manual = np.zeros(3)
+            return Transition(Mode.MANUAL, previous, True, 'pose estimate stale')
+        return None
