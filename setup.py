@@ -20,6 +20,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/params', glob('params/*.yaml')),
+        ('share/' + package_name + '/params/scenarios', glob('params/scenarios/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

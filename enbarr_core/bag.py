@@ -183,3 +183,16 @@ class SegmentedBagWriter:
         tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
                                       default_flow_style=False, sort_keys=False))
         os.replace(tmp, self.path / 'metadata.yaml')
+
+
+def read_bag(path: str | os.PathLike[str]) -> dict[str, list[tuple[int, Any]]]:
+    """Every message of a rosbag2 bag, deserialized: ``{topic: [(receive time ns, msg)]}``
+    in time order (rosbags' own message classes; field names as in the ROS types)."""
+    from rosbags.rosbag2 import Reader
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    out: dict[str, list[tuple[int, Any]]] = {}
+    with Reader(path) as reader:
+        for conn, t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append(
+                (t, typestore.deserialize_cdr(raw, conn.msgtype)))
+    return out

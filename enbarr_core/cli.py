@@ -60,6 +60,11 @@ def _bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
     return bench.main(args)
 
 
+def _scenario(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from . import scenario
+    return scenario.main(args)
+
+
 def _list(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from . import profile as profiles, registry
     if args.what == 'nodes':
@@ -89,6 +94,14 @@ def build_parser() -> argparse.ArgumentParser:
     from .bench import add_arguments
     add_arguments(p)
     p.set_defaults(func=_bench)
+    p = sub.add_parser('scenario', help='run a simulated scenario headless (prints JSON)',
+                       description='Run a named simulated scenario faster than real time, '
+                       'record it, print its metrics as one JSON line and write a PNG plot. '
+                       'Scenarios: station_keeping, box_path, manual_to_auto, mocap_dropout '
+                       '(params/scenarios/).')
+    from .scenario import add_arguments as scenario_arguments
+    scenario_arguments(p)
+    p.set_defaults(func=_scenario)
     p = sub.add_parser('list', help='list known nodes or installed profiles')
     p.add_argument('what', choices=('nodes', 'profiles'))
     p.set_defaults(func=_list)

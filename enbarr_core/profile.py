@@ -38,7 +38,7 @@ from . import registry
 from .errors import ProfileError, RegistryError
 
 TOP_KEYS = ('profile', 'description', 'include', 'environment', 'parameters', 'nodes',
-            'groups', 'record')
+            'groups', 'record', 'scenario')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
 RECORD_KEYS = ('path', 'topics', 'segment_seconds')
@@ -85,6 +85,7 @@ class Profile:
     record: RecordSpec | None
     files: tuple[str, ...]
     origins: Mapping[str, str] = field(default_factory=dict, repr=False)
+    scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
 
     def node(self, name: str) -> NodeSpec:
         for n in self.nodes:
@@ -282,6 +283,8 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                                        path=where, key=f'{gkey}.{k}')
             _expect_number(g, 'restart_limit', where, gkey, integer=True)
             _expect_number(g, 'restart_delay', where, gkey)
+    if 'scenario' in raw:
+        _expect_mapping(raw['scenario'], where, 'scenario')
     record = raw.get('record')
     if record is not None:
         _expect_mapping(record, where, 'record')
@@ -462,7 +465,8 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
         description=merged.get('description', ''),
         environment=dict(merged.get('environment') or {}), parameters=dict(common),
         nodes=tuple(nodes), groups=groups,
-        record=record, files=files, origins=dict(origins))
+        record=record, files=files, origins=dict(origins),
+        scenario=merged.get('scenario'))
 
 
 def _origin(origins: Mapping[str, str], key: str, default: str) -> str:

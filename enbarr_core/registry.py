@@ -32,11 +32,19 @@ BUILTIN: dict[str, str] = {
     'rov_simulator': 'enbarr_core.nodes.rov_simulator:RovSimulatorNode',
     'scripted_commands': 'enbarr_core.nodes.scripted_commands:ScriptedCommandsNode',
     'recorder': 'enbarr_core.nodes.recorder:RecorderNode',
+    'saucer_simulator': 'enbarr_core.nodes.saucer_simulator:SaucerSimulatorNode',
+    'dp_observer': 'enbarr_core.nodes.dp_observer:DpObserverNode',
+    'dp_control': 'enbarr_core.nodes.dp_control:DpControlNode',
+    'azimuth_allocation': 'enbarr_core.nodes.azimuth_allocation:AzimuthAllocationNode',
+    'pwm_mapper': 'enbarr_core.nodes.pwm_mapper:PwmMapperNode',
     # plugins
     'sim_imu': 'enbarr_plugins.sensors.sim_imu:SimImuNode',
     'sim_thrusters': 'enbarr_plugins.motors.sim_thrusters:SimThrustersNode',
     'sim_stepper': 'enbarr_plugins.io.sim_stepper:SimStepperNode',
     'sim_gpio': 'enbarr_plugins.io.sim_gpio:SimGpioNode',
+    'sim_mocap': 'enbarr_plugins.mocap.sim_mocap:SimMocapNode',
+    'sim_arduino': 'enbarr_plugins.motors.sim_arduino:SimArduinoNode',
+    'scripted_joy': 'enbarr_plugins.joystick.scripted_joy:ScriptedJoyNode',
 }
 
 

@@ -68,6 +68,45 @@ def set_wrench(w: Wrench, tau: Any) -> None:
     set_vector3(w.torque, tau[3:6])
 
 
+def yaw_to_quaternion(psi: float, out: Any) -> None:
+    """Write the quaternion of a rotation ``psi`` [rad] about z into ``out``."""
+    out.x, out.y = 0.0, 0.0
+    out.z, out.w = math.sin(0.5 * psi), math.cos(0.5 * psi)
+
+
+def quaternion_to_yaw(q: Any) -> float:
+    """Yaw [rad] (about z, ENU: counter-clockwise from east) of a ``Quaternion``."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def pose_to_eta(pose: Any) -> NDArray[np.float64]:
+    """``geometry_msgs/Pose`` -> eta = [x, y, psi] of a 3-DOF vessel."""
+    return np.array((pose.position.x, pose.position.y, quaternion_to_yaw(pose.orientation)))
+
+
+def set_pose_eta(pose: Any, eta: Any) -> None:
+    pose.position.x, pose.position.y, pose.position.z = float(eta[0]), float(eta[1]), 0.0
+    yaw_to_quaternion(float(eta[2]), pose.orientation)
+
+
+def twist_to_nu3(t: Twist) -> NDArray[np.float64]:
+    """``geometry_msgs/Twist`` -> nu = [u, v, r] of a 3-DOF vessel."""
+    return np.array((t.linear.x, t.linear.y, t.angular.z))
+
+
+def set_twist_nu3(t: Twist, nu: Any) -> None:
+    t.linear.x, t.linear.y, t.angular.z = float(nu[0]), float(nu[1]), float(nu[2])
+
+
+def wrench_to_tau3(w: Wrench) -> NDArray[np.float64]:
+    """``geometry_msgs/Wrench`` -> tau = [X, Y, N] of a 3-DOF vessel."""
+    return np.array((w.force.x, w.force.y, w.torque.z))
+
+
+def set_wrench_tau3(w: Wrench, tau: Any) -> None:
+    w.force.x, w.force.y, w.torque.z = float(tau[0]), float(tau[1]), float(tau[2])
+
+
 def set_covariance3(field: Any, cov: NDArray[np.float64]) -> None:
     """Write a 3x3 covariance into a ``float64[9]`` message field, row-major."""
     field[:] = np.asarray(cov, dtype=float).reshape(9)

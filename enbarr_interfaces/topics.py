@@ -16,12 +16,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TwistStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
-from sensor_msgs.msg import Imu, JointState, MagneticField
+from sensor_msgs.msg import Imu, JointState, Joy, MagneticField
+from std_msgs.msg import Float64, String
 
 #: Commands and events: nothing may be lost, a short queue.
 COMMAND_QOS = QoSProfile(
@@ -29,6 +30,10 @@ COMMAND_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE)
 #: High-rate streams: the newest sample matters, late ones are worthless.
 SENSOR_QOS = qos_profile_sensor_data
+#: States that a late joiner must still learn (the operator mode): the last one is kept.
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 BODY_FRAME = 'base_link'
 WORLD_FRAME = 'odom'
@@ -106,7 +111,46 @@ DIAGNOSTICS = TopicSpec(
     '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
     'Counters and states of nodes (rejected commands, failsafe, timeouts).')
 
+# -- surface vessels (CS Saucer): motion capture, observer, DP control, azimuths, PWM -------
+MOCAP_POSE = TopicSpec(
+    'mocap/pose', PoseStamped, SENSOR_QOS, 'm, quaternion', WORLD_FRAME,
+    'Pose of base_link from motion capture (the manual\'s Qualisys "GPS").', fast=True)
+JOY = TopicSpec(
+    'joy', Joy, SENSOR_QOS, 'normalized -1..1 axes, 0/1 buttons', '',
+    'Operator joystick (DualShock 4 through ds4_driver or joy, standard messages).')
+OBSERVER_ODOMETRY = TopicSpec(
+    'observer/odometry', Odometry, SENSOR_QOS, 'm, rad; m/s, rad/s', WORLD_FRAME,
+    'Observer estimate: pose eta_hat in odom, body velocity nu_hat (child base_link).',
+    fast=True)
+OBSERVER_BIAS = TopicSpec(
+    'observer/bias', WrenchStamped, SENSOR_QOS, 'N, N m', WORLD_FRAME,
+    'Observer estimate of the slowly varying force bias (current, wind), world frame.',
+    fast=True)
+OBSERVER_AGE = TopicSpec(
+    'observer/measurement_age', Float64, SENSOR_QOS, 's', '',
+    'Time since the observer last accepted a pose; grows while it dead-reckons.', fast=True)
+MODE = TopicSpec(
+    'mode', String, LATCHED_QOS, '', '',
+    'Operator mode: manual, automatic or guidance (latched).')
+GUIDANCE_REFERENCE = TopicSpec(
+    'guidance/reference', Odometry, SENSOR_QOS, 'm, rad; m/s, rad/s', WORLD_FRAME,
+    'Guidance reference: pose eta_d in odom, body velocity nu_d.', fast=True)
+AZIMUTH_COMMANDS = TopicSpec(
+    'azimuth_commands', JointState, SENSOR_QOS, 'effort N (signed thrust), position rad',
+    BODY_FRAME, 'Per-azimuth thrust and angle from the allocation.', fast=True)
+ALLOCATION_DELIVERED = TopicSpec(
+    'allocation/delivered', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
+    'Force the allocation can deliver (less than asked when saturated).', fast=True)
+PWM_DUTY = TopicSpec(
+    'pwm/duty_cycle', JointState, SENSOR_QOS, 'effort: duty cycle %', '',
+    'PWM duty cycle per channel (name: <azimuth>/motor, <azimuth>/servo), 4.3..9.4 %.',
+    fast=True)
+SIM_AZIMUTH_COMMAND = TopicSpec(
+    'sim/azimuth_command', JointState, SENSOR_QOS, 'effort N, position rad', BODY_FRAME,
+    'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)
+
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
     TRAJECTORY_CORRECTED, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
-    DIAGNOSTICS)
+    DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
+    GUIDANCE_REFERENCE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED, PWM_DUTY, SIM_AZIMUTH_COMMAND)

@@ -1,24 +1,12 @@
-"""Read back what a run recorded, for tests: messages by topic, deserialized by rosbags."""
+"""Read back what a run recorded, for tests (the project's own reader, plus stamps)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-from rosbags.rosbag2 import Reader
-from rosbags.typesys import get_typestore, Stores
+from enbarr_core.bag import read_bag
 
-TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
-    """``{topic: [(receive time ns, message), ...]}`` in time order."""
-    out: dict[str, list[tuple[int, Any]]] = {}
-    with Reader(path) as reader:
-        for conn, t, raw in reader.messages():
-            out.setdefault(conn.topic, []).append(
-                (t, TYPESTORE.deserialize_cdr(raw, conn.msgtype)))
-    return out
+__all__ = ['read_bag', 'stamp']
 
 
 def stamp(msg: Any) -> float:

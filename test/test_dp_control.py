@@ -448,3 +448,21 @@ def test_output_arrays_are_fresh():
     b = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), hold(np.ones(3)), DT)
     assert isinstance(a, DpOutput) and a.tau is not b.tau
     assert a.saturated.dtype == np.bool_ and a.error.shape == (3,)
+
+
+def test_masked_integral_bleeds_off_after_bumpless_entry():
+    """Entering line-of-sight guidance bumplessly leaves a force in the integral; a DOF
+    tracked by velocity only (mask False) cannot integrate it back, so it must bleed off
+    over gain_ramp_time instead of biasing the whole leg."""
+    from enbarr_core.algorithms.dp_control import DpController, saucer_dp_settings
+    from enbarr_core.algorithms.guidance import Reference
+    ctrl = DpController(saucer_dp_settings())
+    ref = Reference(eta_d=np.zeros(3), nu_d=np.zeros(3), nu_d_dot=np.zeros(3),
+                    position_mask=(False, False, True))
+    ctrl.reset(tau_now=(1.0, -0.5, 0.0))
+    first = ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.02)
+    np.testing.assert_allclose(first.tau, (1.0, -0.5, 0.0), atol=1e-12)  # still bumpless
+    for _ in range(int(5.0 / 0.02)):  # 5 gain_ramp_times
+        out = ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.02)
+    assert np.all(np.abs(ctrl.integral[:2]) < 0.01)
+    assert np.all(np.abs(out.tau[:2]) < 0.01)

@@ -216,7 +216,8 @@ class DpController:
         integral = [0.0, 0.0, 0.0]
         tau = [0.0, 0.0, 0.0]
         saturated = [False, False, False]
-        if self._tau_now is not None:
+        entry = self._tau_now is not None
+        if entry:
             # Bumpless entry: I = base - sat(tau_now), so that tau = tau_now now.
             for j in range(3):
                 t_now = min(max(self._tau_now[j], -tau_max[j]), tau_max[j])
@@ -250,6 +251,13 @@ class DpController:
 
         i1, i2, i3 = integral
         self._z = [c * i1 - s * i2, s * i1 + c * i2, i3]  # z = R I
+        if not entry and not (mx and my and mpsi):
+            # A DOF without a pose error cannot integrate back what a bumpless entry (or an
+            # earlier hold) left in its integral: that would be a permanent offset in
+            # velocity tracking (line-of-sight legs). It bleeds off over gain_ramp_time.
+            ramp = self._settings.gain_ramp_time
+            decay = math.exp(-dt / ramp) if ramp > 0.0 else 0.0
+            self._z = [z if m else z * decay for z, m in zip(self._z, (mx, my, mpsi))]
         return DpOutput(np.array(tau), np.array((f1, f2, f3)), np.array(integral),
                         np.array(saturated), np.array(err))
 

@@ -1,0 +1,87 @@
+"""Simulated Arduino PWM board with the Saucer's ESCs and servos: reads ``pwm/duty_cycle``
+(percent per channel) and sets the simulated azimuths (``sim/azimuth_command``) through the
+same calibration tables the real hardware was measured with. Like firmware with a watchdog,
+it drives every channel to its neutral duty when duty cycles stop for ``command_timeout``.
+Duties outside the manual's 4.3 .. 9.4 % or non-finite ones are refused and counted.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+from sensor_msgs.msg import JointState
+
+from enbarr_core.azimuths import declare_azimuths, declare_pwm
+from enbarr_core.algorithms.azimuth import PwmCalibration
+from enbarr_core.node import EnbarrNode
+from enbarr_core.params import ParamSpec
+from enbarr_interfaces import topics
+
+SPECS = [
+    ParamSpec('command_timeout', 0.25, 'Neutral when duty cycles stop for this long', 's',
+              0.005, 10.0),
+]
+
+
+class SimArduinoNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'arduino', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._lock = threading.Lock()
+        self.names = [a.name for a in declare_azimuths(self)]
+        self.calibration = declare_pwm(self)
+        self._channels = {f'{n}/{k}': (i, k) for i, n in enumerate(self.names)
+                          for k in ('motor', 'servo')}
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, lambda v: v, self._apply)
+        self.refused = 0
+        self.timeouts = 0
+        self.neutral = True
+        self._last_ns = 0
+        self._pub = self.create_link_publisher(topics.SIM_AZIMUTH_COMMAND)
+        self.create_link_subscription(topics.PWM_DUTY, self._on_duty)
+        self.create_timer(0.05, self._watchdog)
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        self.settings = v
+        self._timeout_ns = int(v['command_timeout'] * 1e9)
+
+    def _on_duty(self, msg: JointState) -> None:
+        c = self.calibration
+        thrust = [0.0] * len(self.names)
+        angle = [0.0] * len(self.names)
+        for name, duty in zip(msg.name, msg.effort):
+            channel = self._channels.get(name)
+            if channel is None or not math.isfinite(duty) or not (
+                    PwmCalibration.DUTY_MIN <= duty <= PwmCalibration.DUTY_MAX):
+                self.refused += 1
+                return
+            i, kind = channel
+            if kind == 'motor':
+                thrust[i] = c.duty_to_thrust(duty)
+            else:
+                angle[i] = c.duty_to_angle(duty)
+        with self._lock:
+            self._last_ns = time.monotonic_ns()
+            self.neutral = not any(thrust)
+            self._send(thrust, angle)
+
+    def _send(self, thrust: list[float], angle: list[float]) -> None:
+        out = JointState(name=self.names, effort=thrust, position=angle)
+        out.header.stamp = self.get_clock().now().to_msg()
+        self._pub.publish(out)
+
+    def _watchdog(self) -> None:
+        with self._lock:
+            if self.neutral or time.monotonic_ns() - self._last_ns <= self._timeout_ns:
+                return
+            self.timeouts += 1
+            self.neutral = True
+            c = self.calibration
+            self._send([c.duty_to_thrust(c.neutral_thrust_duty)] * len(self.names),
+                       [c.duty_to_angle(c.neutral_angle_duty)] * len(self.names))
+        self.get_logger().warn('PWM input stopped: outputs neutral')
