@@ -57,6 +57,14 @@ def _waypoints(profile: Any) -> np.ndarray:
     return np.zeros((0, 2))
 
 
+def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
+    for n in profile.nodes:
+        w = {**profile.parameters, **n.parameters}.get('dropout_windows')
+        if n.plugin == 'sim_mocap' and w and w != [0.0]:
+            return list(zip(w[::2], w[1::2]))
+    return []
+
+
 def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     msgs = read_bag(bag)
     t, eta = _series(msgs['/sim/odometry'])
@@ -90,6 +98,14 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
             out.update({'settled': False, 'time_to_settle_s': None})
             return out
         pe, he = pos_err[settled_i:], head_err[settled_i:]
+        windows = _dropout_windows(profile)
+        if windows:  # error while the motion capture was lost and the second after it
+            ts = t[sel] - t0
+            during = np.zeros(len(ts), dtype=bool)
+            for a, b in windows:
+                during |= (ts >= a) & (ts < b + 1.0)
+            if during.any():
+                out['dropout_position_error_max_m'] = round(float(pos_err[during].max()), 4)
         out.update({
             'settled': True,
             'time_to_settle_s': round(float(t[sel][settled_i] - start), 2),
