@@ -86,7 +86,9 @@ def build_nodes(profile: Profile, context: Context,
 
 def _construct(profile: Profile, spec: NodeSpec, context: Context) -> Node:
     cls = registry.resolve(spec.plugin)
-    values = {**profile.parameters, **spec.parameters}
+    # No type description service unless a profile asks: every service is one more entity
+    # that the executor walks at each wake-up, and the types here are all standard ones.
+    values = {'start_type_description_service': False, **profile.parameters, **spec.parameters}
     overrides = [Parameter(k, value=v) for k, v in values.items()]
     cli_args = ['--ros-args']
     for src, dst in spec.remappings:

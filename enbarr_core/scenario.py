@@ -45,11 +45,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    'runs/scenario-NAME-<time>)')
     p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                    help='override a node parameter; VALUE is YAML (repeatable)')
+    p.add_argument('--duration', type=float, metavar='S',
+                   help='simulated seconds (default: the scenario\'s own)')
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
 
 
 def main(args: argparse.Namespace) -> int:
-    result = run(args.name, args.output, args.set, plot=not args.no_plot)
+    if args.duration is not None and not args.duration > 0:
+        raise EnbarrError(f'--duration must be positive, got {args.duration}')
+    result = run(args.name, args.output, args.set, plot=not args.no_plot,
+                 duration=args.duration)
     print(json.dumps(result))
     return 0
 
@@ -85,7 +90,7 @@ def resolve(name: str) -> str:
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
-        plot: bool = True) -> dict[str, Any]:
+        plot: bool = True, duration: float | None = None) -> dict[str, Any]:
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -99,6 +104,8 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
 
     profile = load_profile(resolve(name), overrides)
     spec = scenario_spec(profile)
+    if duration is not None:
+        spec = replace(spec, duration=duration)
     out = Path(output or f'runs/scenario-{profile.name}-{time.strftime("%Y%m%d-%H%M%S")}')
     if out.exists() and any(out.iterdir()):
         raise EnbarrError(f'{out}: exists and is not empty')

@@ -33,7 +33,7 @@ SPECS = [
     ParamSpec('max_age', 0.5, 'Commands stamped earlier than this are stale', 's', 0.0, 60.0),
     ParamSpec('max_future', 0.05, 'Commands stamped later than now + this are refused', 's',
               0.0, 60.0),
-    ParamSpec('rate', 20.0, 'Rate at which the goal is republished', 'Hz', 1.0, 1000.0,
+    ParamSpec('rate', 10.0, 'Rate at which the goal is republished', 'Hz', 1.0, 1000.0,
               read_only=True),
 ]
 _EXECUTOR = re.compile(r'^[A-Za-z][A-Za-z0-9_/]*$')

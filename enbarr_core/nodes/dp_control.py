@@ -31,7 +31,7 @@ from enbarr_interfaces import convert, topics
 from ..algorithms.dp_control import DpControlSettings, DpController, saucer_dp_settings
 from ..algorithms.guidance import HoldPose, LosPath
 from ..algorithms.modes import Ds4Mapping, Mode, ModeManager, Transition
-from ..node import EnbarrNode
+from ..node import EnbarrNode, WATCHDOG_PERIOD
 from ..params import ParamSpec
 
 _D = saucer_dp_settings()
@@ -93,14 +93,14 @@ def build(v: dict[str, Any]) -> dict[str, Any]:
                          v['joy.button_automatic'], v['joy.button_guidance'],
                          v['joy.button_manual'], v['joy.deadzone'])
     mapping.validate()
+    if v['path.heading'] not in ('fixed', 'course'):  # checked with or without a path
+        raise ValueError(f'path.heading: expected fixed or course, got {v["path.heading"]!r}')
     w = v['path.waypoints']
     waypoints: list[tuple[float, float]] = []
     if w != [0.0]:
         if len(w) % 2 or len(w) < 4:
             raise ValueError('path.waypoints: expected x0, y0, x1, y1, ... (at least 2 points)')
         waypoints = list(zip(w[::2], w[1::2]))
-        if v['path.heading'] not in ('fixed', 'course'):
-            raise ValueError(f'path.heading: expected fixed or course, got {v["path.heading"]!r}')
         LosPath(waypoints, v['path.speed'], v['path.lookahead'], v['path.acceptance_radius'],
                 heading=v['path.heading'])
     return {**v, 'control': control, 'mapping': mapping, 'waypoints': waypoints}
@@ -130,7 +130,7 @@ class DpControlNode(EnbarrNode):
         self.create_link_subscription(topics.OBSERVER_BIAS, self._on_bias)
         self.create_link_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_subscription(Joy, topics.JOY.name, self._on_joy, topics.JOY.qos)
-        self.create_timer(0.1, self._supervise)
+        self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))
 

@@ -21,7 +21,7 @@ from std_msgs.msg import Float64
 from enbarr_interfaces import convert, topics
 
 from ..algorithms.dp_observer import ObserverSettings, PassiveObserver, saucer_observer_settings
-from ..node import EnbarrNode
+from ..node import EnbarrNode, WATCHDOG_PERIOD
 from ..params import ParamSpec
 
 _D = saucer_observer_settings()
@@ -43,8 +43,8 @@ SPECS = [
               100.0),
     ParamSpec('max_heading_jump', 0.5, 'Reject headings this far from the estimate', 'rad',
               1e-3, 3.2),
-    ParamSpec('rate', 50.0, 'Dead-reckoning rate when poses stop', 'Hz', 1.0, 1000.0,
-              read_only=True),
+    ParamSpec('rate', 50.0, 'Integration rate of dead reckoning when poses stop (checked at '
+              '10 Hz, integrated in steps of 1/rate)', 'Hz', 1.0, 1000.0, read_only=True),
 ]
 
 
@@ -78,7 +78,7 @@ class DpObserverNode(EnbarrNode):
         self._age_pub = self.create_link_publisher(topics.OBSERVER_AGE)
         self.create_link_subscription(topics.ALLOCATION_DELIVERED, self._on_tau)
         self.create_link_subscription(topics.MOCAP_POSE, self._on_pose)
-        self.create_timer(self._period_ns * 1e-9, self._dead_reckon)
+        self.create_timer(WATCHDOG_PERIOD, self._dead_reckon)
         self.create_timer(1.0, self._report)
 
     def _apply(self, settings: ObserverSettings) -> None:
@@ -109,15 +109,21 @@ class DpObserverNode(EnbarrNode):
             return
         now = self.get_clock().now().nanoseconds
         if now - self._last_ns > 1.5 * self._period_ns:
-            self._step(None, now)
+            # Poses stopped: integrate up to now in steps of 1/rate, publish the newest.
+            n = -(-(now - self._last_ns) // self._period_ns)
+            for k in range(1, n + 1):
+                t = self._last_ns + (now - self._last_ns) // (n - k + 1)
+                self._step(None, t, publish=(k == n))
 
-    def _step(self, y: np.ndarray | None, t: int) -> None:
+    def _step(self, y: np.ndarray | None, t: int, publish: bool = True) -> None:
         dt = (t - self._last_ns) * 1e-9
         self._last_ns = t
         self.estimate = e = self.observer.step(y, self._tau, dt)
         if e.rejected_jump:
             self.rejected += 1
             self.get_logger().warn('implausible pose jump rejected', throttle_duration_sec=1.0)
+        if not publish:
+            return
         stamp = convert.ns_to_stamp(t)
         odom = Odometry()
         odom.header.stamp = stamp

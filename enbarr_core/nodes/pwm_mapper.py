@@ -20,7 +20,7 @@ from enbarr_interfaces import topics
 
 from ..azimuths import declare_azimuths, declare_pwm
 from ..errors import ConfigurationError
-from ..node import EnbarrNode
+from ..node import EnbarrNode, WATCHDOG_PERIOD
 from ..params import ParamSpec
 
 SPECS = [
@@ -55,7 +55,7 @@ class PwmMapperNode(EnbarrNode):
         self._last_ns = 0
         self._pub = self.create_link_publisher(topics.PWM_DUTY)
         self.create_link_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
-        self.create_timer(0.05, self._watchdog)
+        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
         self.safe_state()
 
     def _apply(self, v: dict[str, Any]) -> None:

@@ -19,7 +19,7 @@ SPECS = [
     ParamSpec('max_rate', 400.0, 'Step rate', 'steps/s', 1.0, 1e5),
     ParamSpec('min_position', -10000, 'Lowest position (end stop)', 'steps', -2**31, 2**31 - 1),
     ParamSpec('max_position', 10000, 'Highest position (end stop)', 'steps', -2**31, 2**31 - 1),
-    ParamSpec('update_rate', 20.0, 'Rate of the simulated motion', 'Hz', 1.0, 1000.0,
+    ParamSpec('update_rate', 10.0, 'Rate of the simulated motion', 'Hz', 1.0, 1000.0,
               read_only=True),
 ]
 

@@ -16,9 +16,9 @@ from sensor_msgs.msg import JointState
 
 from enbarr_core.azimuths import declare_azimuths, declare_pwm
 from enbarr_core.algorithms.azimuth import PwmCalibration
-from enbarr_core.node import EnbarrNode
+from enbarr_core.node import EnbarrNode, LatencyLog, WATCHDOG_PERIOD
 from enbarr_core.params import ParamSpec
-from enbarr_interfaces import topics
+from enbarr_interfaces import convert, topics
 
 SPECS = [
     ParamSpec('command_timeout', 0.25, 'Neutral when duty cycles stop for this long', 's',
@@ -41,10 +41,11 @@ class SimArduinoNode(EnbarrNode):
         self.refused = 0
         self.timeouts = 0
         self.neutral = True
+        self.latency = LatencyLog()  # pose stamp -> duty cycles applied
         self._last_ns = 0
         self._pub = self.create_link_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_link_subscription(topics.PWM_DUTY, self._on_duty)
-        self.create_timer(0.05, self._watchdog)
+        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v
@@ -69,6 +70,9 @@ class SimArduinoNode(EnbarrNode):
             self._last_ns = time.monotonic_ns()
             self.neutral = not any(thrust)
             self._send(thrust, angle)
+        if msg.header.stamp.sec:
+            self.latency.add(self.get_clock().now().nanoseconds
+                             - convert.stamp_to_ns(msg.header.stamp))
 
     def _send(self, thrust: list[float], angle: list[float]) -> None:
         out = JointState(name=self.names, effort=thrust, position=angle)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from enbarr_core.node import EnbarrNode
+from enbarr_core.node import EnbarrNode, LatencyLog, WATCHDOG_PERIOD
 from enbarr_core.params import ParamSpec
 from enbarr_core.thrusters import declare_thrusters
 from enbarr_interfaces import convert, topics
@@ -28,8 +28,6 @@ SPECS = [
               5.0),
     ParamSpec('command_timeout', 0.25, 'Neutral when no command arrives for this long', 's',
               0.005, 10.0),
-    ParamSpec('latency_samples', 4096, 'Size of the command latency ring buffer', '', 1,
-              1_000_000, read_only=True),
 ]
 
 
@@ -46,9 +44,7 @@ class SimThrustersNode(EnbarrNode):
         self._rev = np.array([t.max_reverse for t in self.thrusters])
         self.settings: dict[str, Any] = {}
         self.bind_settings(SPECS, lambda v: v, self._apply)
-        n = self.settings['latency_samples']
-        self.latency_ns = np.zeros(n, dtype=np.int64)  # ring buffer, IMU stamp -> applied
-        self.latency_count = 0
+        self.latency = LatencyLog()  # IMU sample stamp -> command applied
         self.command = np.zeros(len(self.names))   # applied, normalized
         self.thrust = np.zeros(len(self.names))    # produced [N]
         self.neutral = True
@@ -60,7 +56,7 @@ class SimThrustersNode(EnbarrNode):
         self._output_pub = self.create_link_publisher(topics.THRUSTER_OUTPUT)
         self._thrust_pub = self.create_link_publisher(topics.SIM_THRUST)
         self.create_link_subscription(topics.THRUSTER_COMMANDS, self._on_command)
-        self.create_timer(0.05, self._watchdog)
+        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
         self.create_timer(1.0, self._report)
         self.safe_state()  # start neutral, also after a restart
 
@@ -88,9 +84,8 @@ class SimThrustersNode(EnbarrNode):
         with self._lock:
             self._last_cmd_ns = now
             self._output(cmd, now)
-        lat = self.get_clock().now().nanoseconds - convert.stamp_to_ns(msg.header.stamp)
-        self.latency_ns[self.latency_count % len(self.latency_ns)] = lat
-        self.latency_count += 1
+        self.latency.add(self.get_clock().now().nanoseconds
+                         - convert.stamp_to_ns(msg.header.stamp))
 
     def _output(self, cmd: np.ndarray, now_ns: int) -> None:
         """Apply ``cmd`` (normalized); caller holds the lock."""
