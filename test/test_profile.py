@@ -211,7 +211,7 @@ def test_unknown_top_key_lists_allowed_keys(tmp_path: Path) -> None:
         """)
     err = load_error(path)
     assert str(err) == (f'{path}: nodez: unknown key; expected one of: profile, description, '
-                        'include, environment, parameters, nodes, groups, record')
+                        'include, environment, parameters, nodes, groups, record, scenario')
     assert (err.path, err.key) == (path, 'nodez')
 
 
@@ -232,7 +232,7 @@ def test_missing_plugin_lists_known_names(tmp_path: Path) -> None:
         """)
     err = load_error(path)
     assert str(err).startswith(f'{path}: nodes.imu.plugin: every node needs a plugin')
-    assert 'known: attitude_filter, command_receiver,' in str(err)
+    assert 'known: attitude_filter, azimuth_allocation, command_receiver,' in str(err)
     assert 'sim_imu' in str(err)
 
 

@@ -99,14 +99,13 @@ class ModeManager:
         previous = dict(zip((m.button_automatic, m.button_guidance, m.button_manual),
                             self._buttons or (0, 0, 0)))
         self._buttons = tuple(pressed_now)
-        out = []
-        for button, mode in ((m.button_manual, Mode.MANUAL),
-                             (m.button_automatic, Mode.AUTOMATIC),
-                             (m.button_guidance, Mode.GUIDANCE)):
-            index = (m.button_automatic, m.button_guidance, m.button_manual).index(button)
-            if pressed_now[index] and not previous[button]:  # rising edge
-                out.append(self.request(mode, estimate_fresh, has_path))
-        return out
+        rising = [button for button, now_down in zip(
+            (m.button_automatic, m.button_guidance, m.button_manual), pressed_now)
+            if now_down and not previous[button]]
+        if m.button_manual in rising:  # manual wins over anything pressed with it (safety)
+            return [self.request(Mode.MANUAL, estimate_fresh, has_path)]
+        mode_of = {m.button_automatic: Mode.AUTOMATIC, m.button_guidance: Mode.GUIDANCE}
+        return [self.request(mode_of[b], estimate_fresh, has_path) for b in rising]
 
     def request(self, mode: Mode, estimate_fresh: bool, has_path: bool) -> Transition:
         previous = self.mode

@@ -123,6 +123,7 @@ class DpControlNode(EnbarrNode):
         self._bias = np.zeros(3)
         self._age = math.inf
         self._last_ns: int | None = None
+        self._estimate_ns: int | None = None  # node clock when the last estimate arrived
         self._tau_pub = self.create_link_publisher(topics.TRAJECTORY_CORRECTED)
         self._ref_pub = self.create_link_publisher(topics.GUIDANCE_REFERENCE)
         self._mode_pub = self.create_publisher(String, topics.MODE.name, topics.MODE.qos)
@@ -150,7 +151,10 @@ class DpControlNode(EnbarrNode):
         return self.manager.mode
 
     def _fresh(self) -> bool:
-        return self._eta is not None and self._age <= self.settings['estimate_max_age']
+        """A pose was accepted recently, and the observer itself is still publishing."""
+        limit = self.settings['estimate_max_age']
+        return (self._eta is not None and self._age <= limit and self._estimate_ns is not None
+                and self.get_clock().now().nanoseconds - self._estimate_ns <= limit * 1e9)
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -168,6 +172,7 @@ class DpControlNode(EnbarrNode):
         if self.manager.rejected_samples > before:
             self.get_logger().warn('joystick sample refused (non-finite or out-of-range axes, '
                                    'or too few axes/buttons)', throttle_duration_sec=1.0)
+            return  # as if it never arrived: no force republished on its behalf
         for t in transitions:
             self._transition(t)
         if self.manager.mode is Mode.MANUAL:
@@ -203,6 +208,7 @@ class DpControlNode(EnbarrNode):
         t = convert.stamp_to_ns(msg.header.stamp)
         last, self._last_ns = self._last_ns, t
         self._eta = eta
+        self._estimate_ns = self.get_clock().now().nanoseconds
         if self.manager.mode is Mode.MANUAL or self.guidance is None:
             return  # manual force goes out with each joystick sample
         if last is not None and t > last:
