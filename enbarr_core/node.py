@@ -101,6 +101,26 @@ class RateLoop:
                 self._stop.wait(delay)
 
 
+def sim_steps(time_ns: int, now_ns: int, period_ns: int,
+              max_steps: int) -> tuple[int, float, bool]:
+    """How a real-time simulator reaches ``now_ns`` from ``time_ns``: (steps, dt [s], skipped).
+
+    The span is cut into round(span / period) equal steps (at least one), so the simulated
+    state is exactly at the clock's present when it is published: its stamp is the time of
+    the truth it carries, and a sensor sample is not older than the tick that produced it.
+    A span longer than ``max_steps`` periods is cut to that (``skipped``: time was lost).
+    Driven by simulated time (``enbarr scenario``) every span is exactly one period.
+    """
+    span = now_ns - time_ns
+    if span <= 0:
+        return 0, 0.0, False
+    skipped = span > max_steps * period_ns
+    if skipped:
+        span = max_steps * period_ns
+    n = max(1, round(span / period_ns))
+    return n, span * 1e-9 / n, skipped
+
+
 class LatencyLog:
     """Ring buffer of sensor-stamp -> actuator latencies [ns], kept by actuator plugins so
     ``enbarr bench`` (and a curious user) can read what the chain really costs."""

@@ -733,8 +733,9 @@ def test_velocity_control_drops_out_of_order_imu(context, executor):
     LinkBus.of(context).connect()
     goal = TwistStamped()
     goal.twist.linear.x = 0.3
-    goal_pub.publish(goal)
     t = 1_000_000_000
+    convert.ns_to_stamp(t, goal.header.stamp)  # goal age is measured on the IMU time line
+    goal_pub.publish(goal)
     for _ in range(50):
         t += 10_000_000
         imu_pub.publish(_imu(t, rate_z=0.0))
@@ -746,3 +747,26 @@ def test_velocity_control_drops_out_of_order_imu(context, executor):
     np.testing.assert_array_equal(node.reference.nu_ref, ref_before)
     imu_pub.publish(_imu(t + 10_000_000, rate_z=0.0))
     assert len(taus) == 50 and abs(taus[-1][0] - taus[-2][0]) < 0.5
+
+
+def test_velocity_control_ignores_a_stale_goal(context, executor):
+    """A goal stamped more than goal_timeout before the IMU sample counts as zero."""
+    node = add(executor, VelocityControlNode(node_name='control_loop', context=context))
+    feeder = probe(context, executor, 'feeder')
+    imu_pub = feeder.create_link_publisher(topics.IMU)
+    goal_pub = feeder.create_link_publisher(topics.TRAJECTORY_REQUEST)
+    LinkBus.of(context).connect()
+    goal = TwistStamped()
+    goal.twist.linear.x = 0.3
+    convert.ns_to_stamp(1_000_000_000, goal.header.stamp)
+    goal_pub.publish(goal)
+    t = 1_000_000_000
+    for _ in range(90):  # 0.9 s: the goal is fresh, the reference reaches it
+        t += 10_000_000
+        imu_pub.publish(_imu(t, rate_z=0.0))
+    assert node.reference.nu_ref[0] > 0.25
+    for _ in range(250):  # samples go on without a gap; from 2.0 s the goal is stale
+        t += 10_000_000
+        imu_pub.publish(_imu(t, rate_z=0.0))
+    assert abs(node.reference.nu_ref[0]) < 1e-3
+    assert node.rejected == 0  # no gap, no reset: the goal timed out

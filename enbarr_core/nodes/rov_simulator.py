@@ -24,7 +24,7 @@ from ..algorithms.allocation import allocation_matrix
 from ..algorithms.kinematics import quat_from_euler, quat_to_euler
 from ..algorithms.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
 from ..errors import ConfigurationError
-from ..node import EnbarrNode
+from ..node import EnbarrNode, sim_steps
 from ..params import ParamSpec
 from ..thrusters import declare_thrusters
 
@@ -90,7 +90,6 @@ class RovSimulatorNode(EnbarrNode):
         self._odom_pub = self.create_link_publisher(topics.SIM_ODOMETRY)
         self.create_link_subscription(topics.SIM_THRUST, self._on_thrust)
         self._dt_ns = round(1e9 / v['rate'])
-        self._dt = self._dt_ns * 1e-9
         self._odom_every = max(1, round(v['rate'] / v['odometry_rate']))
         self.create_rate_loop(v['rate'], self.step)
         if v['status_period'] > 0.0:
@@ -124,30 +123,26 @@ class RovSimulatorNode(EnbarrNode):
     def step(self) -> None:
         """Advance the vehicle to the clock's present and publish the truth at the IMU.
 
-        Normally one fixed step of 1/rate. When the loop was late, the missed steps are
-        integrated now (up to ``MAX_CATCH_UP``), so simulated time keeps pace with the clock
-        and every stamp is the simulated time of the state it carries; beyond that the lost
-        time is skipped and counted in ``time_skips``.
+        Normally one step of about 1/rate; a late tick integrates the whole span in steps of
+        about 1/rate (up to ``MAX_CATCH_UP``, beyond that time is skipped and counted in
+        ``time_skips``). The truth is stamped with the time it is true at.
         """
         now = self.get_clock().now().nanoseconds
         if self.time_ns == 0:
             self.time_ns = now - self._dt_ns
-        n = (now - self.time_ns) // self._dt_ns
-        if n > MAX_CATCH_UP:
-            self.time_skips += 1
-            self.time_ns = now - MAX_CATCH_UP * self._dt_ns
-            n = MAX_CATCH_UP
-        if n < 1:
+        n, dt, skipped = sim_steps(self.time_ns, now, self._dt_ns, MAX_CATCH_UP)
+        if n == 0:
             return
+        self.time_skips += skipped
         tau = self.tau
         with self._lock:
             model = self._model
             state = self.state
             for _ in range(n):
-                state = model.step(state, tau, self._dt)
+                state = model.step(state, tau, dt)
             nu_dot = model.nu_dot(state.q, state.nu, tau)
             self.state = state
-        self.time_ns += n * self._dt_ns
+        self.time_ns = now
         self.steps += n
         imu = Imu()
         imu.header.frame_id = topics.IMU_FRAME

@@ -23,7 +23,7 @@ from enbarr_interfaces import convert, topics
 from ..algorithms.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
 from ..azimuths import declare_azimuths
 from ..errors import ConfigurationError
-from ..node import EnbarrNode
+from ..node import EnbarrNode, sim_steps
 from ..params import ParamSpec
 
 MAX_CATCH_UP = 10
@@ -66,7 +66,6 @@ class SaucerSimulatorNode(EnbarrNode):
         self.eta = np.array(v['initial'], dtype=float)
         self.nu = np.zeros(3)
         self.period_ns = round(1e9 / v['rate'])
-        self._dt = self.period_ns * 1e-9
         self.time_ns = 0
         self.steps = 0
         self.time_skips = 0
@@ -110,28 +109,26 @@ class SaucerSimulatorNode(EnbarrNode):
         return np.array(s['current']) + phase * np.array(s['current_amplitude'])
 
     def step(self) -> None:
-        """Advance to the clock's present (see RovSimulatorNode.step) and publish the truth."""
+        """Advance to the clock's present (as RovSimulatorNode.step) and publish the truth."""
         now = self.get_clock().now().nanoseconds
         if self.time_ns == 0:
             self.time_ns = now - self.period_ns
-        n = (now - self.time_ns) // self.period_ns
-        if n > MAX_CATCH_UP:
-            self.time_skips += 1
-            self.time_ns = now - MAX_CATCH_UP * self.period_ns
-            n = MAX_CATCH_UP
-        if n < 1:
+        n, dt, skipped = sim_steps(self.time_ns, now, self.period_ns, MAX_CATCH_UP)
+        if n == 0:
             return
+        self.time_skips += skipped
         stale = self._cmd_ns is None or now - self._cmd_ns > self._timeout_ns
         thrust = np.zeros_like(self._cmd_thrust) if stale else self._cmd_thrust
         angle = self.actuators.angle if stale else self._cmd_angle
         bias = self.settings['bias']
+        start = now - round(n * dt * 1e9)
         with self._lock:
-            for _ in range(n):
-                self.time_ns += self.period_ns
-                self.actuators.step(thrust, angle, self._dt)
-                current = self.current_at(self.time_ns * 1e-9)
+            for k in range(1, n + 1):
+                self.actuators.step(thrust, angle, dt)
+                current = self.current_at((start + k * dt * 1e9) * 1e-9)
                 self.eta, self.nu = self.model.step(self.eta, self.nu, self.actuators.tau(),
-                                                    self._dt, current=current, bias=bias)
+                                                    dt, current=current, bias=bias)
+        self.time_ns = now
         self.steps += n
         msg = Odometry()
         convert.ns_to_stamp(self.time_ns, msg.header.stamp)

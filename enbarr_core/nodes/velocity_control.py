@@ -6,7 +6,8 @@ the goal into a reachable velocity trajectory. It runs once per filtered IMU sam
 from the sample stamps. Rates p, q, r are measured by the gyro; roll and pitch feed the
 leveling term. Linear velocity is not measured by an IMU: unless ``velocity_topic`` names an
 ``nav_msgs/Odometry`` source (a DVL, an acoustic or visual odometry), surge, sway and heave run
-on the feed-forward alone. A velocity goal older than ``goal_timeout`` counts as zero.
+on the feed-forward alone. A velocity goal stamped more than ``goal_timeout`` before the
+IMU sample counts as zero.
 Every gain is a parameter; a new value acts on the next sample without a jump in tau.
 """
 
@@ -131,7 +132,7 @@ class VelocityControlNode(EnbarrNode):
     def _on_goal(self, msg: TwistStamped) -> None:
         nu = convert.twist_to_nu(msg.twist)
         if np.all(np.isfinite(nu)):
-            self._goal, self._goal_ns = nu, self.get_clock().now().nanoseconds
+            self._goal, self._goal_ns = nu, convert.stamp_to_ns(msg.header.stamp)
 
     def _on_velocity(self, msg: Odometry) -> None:
         v = convert.vector3_to_array(msg.twist.twist.linear)
@@ -149,9 +150,9 @@ class VelocityControlNode(EnbarrNode):
             self.controller.reset()
             self.reference.reset()
             return
-        now = self.get_clock().now().nanoseconds
+        # The goal's age on the IMU's time line (both stamped by the same ROS clock).
         goal = self._goal if (self._goal_ns is not None
-                              and now - self._goal_ns <= self._goal_timeout_ns) else np.zeros(6)
+                              and t - self._goal_ns <= self._goal_timeout_ns) else np.zeros(6)
         omega = convert.vector3_to_array(msg.angular_velocity)
         roll, pitch, _ = quat_to_euler(convert.quaternion_to_array(msg.orientation))
         nu = np.concatenate((self._linear, omega))

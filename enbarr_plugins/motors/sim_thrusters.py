@@ -81,14 +81,15 @@ class SimThrustersNode(EnbarrNode):
             self.clipped += 1
             np.clip(cmd, -1.0, 1.0, out=cmd)
         now = time.monotonic_ns()
+        stamp_ns = self.get_clock().now().nanoseconds
         with self._lock:
             self._last_cmd_ns = now
-            self._output(cmd, now)
-        self.latency.add(self.get_clock().now().nanoseconds
-                         - convert.stamp_to_ns(msg.header.stamp))
+            self._output(cmd, now, stamp_ns)
+        self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
 
-    def _output(self, cmd: np.ndarray, now_ns: int) -> None:
-        """Apply ``cmd`` (normalized); caller holds the lock."""
+    def _output(self, cmd: np.ndarray, now_ns: int, stamp_ns: int | None = None) -> None:
+        """Apply ``cmd`` (normalized) at monotonic ``now_ns``, stamped with the node clock's
+        ``stamp_ns`` (read now when not given); caller holds the lock."""
         target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
         tc = self.settings['time_constant']
         last, self._last_apply_ns = self._last_apply_ns, now_ns
@@ -100,7 +101,8 @@ class SimThrustersNode(EnbarrNode):
             self.thrust = target
         self.command = cmd
         self.neutral = not np.any(cmd)
-        stamp = self.get_clock().now().to_msg()
+        stamp = convert.ns_to_stamp(
+            self.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns)
         out = JointState(name=self.names, effort=cmd.tolist())
         out.header.stamp = stamp
         out.header.frame_id = topics.BODY_FRAME
