@@ -92,37 +92,19 @@ def _chain_profile(chain: Chain, rate: float) -> Any:
 
 
 def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-
-    from enbarr_interfaces.links import LinkBus
-
-    from .bringup import build_nodes, configure_process, shutdown_nodes
+    from .bringup import composed
     from .profile import apply_environment
 
     prof = _chain_profile(chain, rate)
     apply_environment(prof)
-    configure_process()
-    context = Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = SingleThreadedExecutor(context=context)
-    nodes: list[Any] = []
-    try:
-        nodes = build_nodes(prof, context)
-        by_name = {n.get_name(): n for n in nodes}
-        for n in nodes:
-            executor.add_node(n)
-        LinkBus.of(context).connect()
-        for n in nodes:
-            n.start()
-        sim, sink = by_name['simulator'], by_name[chain.sink]
+    with composed(prof) as c:
+        c.start()
+        sim, sink = c.node('simulator'), c.node(chain.sink)
 
         def spin_for(s: float) -> None:
             end = time.monotonic() + s
             while time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.1)
+                c.executor.spin_once(timeout_sec=0.1)
 
         spin_for(2.0)
         n0 = sink.latency.count
@@ -130,25 +112,21 @@ def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
         spin_for(seconds)
         cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
         cycles = sink.latency.count - n0
-        lat_ms = sink.latency.last(cycles) * 1e-6
-        if not cycles:
-            from .errors import EnbarrError
-            raise EnbarrError(f'no command reached {chain.sink}: the chain did not run')
-        return {
-            'rate_hz': round(cycles / wall, 1),
-            'cycles': cycles,
-            'late_ticks': sim._loops[0].overruns,
-            'time_skips': sim.time_skips,
-            'latency_ms_p50': round(float(np.percentile(lat_ms, 50)), 3),
-            'latency_ms_p99': round(float(np.percentile(lat_ms, 99)), 3),
-            'latency_ms_max': round(float(lat_ms.max()), 3),
-            'cpu_s_per_cycle': round(cpu / cycles, 6),
-            'cpu_core_fraction': round(cpu / wall, 3),
-        }
-    finally:
-        shutdown_nodes(nodes)
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
+    if not cycles:
+        from .errors import EnbarrError
+        raise EnbarrError(f'no command reached {chain.sink}: the chain did not run')
+    lat_ms = sink.latency.last(cycles) * 1e-6
+    return {
+        'rate_hz': round(cycles / wall, 1),
+        'cycles': cycles,
+        'late_ticks': sim._loops[0].overruns,
+        'time_skips': sim.time_skips,
+        'latency_ms_p50': round(float(np.percentile(lat_ms, 50)), 3),
+        'latency_ms_p99': round(float(np.percentile(lat_ms, 99)), 3),
+        'latency_ms_max': round(float(lat_ms.max()), 3),
+        'cpu_s_per_cycle': round(cpu / cycles, 6),
+        'cpu_core_fraction': round(cpu / wall, 3),
+    }
 
 
 def _common(chain: str, rate: float) -> dict[str, Any]:

@@ -17,8 +17,9 @@ and the device's watchdog take over.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import replace
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
 import difflib
 import logging
 import os
@@ -35,9 +36,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from . import registry
 from enbarr_interfaces.links import LinkBus
 
+from . import registry
 from .errors import EnbarrError, ProfileError
 from .node import EnbarrNode
 from .profile import GroupSpec, NodeSpec, Profile, RecordSpec
@@ -192,36 +193,42 @@ def configure_process() -> None:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
 
 
-def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
-              check_only: bool = False) -> int:
-    """Run the nodes of ``group`` (all when None) in this process until stopped."""
+@dataclass(frozen=True)
+class Composition:
+    """The nodes of one process, on one executor, their link bus connected."""
+
+    context: Context
+    executor: SingleThreadedExecutor
+    nodes: list[Node]
+
+    def node(self, name: str) -> Node:
+        return next(n for n in self.nodes if n.get_name() == name)
+
+    def start(self, *, skip: Sequence[Node] = ()) -> None:
+        """Start every node's sources (those in ``skip`` are driven by the caller)."""
+        for n in self.nodes:
+            if isinstance(n, EnbarrNode) and n not in skip:
+                n.start()
+
+
+@contextmanager
+def composed(profile: Profile, group: str | None = None, *,
+             check_only: bool = False) -> Iterator[Composition]:
+    """Build the nodes of ``group`` (all when None) in a fresh context and always take them
+    down on leaving: ``shutdown_nodes`` (safe state first), or, when nothing was started
+    (``check_only``), just destroy them. bringup, the benchmark and scenarios all use it."""
     configure_process()
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    nodes: list[Node] = []
     executor = SingleThreadedExecutor(context=context)
+    nodes: list[Node] = []
     try:
-        with _Stop() as stop:
-            nodes = build_nodes(profile, context, group)
-            if check_only:
-                return 0
+        nodes.extend(build_nodes(profile, context, group))
+        if not check_only:
             for n in nodes:
                 executor.add_node(n)
             LinkBus.of(context).connect()
-            for n in nodes:
-                if isinstance(n, EnbarrNode):
-                    n.start()
-            names = ', '.join(n.get_name() for n in nodes)
-            log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '', names)
-            deadline = None if duration is None else time.monotonic() + duration
-            while not stop.requested and context.ok():
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-                executor.spin_once(timeout_sec=0.1)
-            if stop.requested:
-                log.info('%s received, stopping', signal.Signals(stop.signal).name)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        yield Composition(context, executor, nodes)
     finally:
         if check_only:  # nothing ran: no safe state to publish, nothing to record
             for n in reversed(nodes):
@@ -230,6 +237,29 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
             shutdown_nodes(nodes)
         executor.shutdown()
         rclpy.try_shutdown(context=context)
+
+
+def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
+              check_only: bool = False) -> int:
+    """Run the nodes of ``group`` (all when None) in this process until stopped."""
+    with _Stop() as stop:
+        try:
+            with composed(profile, group, check_only=check_only) as c:
+                if check_only:
+                    return 0
+                c.start()
+                names = ', '.join(n.get_name() for n in c.nodes)
+                log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
+                         names)
+                deadline = None if duration is None else time.monotonic() + duration
+                while not stop.requested and c.context.ok():
+                    if deadline is not None and time.monotonic() >= deadline:
+                        break
+                    c.executor.spin_once(timeout_sec=0.1)
+                if stop.requested:
+                    log.info('%s received, stopping', signal.Signals(stop.signal).name)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
     return 0
 
 

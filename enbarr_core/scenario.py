@@ -91,15 +91,9 @@ def resolve(name: str) -> str:
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
         plot: bool = True, duration: float | None = None) -> dict[str, Any]:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
     from rclpy.time import Time
 
-    from enbarr_interfaces.links import LinkBus
-
-    from .bringup import add_recorder, build_nodes, configure_process, shutdown_nodes
+    from .bringup import add_recorder, composed
     from .profile import apply_environment, load_profile, with_record
 
     profile = load_profile(resolve(name), overrides)
@@ -111,38 +105,25 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         raise EnbarrError(f'{out}: exists and is not empty')
     out.mkdir(parents=True, exist_ok=True)
     bag = out / 'bag'
-    profile = add_recorder(with_record(replace(profile, groups={
-        g: s for g, s in profile.groups.items()}), str(bag)))
+    profile = add_recorder(with_record(profile, str(bag)))
     apply_environment(profile)
-    configure_process()
-    context = Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = SingleThreadedExecutor(context=context)
-    nodes: list[Any] = []
     wall0, cpu0 = time.monotonic(), time.process_time()
-    try:
-        nodes = build_nodes(profile, context)
-        by_name = {n.get_name(): n for n in nodes}
-        sim = by_name.get('simulator')
+    with composed(profile) as c:
+        sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)
-        clocks = [n.get_clock() for n in nodes]
-        now = T0_NS
+        clocks = [n.get_clock() for n in c.nodes]
 
         def set_time(t_ns: int) -> None:
             stamp = Time(nanoseconds=t_ns, clock_type=clocks[0].clock_type)
-            for c in clocks:
-                c.set_ros_time_override(stamp)
+            for clock in clocks:
+                clock.set_ros_time_override(stamp)
 
-        for c in clocks:
-            c._set_ros_time_is_active(True)  # what rclpy's TimeSource does for /clock
+        for clock in clocks:
+            clock._set_ros_time_is_active(True)  # what rclpy's TimeSource does for /clock
+        now = T0_NS
         set_time(now)
-        for n in nodes:
-            executor.add_node(n)
-        LinkBus.of(context).connect()
-        for n in nodes:
-            if n is not sim:
-                n.start()
+        c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
         dt_ns = sim.period_ns
         end = now + int(spec.duration * 1e9)
         while now < end:
@@ -150,13 +131,9 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
             set_time(now)
             sim.step()
             for _ in range(20):  # run everything due at this instant
-                if not _spin_ready(executor):
+                if not _spin_ready(c.executor):
                     break
         wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
-    finally:
-        shutdown_nodes(nodes)
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
     from .metrics import compute_metrics, plot_run
     result = compute_metrics(bag, spec, profile)
     result.update({'scenario': profile.name, 'simulated_s': spec.duration,

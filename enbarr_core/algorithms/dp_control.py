@@ -42,6 +42,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .checks import check_gain_vectors, check_non_negative
+
 if TYPE_CHECKING:
     from enbarr_core.algorithms.guidance import Reference
 
@@ -69,28 +71,9 @@ class DpControlSettings:
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
-        for name in _VECTOR_FIELDS:
-            raw = getattr(self, name)
-            try:
-                value = np.asarray(raw, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'{name}: must be 3 numbers, got {raw!r}') from exc
-            if value.shape != (3,):
-                raise ValueError(f'{name}: must have 3 entries [X Y N], got {raw!r}')
-            if np.isnan(value).any() or (
-                    name not in _MAY_BE_INFINITE and not np.isfinite(value).all()):
-                raise ValueError(f'{name}: must be finite, got {raw!r}')
-            if (value < 0.0).any():
-                raise ValueError(f'{name}: must be non-negative, got {raw!r}')
-            if name in ('tau_max', 'M') and (value <= 0.0).any():
-                raise ValueError(f'{name}: must be positive, got {raw!r}')
-        raw = self.gain_ramp_time
-        try:
-            value = float(raw)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f'gain_ramp_time: must be a number, got {raw!r}') from exc
-        if not (math.isfinite(value) and value >= 0.0):
-            raise ValueError(f'gain_ramp_time: must be finite and non-negative, got {raw!r}')
+        check_gain_vectors(self, _VECTOR_FIELDS, 3, 'X Y N', may_be_infinite=_MAY_BE_INFINITE,
+                           positive=('tau_max', 'M'))
+        check_non_negative(self, ('gain_ramp_time',))
         if not isinstance(self.bias_feedforward, (bool, np.bool_)):
             raise ValueError(f'bias_feedforward: must be a bool, got {self.bias_feedforward!r}')
 

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .checks import check_gain_vectors, check_non_negative
+
 Vector = NDArray[np.float64]
 
 _VECTOR_FIELDS = ('kp', 'ki', 'kd', 'integral_limit', 'tau_max', 'd_lin', 'd_quad', 'inertia')
@@ -52,29 +54,9 @@ class VelocityControlSettings:
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
-        for name in _VECTOR_FIELDS:
-            raw = getattr(self, name)
-            try:
-                value = np.asarray(raw, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'{name}: must be 6 numbers, got {raw!r}') from exc
-            if value.shape != (6,):
-                raise ValueError(f'{name}: must have 6 entries [X Y Z K M N], got {raw!r}')
-            if np.isnan(value).any() or (
-                    name not in _MAY_BE_INFINITE and not np.isfinite(value).all()):
-                raise ValueError(f'{name}: must be finite, got {raw!r}')
-            if (value < 0.0).any():
-                raise ValueError(f'{name}: must be non-negative, got {raw!r}')
-            if name == 'tau_max' and (value <= 0.0).any():
-                raise ValueError(f'{name}: must be positive, got {raw!r}')
-        for name in ('level_gain', 'derivative_filter'):
-            raw = getattr(self, name)
-            try:
-                value = float(raw)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'{name}: must be a number, got {raw!r}') from exc
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'{name}: must be finite and non-negative, got {raw!r}')
+        check_gain_vectors(self, _VECTOR_FIELDS, 6, 'X Y Z K M N',
+                           may_be_infinite=_MAY_BE_INFINITE, positive=('tau_max',))
+        check_non_negative(self, ('level_gain', 'derivative_filter'))
 
 
 @dataclass(frozen=True, eq=False)
