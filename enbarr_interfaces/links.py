@@ -205,7 +205,8 @@ class LinkBus:
 
     def _rewire(self, name: str) -> None:
         with self._lock:
-            subs = tuple(s for s in self._subscriptions.get(name, ()) if s.ros_subscription is None)
+            subs = tuple(s for s in self._subscriptions.get(name, ())
+                         if s.ros_subscription is None)
             for pub in self._publishers.get(name, ()):
                 pub._subscribers = subs
 

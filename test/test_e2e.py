@@ -4,7 +4,6 @@ through the bag they record."""
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 import signal
 import subprocess

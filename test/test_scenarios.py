@@ -11,7 +11,6 @@ import sys
 import textwrap
 from typing import Any
 
-import pytest
 
 from bagtools import read_bag
 

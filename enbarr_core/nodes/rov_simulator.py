@@ -162,7 +162,8 @@ class RovSimulatorNode(EnbarrNode):
         self.get_logger().info(
             f'depth {-s.p[2]:5.2f} m  u {u:+.2f} v {v:+.2f} w {w:+.2f} m/s  '
             f'r {math.degrees(r):+5.1f} deg/s  heading {yaw:+6.1f} deg  '
-            f'roll {roll:+4.1f} pitch {pitch:+4.1f} deg  thrust {np.abs(self._thrust).sum():5.1f} N')
+            f'roll {roll:+4.1f} pitch {pitch:+4.1f} deg  '
+            f'thrust {np.abs(self._thrust).sum():5.1f} N')
 
     def odometry(self, now_ns: int) -> Odometry:
         s = self.state
