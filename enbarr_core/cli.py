@@ -97,8 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('scenario', help='run a simulated scenario headless (prints JSON)',
                        description='Run a named simulated scenario faster than real time, '
                        'record it, print its metrics as one JSON line and write a PNG plot. '
-                       'Scenarios: station_keeping, box_path, manual_to_auto, mocap_dropout '
-                       '(params/scenarios/).')
+                       'Scenarios: station_keeping, box_path, manual_to_auto, mocap_dropout, '
+                       'waypoint (params/scenarios/).')
     from .scenario import add_arguments as scenario_arguments
     scenario_arguments(p)
     p.set_defaults(func=_scenario)

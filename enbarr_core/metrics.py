@@ -117,11 +117,13 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     else:
         start = _first(modes, 'guidance')
         wps = _waypoints(profile)
-        if start is None or len(wps) < 2:
+        if start is None or len(wps) < 1:
             out['error'] = 'never in guidance mode, or no path'
             return out
         end = next((tm for tm, m in modes if tm > start and m != 'guidance'), t[-1])
         sel = (t >= start) & (t <= end)
+        if len(wps) == 1:  # go to a waypoint: the path is the line from where guidance began
+            wps = np.vstack((eta[sel][0, :2], wps))
         d = _segment_distance(eta[sel, :2], wps)
         p = eta[sel, :2]
         visited = all(np.min(np.linalg.norm(p - w, axis=1)) < 0.25 for w in wps)

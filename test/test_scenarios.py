@@ -110,3 +110,14 @@ def test_saucer_sim_duration_end_leaves_pwm_neutral(tmp_path: Path) -> None:
     assert duty[-2].effort[0] != neutral[0]  # the motors were running (manual, ahead) ...
     assert neutral[0::2] == [6.85] * 3       # ... and the last command is neutral
     assert neutral[1::2] == [6.85] * 3
+
+
+def test_go_to_waypoint(tmp_path: Path) -> None:
+    """One waypoint configured: square sends the vessel there along the straight line."""
+    r = scenario('waypoint', tmp_path / 'out')
+    assert r['modes'] == [[1.01, 'guidance']]
+    assert r['all_waypoints_visited'] and r['path_time_s'] is not None
+    assert r['cross_track_rms_m'] < 0.05
+    msgs = read_bag(tmp_path / 'out' / 'bag')
+    last = msgs['/sim/odometry'][-1][1].pose.pose.position
+    assert abs(last.x - 3.0) < 0.05 and abs(last.y - 1.5) < 0.05

@@ -2,7 +2,8 @@
 
 ``joy`` drives the mode rules of ``algorithms.modes`` (manual: the sticks command surge,
 sway and yaw force; triangle: automatic, holding the pose where the vessel is; square:
-guidance along ``path.waypoints`` with line-of-sight at ``path.speed``; cross: manual). Every
+guidance at ``path.speed``, to the waypoint when ``path.waypoints`` holds one, else along the
+path with line of sight; cross: manual). Every
 mode change is published on ``mode`` (latched), logged and, into automatic or guidance,
 bumpless: the controller's integral is set so its first output equals the force of the
 moment. A refused request is logged with its reason. Losing the joystick, or the observer
@@ -29,7 +30,7 @@ from std_msgs.msg import Float64, String
 from enbarr_interfaces import convert, topics
 
 from ..algorithms.dp_control import DpControlSettings, DpController, saucer_dp_settings
-from ..algorithms.guidance import HoldPose, LosPath
+from ..algorithms.guidance import GoToWaypoint, HoldPose, LosPath
 from ..algorithms.modes import Ds4Mapping, Mode, ModeManager, Transition
 from ..node import EnbarrNode, WATCHDOG_PERIOD
 from ..params import ParamSpec
@@ -67,9 +68,11 @@ SPECS = [
               64),
     ParamSpec('joy.button_manual', _M.button_manual, 'Button to manual (cross)', '', 0, 64),
     ParamSpec('joy.deadzone', _M.deadzone, 'Stick dead zone', '', 0.0, 0.99),
-    ParamSpec('path.waypoints', [0.0], 'Guidance path: x0, y0, x1, y1, ... in odom; [0.0]: '
-              'none', 'm', -1e6, 1e6),
+    ParamSpec('path.waypoints', [0.0], 'Guidance: x, y of one waypoint to go to, or x0, y0, '
+              'x1, y1, ... of a path to follow (odom); [0.0]: none', 'm', -1e6, 1e6),
     ParamSpec('path.speed', 0.2, 'Reference speed along the path', 'm/s', 1e-3, 10.0),
+    ParamSpec('path.accel', 0.05, 'Acceleration limit when going to a single waypoint',
+              'm/s^2', 1e-4, 10.0),
     ParamSpec('path.lookahead', 0.5, 'Line-of-sight lookahead distance', 'm', 1e-3, 100.0),
     ParamSpec('path.acceptance_radius', 0.1, 'Waypoint acceptance radius', 'm', 1e-3, 100.0),
     ParamSpec('path.heading', 'fixed', 'Heading along the path: fixed (keep the heading held '
@@ -98,11 +101,13 @@ def build(v: dict[str, Any]) -> dict[str, Any]:
     w = v['path.waypoints']
     waypoints: list[tuple[float, float]] = []
     if w != [0.0]:
-        if len(w) % 2 or len(w) < 4:
-            raise ValueError('path.waypoints: expected x0, y0, x1, y1, ... (at least 2 points)')
+        if len(w) % 2 or len(w) < 2:
+            raise ValueError('path.waypoints: expected x, y of a waypoint or x0, y0, x1, y1, '
+                             '... of a path')
         waypoints = list(zip(w[::2], w[1::2]))
-        LosPath(waypoints, v['path.speed'], v['path.lookahead'], v['path.acceptance_radius'],
-                heading=v['path.heading'])
+        if len(waypoints) > 1:  # a path: check it now (a single waypoint is checked on use)
+            LosPath(waypoints, v['path.speed'], v['path.lookahead'],
+                    v['path.acceptance_radius'], heading=v['path.heading'])
     return {**v, 'control': control, 'mapping': mapping, 'waypoints': waypoints}
 
 
@@ -193,8 +198,13 @@ class DpControlNode(EnbarrNode):
             self.guidance = HoldPose(self._eta)
         elif t.requested is Mode.GUIDANCE:
             s = self.settings
-            self.guidance = LosPath(s['waypoints'], s['path.speed'], s['path.lookahead'],
-                                    s['path.acceptance_radius'], heading=s['path.heading'])
+            if len(s['waypoints']) == 1:  # go to the waypoint, heading held
+                self.guidance = GoToWaypoint(self._eta, s['waypoints'][0], s['path.speed'],
+                                             s['path.accel'],
+                                             arrival_radius=s['path.acceptance_radius'])
+            else:
+                self.guidance = LosPath(s['waypoints'], s['path.speed'], s['path.lookahead'],
+                                        s['path.acceptance_radius'], heading=s['path.heading'])
         else:
             self.guidance = None
         if t.requested is not Mode.MANUAL:
