@@ -45,6 +45,7 @@ BUILTIN: dict[str, str] = {
     'sim_mocap': 'enbarr_plugins.mocap.sim_mocap:SimMocapNode',
     'sim_arduino': 'enbarr_plugins.motors.sim_arduino:SimArduinoNode',
     'scripted_joy': 'enbarr_plugins.joystick.scripted_joy:ScriptedJoyNode',
+    'keyboard_teleop': 'enbarr_plugins.teleop.keyboard:KeyboardTeleopNode',
 }
 
 
