@@ -23,38 +23,15 @@ from enbarr_core.algorithms.guidance import (
     trapezoid,
 )
 
-DT = 0.02                                             # 50 Hz [s]
-M = np.diag([9.51, 9.51, 0.116])                      # manual eq. 1.2
-D = np.diag([1.96, 1.96, 0.168])                      # manual eq. 1.4
+from saucer_plant import DT, NOISE, rot, wrap
+import saucer_plant
+
 B_WORLD = np.array([0.25, -0.15, 0.02])               # current-like world bias [N, N, N m]
-NOISE = np.array([0.005, 0.005, math.radians(0.5)])   # mocap noise std [m, m, rad]
-
-
-def rot(psi):
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # manual eq. 1.6
-
-
-def plant_rhs(x, tau, b):
-    nu = x[3:]
-    C = np.array([[0.0, -9.51 * nu[2], 0.0], [9.51 * nu[2], 0.0, 0.0], [0.0, 0.0, 0.0]])
-    Dn = 7.095 * np.diag(np.abs(nu))                                  # manual eq. 1.5
-    R = rot(x[2])
-    nu_dot = np.linalg.solve(M, tau + R.T @ b - (C + D + Dn) @ nu)
-    return np.concatenate([R @ nu, nu_dot])
 
 
 def plant_step(x, tau, b=B_WORLD, dt=DT):
     """RK4 over dt with tau and b held: x = [x, y, psi, u, v, r]."""
-    k1 = plant_rhs(x, tau, b)
-    k2 = plant_rhs(x + 0.5 * dt * k1, tau, b)
-    k3 = plant_rhs(x + 0.5 * dt * k2, tau, b)
-    k4 = plant_rhs(x + dt * k3, tau, b)
-    return x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-def wrap(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    return saucer_plant.step(x, tau, b, dt)
 
 
 def closed_loop(guidance, seconds, x0, seed=5, stop_when_finished_for=None, warmup=0.0):
