@@ -14,7 +14,21 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
 sys.path.insert(0, os.path.dirname(__file__))  # test helpers (bagtools)
 
+import itertools  # noqa: E402
+
 import pytest  # noqa: E402
+
+_domains = itertools.count(int(os.environ['ROS_DOMAIN_ID']))
+
+
+@pytest.fixture(autouse=True)
+def private_domain(monkeypatch: pytest.MonkeyPatch) -> str:
+    """A fresh ROS_DOMAIN_ID (1..100) for every test and the processes it starts: a test
+    that SIGKILLs a run leaves DDS participants (and shared-memory ports) behind until their
+    leases expire, and the next test must not meet them."""
+    domain = str(1 + next(_domains) % 100)
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain)
+    return domain
 
 
 @pytest.fixture
