@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from enbarr_interfaces import convert
+
 from .algorithms.kinematics import ssa
 from .bag import read_bag
 
@@ -16,18 +18,14 @@ HULL_RADIUS = 0.2  # drawn outline of the Saucer [m]
 
 
 def _stamp(msg: Any) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def _yaw(q: Any) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return convert.stamp_to_ns(msg.header.stamp) * 1e-9
 
 
 def _series(msgs: list[tuple[int, Any]]) -> tuple[np.ndarray, np.ndarray]:
     """(t [s], eta (n, 3)) of Odometry messages."""
     t = np.array([_stamp(m) for _, m in msgs])
     eta = np.array([(m.pose.pose.position.x, m.pose.pose.position.y,
-                     _yaw(m.pose.pose.orientation)) for _, m in msgs])
+                     convert.quaternion_to_yaw(m.pose.pose.orientation)) for _, m in msgs])
     return t, eta
 
 

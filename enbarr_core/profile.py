@@ -102,11 +102,7 @@ class Profile:
 
     def where(self, key: str) -> str:
         """The file that set ``key`` (a dotted key path), for error messages."""
-        best = self.path
-        for k, origin in self.origins.items():
-            if key == k or key.startswith(k + '.'):
-                best = origin
-        return best
+        return _origin(self.origins, key, self.path)
 
 
 # -- locating --------------------------------------------------------------------------------
@@ -470,6 +466,7 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
 
 
 def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
+    """The file that set ``key`` or the nearest enclosing key (the last one to set it)."""
     best = default
     for k, origin in origins.items():
         if key == k or key.startswith(k + '.'):

@@ -10,8 +10,6 @@ hardware plugin's job; this node computes what it sends.
 from __future__ import annotations
 
 import math
-import threading
-import time
 from typing import Any
 
 from sensor_msgs.msg import JointState
@@ -20,7 +18,7 @@ from enbarr_interfaces import topics
 
 from ..azimuths import declare_azimuths, declare_pwm
 from ..errors import ConfigurationError
-from ..node import EnbarrNode, WATCHDOG_PERIOD
+from ..node import CommandWatchdog, EnbarrNode
 from ..params import ParamSpec
 
 SPECS = [
@@ -34,7 +32,9 @@ class PwmMapperNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'pwm', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._lock = threading.Lock()
+        self.neutral = True
+        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
+                                        'azimuth commands stopped: PWM neutral')
         specs = declare_azimuths(self)
         self.calibration = declare_pwm(self)
         for a in specs:
@@ -49,18 +49,18 @@ class PwmMapperNode(EnbarrNode):
         self.settings: dict[str, Any] = {}
         self.bind_settings(SPECS, lambda v: v, self._apply)
         self.duty: list[float] = []
-        self.neutral = True
-        self.timeouts = 0
         self.rejected = 0
-        self._last_ns = 0
         self._pub = self.create_link_publisher(topics.PWM_DUTY)
         self.create_link_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
-        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
         self.safe_state()
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v
-        self._timeout_ns = int(v['command_timeout'] * 1e9)
+        self.watchdog.set_timeout(v['command_timeout'])
+
+    @property
+    def timeouts(self) -> int:
+        return self.watchdog.timeouts
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort) or len(msg.name) != len(msg.position):
@@ -75,8 +75,8 @@ class PwmMapperNode(EnbarrNode):
                 return
             duty[2 * i] = c.thrust_to_duty(thrust)
             duty[2 * i + 1] = c.angle_to_duty(angle)
-        with self._lock:
-            self._last_ns = time.monotonic_ns()
+        with self.watchdog.lock:
+            self.watchdog.fed()
             self._publish(duty, msg.header.stamp, neutral=False)
 
     def _publish(self, duty: list[float], stamp: Any, neutral: bool) -> None:
@@ -87,19 +87,11 @@ class PwmMapperNode(EnbarrNode):
 
     def safe_state(self) -> None:
         """Every motor at its zero-thrust duty, every servo at 0 rad."""
-        with self._lock:
+        with self.watchdog.lock:
             self._neutral_locked()
 
     def _neutral_locked(self) -> None:
         c = self.calibration
         self._publish([c.neutral_thrust_duty, c.neutral_angle_duty] * len(self.azimuths),
                       self.get_clock().now().to_msg(), neutral=True)
-
-    def _watchdog(self) -> None:
-        with self._lock:
-            if self.neutral or time.monotonic_ns() - self._last_ns <= self._timeout_ns:
-                return
-            self.timeouts += 1
-            self._neutral_locked()
-        self.get_logger().warn('azimuth commands stopped: PWM neutral')
 

@@ -7,13 +7,13 @@ losses (``dropout_probability``), as markers hidden behind the lidar or a person
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 from nav_msgs.msg import Odometry
 
+from enbarr_core.algorithms.kinematics import ssa
 from enbarr_core.node import EnbarrNode
 from enbarr_core.params import ParamSpec
 from enbarr_interfaces import convert, topics
@@ -75,7 +75,7 @@ class SimMocapNode(EnbarrNode):
             return
         eta = convert.pose_to_eta(truth.pose.pose)
         eta[:2] += self._rng.normal(0.0, s['position_noise'], 2)
-        eta[2] = math.remainder(eta[2] + self._rng.normal(0.0, s['heading_noise']), math.tau)
+        eta[2] = ssa(eta[2] + self._rng.normal(0.0, s['heading_noise']))
         msg = PoseStamped()
         msg.header.stamp = truth.header.stamp
         msg.header.frame_id = topics.WORLD_FRAME

@@ -8,15 +8,13 @@ Duties outside the manual's 4.3 .. 9.4 % or non-finite ones are refused and coun
 from __future__ import annotations
 
 import math
-import threading
-import time
 from typing import Any
 
 from sensor_msgs.msg import JointState
 
 from enbarr_core.azimuths import declare_azimuths, declare_pwm
 from enbarr_core.algorithms.azimuth import PwmCalibration
-from enbarr_core.node import EnbarrNode, LatencyLog, WATCHDOG_PERIOD
+from enbarr_core.node import CommandWatchdog, EnbarrNode, LatencyLog
 from enbarr_core.params import ParamSpec
 from enbarr_interfaces import convert, topics
 
@@ -31,7 +29,9 @@ class SimArduinoNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'arduino', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._lock = threading.Lock()
+        self.neutral = True
+        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
+                                        'PWM input stopped: outputs neutral')
         self.names = [a.name for a in declare_azimuths(self)]
         self.calibration = declare_pwm(self)
         self._channels = {f'{n}/{k}': (i, k) for i, n in enumerate(self.names)
@@ -39,17 +39,17 @@ class SimArduinoNode(EnbarrNode):
         self.settings: dict[str, Any] = {}
         self.bind_settings(SPECS, lambda v: v, self._apply)
         self.refused = 0
-        self.timeouts = 0
-        self.neutral = True
         self.latency = LatencyLog()  # pose stamp -> duty cycles applied
-        self._last_ns = 0
         self._pub = self.create_link_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_link_subscription(topics.PWM_DUTY, self._on_duty)
-        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v
-        self._timeout_ns = int(v['command_timeout'] * 1e9)
+        self.watchdog.set_timeout(v['command_timeout'])
+
+    @property
+    def timeouts(self) -> int:
+        return self.watchdog.timeouts
 
     def _on_duty(self, msg: JointState) -> None:
         c = self.calibration
@@ -66,8 +66,8 @@ class SimArduinoNode(EnbarrNode):
                 thrust[i] = c.duty_to_thrust(duty)
             else:
                 angle[i] = c.duty_to_angle(duty)
-        with self._lock:
-            self._last_ns = time.monotonic_ns()
+        with self.watchdog.lock:
+            self.watchdog.fed()
             self.neutral = not any(thrust)
             self._send(thrust, angle)
         if msg.header.stamp.sec:
@@ -79,13 +79,8 @@ class SimArduinoNode(EnbarrNode):
         out.header.stamp = self.get_clock().now().to_msg()
         self._pub.publish(out)
 
-    def _watchdog(self) -> None:
-        with self._lock:
-            if self.neutral or time.monotonic_ns() - self._last_ns <= self._timeout_ns:
-                return
-            self.timeouts += 1
-            self.neutral = True
-            c = self.calibration
-            self._send([c.duty_to_thrust(c.neutral_thrust_duty)] * len(self.names),
-                       [c.duty_to_angle(c.neutral_angle_duty)] * len(self.names))
-        self.get_logger().warn('PWM input stopped: outputs neutral')
+    def _neutral_locked(self) -> None:
+        self.neutral = True
+        c = self.calibration
+        self._send([c.duty_to_thrust(c.neutral_thrust_duty)] * len(self.names),
+                   [c.duty_to_angle(c.neutral_angle_duty)] * len(self.names))

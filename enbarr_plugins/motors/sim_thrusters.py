@@ -11,14 +11,13 @@ counted; a command with NaN/Inf or an unknown thruster name is refused and count
 from __future__ import annotations
 
 import math
-import threading
 import time
 from typing import Any
 
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from enbarr_core.node import EnbarrNode, LatencyLog, WATCHDOG_PERIOD
+from enbarr_core.node import CommandWatchdog, EnbarrNode, LatencyLog
 from enbarr_core.params import ParamSpec
 from enbarr_core.thrusters import declare_thrusters
 from enbarr_interfaces import convert, topics
@@ -36,7 +35,8 @@ class SimThrustersNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._lock = threading.Lock()
+        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
+                                        'thruster commands stopped: thrusters neutral')
         self.thrusters = declare_thrusters(self)
         self.names = [t.name for t in self.thrusters]
         self._index = {n: i for i, n in enumerate(self.names)}
@@ -50,19 +50,20 @@ class SimThrustersNode(EnbarrNode):
         self.neutral = True
         self.refused = 0
         self.clipped = 0
-        self.timeouts = 0
-        self._last_cmd_ns = 0
         self._last_apply_ns: int | None = None
         self._output_pub = self.create_link_publisher(topics.THRUSTER_OUTPUT)
         self._thrust_pub = self.create_link_publisher(topics.SIM_THRUST)
         self.create_link_subscription(topics.THRUSTER_COMMANDS, self._on_command)
-        self.create_timer(WATCHDOG_PERIOD, self._watchdog)
         self.create_timer(1.0, self._report)
         self.safe_state()  # start neutral, also after a restart
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v
-        self._timeout_ns = int(v['command_timeout'] * 1e9)
+        self.watchdog.set_timeout(v['command_timeout'])
+
+    @property
+    def timeouts(self) -> int:
+        return self.watchdog.timeouts
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort):
@@ -82,8 +83,8 @@ class SimThrustersNode(EnbarrNode):
             np.clip(cmd, -1.0, 1.0, out=cmd)
         now = time.monotonic_ns()
         stamp_ns = self.get_clock().now().nanoseconds
-        with self._lock:
-            self._last_cmd_ns = now
+        with self.watchdog.lock:
+            self.watchdog.fed()
             self._output(cmd, now, stamp_ns)
         self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
 
@@ -114,19 +115,12 @@ class SimThrustersNode(EnbarrNode):
 
     def safe_state(self) -> None:
         """Command every thruster to neutral now (motor thrust cut, not ramped)."""
-        with self._lock:
-            self.neutral = True
-            self._output(np.zeros(len(self.names)), time.monotonic_ns())
+        with self.watchdog.lock:
+            self._neutral_locked()
 
-    def _watchdog(self) -> None:
-        with self._lock:
-            now = time.monotonic_ns()
-            if self.neutral or now - self._last_cmd_ns <= self._timeout_ns:
-                return
-            self.timeouts += 1
-            self.neutral = True
-            self._output(np.zeros(len(self.names)), now)
-        self.get_logger().warn('thruster commands stopped: thrusters neutral')
+    def _neutral_locked(self) -> None:
+        self.neutral = True
+        self._output(np.zeros(len(self.names)), time.monotonic_ns())
 
     def _report(self) -> None:
         self.publish_diagnostics(0, 'neutral' if self.neutral else 'running', {
