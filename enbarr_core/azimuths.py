@@ -41,7 +41,7 @@ def declare_azimuths(node: Node) -> tuple[AzimuthSpec, ...]:
         p = f'azimuths.{n}.'
         specs += [
             ParamSpec(p + 'position', [0.0, 0.0], f'(x, y) of azimuth {n} in base_link', 'm',
-                      read_only=True),
+                      -100.0, 100.0, read_only=True),
             ParamSpec(p + 'max_forward', 1.0, f'Largest forward thrust of {n}', 'N', 1e-6, 1e5,
                       read_only=True),
             ParamSpec(p + 'max_reverse', 1.0, f'Largest reverse thrust magnitude of {n}', 'N',

@@ -39,10 +39,10 @@ def declare_thrusters(node: Node) -> tuple[Thruster, ...]:
         p = f'thrusters.{n}.'
         specs += [
             ParamSpec(p + 'position', [0.0, 0.0, 0.0], f'Position of thruster {n} in base_link',
-                      'm', read_only=True),
+                      'm', -100.0, 100.0, read_only=True),
             ParamSpec(p + 'direction', [1.0, 0.0, 0.0],
-                      f'Thrust direction of thruster {n} for a positive command (base_link)',
-                      read_only=True),
+                      f'Thrust direction of thruster {n} for a positive command (base_link; '
+                      'normalized on use)', '', -1e3, 1e3, read_only=True),
             ParamSpec(p + 'max_forward', 1.0, f'Thrust of {n} at command +1', 'N', 1e-6, 1e6,
                       read_only=True),
             ParamSpec(p + 'max_reverse', 1.0, f'Thrust magnitude of {n} at command -1', 'N',

@@ -229,3 +229,16 @@ def test_bringup_requires_profile(tmp_path: Path) -> None:
     r = enbarr('bringup', '--check', cwd=tmp_path)
     assert r.returncode == 2
     assert 'the following arguments are required: --profile' in r.stderr
+
+
+def test_out_of_range_vector_element_names_the_index(tmp_path: Path) -> None:
+    """Vector parameters without a natural bound still get one: a CG 1 km away is a typo."""
+    path = write(tmp_path / 'cg.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          simulator:
+            parameters: {vehicle: {r_g: [0.0, 0.0, -1000.0]}}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert f'{path}: nodes.simulator.parameters.vehicle.r_g: ' in line
+    assert 'vehicle.r_g[2] = -1000.0 is outside [-100.0, 100.0]' in line

@@ -39,9 +39,11 @@ SPECS = [
               'watchdog)', 's', 0.001, 10.0),
     ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass m', 'kg', 0.01, 1e5),
     ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO, 3 diagonal or 9 '
-              'row-major values', 'kg m^2'),
-    ParamSpec('vehicle.r_g', [0.0, 0.0, -0.02], 'Centre of gravity in base_link', 'm'),
-    ParamSpec('vehicle.r_b', [0.0, 0.0, 0.0], 'Centre of buoyancy in base_link', 'm'),
+              'row-major values', 'kg m^2', -1e5, 1e5),
+    ParamSpec('vehicle.r_g', [0.0, 0.0, -0.02], 'Centre of gravity in base_link', 'm', -100.0,
+              100.0),
+    ParamSpec('vehicle.r_b', [0.0, 0.0, 0.0], 'Centre of buoyancy in base_link', 'm', -100.0,
+              100.0),
     ParamSpec('vehicle.buoyancy', 112.8, 'Buoyancy B = rho g V', 'N', 0.0, 1e6),
     ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12],
               'Diagonal of the added mass M_A', 'kg, kg m^2', 0.0, 1e5),
@@ -51,8 +53,10 @@ SPECS = [
               'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
     ParamSpec('status_period', 2.0, 'Period of the status line in the log (0: none)', 's',
               0.0, 3600.0, read_only=True),
-    ParamSpec('initial.position', [0.0, 0.0, -1.0], 'Start position in odom (ENU)', 'm'),
-    ParamSpec('initial.rpy', [0.0, 0.0, 0.0], 'Start roll, pitch, yaw', 'rad'),
+    ParamSpec('initial.position', [0.0, 0.0, -1.0], 'Start position in odom (ENU)', 'm', -1e6,
+              1e6),
+    ParamSpec('initial.rpy', [0.0, 0.0, 0.0], 'Start roll, pitch, yaw', 'rad', -math.pi,
+              math.pi),
 ]
 
 VEHICLE_FIELDS = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad')

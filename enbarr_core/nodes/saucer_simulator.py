@@ -44,7 +44,8 @@ SPECS = [
               'N, N m', -100.0, 100.0),
     ParamSpec('command_timeout', 0.25, 'Azimuths go neutral when commands stop this long', 's',
               0.001, 10.0),
-    ParamSpec('initial', [0.0, 0.0, 0.0], 'Start pose (x, y, psi) in odom', 'm, rad'),
+    ParamSpec('initial', [0.0, 0.0, 0.0], 'Start pose (x, y, psi) in odom', 'm, rad', -1e6,
+              1e6),
 ]
 
 

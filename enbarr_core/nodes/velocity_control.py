@@ -59,7 +59,7 @@ SPECS = [
               'feed-forward only on surge, sway, heave', read_only=True),
     ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass (feed-forward model)', 'kg', 0.01, 1e5),
     ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO (3 diagonal or 9 '
-              'values; the diagonal is used)', 'kg m^2'),
+              'values; the diagonal is used)', 'kg m^2', -1e5, 1e5),
     ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12], 'Added mass diagonal',
               'kg, kg m^2', 0.0, 1e5),
     ParamSpec('vehicle.d_lin', [4.03, 6.22, 5.18, 0.07, 0.07, 0.07], 'Linear damping',
