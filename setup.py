@@ -30,8 +30,8 @@ setup(
     license='MIT',
     entry_points={
         'console_scripts': [
-            'enbarr = enbarr_core.cli:main',
-            'bringup = enbarr_core.cli:bringup_main',
+            'enbarr = enbarr_core.bringup.cli:main',
+            'bringup = enbarr_core.bringup.cli:bringup_main',
         ],
     },
 )

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from rclpy.node import Node
     from rclpy.subscription import Subscription
 
-    from .topics import TopicSpec
+    from enbarr_interfaces.topics import TopicSpec
 
 Callback = Callable[[Any], None]
 #: How often a link publisher asks DDS whether anyone outside the process listens [s].

@@ -12,7 +12,7 @@ import time
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
-sys.path.insert(0, os.path.dirname(__file__))  # test helpers (bagtools)
+sys.path.insert(0, os.path.dirname(__file__))  # shared test helpers: the support package
 
 import itertools  # noqa: E402
 

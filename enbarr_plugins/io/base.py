@@ -13,7 +13,7 @@ from typing import Any
 
 from rcl_interfaces.msg import Parameter
 
-from enbarr_core.node import EnbarrNode
+from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, topics
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from enbarr_core.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec
 
-from .base import IoPluginNode
+from enbarr_plugins.io.base import IoPluginNode
 
 SPECS = [
     ParamSpec('pin', 12, 'BCM pin number; the executor name is gpio_<pin>', '', 0, 27,

@@ -1,0 +1,71 @@
+"""Azimuth thrust allocation: ``trajectory_corrected`` (tau = [X, Y, N]) -> per-azimuth thrust
+and angle on ``azimuth_commands``, and the force actually deliverable on
+``allocation/delivered``.
+
+Smallest thrust within the servo travel and thrust limits (``algorithms.azimuth``); when tau
+is not achievable the thrusts are scaled together (direction kept) and the shortfall is
+reported: a warning, the ``infeasible`` counter and ``allocation/delivered``. The previous
+angles are passed back each time so servos do not flip 180 degrees needlessly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from geometry_msgs.msg import WrenchStamped
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from enbarr_interfaces import convert, topics
+
+from enbarr_core.allocation.azimuth import AzimuthAllocator
+from enbarr_core.allocation.azimuth_params import declare_azimuths
+from enbarr_core.framework.errors import AllocationError
+from enbarr_core.framework.node import EnbarrNode
+
+
+class AzimuthAllocationNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'allocation', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        specs = declare_azimuths(self)
+        try:
+            self.allocator = AzimuthAllocator(specs)
+        except AllocationError as err:
+            raise AllocationError(f'node {node_name!r}: {err}',
+                                  parameter='azimuth_names') from err
+        self.names = [a.name for a in specs]
+        self.angle = np.zeros(len(specs))
+        self.result = None
+        self.infeasible = 0
+        self.rejected = 0
+        self._pub = self.create_link_publisher(topics.AZIMUTH_COMMANDS)
+        self._delivered_pub = self.create_link_publisher(topics.ALLOCATION_DELIVERED)
+        self.create_link_subscription(topics.TRAJECTORY_CORRECTED, self._on_tau)
+        self.create_timer(1.0, self._report)
+
+    def _on_tau(self, msg: WrenchStamped) -> None:
+        tau = convert.wrench_to_tau3(msg.wrench)
+        if not np.all(np.isfinite(tau)):
+            self.rejected += 1
+            return
+        self.result = r = self.allocator.allocate(tau, previous_angle=self.angle)
+        self.angle = r.angle
+        if not r.feasible:
+            self.infeasible += 1
+            self.get_logger().warn(
+                f'tau {np.round(tau, 3).tolist()} not achievable: delivering '
+                f'{np.round(r.scale * 100.0, 1)} % of it', throttle_duration_sec=2.0)
+        out = JointState(name=self.names, effort=r.thrust.tolist(), position=r.angle.tolist())
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = topics.BODY_FRAME
+        self._pub.publish(out)
+        delivered = WrenchStamped()
+        delivered.header = out.header
+        convert.set_wrench_tau3(delivered.wrench, r.tau_delivered)
+        self._delivered_pub.publish(delivered)
+
+    def _report(self) -> None:
+        self.publish_diagnostics(1 if self.infeasible else 0, 'ok', {
+            'infeasible': self.infeasible, 'rejected': self.rejected})

@@ -1,0 +1,74 @@
+"""Thruster converter: ``trajectory_corrected`` (tau) -> ``thruster_commands`` (-1..1 each).
+
+The README's ``vector_trajectory_converter.py``, for any layout: the allocation matrix comes
+from each thruster's position and direction (``enbarr_core.allocation.thruster_params``), the weighted
+pseudo-inverse gives the smallest thrust, and saturation scales all thrusters together so the
+delivered force keeps the requested direction (``algorithms.allocation``). A layout that
+cannot produce a controlled degree of freedom is refused at start with the DOF named.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from geometry_msgs.msg import WrenchStamped
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from enbarr_interfaces import convert, topics
+
+from enbarr_core.allocation.fixed import ThrustAllocator
+from enbarr_core.framework.errors import AllocationError
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.allocation.thruster_params import declare_thrusters
+
+_DOFS = ('surge', 'sway', 'heave', 'roll', 'pitch', 'yaw')
+SPECS = [
+    ParamSpec('controlled_dofs', ['surge', 'sway', 'heave', 'roll', 'pitch', 'yaw'],
+              'Degrees of freedom the thrusters must produce', read_only=True),
+]
+
+
+class ThrusterConverterNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'thruster_converter', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        thrusters = declare_thrusters(self)
+        dofs = self.bind_settings(SPECS, self._build, lambda _: None).settings
+        try:
+            self.allocator = ThrustAllocator(thrusters, controlled_dofs=dofs)
+        except AllocationError as err:
+            raise AllocationError(f'node {node_name!r}: {err}') from err
+        self.saturated = 0
+        self.rejected = 0
+        self.result = None
+        self._names = [t.name for t in thrusters]
+        self._pub = self.create_link_publisher(topics.THRUSTER_COMMANDS)
+        self.create_link_subscription(topics.TRAJECTORY_CORRECTED, self._on_wrench)
+        self.create_timer(1.0, self._report)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> tuple[int, ...]:
+        unknown = [d for d in v['controlled_dofs'] if d not in _DOFS]
+        if unknown:
+            raise ValueError(f'controlled_dofs: unknown {unknown}; expected some of {_DOFS}')
+        return tuple(_DOFS.index(d) for d in v['controlled_dofs'])
+
+    def _on_wrench(self, msg: WrenchStamped) -> None:
+        tau = convert.wrench_to_tau(msg.wrench)
+        if not np.all(np.isfinite(tau)):
+            self.rejected += 1
+            return
+        self.result = r = self.allocator.allocate(tau)
+        self.saturated += r.saturated
+        cmd = JointState(name=self._names, effort=r.command.tolist())
+        cmd.header.stamp = msg.header.stamp
+        cmd.header.frame_id = topics.BODY_FRAME
+        self._pub.publish(cmd)
+
+    def _report(self) -> None:
+        self.publish_diagnostics(0, 'ok', {'saturated': self.saturated,
+                                           'rejected': self.rejected})
+

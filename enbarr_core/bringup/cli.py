@@ -1,0 +1,130 @@
+"""The ``enbarr`` command line (and ``ros2 run enbarr bringup``, the same ``bringup``)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from typing import Sequence
+
+from enbarr_core.framework.errors import EnbarrError
+
+EPILOG = """\
+Profiles: a bare name (enbarr_sim) is looked up among the installed profiles
+(share/enbarr/params); anything else is a path. Set ROS_AUTOMATIC_DISCOVERY_RANGE and
+ROS_DOMAIN_ID as usual; simulated profiles set LOCALHOST themselves.
+"""
+
+
+def _bringup_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--profile', required=True, metavar='NAME|PATH',
+                        help='vessel profile (YAML) to run, e.g. enbarr_sim')
+    parser.add_argument('--duration', type=float, metavar='S',
+                        help='stop after S seconds (default: run until SIGINT/SIGTERM)')
+    parser.add_argument('--record', metavar='DIR',
+                        help='record a rosbag2 (MCAP) into DIR, which must not exist yet')
+    parser.add_argument('--record-topic', action='append', default=[], metavar='TOPIC',
+                        help='record only this topic (repeatable; default: all)')
+    parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                        help='override a node parameter; VALUE is YAML (repeatable)')
+    parser.add_argument('--check', action='store_true',
+                        help='validate the profile and build every node, then exit')
+    parser.add_argument('--group', help=argparse.SUPPRESS)  # a supervised child process
+
+
+def _bringup(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_core.bringup import orchestrator as bringup, profile as profiles
+
+    if args.duration is not None and not args.duration > 0:
+        raise EnbarrError(f'--duration must be positive, got {args.duration}')
+    prof = profiles.load_profile(args.profile, args.set)
+    profiles.apply_environment(prof)
+    if args.record:
+        prof = profiles.with_record(prof, args.record, args.record_topic)
+    prof = bringup.add_recorder(prof)
+    if args.group is not None:
+        if args.group not in prof.groups:
+            raise EnbarrError(f'no group {args.group!r}; groups: {", ".join(prof.groups)}')
+        return bringup.run_group(prof, args.group)
+    if args.check:
+        bringup.run_group(prof, None, check_only=True)
+        print(f'{prof.path}: ok ({len(prof.nodes)} nodes in {len(prof.groups)} group(s))')
+        return 0
+    if len(prof.groups) > 1:
+        return bringup.supervise(prof, bringup.child_command(argv), args.duration)
+    return bringup.run_group(prof, None, args.duration)
+
+
+def _bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_core.tools import bench
+    return bench.main(args)
+
+
+def _scenario(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_core.tools import scenario
+    return scenario.main(args)
+
+
+def _list(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_core.bringup import profile as profiles
+    from enbarr_core.framework import registry
+    if args.what == 'nodes':
+        for name, entry in sorted(registry.entries().items()):
+            print(f'{name:20s} {entry.target}  ({entry.origin})')
+    else:
+        for d in profiles.search_dirs():
+            for f in sorted(d.glob('*.yaml')):
+                print(f'{f.stem:20s} {f}')
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='enbarr', description='Enbarr: control stack for low-cost marine vehicles.',
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    p = sub.add_parser('bringup', help='run a vessel profile',
+                       description='Build and run the nodes of a vessel profile.',
+                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _bringup_parser(p)
+    p.set_defaults(func=_bringup)
+    p = sub.add_parser('bench', help='measure the IMU -> thruster chain (prints JSON)',
+                       description='Drive the IMU -> filter -> control -> allocation -> '
+                       'thruster chain in one process at a given rate and print one JSON line '
+                       'of figures.')
+    from enbarr_core.tools.bench import add_arguments
+    add_arguments(p)
+    p.set_defaults(func=_bench)
+    p = sub.add_parser('scenario', help='run a simulated scenario headless (prints JSON)',
+                       description='Run a named simulated scenario faster than real time, '
+                       'record it, print its metrics as one JSON line and write a PNG plot. '
+                       'Scenarios: station_keeping, box_path, manual_to_auto, mocap_dropout, '
+                       'waypoint (params/scenarios/).')
+    from enbarr_core.tools.scenario import add_arguments as scenario_arguments
+    scenario_arguments(p)
+    p.set_defaults(func=_scenario)
+    p = sub.add_parser('list', help='list known nodes or installed profiles')
+    p.add_argument('what', choices=('nodes', 'profiles'))
+    p.set_defaults(func=_list)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    logging.basicConfig(level=logging.INFO, format='[%(levelname)s] [%(name)s]: %(message)s')
+    args = build_parser().parse_args(argv)
+    sub_argv = argv[argv.index(args.command) + 1:] if args.command in argv else []
+    try:
+        return args.func(args, sub_argv)
+    except EnbarrError as err:
+        print(f'enbarr {args.command}: error: {err}', file=sys.stderr)
+        return 2
+
+
+def bringup_main() -> int:
+    """``ros2 run enbarr bringup ...``: the ``bringup`` subcommand."""
+    return main(['bringup', *sys.argv[1:]])
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,487 @@
+"""Vessel profiles: YAML files naming the nodes to run, their parameters and how they group.
+
+A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
+
+    profile: enbarr_sim                  # a name for logs
+    description: ...
+    include: [core.yaml]                 # merged first, in order; this file overrides them
+    environment: {ROS_AUTOMATIC_DISCOVERY_RANGE: LOCALHOST}   # set before ROS starts
+    parameters: {...}                    # given to every node (like '/**' in a ROS params file)
+    nodes:
+      imu:                               # node name
+        plugin: sim_imu                  # registry name (enbarr_core.framework.registry)
+        namespace: ''                    # optional
+        remappings: {imu/data_raw: imu0/data_raw}
+        parameters: {rate: 400.0}        # nested mappings become dotted ROS parameter names
+        group: main                      # process group (default: main)
+        enabled: true                    # false drops a node an included profile declared
+    groups: {main: {restart_limit: 3, restart_delay: 1.0}}
+    record: {path: bags/run, topics: [], segment_seconds: 1.0}
+
+Everything is checked before any node starts; an error names the file, the key path and
+what was expected.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+import os
+from pathlib import Path
+import re
+import sys
+from typing import Any
+
+import yaml
+
+from enbarr_core.framework import registry
+from enbarr_core.framework.errors import ProfileError, RegistryError
+
+TOP_KEYS = ('profile', 'description', 'include', 'environment', 'parameters', 'nodes',
+            'groups', 'record', 'scenario')
+NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
+GROUP_KEYS = ('restart_limit', 'restart_delay')
+RECORD_KEYS = ('path', 'topics', 'segment_seconds')
+DEFAULT_GROUP = 'main'
+_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
+_NAMESPACE = re.compile(r'^(/?[A-Za-z][A-Za-z0-9_]*)*/?$')
+_TOPIC = re.compile(r'^[~/A-Za-z_][A-Za-z0-9_/~{}]*$')
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    name: str
+    plugin: str
+    namespace: str = ''
+    remappings: tuple[tuple[str, str], ...] = ()
+    parameters: Mapping[str, Any] = field(default_factory=dict)  # this node's own
+    group: str = DEFAULT_GROUP
+    origin: str = ''  # the file that named the plugin, for error messages
+
+
+@dataclass(frozen=True)
+class GroupSpec:
+    name: str
+    restart_limit: int = 3
+    restart_delay: float = 1.0
+
+
+@dataclass(frozen=True)
+class RecordSpec:
+    path: str
+    topics: tuple[str, ...] = ()  # empty: every topic
+    segment_seconds: float = 1.0
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    path: str
+    description: str
+    environment: Mapping[str, str]
+    parameters: Mapping[str, Any]  # given to every node that declares them
+    nodes: tuple[NodeSpec, ...]
+    groups: Mapping[str, GroupSpec]
+    record: RecordSpec | None
+    files: tuple[str, ...]
+    origins: Mapping[str, str] = field(default_factory=dict, repr=False)
+    scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
+
+    def node(self, name: str) -> NodeSpec:
+        for n in self.nodes:
+            if n.name == name:
+                return n
+        raise ProfileError(f'no node {name!r}; nodes: {", ".join(self.node_names())}',
+                           path=self.path)
+
+    def node_names(self) -> list[str]:
+        return [n.name for n in self.nodes]
+
+    def group_names(self) -> list[str]:
+        return sorted({n.group for n in self.nodes})
+
+    def where(self, key: str) -> str:
+        """The file that set ``key`` (a dotted key path), for error messages."""
+        return _origin(self.origins, key, self.path)
+
+
+# -- locating --------------------------------------------------------------------------------
+def search_dirs() -> list[Path]:
+    """Where bare profile names are looked up, in order.
+
+    The package's installed ``share/enbarr/params`` (found through the ament index the way
+    ``ros2 run`` finds packages, then under this Python's prefix), then the source tree.
+    """
+    dirs: list[Path] = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        dirs.append(Path(get_package_share_directory('enbarr')) / 'params')
+    except Exception:  # noqa: BLE001 - not installed through ament: fall through
+        pass
+    dirs.append(Path(sys.prefix) / 'share' / 'enbarr' / 'params')
+    dirs.append(Path(__file__).resolve().parents[2] / 'params')
+    return [d for d in dirs if d.is_dir()]
+
+
+def resolve_profile(ref: str, relative_to: Path | None = None) -> Path:
+    """A path (absolute, or relative to ``relative_to``/cwd) or a bare installed name."""
+    candidates: list[Path] = []
+    p = Path(ref).expanduser()
+    if p.is_absolute():
+        candidates.append(p)
+    else:
+        if relative_to is not None:
+            candidates.append(relative_to / p)
+        candidates.append(Path.cwd() / p)
+        if len(p.parts) == 1:
+            names = [ref] if ref.endswith(('.yaml', '.yml')) else [ref + '.yaml', ref]
+            candidates += [d / n for d in search_dirs() for n in names]
+    for c in candidates:
+        if c.is_file():
+            return c.resolve()
+    installed = sorted({f.stem for d in search_dirs() for f in d.glob('*.yaml')})
+    raise ProfileError(
+        f'profile {ref!r} not found (looked in: {", ".join(str(c.parent) for c in candidates)}); '
+        f'installed profiles: {", ".join(installed) or "none"}')
+
+
+# -- loading ---------------------------------------------------------------------------------
+def load_profile(ref: str, overrides: Sequence[str] = ()) -> Profile:
+    """Load, merge and validate a profile; apply ``--set node.param=value`` overrides."""
+    path = resolve_profile(ref)
+    origins: dict[str, str] = {}
+    files: list[str] = []
+    merged = _load_merged(path, (), origins, files)
+    for item in overrides:
+        _apply_set(merged, item, origins)
+    return _build(merged, str(path), origins, tuple(files))
+
+
+def _load_merged(path: Path, stack: tuple[Path, ...], origins: dict[str, str],
+                 files: list[str]) -> dict[str, Any]:
+    if path in stack:
+        chain = ' -> '.join(str(p) for p in (*stack, path))
+        raise ProfileError(f'include cycle: {chain}', path=str(path))
+    raw = _read_yaml(path)
+    where = str(path)
+    includes = raw.pop('include', None) or []
+    if isinstance(includes, str):
+        includes = [includes]
+    if not isinstance(includes, list) or not all(isinstance(i, str) for i in includes):
+        raise ProfileError('expected a list of profile names or paths', path=where,
+                           key='include')
+    merged: dict[str, Any] = {}
+    for inc in includes:
+        try:
+            inc_path = resolve_profile(inc, relative_to=path.parent)
+        except ProfileError as err:
+            raise ProfileError(str(err), path=where, key='include') from err
+        _deep_merge(merged, _load_merged(inc_path, (*stack, path), origins, files), '', {}, '')
+    _check_structure(raw, where)
+    _deep_merge(merged, raw, '', origins, where)
+    files.append(where)
+    return merged
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ProfileError(f'cannot read: {err.strerror}', path=str(path)) from err
+    except UnicodeDecodeError as err:
+        raise ProfileError(f'not UTF-8 text: byte {err.start}: {err.reason}',
+                           path=str(path)) from err
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, 'problem_mark', None)
+        at = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark else ''
+        problem = getattr(err, 'problem', None) or str(err)
+        raise ProfileError(f'{at}invalid YAML: {problem}', path=str(path)) from err
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ProfileError(f'expected a mapping at the top level, got {_kind(raw)}',
+                           path=str(path))
+    return raw
+
+
+def _check_structure(raw: dict[str, Any], where: str) -> None:
+    """Per-file checks of shape and types (semantics come after the merge)."""
+    for key in raw:
+        if key not in TOP_KEYS:
+            raise ProfileError(f'unknown key; expected one of: {", ".join(TOP_KEYS)}',
+                               path=where, key=str(key))
+    for key in ('profile', 'description'):
+        if key in raw and not isinstance(raw[key], str):
+            raise ProfileError(f'expected a string, got {_kind(raw[key])}', path=where, key=key)
+    env = raw.get('environment')
+    if env is not None:
+        _expect_mapping(env, where, 'environment')
+        for k, v in env.items():
+            if not isinstance(v, (str, int, float, bool)):
+                raise ProfileError(f'expected a scalar, got {_kind(v)}', path=where,
+                                   key=f'environment.{k}')
+        raw['environment'] = {str(k): str(v) for k, v in env.items()}
+    if 'parameters' in raw:
+        raw['parameters'] = _flatten_parameters(raw['parameters'], where, 'parameters')
+    nodes = raw.get('nodes')
+    if nodes is not None:
+        _expect_mapping(nodes, where, 'nodes')
+        for name, node in nodes.items():
+            key = f'nodes.{name}'
+            if not isinstance(name, str) or not _NAME.match(name):
+                raise ProfileError('node names are letters, digits and _ and start with a '
+                                   'letter', path=where, key=key)
+            if node is None:
+                node = nodes[name] = {}
+            _expect_mapping(node, where, key)
+            for k in node:
+                if k not in NODE_KEYS:
+                    raise ProfileError(f'unknown key; expected one of: {", ".join(NODE_KEYS)}',
+                                       path=where, key=f'{key}.{k}')
+            for k in ('plugin', 'namespace', 'group'):
+                if k in node and not isinstance(node[k], str):
+                    raise ProfileError(f'expected a string, got {_kind(node[k])}', path=where,
+                                       key=f'{key}.{k}')
+            if 'namespace' in node and not _NAMESPACE.match(node['namespace']):
+                raise ProfileError(f'{node["namespace"]!r} is not a valid ROS namespace',
+                                   path=where, key=f'{key}.namespace')
+            if 'group' in node and not _NAME.match(node['group']):
+                raise ProfileError('group names are letters, digits and _', path=where,
+                                   key=f'{key}.group')
+            if 'enabled' in node and not isinstance(node['enabled'], bool):
+                raise ProfileError('expected true or false', path=where, key=f'{key}.enabled')
+            remaps = node.get('remappings')
+            if remaps is not None:
+                _expect_mapping(remaps, where, f'{key}.remappings')
+                for src, dst in remaps.items():
+                    for t in (src, dst):
+                        if not isinstance(t, str) or not _TOPIC.match(t):
+                            raise ProfileError(f'{t!r} is not a valid topic name', path=where,
+                                               key=f'{key}.remappings')
+            if 'parameters' in node:
+                node['parameters'] = _flatten_parameters(node['parameters'], where,
+                                                         f'{key}.parameters')
+    groups = raw.get('groups')
+    if groups is not None:
+        _expect_mapping(groups, where, 'groups')
+        for gname, g in groups.items():
+            gkey = f'groups.{gname}'
+            if not isinstance(gname, str) or not _NAME.match(gname):
+                raise ProfileError('group names are letters, digits and _', path=where, key=gkey)
+            if g is None:
+                g = groups[gname] = {}
+            _expect_mapping(g, where, gkey)
+            for k, v in g.items():
+                if k not in GROUP_KEYS:
+                    raise ProfileError(f'unknown key; expected one of: {", ".join(GROUP_KEYS)}',
+                                       path=where, key=f'{gkey}.{k}')
+            _expect_number(g, 'restart_limit', where, gkey, integer=True)
+            _expect_number(g, 'restart_delay', where, gkey)
+    if 'scenario' in raw:
+        _expect_mapping(raw['scenario'], where, 'scenario')
+    record = raw.get('record')
+    if record is not None:
+        _expect_mapping(record, where, 'record')
+        for k in record:
+            if k not in RECORD_KEYS:
+                raise ProfileError(f'unknown key; expected one of: {", ".join(RECORD_KEYS)}',
+                                   path=where, key=f'record.{k}')
+        if 'path' in record and not isinstance(record['path'], str):
+            raise ProfileError('expected a directory path', path=where, key='record.path')
+        t = record.get('topics', [])
+        if not isinstance(t, list) or not all(isinstance(x, str) for x in t):
+            raise ProfileError('expected a list of topic names', path=where, key='record.topics')
+        _expect_number(record, 'segment_seconds', where, 'record', positive=True)
+
+
+def _expect_mapping(value: Any, where: str, key: str) -> None:
+    if not isinstance(value, dict):
+        raise ProfileError(f'expected a mapping, got {_kind(value)}', path=where, key=key)
+
+
+def _expect_number(d: dict[str, Any], k: str, where: str, key: str, *, integer: bool = False,
+                   positive: bool = False) -> None:
+    if k not in d:
+        return
+    v = d[k]
+    ok = isinstance(v, int) if integer else isinstance(v, (int, float))
+    if isinstance(v, bool) or not ok or v < 0 or (positive and v == 0):
+        what = 'a non-negative integer' if integer else (
+            'a positive number' if positive else 'a non-negative number')
+        raise ProfileError(f'expected {what}, got {v!r}', path=where, key=f'{key}.{k}')
+
+
+def _kind(v: Any) -> str:
+    return {dict: 'a mapping', list: 'a list', str: 'a string', type(None): 'nothing'}.get(
+        type(v), f'{type(v).__name__} {v!r}')
+
+
+def _flatten_parameters(params: Any, where: str, key: str) -> dict[str, Any]:
+    """Nested mappings -> dotted ROS parameter names; check every value has a ROS type."""
+    if params is None:
+        return {}
+    _expect_mapping(params, where, key)
+    flat: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(f'{prefix}.{k}' if prefix else str(k), v)
+            return
+        flat[prefix] = _parameter_value(value, where, f'{key}.{prefix}')
+
+    walk('', params)
+    return flat
+
+
+def _parameter_value(v: Any, where: str, key: str) -> Any:
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, list):
+        if not v:
+            raise ProfileError('an empty list has no ROS parameter type; leave the parameter '
+                               'out to keep its default', path=where, key=key)
+        if all(isinstance(x, bool) for x in v) or all(isinstance(x, str) for x in v):
+            return list(v)
+        if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            return list(v) if all(isinstance(x, int) for x in v) else [float(x) for x in v]
+        raise ProfileError('a list parameter holds values of one type (numbers, strings or '
+                           f'booleans), got {v!r}', path=where, key=key)
+    raise ProfileError(f'expected a number, string, boolean or list of them, got {_kind(v)}',
+                       path=where, key=key)
+
+
+def _deep_merge(dst: dict[str, Any], src: dict[str, Any], prefix: str,
+                origins: dict[str, str], where: str) -> None:
+    for k, v in src.items():
+        path = f'{prefix}.{k}' if prefix else str(k)
+        if isinstance(v, dict) and isinstance(dst.get(k), dict):
+            _deep_merge(dst[k], v, path, origins, where)
+        else:
+            dst[k] = _copy(v)
+            if where:
+                _record_origins(origins, path, v, where)
+
+
+def _record_origins(origins: dict[str, str], path: str, v: Any, where: str) -> None:
+    origins[path] = where
+    if isinstance(v, dict):
+        for k, sub in v.items():
+            _record_origins(origins, f'{path}.{k}', sub, where)
+
+
+def _copy(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _copy(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return list(v)
+    return v
+
+
+def _apply_set(merged: dict[str, Any], item: str, origins: dict[str, str]) -> None:
+    """``node.param=value`` (value parsed as YAML) into the merged profile."""
+    target, sep, text = item.partition('=')
+    node, dot, param = target.partition('.')
+    if not sep or not dot or not node or not param:
+        raise ProfileError(f'--set {item!r}: expected NODE.PARAM=VALUE, e.g. '
+                           'velocity_control.kp=[1.0,1.0,1.0,1.0,1.0,1.0]')
+    nodes = merged.get('nodes') or {}
+    if node not in nodes:
+        raise ProfileError(f'--set {item!r}: no node {node!r}; nodes: '
+                           f'{", ".join(sorted(nodes))}')
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, 'problem_mark', None)
+        at = f' at column {mark.column + 1}' if mark else ''
+        problem = getattr(err, 'problem', None) or str(err).replace('\n', ' ')
+        raise ProfileError(f'--set {item!r}: value is not valid YAML{at}: {problem}') from err
+    value = _parameter_value(value, '--set', f'{node}.{param}')
+    nodes[node].setdefault('parameters', {})[param] = value
+    origins[f'nodes.{node}.parameters.{param}'] = '--set'
+
+
+def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
+           files: tuple[str, ...]) -> Profile:
+    common = merged.get('parameters') or {}
+    nodes_raw = merged.get('nodes') or {}
+    try:
+        known = registry.entries()
+    except RegistryError as err:
+        raise ProfileError(str(err), path=path) from err
+    nodes: list[NodeSpec] = []
+    for name, n in nodes_raw.items():
+        if not n.get('enabled', True):
+            continue
+        key = f'nodes.{name}.plugin'
+        where = _origin(origins, key, path)
+        plugin = n.get('plugin')
+        if not plugin:
+            raise ProfileError('every node needs a plugin (a registered node name); known: '
+                               + ', '.join(sorted(known)), path=where, key=key)
+        if plugin not in known:
+            try:
+                registry.resolve(plugin)
+            except RegistryError as err:
+                raise ProfileError(str(err), path=where, key=key) from None
+        nodes.append(NodeSpec(
+            name=name, plugin=plugin, namespace=n.get('namespace', ''),
+            remappings=tuple((n.get('remappings') or {}).items()),
+            parameters=dict(n.get('parameters') or {}),
+            group=n.get('group', DEFAULT_GROUP), origin=where))
+    if not nodes:
+        raise ProfileError('the profile runs no nodes', path=path, key='nodes')
+    seen: dict[tuple[str, str], str] = {}
+    for n in nodes:
+        fq = (n.namespace.strip('/'), n.name)
+        if fq in seen:
+            raise ProfileError(f'two nodes named {n.name!r} in namespace {n.namespace!r}',
+                               path=path, key=f'nodes.{n.name}')
+        seen[fq] = n.name
+    groups_raw = merged.get('groups') or {}
+    used = {n.group for n in nodes}
+    for g in groups_raw:
+        if g not in used:
+            raise ProfileError(f'group {g!r} has no nodes; groups in use: '
+                               f'{", ".join(sorted(used))}', path=_origin(
+                                   origins, f'groups.{g}', path), key=f'groups.{g}')
+    groups = {g: GroupSpec(name=g, **(groups_raw.get(g) or {})) for g in sorted(used)}
+    record = None
+    if merged.get('record'):
+        r = merged['record']
+        if 'path' not in r:
+            raise ProfileError('expected a directory path', path=_origin(
+                origins, 'record', path), key='record.path')
+        record = RecordSpec(path=r['path'], topics=tuple(r.get('topics', ())),
+                            segment_seconds=float(r.get('segment_seconds', 1.0)))
+    return Profile(
+        name=merged.get('profile') or Path(path).stem, path=path,
+        description=merged.get('description', ''),
+        environment=dict(merged.get('environment') or {}), parameters=dict(common),
+        nodes=tuple(nodes), groups=groups,
+        record=record, files=files, origins=dict(origins),
+        scenario=merged.get('scenario'))
+
+
+def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
+    """The file that set ``key`` or the nearest enclosing key (the last one to set it)."""
+    best = default
+    for k, origin in origins.items():
+        if key == k or key.startswith(k + '.'):
+            best = origin
+    return best
+
+
+def with_record(profile: Profile, path: str, topics: Sequence[str] = ()) -> Profile:
+    """The profile with recording to ``path`` switched on (``--record``)."""
+    seg = profile.record.segment_seconds if profile.record else 1.0
+    return replace(profile, record=RecordSpec(path=path, topics=tuple(topics) or (
+        profile.record.topics if profile.record else ()), segment_seconds=seg))
+
+
+def apply_environment(profile: Profile, environ: Any = os.environ) -> None:
+    """Set the profile's ``environment`` before ROS starts (overrides what is set)."""
+    for k, v in profile.environment.items():
+        environ[k] = v

@@ -1,0 +1,117 @@
+"""Command receiver: surface commands -> velocity goal (``trajectory_request``) and
+``io_request``.
+
+Velocity commands (``surface_command/twist``) pass through ``CommandGate``: non-finite,
+out-of-range, stale and future-stamped ones are refused and counted, never passed on. The goal
+is republished at ``rate`` and falls to zero after ``timeout`` without an accepted command.
+IO requests (``surface_command/io``) are forwarded when they name an executor and carry a
+finite typed value; the failsafe does not touch IO (lights and manipulator hold).
+Counters go to ``/diagnostics`` every second.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from geometry_msgs.msg import TwistStamped
+from rcl_interfaces.msg import Parameter, ParameterType
+
+from enbarr_interfaces import convert, topics
+
+from enbarr_core.control.command_gate import CommandGate, GateSettings, Verdict
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+
+SPECS = [
+    ParamSpec('max_linear', 1.0, 'Largest accepted linear velocity component', 'm/s', 0.0,
+              20.0),
+    ParamSpec('max_angular', 1.0, 'Largest accepted angular velocity component', 'rad/s',
+              0.0, 20.0),
+    ParamSpec('timeout', 0.5, 'No accepted command for this long -> zero velocity goal', 's',
+              0.01, 60.0),
+    ParamSpec('max_age', 0.5, 'Commands stamped earlier than this are stale', 's', 0.0, 60.0),
+    ParamSpec('max_future', 0.05, 'Commands stamped later than now + this are refused', 's',
+              0.0, 60.0),
+    ParamSpec('rate', 10.0, 'Rate at which the goal is republished', 'Hz', 1.0, 1000.0,
+              read_only=True),
+]
+_EXECUTOR = re.compile(r'^[A-Za-z][A-Za-z0-9_/]*$')
+
+
+class CommandReceiverNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'command_receiver', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.gate = CommandGate()
+        self.io_forwarded = 0
+        self.io_rejected = 0
+        self._failsafe = True
+        values = self.bind_settings(SPECS, self._build, self._apply)
+        self._goal_pub = self.create_link_publisher(topics.TRAJECTORY_REQUEST)
+        self._io_pub = self.create_link_publisher(topics.IO_REQUEST)
+        self.create_subscription(TwistStamped, topics.SURFACE_TWIST.name, self._on_twist,
+                                 topics.SURFACE_TWIST.qos)
+        self.create_subscription(Parameter, topics.SURFACE_IO.name, self._on_io,
+                                 topics.SURFACE_IO.qos)
+        self.create_timer(1.0 / values.values()['rate'], self._publish_goal)
+        self.create_timer(1.0, self._report)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> GateSettings:
+        s = GateSettings(v['max_linear'], v['max_angular'], v['timeout'], v['max_age'],
+                         v['max_future'])
+        s.validate()
+        return s
+
+    def _apply(self, settings: GateSettings) -> None:
+        self.gate.settings = settings
+
+    def _now(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        now = self._now()
+        verdict = self.gate.offer(convert.twist_to_nu(msg.twist),
+                                  convert.stamp_to_ns(msg.header.stamp), now)
+        if verdict is not Verdict.ACCEPTED:
+            self.get_logger().warn(f'refused surface command ({verdict.value})',
+                                   throttle_duration_sec=1.0)
+            return
+        self._publish_goal()
+
+    def _on_io(self, msg: Parameter) -> None:
+        reason = None
+        if not _EXECUTOR.match(msg.name):
+            reason = f'executor name {msg.name!r} is not valid'
+        elif msg.value.type == ParameterType.PARAMETER_NOT_SET:
+            reason = 'value is not set'
+        elif not convert.parameter_value_is_finite(msg.value):
+            reason = 'value is not finite'
+        if reason:
+            self.io_rejected += 1
+            self.get_logger().warn(f'refused io request: {reason}', throttle_duration_sec=1.0)
+            return
+        self.io_forwarded += 1
+        self._io_pub.publish(msg)
+
+    def _publish_goal(self) -> None:
+        now = self._now()
+        goal = self.gate.current_goal(now)
+        failsafe = self.gate.failsafe(now)
+        if failsafe and not self._failsafe:
+            self.get_logger().warn('surface commands lost: velocity goal set to zero')
+        self._failsafe = failsafe
+        msg = TwistStamped()
+        convert.ns_to_stamp(now, msg.header.stamp)
+        msg.header.frame_id = topics.BODY_FRAME
+        convert.set_twist(msg.twist, goal)
+        self._goal_pub.publish(msg)
+
+    def _report(self) -> None:
+        counts = {v.value: n for v, n in self.gate.counts.items()}
+        self.publish_diagnostics(
+            1 if self._failsafe else 0, 'failsafe: no surface command' if self._failsafe
+            else 'ok', {**counts, 'io_forwarded': self.io_forwarded,
+                        'io_rejected': self.io_rejected, 'failsafe': self._failsafe})

@@ -1,0 +1,167 @@
+"""Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``trajectory_corrected``.
+
+The README's ``control_loop_pi.py``, built as a PID with anti-windup and model-based
+feed-forward (``algorithms.velocity_control``) behind a reference model that turns a step in
+the goal into a reachable velocity trajectory. It runs once per filtered IMU sample, with dt
+from the sample stamps. Rates p, q, r are measured by the gyro; roll and pitch feed the
+leveling term. Linear velocity is not measured by an IMU: unless ``velocity_topic`` names an
+``nav_msgs/Odometry`` source (a DVL, an acoustic or visual odometry), surge, sway and heave run
+on the feed-forward alone. A velocity goal stamped more than ``goal_timeout`` before the
+IMU sample counts as zero.
+Every gain is a parameter; a new value acts on the next sample without a jump in tau.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+from sensor_msgs.msg import Imu
+
+from enbarr_interfaces import convert, topics
+from enbarr_interfaces.topics import TopicSpec
+
+from enbarr_core.framework.kinematics import quat_to_euler
+from enbarr_core.control.velocity_control import (
+    VelocityControlSettings, VelocityController, VelocityReference)
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+
+_DOF = 'surge, sway, heave, roll, pitch, yaw'
+SPECS = [
+    ParamSpec('kp', [20.0, 20.0, 20.0, 4.0, 4.0, 4.0], f'Proportional gains ({_DOF})',
+              'N/(m/s), N m/(rad/s)', 0.0, 1e4),
+    ParamSpec('ki', [2.0, 2.0, 2.0, 8.0, 8.0, 8.0], f'Integral gains ({_DOF})',
+              'N/m, N m/rad', 0.0, 1e4),
+    ParamSpec('kd', [0.0, 0.0, 0.0, 0.0, 0.0, 0.0], f'Derivative gains on measurement ({_DOF})',
+              'N/(m/s^2), N m/(rad/s^2)', 0.0, 1e3),
+    ParamSpec('integral_limit', [20.0, 20.0, 20.0, 3.0, 3.0, 3.0],
+              f'Clamp of the integral contribution ({_DOF})', 'N, N m', 0.0, 1e4),
+    ParamSpec('tau_max', [80.0, 80.0, 120.0, 10.0, 10.0, 10.0], f'Output limits ({_DOF})',
+              'N, N m', 1e-6, 1e5),
+    ParamSpec('reference_time_constant', [0.4, 0.4, 0.4, 0.2, 0.2, 0.2],
+              f'Time constants of the goal reference model ({_DOF})', 's', 1e-3, 60.0),
+    ParamSpec('max_accel', [0.5, 0.5, 0.5, 2.0, 2.0, 2.0],
+              f'Acceleration limits of the reference model ({_DOF})', 'm/s^2, rad/s^2', 1e-3,
+              100.0),
+    ParamSpec('level_gain', 2.0, 'Roll/pitch leveling: rate setpoint -k * angle', '1/s', 0.0,
+              100.0),
+    ParamSpec('derivative_filter', 0.02, 'Time constant of the derivative filter', 's', 1e-4,
+              10.0),
+    ParamSpec('goal_timeout', 1.0, 'A velocity goal older than this counts as zero', 's',
+              0.01, 60.0),
+    ParamSpec('max_gap', 0.5, 'IMU gaps longer than this reset the integrators', 's', 1e-3,
+              60.0),
+    ParamSpec('velocity_topic', '', 'nav_msgs/Odometry source of linear body velocity; empty: '
+              'feed-forward only on surge, sway, heave', read_only=True),
+    ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass (feed-forward model)', 'kg', 0.01, 1e5),
+    ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO (3 diagonal or 9 '
+              'values; the diagonal is used)', 'kg m^2', -1e5, 1e5),
+    ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12], 'Added mass diagonal',
+              'kg, kg m^2', 0.0, 1e5),
+    ParamSpec('vehicle.d_lin', [4.03, 6.22, 5.18, 0.07, 0.07, 0.07], 'Linear damping',
+              'N s/m, N m s/rad', 0.0, 1e5),
+    ParamSpec('vehicle.d_quad', [18.18, 21.66, 36.99, 1.55, 1.55, 1.55], 'Quadratic damping',
+              'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
+]
+
+
+def build_settings(v: dict[str, Any]) -> tuple[VelocityControlSettings, dict[str, Any]]:
+    inertia = v['vehicle.inertia']
+    if len(inertia) == 9:
+        inertia = [inertia[0], inertia[4], inertia[8]]
+    elif len(inertia) != 3:
+        raise ValueError(f'vehicle.inertia: expected 3 or 9 values, got {len(inertia)}')
+    m = v['vehicle.mass']
+    rigid = [m, m, m, *inertia]
+    added = v['vehicle.added_mass']
+    if len(added) != 6:
+        raise ValueError(f'vehicle.added_mass: expected 6 values, got {len(added)}')
+    settings = VelocityControlSettings(
+        kp=tuple(v['kp']), ki=tuple(v['ki']), kd=tuple(v['kd']),
+        integral_limit=tuple(v['integral_limit']), tau_max=tuple(v['tau_max']),
+        d_lin=tuple(v['vehicle.d_lin']), d_quad=tuple(v['vehicle.d_quad']),
+        inertia=tuple(a + b for a, b in zip(rigid, added)), level_gain=v['level_gain'],
+        derivative_filter=v['derivative_filter'])
+    settings.validate()
+    for k in ('reference_time_constant', 'max_accel'):
+        if len(v[k]) != 6:
+            raise ValueError(f'{k}: expected 6 values, got {len(v[k])}')
+    return settings, v
+
+
+class VelocityControlNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'control_loop', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.controller: VelocityController | None = None
+        self.reference: VelocityReference | None = None
+        self.output = None
+        self._goal = np.zeros(6)
+        self._goal_ns: int | None = None
+        self._last_ns: int | None = None
+        self._linear = np.full(3, math.nan)
+        self.rejected = 0
+        self.binding = self.bind_settings(SPECS, build_settings, self._apply)
+        self._pub = self.create_link_publisher(topics.TRAJECTORY_CORRECTED)
+        self.create_link_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
+        self.create_link_subscription(topics.IMU, self._on_imu)
+        velocity_topic = self.binding.values()['velocity_topic']
+        if velocity_topic:
+            self.create_link_subscription(TopicSpec(
+                velocity_topic, Odometry, topics.SENSOR_QOS, 'm/s', topics.BODY_FRAME,
+                'linear body velocity source'), self._on_velocity)
+
+    def _apply(self, built: tuple[VelocityControlSettings, dict[str, Any]]) -> None:
+        settings, v = built
+        if self.controller is None:
+            self.controller = VelocityController(settings)
+        else:
+            self.controller.settings = settings
+        reference = VelocityReference(v['reference_time_constant'], v['max_accel'])
+        if self.reference is not None:  # keep the trajectory in progress: no jump
+            reference.nu_ref = self.reference.nu_ref
+        self.reference = reference
+        self._goal_timeout_ns = int(v['goal_timeout'] * 1e9)
+        self._max_gap_ns = int(v['max_gap'] * 1e9)
+
+    def _on_goal(self, msg: TwistStamped) -> None:
+        nu = convert.twist_to_nu(msg.twist)
+        if np.all(np.isfinite(nu)):
+            self._goal, self._goal_ns = nu, convert.stamp_to_ns(msg.header.stamp)
+
+    def _on_velocity(self, msg: Odometry) -> None:
+        v = convert.vector3_to_array(msg.twist.twist.linear)
+        if np.all(np.isfinite(v)):
+            self._linear = v
+
+    def _on_imu(self, msg: Imu) -> None:
+        t = convert.stamp_to_ns(msg.header.stamp)
+        last = self._last_ns
+        if last is not None and t <= last:  # out of order or repeated: drop, keep the state
+            self.rejected += 1
+            return
+        self._last_ns = t
+        if last is None or t - last > self._max_gap_ns:
+            self.controller.reset()
+            self.reference.reset()
+            return
+        # The goal's age on the IMU's time line (both stamped by the same ROS clock).
+        goal = self._goal if (self._goal_ns is not None
+                              and t - self._goal_ns <= self._goal_timeout_ns) else np.zeros(6)
+        omega = convert.vector3_to_array(msg.angular_velocity)
+        roll, pitch, _ = quat_to_euler(convert.quaternion_to_array(msg.orientation))
+        nu = np.concatenate((self._linear, omega))
+        dt = (t - last) * 1e-9
+        nu_ref, nu_ref_dot = self.reference.step(goal, dt)
+        self.output = self.controller.step(nu_ref, nu, dt, nu_d_dot=nu_ref_dot, roll=roll,
+                                           pitch=pitch)
+        w = WrenchStamped()
+        w.header.stamp = msg.header.stamp
+        w.header.frame_id = topics.BODY_FRAME
+        convert.set_wrench(w.wrench, self.output.tau)
+        self._pub.publish(w)

@@ -1,0 +1,381 @@
+"""Attitude and gyro-bias estimation from a 9-DOF IMU: a multiplicative (error-state) EKF.
+
+Frames and conventions follow :mod:`enbarr_core.framework.kinematics`: world ENU, body FLU,
+quaternions ``[x, y, z, w]`` rotating body vectors into the world frame. The accelerometer
+reads specific force (``[0, 0, +g]`` at rest and level, REP-145). Magnetic north is world +y,
+so a vehicle whose body x axis points north has yaw +pi/2.
+
+Why an error-state filter
+-------------------------
+A unit quaternion has four numbers but three degrees of freedom, so a Kalman filter run on
+the quaternion itself carries a singular 4x4 covariance and needs ad-hoc renormalisation.
+The multiplicative EKF (Markley 2003; Sola 2017, "Quaternion kinematics for the error-state
+Kalman filter", sec. 7) keeps the *nominal* attitude ``q`` and gyro bias ``b`` outside the
+filter and estimates only the small error
+
+    q_true = q (x) q{dtheta},        b_true = b + db,        x = [dtheta, db] (6,)
+
+where ``dtheta`` [rad] is a rotation vector about the body axes and ``q{.}`` is
+``kinematics.quat_from_rotvec``. The 6x6 covariance of ``x``
+is well conditioned and has exactly the meaning ROS wants in
+``sensor_msgs/Imu.orientation_covariance`` (attitude error about body x, y, z).
+
+Each step:
+
+1. Predict. The nominal state is integrated exactly (``kinematics.quat_integrate``) with the
+   bias-corrected rate ``w = gyro - b``; the error covariance is propagated by filterpy's
+   ``KalmanFilter.predict`` with (Sola 2017, sec. 7; Farrenkopf's gyro model for Q)
+
+       F = [[R(w dt)', -dt (I - S(w dt) / 2)],      dtheta' = -S(w) dtheta - db - n_g
+            [0,         I                  ]]       db'     = n_b
+       Q = [[sg^2 dt + sb^2 dt^3 / 3, -sb^2 dt^2 / 2],
+            [-sb^2 dt^2 / 2,          sb^2 dt       ]] (x) I3
+
+   with ``sg = gyro_noise``, ``sb = gyro_bias_walk`` (continuous densities).
+2. Update, one filterpy ``KalmanFilter.update`` call whose measurement stacks what is
+   available this step (``x`` is zero after the reset, so ``z`` is passed as the innovation):
+
+   - gravity: ``h = R' [0, 0, g]`` (body), ``y = accel - h``, ``H = [S(h), 0]``. The component
+     of ``y`` along ``h`` (the specific-force magnitude) is in the null space of ``H P H'`` and
+     gets exactly zero gain, so only the direction of gravity corrects roll and pitch. The
+     update is skipped when ``| |accel| - g | > accel_gate`` (the vehicle is accelerating).
+   - heading: the magnetometer is rotated to the world frame with the estimated attitude and
+     its horizontal part compared with north, ``y = ssa(pi/2 - atan2(m_w,y, m_w,x))``; that is
+     the tilt-compensated heading minus the estimated yaw. A yaw error is a rotation about
+     world z, so ``H = [e_z' R, 0]`` and the magnetometer corrects heading only: a magnetic
+     disturbance (thrusters, a steel hull) cannot pull roll and pitch off the gravity vector.
+     The heading error caused by the tilt error (factor tan(inclination)) is small next to
+     ``mag_noise`` once the tilt has converged and is treated as part of that noise.
+
+   While the heading is unknown (no usable magnetometer sample yet) yaw is referenced to the
+   heading at initialisation and carries zero initial variance; the first usable magnetometer
+   sample then rotates the estimate about world z onto north and sets the heading variance,
+   instead of a Kalman update. A yaw variance of order pi^2 would be far outside the
+   linearisation: every small tilt correction leaks it into the tilt axes, and the gravity
+   updates then "observe" yaw and turn it by tens of degrees (seen in simulation).
+
+   filterpy applies the Joseph form ``P = (I-KH)P(I-KH)' + KRK'``, which keeps ``P``
+   symmetric positive definite for any gain.
+3. Inject and reset: ``q <- q (x) q{dtheta}``, ``b <- b + db``, ``x <- 0`` and
+   ``P <- G P G'`` with ``G = blockdiag(I - S(dtheta / 2), I)`` (Sola 2017, sec. 7).
+
+The step does a 6x6 predict and one small update: no scipy and no per-step allocation of the
+filter object, so it runs at IMU rate (400 Hz) on a Raspberry Pi.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from numpy.typing import ArrayLike, NDArray
+
+from enbarr_core.framework.kinematics import (
+    quat_from_euler,
+    quat_from_rotvec,
+    quat_integrate,
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotmat,
+    skew,
+    ssa,
+)
+
+Vector = NDArray[np.float64]
+
+# A magnetometer vector shorter than this is "no reading" (a driver publishing zeros).
+_MIN_MAG_NORM = 1e-12
+# Skip the heading update when the horizontal field is less than this fraction of the field
+# (inclination above ~87 deg, i.e. near a magnetic pole): the heading would be mostly noise.
+_MIN_MAG_HORIZONTAL_FRACTION = 0.05
+# Below this the accelerometer carries no gravity direction to initialise from [m/s^2].
+_MIN_ACCEL_NORM = 1e-6
+
+_I3 = np.eye(3)
+
+
+@dataclass(frozen=True)
+class AttitudeFilterSettings:
+    """Noise model and options of :class:`AttitudeFilter`.
+
+    gyro_noise: gyro white-noise density [rad/s/sqrt(Hz)] (angle random walk).
+    gyro_bias_walk: gyro bias random-walk density [rad/s^2/sqrt(Hz)].
+    accel_noise: accelerometer noise std per sample [m/s^2].
+    mag_noise: std of the heading from the tilt-compensated magnetometer [rad].
+    accel_gate: skip the gravity update when | |a| - g | exceeds this [m/s^2].
+    use_magnetometer: correct heading with the magnetometer (else yaw drifts with the gyro).
+    initial_bias_std: std of the gyro bias at initialisation [rad/s].
+    gravity: magnitude of gravity [m/s^2].
+    """
+
+    gyro_noise: float = 0.003
+    gyro_bias_walk: float = 1e-5
+    accel_noise: float = 0.05
+    mag_noise: float = 0.05
+    accel_gate: float = 1.0
+    use_magnetometer: bool = True
+    initial_bias_std: float = 0.02
+    gravity: float = 9.81
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first field that is not a positive finite number."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == 'use_magnetometer':
+                if not isinstance(value, (bool, np.bool_)):
+                    raise ValueError(
+                        f'AttitudeFilterSettings.use_magnetometer must be a bool, got {value!r}')
+                continue
+            if isinstance(value, (bool, np.bool_)) or not isinstance(
+                    value, (int, float, np.integer, np.floating)):
+                raise ValueError(
+                    f'AttitudeFilterSettings.{f.name} must be a number, got {value!r}')
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(
+                    f'AttitudeFilterSettings.{f.name} must be positive and finite, '
+                    f'got {value!r}')
+
+
+@dataclass(frozen=True)
+class AttitudeEstimate:
+    """Output of one :meth:`AttitudeFilter.step` (arrays are read-only).
+
+    q: (4,) ``[x, y, z, w]`` body -> world (ENU) attitude.
+    omega: (3,) bias-corrected body rate [rad/s].
+    gyro_bias: (3,) estimated gyro bias [rad/s].
+    orientation_cov: (3, 3) covariance of the attitude error about body x, y, z [rad^2].
+    omega_cov: (3, 3) covariance of ``omega`` (gyro noise of one sample plus bias
+        uncertainty) [(rad/s)^2].
+    accel_used: the gravity update ran this step (False: gated out, or initialising step).
+    mag_used: the magnetometer corrected (or, the first time, aligned) the heading this step.
+    """
+
+    q: Vector
+    omega: Vector
+    gyro_bias: Vector
+    orientation_cov: Vector
+    omega_cov: Vector
+    accel_used: bool = False
+    mag_used: bool = False
+
+
+def _vector3(value: ArrayLike, name: str) -> Vector:
+    v = np.asarray(value, dtype=float)
+    if v.shape != (3,):
+        raise ValueError(f'{name} must have shape (3,), got {v.shape}')
+    if not np.isfinite(v).all():
+        raise ValueError(f'{name} is not finite: {v!r}')
+    return v
+
+
+def _frozen(a: Vector) -> Vector:
+    a.setflags(write=False)
+    return a
+
+
+class AttitudeFilter:
+    """Multiplicative EKF for attitude and gyro bias (see the module docstring)."""
+
+    def __init__(self, settings: AttitudeFilterSettings = AttitudeFilterSettings()) -> None:
+        settings.validate()
+        self._settings = settings
+        self._kf = KalmanFilter(dim_x=6, dim_z=4)
+        self._q = np.array([0.0, 0.0, 0.0, 1.0])
+        self._b = np.zeros(3)
+        self._initialized = False
+        self._heading_known = False
+        # Preallocated per-step matrices, filled in place.
+        self._F = np.eye(6)
+        self._Q = np.zeros((6, 6))
+        self._G = np.eye(6)
+        self.reset()
+
+    @property
+    def settings(self) -> AttitudeFilterSettings:
+        return self._settings
+
+    @settings.setter
+    def settings(self, settings: AttitudeFilterSettings) -> None:
+        """Swap in new settings; Q and R use them from the next step, the state is kept."""
+        settings.validate()
+        self._settings = settings
+
+    @property
+    def initialized(self) -> bool:
+        return self._initialized
+
+    def reset(self) -> None:
+        """Forget the state; the next :meth:`step` (or :meth:`initialize`) starts over."""
+        self._initialized = False
+        self._heading_known = False
+        self._q = np.array([0.0, 0.0, 0.0, 1.0])
+        self._b = np.zeros(3)
+        self._kf.x = np.zeros((6, 1))
+        self._kf.P = np.eye(6)
+
+    @property
+    def heading_known(self) -> bool:
+        """Yaw is referenced to magnetic north (else to the heading at initialisation)."""
+        return self._heading_known
+
+    def initialize(self, accel: ArrayLike, mag: ArrayLike | None = None) -> None:
+        """Attitude from one sample: roll and pitch from gravity, yaw from the magnetometer.
+
+        accel: specific force [m/s^2] (body). mag: magnetic field (body, any unit) or None.
+        Without a usable magnetometer (None, ``use_magnetometer`` False, or a field too
+        vertical to give a heading) yaw starts at 0 with zero variance, i.e. the world frame is
+        the initial heading, and is aligned to north by the first usable magnetometer sample.
+        The gyro bias starts at zero with std ``initial_bias_std``.
+        """
+        s = self._settings
+        a = _vector3(accel, 'accel')
+        m = None if mag is None else _vector3(mag, 'mag')
+        if math.sqrt(float(a @ a)) < _MIN_ACCEL_NORM:
+            raise ValueError(f'accel {a!r} is too small to give the gravity direction')
+        # a = g [-sin(theta), sin(phi) cos(theta), cos(phi) cos(theta)] at rest.
+        roll = math.atan2(a[1], a[2])
+        pitch = math.atan2(-a[0], math.hypot(a[1], a[2]))
+        # One sample of a possibly moving vehicle: tilt std from noise or the largest accepted
+        # non-gravitational specific force, whichever is larger [rad].
+        tilt_std = max(s.accel_noise, s.accel_gate) / s.gravity
+        self._q = quat_normalize(quat_from_euler(roll, pitch, 0.0))
+        self._b = np.zeros(3)
+        # Attitude covariance is diagonal in the world frame (tilt, tilt, heading); express it
+        # about the body axes: dtheta_body = R' dtheta_world.
+        R = quat_to_rotmat(self._q)
+        P = np.zeros((6, 6))
+        P[:3, :3] = R.T @ np.diag([tilt_std ** 2, tilt_std ** 2, 0.0]) @ R
+        P[3:, 3:] = s.initial_bias_std ** 2 * _I3
+        self._kf.x = np.zeros((6, 1))
+        self._kf.P = P
+        self._heading_known = False
+        self._initialized = True
+        if s.use_magnetometer and m is not None:
+            self._align_heading(m)
+
+    def _align_heading(self, m: Vector) -> bool:
+        """Rotate the estimate about world z so the magnetometer points north; True if done.
+
+        Used instead of a Kalman update while the heading is unknown: a yaw error of up to pi
+        is far outside the linearisation of the filter. The world-z rows of the attitude
+        covariance are replaced by the heading variance of the magnetometer, which is
+        ``mag_noise^2`` plus the tilt variance times tan(inclination)^2.
+        """
+        m_norm = math.sqrt(float(m @ m))
+        if m_norm <= _MIN_MAG_NORM:
+            return False
+        m_w = quat_to_rotmat(self._q) @ m
+        horizontal = math.hypot(m_w[0], m_w[1])
+        if horizontal <= _MIN_MAG_HORIZONTAL_FRACTION * m_norm:
+            return False
+        dpsi = float(ssa(0.5 * math.pi - math.atan2(m_w[1], m_w[0])))
+        self._q = quat_normalize(quat_multiply(quat_from_rotvec([0.0, 0.0, dpsi]), self._q))
+        T = np.zeros((6, 6))                                        # body -> world error axes
+        T[:3, :3] = quat_to_rotmat(self._q)
+        T[3:, 3:] = _I3
+        Pw = T @ self._kf.P @ T.T
+        tilt_var = max(Pw[0, 0], Pw[1, 1])
+        Pw[2, :] = 0.0
+        Pw[:, 2] = 0.0
+        Pw[2, 2] = self._settings.mag_noise ** 2 + (m_w[2] / horizontal) ** 2 * tilt_var
+        self._kf.P = T.T @ Pw @ T
+        self._heading_known = True
+        return True
+
+    def step(self, gyro: ArrayLike, accel: ArrayLike, mag: ArrayLike | None,
+             dt: float) -> AttitudeEstimate:
+        """Advance the filter by one IMU sample.
+
+        gyro: body rate [rad/s]. accel: specific force [m/s^2] (body). mag: magnetic field
+        (body, any unit; only its direction is used) or None. dt: time since the previous
+        sample [s], > 0. Raises ``ValueError`` on non-finite input or a bad ``dt``, leaving
+        the state untouched. The first call only initialises from ``accel`` and ``mag``.
+        """
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f'dt must be positive and finite, got {dt!r}')
+        w_m = _vector3(gyro, 'gyro')
+        a = _vector3(accel, 'accel')
+        m = None if mag is None else _vector3(mag, 'mag')
+        s = self._settings
+        kf = self._kf
+
+        if not self._initialized:
+            self.initialize(a, m)
+            return self._estimate(w_m - self._b, dt, False, False)
+
+        # --- predict -----------------------------------------------------------------------
+        w = w_m - self._b
+        wdt = w * dt
+        self._q = quat_integrate(self._q, w, dt)
+        S = skew(wdt)
+        F = self._F
+        F[:3, :3] = quat_to_rotmat(quat_from_rotvec(wdt)).T       # exp(-S(w dt))
+        F[:3, 3:] = -dt * (_I3 - 0.5 * S)
+        sg2, sb2 = s.gyro_noise ** 2, s.gyro_bias_walk ** 2
+        Q = self._Q
+        Q[:3, :3] = (sg2 * dt + sb2 * dt ** 3 / 3.0) * _I3
+        Q[:3, 3:] = Q[3:, :3] = (-0.5 * sb2 * dt * dt) * _I3
+        Q[3:, 3:] = (sb2 * dt) * _I3
+        kf.F = F
+        kf.Q = Q
+        kf.predict()                                                # P = FPF' + Q
+
+        # --- update ------------------------------------------------------------------------
+        R_wb = quat_to_rotmat(self._q)
+        rows = 0
+        H = np.zeros((4, 6))
+        z = np.zeros((4, 1))
+        r = np.zeros(4)
+        a_norm = math.sqrt(float(a @ a))
+        accel_used = abs(a_norm - s.gravity) <= s.accel_gate
+        if accel_used:
+            h = s.gravity * R_wb[2]                                 # h = R' [0, 0, g]
+            H[:3, :3] = skew(h)
+            z[:3, 0] = a - h                                        # y = z - h(x)
+            r[:3] = s.accel_noise ** 2
+            rows = 3
+        mag_used = False
+        if s.use_magnetometer and m is not None:
+            m_norm = math.sqrt(float(m @ m))
+            if m_norm > _MIN_MAG_NORM:
+                m_w = R_wb @ m
+                horizontal = math.hypot(m_w[0], m_w[1])
+                if horizontal > _MIN_MAG_HORIZONTAL_FRACTION * m_norm:
+                    mag_used = True
+                    if self._heading_known:
+                        H[rows, :3] = R_wb[2]                       # e_z' R
+                        z[rows, 0] = ssa(0.5 * math.pi - math.atan2(m_w[1], m_w[0]))
+                        r[rows] = s.mag_noise ** 2
+                        rows += 1
+        if rows:
+            kf.update(z[:rows], R=np.diag(r[:rows]), H=H[:rows])    # K = PH'inv(HPH' + R)
+            # --- inject the error into the nominal state and reset it ----------------------
+            x = kf.x[:, 0]
+            dtheta = x[:3]
+            self._q = quat_normalize(quat_multiply(self._q, quat_from_rotvec(dtheta)))
+            self._b = self._b + x[3:]
+            G = self._G
+            G[:3, :3] = _I3 - skew(0.5 * dtheta)
+            P = G @ kf.P @ G.T                                      # P = GPG'
+            kf.P = 0.5 * (P + P.T)
+            kf.x = np.zeros((6, 1))
+        if mag_used and not self._heading_known:
+            mag_used = self._align_heading(m)                       # first heading: snap to it
+        return self._estimate(w_m - self._b, dt, accel_used, mag_used)
+
+    def _estimate(self, omega: Vector, dt: float, accel_used: bool,
+                  mag_used: bool) -> AttitudeEstimate:
+        P = self._kf.P
+        omega_cov = P[3:, 3:] + (self._settings.gyro_noise ** 2 / dt) * _I3
+        return AttitudeEstimate(
+            q=_frozen(self._q.copy()),
+            omega=_frozen(omega),
+            gyro_bias=_frozen(self._b.copy()),
+            orientation_cov=_frozen(P[:3, :3].copy()),
+            omega_cov=_frozen(omega_cov),
+            accel_used=accel_used,
+            mag_used=mag_used,
+        )

@@ -1,0 +1,111 @@
+"""Orientation filter node: ``imu/data_raw`` (+ ``imu/mag``) -> ``imu/data``.
+
+The README's ``core/filtering/kalman.py``, built as an error-state Kalman filter on filterpy
+(``algorithms.attitude_filter``). dt comes from the sample stamps. A sample with NaN/Inf, a
+stamp that does not advance, or a gap longer than ``max_gap`` is dropped and counted (a gap
+re-initializes the filter from the next sample).
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import Imu, MagneticField
+
+from enbarr_interfaces import convert, topics
+
+from enbarr_core.estimation.attitude_filter import AttitudeFilter, AttitudeFilterSettings
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+
+_D = AttitudeFilterSettings()
+SPECS = [
+    ParamSpec('gyro_noise', _D.gyro_noise, 'Gyro white-noise density', 'rad/s/sqrt(Hz)',
+              1e-9, 10.0),
+    ParamSpec('gyro_bias_walk', _D.gyro_bias_walk, 'Gyro bias random-walk density',
+              'rad/s^2/sqrt(Hz)', 1e-12, 1.0),
+    ParamSpec('accel_noise', _D.accel_noise, 'Accelerometer noise, std per sample', 'm/s^2',
+              1e-6, 100.0),
+    ParamSpec('mag_noise', _D.mag_noise, 'Heading noise of the magnetometer', 'rad', 1e-6,
+              10.0),
+    ParamSpec('accel_gate', _D.accel_gate, 'Skip the gravity update when | |a| - g | exceeds '
+              'this', 'm/s^2', 1e-3, 100.0),
+    ParamSpec('use_magnetometer', _D.use_magnetometer, 'Correct heading from imu/mag'),
+    ParamSpec('initial_bias_std', _D.initial_bias_std, 'Gyro bias std at initialization',
+              'rad/s', 1e-9, 10.0),
+    ParamSpec('gravity', _D.gravity, 'Magnitude of gravity', 'm/s^2', 1.0, 30.0),
+    ParamSpec('max_gap', 0.5, 'A gap between samples longer than this re-initializes', 's',
+              1e-3, 60.0),
+    ParamSpec('mag_max_age', 0.05, 'Use imu/mag only when its stamp is this close to the '
+              'IMU sample', 's', 0.0, 10.0),
+]
+_FIELDS = [f.name for f in fields(AttitudeFilterSettings)]
+
+
+class AttitudeFilterNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'filtering', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.filter = AttitudeFilter()
+        self.rejected = 0
+        self.samples = 0
+        self._last_ns: int | None = None
+        self._mag: np.ndarray | None = None
+        self._mag_ns = 0
+        self.bind_settings(SPECS, self._build, self._apply)
+        self._pub = self.create_link_publisher(topics.IMU)
+        self.create_link_subscription(topics.IMU_MAG, self._on_mag)
+        self.create_link_subscription(topics.IMU_RAW, self._on_imu)
+        self.create_timer(1.0, self._report)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> tuple[AttitudeFilterSettings, dict[str, Any]]:
+        settings = AttitudeFilterSettings(**{k: v[k] for k in _FIELDS})
+        settings.validate()
+        return settings, v
+
+    def _apply(self, built: tuple[AttitudeFilterSettings, dict[str, Any]]) -> None:
+        self.filter.settings = built[0]
+        self._max_gap_ns = int(built[1]['max_gap'] * 1e9)
+        self._mag_age_ns = int(built[1]['mag_max_age'] * 1e9)
+
+    def _on_mag(self, msg: MagneticField) -> None:
+        m = convert.vector3_to_array(msg.magnetic_field)
+        if np.all(np.isfinite(m)):
+            self._mag, self._mag_ns = m, convert.stamp_to_ns(msg.header.stamp)
+
+    def _on_imu(self, msg: Imu) -> None:
+        t = convert.stamp_to_ns(msg.header.stamp)
+        gyro = convert.vector3_to_array(msg.angular_velocity)
+        accel = convert.vector3_to_array(msg.linear_acceleration)
+        if not convert.all_finite(gyro, accel):
+            self.rejected += 1
+            return
+        last, self._last_ns = self._last_ns, t
+        if last is None or t - last > self._max_gap_ns:
+            if last is not None:  # a gap (not the first sample): dropped and counted
+                self.rejected += 1
+            self.filter.reset()
+            return
+        if t <= last:
+            self.rejected += 1
+            self._last_ns = last
+            return
+        mag = self._mag if abs(t - self._mag_ns) <= self._mag_age_ns else None
+        est = self.filter.step(gyro, accel, mag, (t - last) * 1e-9)
+        self.samples += 1
+        out = Imu()
+        out.header = msg.header
+        convert.set_quaternion(out.orientation, est.q)
+        convert.set_covariance3(out.orientation_covariance, est.orientation_cov)
+        convert.set_vector3(out.angular_velocity, est.omega)
+        convert.set_covariance3(out.angular_velocity_covariance, est.omega_cov)
+        out.linear_acceleration = msg.linear_acceleration
+        out.linear_acceleration_covariance = msg.linear_acceleration_covariance
+        self._pub.publish(out)
+
+    def _report(self) -> None:
+        self.publish_diagnostics(0, 'ok', {'samples': self.samples, 'rejected': self.rejected})

@@ -1,0 +1,253 @@
+"""The base class of every Enbarr node.
+
+An ``EnbarrNode`` is an ordinary rclpy ``Node`` (``__init__(node_name, **kwargs)`` passes
+``context``, ``namespace``, ``parameter_overrides``, ``cli_args`` ... through) with four
+additions that the orchestrator relies on:
+
+- ``create_link_publisher`` / ``create_link_subscription``: fast topics over the in-process
+  ``LinkBus`` (``enbarr_interfaces.links``);
+- ``bind_settings``: declared, validated, live-tunable parameters (``enbarr_core.framework.params``);
+- ``create_rate_loop``: a periodic source on its own thread, for drivers and simulators whose
+  rate matters more than an executor timer can give (``docs/architecture.md``);
+- ``start`` / ``stop`` / ``safe_state``: bringup starts sources once the graph is wired,
+  stops them first on every exit path, then asks every node to put its actuators in their
+  safe state (thrusters neutral) before anything is destroyed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+import threading
+import time
+from typing import Any, TypeVar
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.node import Node
+
+from enbarr_interfaces import topics
+from enbarr_interfaces.links import Callback, LinkBus, LinkPublisher, LinkSubscription
+from enbarr_interfaces.topics import TopicSpec
+
+from enbarr_core.framework.params import ParamSpec, SettingsBinding
+
+S = TypeVar('S')
+
+#: Period of actuator watchdogs and other supervision timers [s]. Every executor wake-up costs
+#: about half a millisecond of CPU in rclpy whatever the callback does, so supervision runs at
+#: 10 Hz: a command timeout of 0.25 s trips within 0.35 s.
+WATCHDOG_PERIOD = 0.1
+
+
+class RateLoop:
+    """Calls ``callback()`` every ``1/rate_hz`` seconds on a dedicated thread.
+
+    Deadlines are absolute (no drift); when a call overruns by more than a period the missed
+    ticks are skipped and counted, never bunched. An exception in ``callback`` is logged and
+    counted, and the loop goes on: a driver that fails one read must not stop its node.
+    """
+
+    def __init__(self, node: Node, rate_hz: float, callback: Callable[[], None],
+                 name: str) -> None:
+        if not rate_hz > 0.0:
+            raise ValueError(f'rate must be positive, got {rate_hz}')
+        self.node = node
+        self.period = 1.0 / rate_hz
+        self.callback = callback
+        self.name = name
+        self.ticks = 0
+        self.overruns = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> None:
+        if self.running:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)
+
+    def _run(self) -> None:
+        deadline = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self.callback()
+            except Exception as err:  # noqa: BLE001 - keep the loop alive, see class doc
+                self.errors += 1
+                self.node.get_logger().error(
+                    f'{self.name}: {err!r} ({self.errors} errors so far)',
+                    throttle_duration_sec=1.0)
+            self.ticks += 1
+            deadline += self.period
+            delay = deadline - time.monotonic()
+            if delay < -self.period:
+                skipped = int(-delay / self.period)
+                self.overruns += skipped
+                deadline += skipped * self.period
+                delay = deadline - time.monotonic()
+            if delay > 0.0:
+                self._stop.wait(delay)
+
+
+class CommandWatchdog:
+    """Neutral when commands stop: the guard every actuator node shares.
+
+    The node applies each command with ``lock`` held and calls ``fed()``. Every
+    ``WATCHDOG_PERIOD`` the watchdog checks, under the same lock, whether the output is not
+    already neutral and no command came for ``timeout`` seconds; then it calls
+    ``go_neutral()`` (lock held), counts it in ``timeouts`` and logs ``message`` once.
+    Wall-clock (monotonic) time, like the watchdog of a real ESC or Arduino firmware.
+    """
+
+    def __init__(self, node: Node, is_neutral: Callable[[], bool],
+                 go_neutral: Callable[[], None], message: str) -> None:
+        self.lock = threading.Lock()
+        self.timeout_ns = 0
+        self.timeouts = 0
+        self._last_ns = 0
+        self._node = node
+        self._is_neutral = is_neutral
+        self._go_neutral = go_neutral
+        self._message = message
+        node.create_timer(WATCHDOG_PERIOD, self._check)
+
+    def set_timeout(self, seconds: float) -> None:
+        self.timeout_ns = int(seconds * 1e9)
+
+    def fed(self) -> None:
+        """A command was applied just now (call with ``lock`` held)."""
+        self._last_ns = time.monotonic_ns()
+
+    def _check(self) -> None:
+        with self.lock:
+            if self._is_neutral() or time.monotonic_ns() - self._last_ns <= self.timeout_ns:
+                return
+            self.timeouts += 1
+            self._go_neutral()
+        self._node.get_logger().warn(self._message)
+
+
+def sim_steps(time_ns: int, now_ns: int, period_ns: int,
+              max_steps: int) -> tuple[int, float, bool]:
+    """How a real-time simulator reaches ``now_ns`` from ``time_ns``: (steps, dt [s], skipped).
+
+    The span is cut into round(span / period) equal steps (at least one), so the simulated
+    state is exactly at the clock's present when it is published: its stamp is the time of
+    the truth it carries, and a sensor sample is not older than the tick that produced it.
+    A span longer than ``max_steps`` periods is cut to that (``skipped``: time was lost).
+    Driven by simulated time (``enbarr scenario``) every span is exactly one period.
+    """
+    span = now_ns - time_ns
+    if span <= 0:
+        return 0, 0.0, False
+    skipped = span > max_steps * period_ns
+    if skipped:
+        span = max_steps * period_ns
+    n = max(1, round(span / period_ns))
+    return n, span * 1e-9 / n, skipped
+
+
+class LatencyLog:
+    """Ring buffer of sensor-stamp -> actuator latencies [ns], kept by actuator plugins so
+    ``enbarr bench`` (and a curious user) can read what the chain really costs."""
+
+    def __init__(self, size: int = 4096) -> None:
+        self.samples = np.zeros(size, dtype=np.int64)
+        self.count = 0
+
+    def add(self, latency_ns: int) -> None:
+        self.samples[self.count % len(self.samples)] = latency_ns
+        self.count += 1
+
+    def last(self, n: int) -> np.ndarray:
+        """The newest ``n`` samples (at most the buffer size) [ns]."""
+        n = min(n, self.count, len(self.samples))
+        return self.samples[np.arange(self.count - n, self.count) % len(self.samples)]
+
+
+class EnbarrNode(Node):
+    """Base of core and plugin nodes; see the module docstring."""
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._bus = LinkBus.of(self.context)
+        self._links: list[LinkPublisher | LinkSubscription] = []
+        self._loops: list[RateLoop] = []
+        self._diagnostics_pub = None
+        self._started = False
+
+    # -- topics -----------------------------------------------------------------------------
+    def create_link_publisher(self, spec: TopicSpec) -> LinkPublisher:
+        pub = self._bus.create_publisher(self, spec)
+        self._links.append(pub)
+        return pub
+
+    def create_link_subscription(self, spec: TopicSpec, callback: Callback) -> LinkSubscription:
+        sub = self._bus.create_subscription(self, spec, callback)
+        self._links.append(sub)
+        return sub
+
+    @property
+    def link_bus(self) -> LinkBus:
+        return self._bus
+
+    # -- parameters -------------------------------------------------------------------------
+    def bind_settings(self, specs: Sequence[ParamSpec], build: Callable[[dict[str, Any]], S],
+                      apply: Callable[[S], None]) -> SettingsBinding[S]:
+        return SettingsBinding(self, specs, build, apply)
+
+    # -- sources and lifecycle --------------------------------------------------------------
+    def create_rate_loop(self, rate_hz: float, callback: Callable[[], None]) -> RateLoop:
+        loop = RateLoop(self, rate_hz, callback, f'{self.get_name()}_loop')
+        self._loops.append(loop)
+        if self._started:
+            loop.start()
+        return loop
+
+    def start(self) -> None:
+        """Start the node's sources. Called by bringup after every node exists and is wired."""
+        self._started = True
+        for loop in self._loops:
+            loop.start()
+
+    def stop(self) -> None:
+        """Stop the node's sources (bringup calls it on every node before ``safe_state``)."""
+        self._started = False
+        for loop in self._loops:
+            loop.stop()
+
+    def safe_state(self) -> None:
+        """Put this node's actuators in their safe state. Nodes with actuators override it."""
+
+    def publish_diagnostics(self, level: int, message: str, values: dict[str, Any]) -> None:
+        """Publish this node's status on ``/diagnostics`` (counters, modes, faults)."""
+        if self._diagnostics_pub is None:
+            self._diagnostics_pub = self.create_publisher(
+                DiagnosticArray, topics.DIAGNOSTICS.name, topics.DIAGNOSTICS.qos,
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        status = DiagnosticStatus(
+            level=bytes([level]), name=self.get_fully_qualified_name(), message=message,
+            hardware_id=self.get_name(),
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(msg)
+
+    def destroy_node(self) -> None:
+        self.stop()
+        for link in self._links:
+            link.destroy()
+        self._links.clear()
+        super().destroy_node()

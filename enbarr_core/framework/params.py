@@ -1,0 +1,207 @@
+"""Declared, validated, live-tunable parameters (what replaces the seeds' gain server).
+
+A node lists its parameters as ``ParamSpec``s and gives a ``build`` function that turns the
+values into an immutable settings object (raising ``ValueError`` with a reason when they do
+not fit together). ``declare_settings`` declares them with a ``ParameterDescriptor``
+(description, units, range), refuses any ``set_parameters`` (what ``ros2 param set`` calls)
+whose result ``build`` rejects, with the reason and the old value kept, and otherwise swaps
+the new settings object into the node with ``apply`` after the set succeeded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+import math
+from typing import Any, Generic, TypeVar
+
+from rcl_interfaces.msg import (
+    FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
+from rclpy.exceptions import InvalidParameterTypeException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from enbarr_core.framework.errors import ConfigurationError
+
+S = TypeVar('S')
+
+_TYPES = {
+    bool: ParameterType.PARAMETER_BOOL,
+    int: ParameterType.PARAMETER_INTEGER,
+    float: ParameterType.PARAMETER_DOUBLE,
+    str: ParameterType.PARAMETER_STRING,
+}
+_ARRAY_TYPES = {
+    bool: ParameterType.PARAMETER_BOOL_ARRAY,
+    int: ParameterType.PARAMETER_INTEGER_ARRAY,
+    float: ParameterType.PARAMETER_DOUBLE_ARRAY,
+    str: ParameterType.PARAMETER_STRING_ARRAY,
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter.
+
+    ``default`` fixes the type: a float (``0.0``, never ``0``) for gains, a list for arrays
+    (``element`` then names the element type, needed when the default list is empty).
+    ``low``/``high`` bound a number or every element of a number array.
+    """
+
+    name: str
+    default: Any
+    description: str
+    units: str = ''
+    low: float | None = None
+    high: float | None = None
+    read_only: bool = False
+    element: type | None = None
+
+    @property
+    def is_array(self) -> bool:
+        return isinstance(self.default, (list, tuple))
+
+    @property
+    def ros_type(self) -> int:
+        if self.is_array:
+            element = self.element or type(self.default[0])
+            return _ARRAY_TYPES[element]
+        return _TYPES[type(self.default)]
+
+    def descriptor(self) -> ParameterDescriptor:
+        text = self.description + (f' [{self.units}]' if self.units else '')
+        if self.is_array and (self.low is not None or self.high is not None):
+            text += f' (each element in [{self.low}, {self.high}])'
+        d = ParameterDescriptor(description=text, type=self.ros_type, read_only=self.read_only)
+        # rclpy enforces these ranges itself for scalars; arrays are checked in check().
+        if not self.is_array and isinstance(self.default, float) and self._bounded:
+            d.floating_point_range = [FloatingPointRange(
+                from_value=self._low, to_value=self._high, step=0.0)]
+        elif (not self.is_array and isinstance(self.default, int)
+              and not isinstance(self.default, bool) and self._bounded):
+            d.integer_range = [IntegerRange(
+                from_value=int(self._low), to_value=int(self._high), step=1)]
+        return d
+
+    @property
+    def _bounded(self) -> bool:
+        return self.low is not None or self.high is not None
+
+    @property
+    def _low(self) -> float:
+        return float(self.low) if self.low is not None else -1.7976931348623157e308
+
+    @property
+    def _high(self) -> float:
+        return float(self.high) if self.high is not None else 1.7976931348623157e308
+
+    def check(self, value: Any) -> str | None:
+        """Why ``value`` is out of range or not finite, or ``None`` when it is fine."""
+        values = list(value) if self.is_array else [value]
+        for i, v in enumerate(values):
+            if isinstance(v, float) and not math.isfinite(v):
+                where = f'{self.name}[{i}]' if self.is_array else self.name
+                return f'{where} = {v} is not finite'
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and self._bounded:
+                if not self._low <= v <= self._high:
+                    where = f'{self.name}[{i}]' if self.is_array else self.name
+                    return f'{where} = {v} is outside [{self.low}, {self.high}]'
+        return None
+
+
+class SettingsBinding(Generic[S]):
+    """The parameters of one node bound to its immutable settings object."""
+
+    def __init__(self, node: Node, specs: Sequence[ParamSpec],
+                 build: Callable[[dict[str, Any]], S], apply: Callable[[S], None]) -> None:
+        self.node = node
+        self.specs = {s.name: s for s in specs}
+        self._build = build
+        self._apply = apply
+        self._pending: S | None = None
+        _coerce_integer_overrides(node, specs)
+        for spec in specs:
+            try:
+                node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            except InvalidParameterTypeException as err:
+                given = getattr(node, '_parameter_overrides', {}).get(spec.name)
+                got = f', got {given.value!r}' if given is not None else ''
+                raise ConfigurationError(
+                    f'node {node.get_name()!r}: parameter {spec.name!r}: expected '
+                    f'{_type_text(spec)}{got}', parameter=spec.name) from err
+            except Exception as err:  # rclpy refuses values out of the declared range
+                raise ConfigurationError(f'node {node.get_name()!r}: parameter '
+                                         f'{spec.name!r}: {err}', parameter=spec.name) from err
+        values = self.values()
+        for spec in specs:
+            reason = spec.check(values[spec.name])
+            if reason:
+                raise ConfigurationError(f'node {node.get_name()!r}: parameter {reason}',
+                                         parameter=spec.name)
+        try:
+            self.settings: S = build(values)
+        except ValueError as err:
+            raise ConfigurationError(f'node {node.get_name()!r}: {err}') from err
+        apply(self.settings)
+        node.add_on_set_parameters_callback(self._on_set)
+        node.add_post_set_parameters_callback(self._post_set)
+
+    def values(self) -> dict[str, Any]:
+        return {name: _plain(self.node.get_parameter(name).value) for name in self.specs}
+
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        ours = [p for p in params if p.name in self.specs]
+        if not ours:
+            return SetParametersResult(successful=True)
+        values = self.values()
+        for p in ours:
+            value = _plain(p.value)
+            reason = self.specs[p.name].check(value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+            values[p.name] = value
+        try:
+            self._pending = self._build(values)
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _post_set(self, params: list[Parameter]) -> None:
+        if self._pending is not None and any(p.name in self.specs for p in params):
+            self.settings, self._pending = self._pending, None
+            self._apply(self.settings)
+
+
+def _plain(value: Any) -> Any:
+    """rclpy hands arrays back as ``array.array``; make them lists."""
+    if value is not None and not isinstance(value, (bool, int, float, str, list)):
+        return list(value)
+    return value
+
+
+def _type_text(spec: ParamSpec) -> str:
+    if spec.is_array:
+        return f'a list of {(spec.element or type(spec.default[0])).__name__}'
+    return f'a {type(spec.default).__name__}'
+
+
+def _coerce_integer_overrides(node: Node, specs: Sequence[ParamSpec]) -> None:
+    """Let a profile write ``kp: 2`` for a float gain, as YAML users expect.
+
+    rclpy keeps the overrides it was given in ``Node._parameter_overrides``; an INTEGER (or
+    INTEGER_ARRAY) override of a DOUBLE (array) parameter is turned into a DOUBLE before the
+    declaration checks its type. Anything else is left for the declaration to refuse.
+    """
+    overrides = getattr(node, '_parameter_overrides', None)
+    if not isinstance(overrides, dict):
+        return
+    for spec in specs:
+        p = overrides.get(spec.name)
+        if p is None:
+            continue
+        if spec.ros_type == ParameterType.PARAMETER_DOUBLE and p.type_ == Parameter.Type.INTEGER:
+            overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(p.value))
+        elif (spec.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY
+              and p.type_ == Parameter.Type.INTEGER_ARRAY):
+            overrides[spec.name] = Parameter(
+                spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in p.value])

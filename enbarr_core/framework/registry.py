@@ -1,0 +1,94 @@
+"""Find node classes by name: a built-in table extended by Python entry points.
+
+A third-party package adds a plugin without touching this repository by declaring, in its
+own ``setup.py``::
+
+    entry_points={'enbarr.nodes': ['my_imu = my_package.my_imu:MyImuNode']}
+
+after which a profile can say ``plugin: my_imu``. A name given twice is an error (the entry
+point cannot silently replace a built-in). An unknown name is an error that lists the known
+ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import difflib
+import importlib
+from importlib import metadata
+from typing import Any
+
+from enbarr_core.framework.errors import RegistryError
+
+ENTRY_POINT_GROUP = 'enbarr.nodes'
+
+#: name -> 'module:Class' of the nodes this package ships.
+BUILTIN: dict[str, str] = {
+    # core
+    'attitude_filter': 'enbarr_core.estimation.attitude_filter_node:AttitudeFilterNode',
+    'command_receiver': 'enbarr_core.control.command_receiver_node:CommandReceiverNode',
+    'velocity_control': 'enbarr_core.control.velocity_control_node:VelocityControlNode',
+    'thruster_converter': 'enbarr_core.allocation.thruster_converter_node:ThrusterConverterNode',
+    'rov_simulator': 'enbarr_core.simulation.rov_simulator_node:RovSimulatorNode',
+    'scripted_commands': 'enbarr_plugins.operator.scripted_commands:ScriptedCommandsNode',
+    'recorder': 'enbarr_core.recording.recorder_node:RecorderNode',
+    'saucer_simulator': 'enbarr_core.simulation.saucer_simulator_node:SaucerSimulatorNode',
+    'dp_observer': 'enbarr_core.estimation.dp_observer_node:DpObserverNode',
+    'dp_control': 'enbarr_core.control.dp_control_node:DpControlNode',
+    'azimuth_allocation': 'enbarr_core.allocation.azimuth_allocation_node:AzimuthAllocationNode',
+    'pwm_mapper': 'enbarr_core.allocation.pwm_mapper_node:PwmMapperNode',
+    # plugins
+    'sim_imu': 'enbarr_plugins.imu.sim:SimImuNode',
+    'sim_thrusters': 'enbarr_plugins.thrusters.sim:SimThrustersNode',
+    'sim_stepper': 'enbarr_plugins.io.sim_stepper:SimStepperNode',
+    'sim_gpio': 'enbarr_plugins.io.sim_gpio:SimGpioNode',
+    'sim_mocap': 'enbarr_plugins.mocap.sim:SimMocapNode',
+    'sim_arduino': 'enbarr_plugins.arduino.sim:SimArduinoNode',
+    'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
+    'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
+}
+
+
+@dataclass(frozen=True)
+class NodeEntry:
+    name: str
+    target: str
+    origin: str  # 'builtin' or the distribution that declared the entry point
+
+
+def entries() -> dict[str, NodeEntry]:
+    """Every known node name, built-ins first, then entry points."""
+    known = {name: NodeEntry(name, target, 'builtin') for name, target in BUILTIN.items()}
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = getattr(ep.dist, 'name', None) or 'unknown distribution'
+        if ep.name in known and known[ep.name].target != ep.value:
+            raise RegistryError(
+                f'node name {ep.name!r} from entry point {ep.value!r} ({dist}) is already '
+                f'taken by {known[ep.name].target!r} ({known[ep.name].origin})')
+        known.setdefault(ep.name, NodeEntry(ep.name, ep.value, dist))
+    return known
+
+
+def names() -> list[str]:
+    return sorted(entries())
+
+
+def resolve(name: str) -> type[Any]:
+    """The node class registered as ``name``."""
+    known = entries()
+    entry = known.get(name)
+    if entry is None:
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        raise RegistryError(
+            f'unknown node {name!r}{hint}; known nodes: {", ".join(sorted(known))}')
+    module_name, _, attr = entry.target.partition(':')
+    try:
+        obj: Any = importlib.import_module(module_name)
+        for part in attr.split('.'):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise RegistryError(
+            f'node {name!r} ({entry.origin}) points at {entry.target!r}, '
+            f'which cannot be loaded: {err}') from err
+    return obj

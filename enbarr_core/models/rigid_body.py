@@ -1,0 +1,414 @@
+"""6-DOF rigid-body model of a small underwater vehicle (Fossen 2021), in REP-103 frames.
+
+    M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau + tau_ext
+
+with M = M_RB + M_A, C(nu) = C_RB(nu) + C_A(nu), D(nu) = D_lin + diag(d_quad |nu|) and the
+restoring vector g(eta) of weight and buoyancy. The origin CO of the body frame (FLU) is the
+point all forces, moments and velocities refer to. World frame: ENU (z up), so weight acts
+along world -z and buoyancy along world +z. The attitude is a unit quaternion ``[x, y, z, w]``
+rotating body vectors into the world frame; eta = (p, q), nu = [u, v, w, p, q, r].
+
+Reference: T. I. Fossen, Handbook of Marine Craft Hydrodynamics and Motion Control, 2nd ed.,
+Wiley 2021 (chapter 3 rigid-body kinetics, chapter 4 restoring forces, chapter 6 added mass).
+
+``RigidBodyModel.step`` is written with Python floats instead of small numpy arrays because it
+runs at 400 Hz on a Raspberry Pi: per-element arithmetic on 13 states is several times faster
+than numpy's per-call overhead. The matrix methods (``coriolis``, ``damping``, ``restoring``)
+are the readable reference forms and the tests check the fast path against them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from enbarr_core.framework.kinematics import (
+    quat_from_euler,
+    quat_normalize,
+    quat_to_rotmat,
+    skew,
+)
+
+Vector = NDArray[np.float64]
+Matrix = NDArray[np.float64]
+
+# Relative tolerance of the symmetry check on a full 3x3 inertia matrix.
+_SYMMETRY_RTOL = 1e-9
+
+
+def _finite_vector(name: str, value: Any, lengths: Sequence[int]) -> Vector:
+    """``value`` as a finite float vector whose length is one of ``lengths``, else ValueError."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected numbers, got {value!r}') from None
+    if a.ndim != 1 or a.shape[0] not in lengths:
+        want = ' or '.join(str(n) for n in lengths)
+        raise ValueError(f'{name}: expected {want} values, got shape {a.shape}')
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f'{name}: values must be finite, got {a.tolist()}')
+    return a
+
+
+def _finite_scalar(name: str, value: Any) -> float:
+    if isinstance(value, bool):
+        raise ValueError(f'{name}: expected a number, got {value!r}')
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected a number, got {value!r}') from None
+    if not math.isfinite(x):
+        raise ValueError(f'{name}: must be finite, got {x}')
+    return x
+
+
+def _shape(value: Any) -> tuple[int, ...] | None:
+    """``np.shape(value)``, or None for ragged nested sequences."""
+    try:
+        return np.shape(value)
+    except ValueError:
+        return None
+
+
+def inertia_matrix(inertia: ArrayLike) -> Matrix:
+    """3x3 inertia matrix [kg m^2] from 3 diagonal values or 9 row-major values."""
+    a = np.asarray(inertia, dtype=float).ravel()
+    if a.shape == (3,):
+        return np.diag(a)
+    if a.shape == (9,):
+        return a.reshape(3, 3).copy()
+    raise ValueError(f'inertia: expected 3 or 9 values, got {a.size}')
+
+
+def coriolis_matrix(M: ArrayLike, nu: ArrayLike) -> Matrix:
+    """Parametrization-independent Coriolis-centripetal matrix C(nu) of a 6x6 inertia matrix.
+
+    C(nu) = [[0, -S(M11 nu1 + M12 nu2)], [-S(M11 nu1 + M12 nu2), -S(M21 nu1 + M22 nu2)]]
+    (Fossen 2021, Thm 3.2 for M_RB; the same form gives C_A from M_A, ch. 6). C(nu) is
+    skew-symmetric for every nu, so nu^T C(nu) nu = 0: C does no work.
+    """
+    M = np.asarray(M, dtype=float)
+    M = 0.5 * (M + M.T)
+    nu = np.asarray(nu, dtype=float)
+    h = M @ nu  # [dT/dnu1; dT/dnu2] of the kinetic energy T = 1/2 nu^T M nu
+    S1 = skew(h[:3])
+    C = np.zeros((6, 6))
+    C[:3, 3:] = -S1
+    C[3:, :3] = -S1
+    C[3:, 3:] = -skew(h[3:])
+    return C
+
+
+@dataclass(frozen=True)
+class RigidBodyParams:
+    """Physical parameters of the vehicle, all about the body origin CO (FLU, SI units)."""
+
+    mass: float  # m [kg]
+    inertia: tuple[float, ...]  # I_o about the CO: 9 row-major values or 3 diagonal [kg m^2]
+    r_g: tuple[float, float, float]  # centre of gravity CG in body FLU [m]
+    r_b: tuple[float, float, float]  # centre of buoyancy CB in body FLU [m]
+    buoyancy: float  # B = rho g V [N]
+    added_mass: tuple[float, ...]  # diagonal of M_A, positive [kg, kg, kg, kg m^2 x3]
+    d_lin: tuple[float, ...]  # linear damping, positive [N s/m x3, N m s/rad x3]
+    d_quad: tuple[float, ...]  # quadratic damping, positive [N s^2/m^2 x3, N m s^2/rad^2 x3]
+    gravity: float = 9.81  # g [m/s^2]
+
+    @property
+    def weight(self) -> float:
+        """W = m g [N]."""
+        return self.mass * self.gravity
+
+    def inertia_matrix(self) -> Matrix:
+        """I_o as a 3x3 matrix [kg m^2]."""
+        return inertia_matrix(self.inertia)
+
+    def validate(self) -> None:
+        """Raise ValueError, starting with the field name, if a parameter is non-physical."""
+        mass = _finite_scalar('mass', self.mass)
+        if mass <= 0.0:
+            raise ValueError(f'mass: must be > 0 kg, got {mass}')
+        gravity = _finite_scalar('gravity', self.gravity)
+        if gravity <= 0.0:
+            raise ValueError(f'gravity: must be > 0 m/s^2, got {gravity}')
+        buoyancy = _finite_scalar('buoyancy', self.buoyancy)
+        if buoyancy < 0.0:
+            raise ValueError(f'buoyancy: must be >= 0 N, got {buoyancy}')
+        r_g = _finite_vector('r_g', self.r_g, (3,))
+        _finite_vector('r_b', self.r_b, (3,))
+        for name in ('added_mass', 'd_lin', 'd_quad'):
+            values = _finite_vector(name, getattr(self, name), (6,))
+            if np.any(values < 0.0):
+                raise ValueError(f'{name}: values must be >= 0, got {values.tolist()}')
+        I_o = inertia_matrix(_finite_vector('inertia', self.inertia, (3, 9)))
+        scale = float(np.max(np.abs(I_o)))
+        if float(np.max(np.abs(I_o - I_o.T))) > _SYMMETRY_RTOL * max(scale, 1.0):
+            raise ValueError(f'inertia: matrix is not symmetric: {I_o.tolist()}')
+        if float(np.min(np.linalg.eigvalsh(I_o))) <= 0.0:
+            raise ValueError(f'inertia: matrix is not positive definite: {I_o.tolist()}')
+        # M_RB > 0 needs the inertia about the CG, I_g = I_o + m S(r_g)^2 (parallel axes), > 0.
+        S = skew(r_g)
+        I_g = I_o + mass * (S @ S)
+        if float(np.min(np.linalg.eigvalsh(0.5 * (I_g + I_g.T)))) <= 0.0:
+            raise ValueError(
+                'inertia: the inertia about the CG, I_o + m S(r_g)^2, is not positive definite '
+                f'(inertia {I_o.tolist()} is too small for r_g {r_g.tolist()})')
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any]) -> RigidBodyParams:
+        """Build and validate parameters from a mapping whose keys are the field names.
+
+        Sequences (lists, tuples, arrays) are accepted for the vector fields, and a nested 3x3
+        list for ``inertia``; ``gravity`` is optional. Unknown or missing keys raise ValueError
+        naming them.
+        """
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(str(k) for k in set(d) - set(names))
+        if unknown:
+            bad, known = ', '.join(unknown), ', '.join(names)
+            raise ValueError(f'{bad}: unknown key(s); expected {known}')
+        kwargs: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name not in d:
+                if f.name == 'gravity':
+                    continue
+                raise ValueError(f'{f.name}: missing')
+            value = d[f.name]
+            if f.name in ('mass', 'buoyancy', 'gravity'):
+                kwargs[f.name] = _finite_scalar(f.name, value)
+            else:
+                if f.name == 'inertia' and _shape(value) == (3, 3):
+                    value = np.ravel(value)  # a nested 3x3 list is row-major too
+                lengths = {'inertia': (3, 9), 'r_g': (3,), 'r_b': (3,)}.get(f.name, (6,))
+                kwargs[f.name] = tuple(_finite_vector(f.name, value, lengths).tolist())
+        params = cls(**kwargs)
+        params.validate()
+        return params
+
+
+@dataclass(frozen=True, eq=False)
+class RigidBodyState:
+    """Vehicle state: eta = (p, q) and nu. Arrays are read-only copies."""
+
+    p: Vector  # (3,) position of the CO in world ENU [m]
+    q: Vector  # (4,) attitude [x, y, z, w], body -> world
+    nu: Vector  # (6,) body velocities [u, v, w, p, q, r] FLU [m/s, rad/s]
+
+    def __post_init__(self) -> None:
+        for name, n in (('p', 3), ('q', 4), ('nu', 6)):
+            a = np.array(getattr(self, name), dtype=float)
+            if a.shape != (n,):
+                raise ValueError(f'{name}: expected shape ({n},), got {a.shape}')
+            a.flags.writeable = False
+            object.__setattr__(self, name, a)
+
+    @classmethod
+    def at_rest(cls, p: ArrayLike = (0.0, 0.0, 0.0), yaw: float = 0.0) -> RigidBodyState:
+        """Level vehicle at ``p`` [m] heading ``yaw`` [rad] (ENU: 0 = east, CCW), nu = 0."""
+        return cls(p=np.asarray(p, dtype=float), q=quat_from_euler(0.0, 0.0, yaw),
+                   nu=np.zeros(6))
+
+
+class RigidBodyModel:
+    """M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau + tau_ext, with RK4 integration."""
+
+    def __init__(self, params: RigidBodyParams):
+        params.validate()
+        self.params = params
+        m = float(params.mass)
+        r_g = np.asarray(params.r_g, dtype=float)
+        r_b = np.asarray(params.r_b, dtype=float)
+        S_g = skew(r_g)
+        # M_RB = [[m I, -m S(r_g)], [m S(r_g), I_o]] about the CO (Fossen 2021, ch. 3).
+        M_RB = np.zeros((6, 6))
+        M_RB[:3, :3] = m * np.eye(3)
+        M_RB[:3, 3:] = -m * S_g
+        M_RB[3:, :3] = m * S_g
+        I_o = params.inertia_matrix()
+        M_RB[3:, 3:] = 0.5 * (I_o + I_o.T)
+        M_A = np.diag(np.asarray(params.added_mass, dtype=float))
+        M = M_RB + M_A
+        M_inv = np.linalg.solve(M, np.eye(6))
+        M_inv = 0.5 * (M_inv + M_inv.T)
+        for a in (M_RB, M_A, M, M_inv):
+            a.flags.writeable = False
+        self._M_RB, self._M_A, self._M, self._M_inv = M_RB, M_A, M, M_inv
+        self._d_lin = np.asarray(params.d_lin, dtype=float)
+        self._d_quad = np.asarray(params.d_quad, dtype=float)
+        self._W = m * float(params.gravity)
+        self._B = float(params.buoyancy)
+        self._r_g = r_g
+        self._r_b = r_b
+        # Fast-path constants as Python floats.
+        self._M_rows = tuple(tuple(row) for row in M.tolist())
+        self._M_inv_rows = tuple(tuple(row) for row in M_inv.tolist())
+        self._dl = tuple(self._d_lin.tolist())
+        self._dq = tuple(self._d_quad.tolist())
+        self._net_up = self._B - self._W  # net vertical force B - W [N]
+        self._h = tuple((self._B * r_b - self._W * r_g).tolist())  # B r_b - W r_g [N m]
+
+    @property
+    def M(self) -> Matrix:
+        """System inertia matrix M = M_RB + M_A (6x6, read-only)."""
+        return self._M
+
+    @property
+    def M_RB(self) -> Matrix:
+        """Rigid-body inertia matrix about the CO (6x6, read-only)."""
+        return self._M_RB
+
+    @property
+    def M_A(self) -> Matrix:
+        """Added-mass matrix, diagonal (6x6, read-only)."""
+        return self._M_A
+
+    @property
+    def M_inv(self) -> Matrix:
+        """Cached inverse of M (6x6, read-only)."""
+        return self._M_inv
+
+    def coriolis(self, nu: ArrayLike) -> Matrix:
+        """C(nu) = C_RB(nu) + C_A(nu) (6x6) at body velocity ``nu`` [m/s, rad/s]."""
+        # C_RB from M_RB (Thm 3.2), C_A from M_A in the same form. C is linear in its inertia
+        # matrix, so the fast path in step() uses C(M) = C(M_RB) + C(M_A) directly.
+        return coriolis_matrix(self._M_RB, nu) + coriolis_matrix(self._M_A, nu)
+
+    def damping(self, nu: ArrayLike) -> Matrix:
+        """D(nu) = D_lin + diag(d_quad |nu|) (6x6) [N s/m, N m s/rad]."""
+        nu = np.asarray(nu, dtype=float)
+        return np.diag(self._d_lin + self._d_quad * np.abs(nu))
+
+    def restoring(self, q: ArrayLike) -> Vector:
+        """Restoring vector g(eta) (6,) [N, N m] at attitude ``q`` (Fossen 2021, ch. 4).
+
+        f_g = R^T [0, 0, -W], f_b = R^T [0, 0, B] (ENU: z up),
+        g = -[f_g + f_b; r_g x f_g + r_b x f_b]. It sits on the left-hand side, so the force
+        acting on the vehicle is -g.
+        """
+        R = quat_to_rotmat(quat_normalize(q))
+        f_g = R.T @ np.array([0.0, 0.0, -self._W])
+        f_b = R.T @ np.array([0.0, 0.0, self._B])
+        return -np.concatenate(
+            (f_g + f_b, np.cross(self._r_g, f_g) + np.cross(self._r_b, f_b)))
+
+    def nu_dot(self, q: ArrayLike, nu: ArrayLike, tau: ArrayLike,
+               tau_ext: ArrayLike | None = None) -> Vector:
+        """Body acceleration nu_dot (6,) [m/s^2, rad/s^2] at attitude ``q`` and velocity ``nu``.
+
+        nu_dot = M^-1 (tau + tau_ext - C(nu) nu - D(nu) nu - g(eta)); ``tau`` [N, N m].
+        """
+        qv = np.asarray(q, dtype=float)
+        nuv = np.asarray(nu, dtype=float)
+        if qv.shape != (4,):
+            raise ValueError(f'q: expected shape (4,), got {qv.shape}')
+        if nuv.shape != (6,):
+            raise ValueError(f'nu: expected shape (6,), got {nuv.shape}')
+        tau_l = self._total_tau(tau, tau_ext)
+        x = [0.0, 0.0, 0.0, *qv.tolist(), *nuv.tolist()]
+        return np.array(self._f(x, tau_l)[7:])
+
+    def step(self, state: RigidBodyState, tau: ArrayLike, dt: float,
+             tau_ext: ArrayLike | None = None) -> RigidBodyState:
+        """Advance ``state`` by ``dt`` [s] with ``tau`` (and ``tau_ext``) [N, N m] held constant.
+
+        Classic RK4 on (p, q, nu) with p_dot = R(q) nu_1, q_dot = 1/2 q (x) [omega, 0]; q is
+        renormalized after the step.
+        """
+        if not isinstance(dt, (int, float, np.floating, np.integer)) or isinstance(dt, bool):
+            raise ValueError(f'dt: expected a number of seconds, got {dt!r}')
+        h = float(dt)
+        if not (h > 0.0 and math.isfinite(h)):
+            raise ValueError(f'dt: must be finite and > 0 s, got {dt!r}')
+        tau_l = self._total_tau(tau, tau_ext)
+        x0 = state.p.tolist() + state.q.tolist() + state.nu.tolist()
+        f = self._f
+        h2 = 0.5 * h
+        k1 = f(x0, tau_l)
+        k2 = f([x + h2 * k for x, k in zip(x0, k1)], tau_l)
+        k3 = f([x + h2 * k for x, k in zip(x0, k2)], tau_l)
+        k4 = f([x + h * k for x, k in zip(x0, k3)], tau_l)
+        h6 = h / 6.0
+        x1 = [x + h6 * (a + 2.0 * (b + c) + d) for x, a, b, c, d in zip(x0, k1, k2, k3, k4)]
+        return RigidBodyState(p=np.array(x1[0:3]), q=quat_normalize(x1[3:7]),
+                              nu=np.array(x1[7:13]))
+
+    def specific_force(self, state: RigidBodyState, nu_dot: ArrayLike) -> Vector:
+        """Specific force (3,) [m/s^2] an accelerometer at the CO measures, in body FLU.
+
+        f = v_dot + omega x v - R^T [0, 0, -g]; a level vehicle at rest reads [0, 0, +g]
+        (REP-145).
+        """
+        nu_dot = np.asarray(nu_dot, dtype=float)
+        R = quat_to_rotmat(quat_normalize(state.q))
+        v, omega = state.nu[:3], state.nu[3:]
+        gravity = np.array([0.0, 0.0, -float(self.params.gravity)])
+        # skew(omega) @ v is omega x v; np.cross costs ten times more on 3-vectors.
+        return nu_dot[:3] + skew(omega) @ v - R.T @ gravity
+
+    def kinetic_energy(self, nu: ArrayLike) -> float:
+        """T = 1/2 nu^T M nu [J], rigid body plus added mass."""
+        nu = np.asarray(nu, dtype=float)
+        return 0.5 * float(nu @ self._M @ nu)
+
+    # -- fast path ---------------------------------------------------------------------------
+
+    def _total_tau(self, tau: ArrayLike, tau_ext: ArrayLike | None) -> list[float]:
+        t = np.asarray(tau, dtype=float)
+        if t.shape != (6,):
+            raise ValueError(f'tau: expected shape (6,), got {t.shape}')
+        if tau_ext is not None:
+            e = np.asarray(tau_ext, dtype=float)
+            if e.shape != (6,):
+                raise ValueError(f'tau_ext: expected shape (6,), got {e.shape}')
+            t = t + e
+        out = t.tolist()
+        if not math.isfinite(math.fsum(out)):
+            raise ValueError(f'tau: values must be finite, got {out}')
+        return out
+
+    def _f(self, x: list[float], tau: list[float]) -> list[float]:
+        """Time derivative of x = [p(3), q(4), nu(6)] as a list of 13 floats."""
+        _, _, _, qx, qy, qz, qw, u, v, w, wx, wy, wz = x
+        # R(q) of a possibly non-unit q: the RK4 stage quaternions drift off the unit sphere by
+        # O(dt^2); dividing by |q|^2 keeps every stage's R a rotation.
+        s = 2.0 / (qx * qx + qy * qy + qz * qz + qw * qw)
+        xx, yy, zz = s * qx * qx, s * qy * qy, s * qz * qz
+        xy, xz, yz = s * qx * qy, s * qx * qz, s * qy * qz
+        xw, yw, zw = s * qx * qw, s * qy * qw, s * qz * qw
+        r20, r21, r22 = xz - yw, yz + xw, 1.0 - xx - yy  # R^T e_z: world up in body
+        # p_dot = R(q) nu_1
+        pdx = (1.0 - yy - zz) * u + (xy - zw) * v + (xz + yw) * w
+        pdy = (xy + zw) * u + (1.0 - xx - zz) * v + (yz - xw) * w
+        pdz = r20 * u + r21 * v + r22 * w
+        # q_dot = 1/2 q (x) [omega, 0]
+        qdx = 0.5 * (qw * wx + qy * wz - qz * wy)
+        qdy = 0.5 * (qw * wy - qx * wz + qz * wx)
+        qdz = 0.5 * (qw * wz + qx * wy - qy * wx)
+        qdw = -0.5 * (qx * wx + qy * wy + qz * wz)
+        # C(nu) nu = [omega x a; v x a + omega x b] with [a; b] = M nu (Fossen 2021, Thm 3.2)
+        a0, a1, a2, b0, b1, b2 = [m0 * u + m1 * v + m2 * w + m3 * wx + m4 * wy + m5 * wz
+                                  for m0, m1, m2, m3, m4, m5 in self._M_rows]
+        dl, dq = self._dl, self._dq
+        n_up = self._net_up
+        hx, hy, hz = self._h
+        # rhs = tau - C nu - D nu - g, with -g = [(B - W) k; (B r_b - W r_g) x k], k = R^T e_z
+        rhs = (
+            tau[0] - (wy * a2 - wz * a1) - (dl[0] + dq[0] * abs(u)) * u + n_up * r20,
+            tau[1] - (wz * a0 - wx * a2) - (dl[1] + dq[1] * abs(v)) * v + n_up * r21,
+            tau[2] - (wx * a1 - wy * a0) - (dl[2] + dq[2] * abs(w)) * w + n_up * r22,
+            tau[3] - (v * a2 - w * a1 + wy * b2 - wz * b1) - (dl[3] + dq[3] * abs(wx)) * wx
+            + (hy * r22 - hz * r21),
+            tau[4] - (w * a0 - u * a2 + wz * b0 - wx * b2) - (dl[4] + dq[4] * abs(wy)) * wy
+            + (hz * r20 - hx * r22),
+            tau[5] - (u * a1 - v * a0 + wx * b1 - wy * b0) - (dl[5] + dq[5] * abs(wz)) * wz
+            + (hx * r21 - hy * r20),
+        )
+        r0, r1, r2, r3, r4, r5 = rhs
+        out = [pdx, pdy, pdz, qdx, qdy, qdz, qdw]
+        out.extend([m0 * r0 + m1 * r1 + m2 * r2 + m3 * r3 + m4 * r4 + m5 * r5
+                    for m0, m1, m2, m3, m4, m5 in self._M_inv_rows])
+        return out

@@ -1,1 +1,0 @@
-"""Core nodes: thin translators between messages and the algorithms in ``algorithms``."""

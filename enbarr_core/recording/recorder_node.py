@@ -1,0 +1,134 @@
+"""Recorder: writes topics to a rosbag2 MCAP bag (``enbarr_core.recording.bag``), as ``rosbag record``.
+
+Fast topics of this process are taken from the link bus (no DDS traffic, the message objects
+themselves); every other topic seen in the ROS graph is subscribed raw (already serialized),
+rediscovered every second. Serializing and writing happen on a writer thread, off the control
+path. ``topics`` selects topics by name (empty: all). The bag is flushed every
+``segment_seconds`` and closed when the node is destroyed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import queue
+import threading
+from typing import Any
+
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+
+from enbarr_interfaces.links import LinkPublisher
+
+from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.framework.errors import ConfigurationError, RecorderError
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+
+SPECS = [
+    ParamSpec('path', '', 'Bag directory to create (must not exist or be empty)',
+              read_only=True),
+    ParamSpec('topics', [''], 'Topics to record (resolved names); empty: all', read_only=True,
+              element=str),
+    ParamSpec('segment_seconds', 1.0, 'Flush period: a kill loses at most this much', 's',
+              0.01, 3600.0, read_only=True),
+]
+_RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.BEST_EFFORT)
+_STOP = object()
+
+
+def message_class(type_name: str) -> type:
+    """``pkg/msg/Type`` -> the generated Python class."""
+    pkg, _, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+
+class RecorderNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'recorder', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        v = self.bind_settings(SPECS, lambda v: v, lambda _: None).settings
+        if not v['path']:
+            raise ConfigurationError(f'node {node_name!r}: parameter path is not set')
+        self.selected = {t for t in v['topics'] if t}
+        try:
+            self.writer = SegmentedBagWriter(v['path'], v['segment_seconds'])
+        except RecorderError as err:
+            raise ConfigurationError(f'node {node_name!r}: {err}') from err
+        self.written = 0
+        self.dropped = 0
+        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._subscribed: set[str] = set()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._write_loop, name='recorder_writer',
+                                        daemon=True)
+        self._thread.start()
+        self.link_bus.add_tap(self._on_link_publisher)
+        self.create_timer(1.0, self._discover)
+
+    def _wanted(self, name: str) -> bool:
+        return (not self.selected or name in self.selected) and name not in self._subscribed
+
+    def _on_link_publisher(self, pub: LinkPublisher) -> None:
+        with self._lock:
+            if not self._wanted(pub.name):
+                return
+            self._subscribed.add(pub.name)
+        type_name = pub.spec.type_name
+        clock = self.get_clock()
+        put = self._queue.put
+        self.create_link_subscription(pub.spec, lambda msg, n=pub.name: put(
+            (n, type_name, clock.now().nanoseconds, msg)))
+
+    def start(self) -> None:
+        super().start()
+        self._discover()
+
+    def _discover(self) -> None:
+        local = self.link_bus.local_topics()
+        for name, types in self.get_topic_names_and_types():
+            with self._lock:
+                if name in local or not self._wanted(name) or len(types) != 1:
+                    continue
+                if not self.writer.knows_type(types[0]):
+                    continue
+                self._subscribed.add(name)
+            try:
+                cls = message_class(types[0])
+            except (ImportError, AttributeError, ValueError):
+                continue
+            clock = self.get_clock()
+            put = self._queue.put
+            self.create_subscription(cls, name, lambda data, n=name, t=types[0]: put(
+                (n, t, clock.now().nanoseconds, data)), _RAW_QOS, raw=True)
+
+    def _write_loop(self) -> None:
+        while True:
+            try:
+                item = self._queue.get(timeout=0.1)
+            except queue.Empty:
+                self.writer.maybe_flush()
+                continue
+            if item is _STOP:
+                break
+            name, type_name, stamp, msg = item
+            data = msg if isinstance(msg, bytes) else serialize_message(msg)
+            try:
+                if self.writer.write(name, type_name, stamp, data):
+                    self.written += 1
+            except RecorderError as err:
+                self.dropped += 1
+                self.get_logger().error(str(err), throttle_duration_sec=5.0)
+        self.writer.close()
+
+    def close(self) -> None:
+        """Write what is queued and close the bag (idempotent)."""
+        if self._thread.is_alive():
+            self._queue.put(_STOP)
+            self._thread.join(10.0)
+
+    def destroy_node(self) -> None:
+        self.link_bus.remove_tap(self._on_link_publisher)
+        self.close()
+        super().destroy_node()

@@ -1,0 +1,182 @@
+"""Simulated 6-DOF ROV: the vehicle the simulated IMU measures and the thrusters push.
+
+Integrates ``RigidBodyModel`` (Fossen 2021) at ``rate`` on its own loop thread. Each step:
+tau = B f from the latest ``sim/thrust`` (zero when it is older than ``thrust_timeout``, as
+an ESC whose signal stops), one model step, then the truth at the IMU on ``sim/imu`` (which
+drives the whole IMU -> thruster chain synchronously through the link bus) and, decimated,
+``sim/odometry``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+from nav_msgs.msg import Odometry
+import numpy as np
+from sensor_msgs.msg import Imu, JointState
+
+from enbarr_interfaces import convert, topics
+
+from enbarr_core.allocation.fixed import allocation_matrix
+from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
+from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
+from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.node import EnbarrNode, sim_steps
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.allocation.thruster_params import declare_thrusters
+
+MAX_CATCH_UP = 10  # model steps integrated in one late tick before time is skipped
+
+SPECS = [
+    ParamSpec('rate', 400.0, 'Integration and IMU truth rate', 'Hz', 1.0, 2000.0,
+              read_only=True),
+    ParamSpec('odometry_rate', 50.0, 'Rate of sim/odometry (decimated from rate)', 'Hz', 0.1,
+              2000.0, read_only=True),
+    ParamSpec('thrust_timeout', 0.25, 'Thrust older than this is dropped to zero (ESC '
+              'watchdog)', 's', 0.001, 10.0),
+    ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass m', 'kg', 0.01, 1e5),
+    ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO, 3 diagonal or 9 '
+              'row-major values', 'kg m^2', -1e5, 1e5),
+    ParamSpec('vehicle.r_g', [0.0, 0.0, -0.02], 'Centre of gravity in base_link', 'm', -100.0,
+              100.0),
+    ParamSpec('vehicle.r_b', [0.0, 0.0, 0.0], 'Centre of buoyancy in base_link', 'm', -100.0,
+              100.0),
+    ParamSpec('vehicle.buoyancy', 112.8, 'Buoyancy B = rho g V', 'N', 0.0, 1e6),
+    ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12],
+              'Diagonal of the added mass M_A', 'kg, kg m^2', 0.0, 1e5),
+    ParamSpec('vehicle.d_lin', [4.03, 6.22, 5.18, 0.07, 0.07, 0.07], 'Linear damping',
+              'N s/m, N m s/rad', 0.0, 1e5),
+    ParamSpec('vehicle.d_quad', [18.18, 21.66, 36.99, 1.55, 1.55, 1.55], 'Quadratic damping',
+              'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
+    ParamSpec('status_period', 2.0, 'Period of the status line in the log (0: none)', 's',
+              0.0, 3600.0, read_only=True),
+    ParamSpec('initial.position', [0.0, 0.0, -1.0], 'Start position in odom (ENU)', 'm', -1e6,
+              1e6),
+    ParamSpec('initial.rpy', [0.0, 0.0, 0.0], 'Start roll, pitch, yaw', 'rad', -math.pi,
+              math.pi),
+]
+
+VEHICLE_FIELDS = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad')
+
+
+def _vehicle(v: dict[str, Any]) -> RigidBodyParams:
+    return RigidBodyParams.from_mapping({f: v[f'vehicle.{f}'] for f in VEHICLE_FIELDS})
+
+
+class RovSimulatorNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'simulator', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._lock = threading.Lock()
+        self.thrusters = declare_thrusters(self)
+        self._B = allocation_matrix(self.thrusters)
+        self._index = {t.name: i for i, t in enumerate(self.thrusters)}
+        self._model: RigidBodyModel | None = None
+        self.params = self.bind_settings(SPECS, self._build, self._apply).settings
+        v = self.params
+        p0 = v['initial.position']
+        if len(p0) != 3 or len(v['initial.rpy']) != 3:
+            raise ConfigurationError(f'node {node_name!r}: initial.position and initial.rpy '
+                                     'need 3 values each')
+        self.state = RigidBodyState(np.array(p0, dtype=float),
+                                    quat_from_euler(*v['initial.rpy']), np.zeros(6))
+        self.time_ns = 0
+        self._thrust = np.zeros(len(self.thrusters))
+        self._thrust_ns = 0  # monotonic stamp of the last sim/thrust
+        self.steps = 0        # model steps
+        self.samples = 0      # truth samples published (fewer than steps when late)
+        self.time_skips = 0
+        self._imu_pub = self.create_link_publisher(topics.SIM_IMU)
+        self._odom_pub = self.create_link_publisher(topics.SIM_ODOMETRY)
+        self.create_link_subscription(topics.SIM_THRUST, self._on_thrust)
+        self._dt_ns = round(1e9 / v['rate'])
+        self._odom_every = max(1, round(v['rate'] / v['odometry_rate']))
+        self.create_rate_loop(v['rate'], self.step)
+        if v['status_period'] > 0.0:
+            self.create_timer(v['status_period'], self._status)
+
+    def _build(self, v: dict[str, Any]) -> dict[str, Any]:
+        _vehicle(v)  # raises ValueError naming the field
+        return v
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        with self._lock:
+            self._model = RigidBodyModel(_vehicle(v))
+            self._thrust_timeout_ns = int(v['thrust_timeout'] * 1e9)
+
+    def _on_thrust(self, msg: JointState) -> None:
+        thrust = np.zeros(len(self.thrusters))
+        for name, f in zip(msg.name, msg.effort):
+            i = self._index.get(name)
+            if i is not None and np.isfinite(f):
+                thrust[i] = f
+        self._thrust = thrust
+        self._thrust_ns = time.monotonic_ns()
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Generalized force of the thrusters now [N, N m] (zero when their signal is stale)."""
+        if time.monotonic_ns() - self._thrust_ns > self._thrust_timeout_ns:
+            return np.zeros(6)
+        return self._B @ self._thrust
+
+    def step(self) -> None:
+        """Advance the vehicle to the clock's present and publish the truth at the IMU.
+
+        Normally one step of about 1/rate; a late tick integrates the whole span in steps of
+        about 1/rate (up to ``MAX_CATCH_UP``, beyond that time is skipped and counted in
+        ``time_skips``). The truth is stamped with the time it is true at.
+        """
+        now = self.get_clock().now().nanoseconds
+        if self.time_ns == 0:
+            self.time_ns = now - self._dt_ns
+        n, dt, skipped = sim_steps(self.time_ns, now, self._dt_ns, MAX_CATCH_UP)
+        if n == 0:
+            return
+        self.time_skips += skipped
+        tau = self.tau
+        with self._lock:
+            model = self._model
+            state = self.state
+            for _ in range(n):
+                state = model.step(state, tau, dt)
+            nu_dot = model.nu_dot(state.q, state.nu, tau)
+            self.state = state
+        self.time_ns = now
+        self.steps += n
+        imu = Imu()
+        imu.header.frame_id = topics.IMU_FRAME
+        convert.ns_to_stamp(self.time_ns, imu.header.stamp)
+        convert.set_quaternion(imu.orientation, state.q)
+        convert.set_vector3(imu.angular_velocity, state.nu[3:])
+        convert.set_vector3(imu.linear_acceleration, model.specific_force(state, nu_dot))
+        self.samples += 1
+        self._imu_pub.publish(imu)
+        if self.samples % self._odom_every == 0:
+            self._odom_pub.publish(self.odometry(self.time_ns))
+
+    def _status(self) -> None:
+        s = self.state
+        roll, pitch, yaw = (math.degrees(a) for a in quat_to_euler(s.q))
+        u, v, w, _, _, r = s.nu
+        self.get_logger().info(
+            f'depth {-s.p[2]:5.2f} m  u {u:+.2f} v {v:+.2f} w {w:+.2f} m/s  '
+            f'r {math.degrees(r):+5.1f} deg/s  heading {yaw:+6.1f} deg  '
+            f'roll {roll:+4.1f} pitch {pitch:+4.1f} deg  '
+            f'thrust {np.abs(self._thrust).sum():5.1f} N')
+
+    def odometry(self, now_ns: int) -> Odometry:
+        s = self.state
+        msg = Odometry()
+        convert.ns_to_stamp(now_ns, msg.header.stamp)
+        msg.header.frame_id = topics.WORLD_FRAME
+        msg.child_frame_id = topics.BODY_FRAME
+        p = msg.pose.pose.position
+        p.x, p.y, p.z = (float(x) for x in s.p)
+        convert.set_quaternion(msg.pose.pose.orientation, s.q)
+        convert.set_twist(msg.twist.twist, s.nu)
+        return msg

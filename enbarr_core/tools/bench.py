@@ -1,0 +1,229 @@
+"""``enbarr bench``: the sensor -> actuator chain of a vessel, measured.
+
+``--chain rov`` (default): simulator -> sim IMU -> attitude filter -> velocity control ->
+thruster converter -> sim thrusters (profile ``enbarr_sim``). ``--chain saucer``: simulator
+-> sim motion capture -> DP observer -> DP control (automatic mode) -> azimuth allocation ->
+PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are composed exactly as
+``bringup`` composes them, in this process, at ``--rate`` for ``--seconds``; one JSON line:
+
+- ``rate_hz``: achieved chain rate (sensor samples whose command reached the actuator, /s);
+- ``latency_ms_p50/p99/max``: sensor sample stamp -> actuator command applied;
+- ``cpu_s_per_cycle`` and ``cpu_core_fraction``: process CPU time (all threads, including
+  the executor and DDS) per cycle and per wall second;
+- ``pure_s_per_cycle``: the same algorithms called in a plain loop without ROS, and
+  ``ros_overhead_ratio`` = cpu_s_per_cycle / pure_s_per_cycle;
+- saucer only, ``scenario_real_time_factor``: simulated seconds per wall second of the
+  headless station-keeping scenario (recording included).
+
+Figures depend on the machine and its load: run it alone. ``docs/benchmarks.md`` has ours.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, replace
+import json
+import os
+import platform
+import tempfile
+import time
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Chain:
+    profile: str
+    nodes: tuple[str, ...]
+    sink: str  # the actuator plugin holding the LatencyLog
+
+
+CHAINS = {
+    'rov': Chain('enbarr_sim', ('simulator', 'imu', 'filtering', 'control_loop',
+                                'thruster_converter', 'thruster_control'), 'thruster_control'),
+    'saucer': Chain('saucer_sim', ('simulator', 'mocap', 'observer', 'dp_control',
+                                   'allocation', 'pwm', 'arduino', 'joystick'), 'arduino'),
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--chain', choices=sorted(CHAINS), default='rov',
+                   help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
+    p.add_argument('--rate', type=float, default=400.0, help='chain rate in Hz (default 400)')
+    p.add_argument('--seconds', type=float, default=10.0,
+                   help='measured duration after a 2 s warm-up (default 10)')
+
+
+def main(args: argparse.Namespace) -> int:
+    from enbarr_core.framework.errors import EnbarrError
+    if not (args.rate > 0 and args.seconds > 0):
+        raise EnbarrError('--rate and --seconds must be positive')
+    chain = CHAINS[args.chain]
+    result: dict[str, Any] = {'chain': args.chain, 'rate_hz_requested': args.rate}
+    result.update(run_ros(chain, args.rate, args.seconds))
+    pure = run_pure_rov(args.rate) if args.chain == 'rov' else run_pure_saucer(args.rate)
+    result['pure_s_per_cycle'] = round(pure, 6)
+    result['ros_overhead_ratio'] = round(result['cpu_s_per_cycle'] / pure, 2)
+    if args.chain == 'saucer':
+        from enbarr_core.tools.scenario import run as run_scenario
+        with tempfile.TemporaryDirectory() as tmp:
+            r = run_scenario('station_keeping', os.path.join(tmp, 'out'), plot=False,
+                             duration=30.0)
+        result['scenario_real_time_factor'] = r['real_time_factor']
+    result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
+                        f'{platform.python_version()}'
+    print(json.dumps(result))
+    return 0
+
+
+def _overrides(chain: Chain, rate: float) -> list[str]:
+    if chain.sink == 'arduino':
+        return [f'simulator.rate={rate}', f'mocap.rate={rate}',
+                "joystick.script=['0.0 sticks 0.0 0.0 0.0', '0.5 press triangle']"]
+    return [f'simulator.rate={rate}']
+
+
+def _chain_profile(chain: Chain, rate: float) -> Any:
+    from enbarr_core.bringup.profile import load_profile
+    prof = load_profile(chain.profile, _overrides(chain, rate))
+    return replace(prof, nodes=tuple(n for n in prof.nodes if n.name in chain.nodes),
+                   record=None)
+
+
+def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
+    from enbarr_core.bringup.orchestrator import composed
+    from enbarr_core.bringup.profile import apply_environment
+
+    prof = _chain_profile(chain, rate)
+    apply_environment(prof)
+    with composed(prof) as c:
+        c.start()
+        sim, sink = c.node('simulator'), c.node(chain.sink)
+
+        def spin_for(s: float) -> None:
+            end = time.monotonic() + s
+            while time.monotonic() < end:
+                c.executor.spin_once(timeout_sec=0.1)
+
+        spin_for(2.0)
+        n0 = sink.latency.count
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        spin_for(seconds)
+        cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+        cycles = sink.latency.count - n0
+    if not cycles:
+        from enbarr_core.framework.errors import EnbarrError
+        raise EnbarrError(f'no command reached {chain.sink}: the chain did not run')
+    lat_ms = sink.latency.last(cycles) * 1e-6
+    return {
+        'rate_hz': round(cycles / wall, 1),
+        'cycles': cycles,
+        'late_ticks': sim._loops[0].overruns,
+        'time_skips': sim.time_skips,
+        'latency_ms_p50': round(float(np.percentile(lat_ms, 50)), 3),
+        'latency_ms_p99': round(float(np.percentile(lat_ms, 99)), 3),
+        'latency_ms_max': round(float(lat_ms.max()), 3),
+        'cpu_s_per_cycle': round(cpu / cycles, 6),
+        'cpu_core_fraction': round(cpu / wall, 3),
+    }
+
+
+def _common(chain: str, rate: float) -> dict[str, Any]:
+    prof = _chain_profile(CHAINS[chain], rate)
+    return dict(prof.parameters), prof
+
+
+def run_pure_rov(rate: float, cycles: int = 2000) -> float:
+    """CPU seconds per cycle of the ROV chain's algorithms in a plain loop."""
+    from enbarr_core.allocation.fixed import allocation_matrix, Thruster, ThrustAllocator
+    from enbarr_core.estimation.attitude_filter import AttitudeFilter
+    from enbarr_core.framework.kinematics import quat_to_rotmat
+    from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
+    from enbarr_core.control.velocity_control import VelocityController, VelocityReference
+    from enbarr_core.control.velocity_control_node import build_settings, SPECS
+
+    common, prof = _common('rov', rate)
+    sim = {**common, **prof.node('simulator').parameters}
+    fields = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad')
+    model = RigidBodyModel(RigidBodyParams.from_mapping(
+        {f: sim[f'vehicle.{f}'] for f in fields}))
+    thrusters = [Thruster(n, tuple(common[f'thrusters.{n}.position']),
+                          tuple(common[f'thrusters.{n}.direction']),
+                          common[f'thrusters.{n}.max_forward'],
+                          common[f'thrusters.{n}.max_reverse'])
+                 for n in common['thruster_names']]
+    B = allocation_matrix(thrusters)
+    allocator = ThrustAllocator(thrusters)
+    values = {s.name: s.default for s in SPECS}
+    values.update({k: v for k, v in {**common, **prof.node('control_loop').parameters}.items()
+                   if k in values})
+    controller = VelocityController(build_settings(values)[0])
+    reference = VelocityReference(values['reference_time_constant'], values['max_accel'])
+    filt = AttitudeFilter()
+    rng = np.random.default_rng(1)
+    dt = 1.0 / rate
+    state = RigidBodyState.at_rest((0.0, 0.0, -0.5))
+    thrust = np.zeros(len(thrusters))
+    goal = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.2])
+    m_world = np.array([0.0, 1.8e-5, -4.8e-5])
+    nan3 = np.full(3, np.nan)
+    t0 = time.process_time()
+    for _ in range(cycles):
+        tau = B @ thrust
+        state = model.step(state, tau, dt)
+        nu_dot = model.nu_dot(state.q, state.nu, tau)
+        f = model.specific_force(state, nu_dot)
+        gyro = state.nu[3:] + rng.normal(0.0, 0.002, 3)
+        accel = f + rng.normal(0.0, 0.03, 3)
+        mag = quat_to_rotmat(state.q).T @ m_world + rng.normal(0.0, 5e-7, 3)
+        est = filt.step(gyro, accel, mag, dt)
+        nu_ref, nu_ref_dot = reference.step(goal, dt)
+        out = controller.step(nu_ref, np.concatenate((nan3, est.omega)), dt,
+                              nu_d_dot=nu_ref_dot)
+        thrust = allocator.allocate(out.tau).thrust
+    return (time.process_time() - t0) / cycles
+
+
+def run_pure_saucer(rate: float, cycles: int = 2000) -> float:
+    """CPU seconds per cycle of the Saucer chain's algorithms in a plain loop."""
+    from enbarr_core.allocation.azimuth import AzimuthAllocator, PwmCalibration
+    from enbarr_core.control.dp_control import DpController, saucer_dp_settings
+    from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
+    from enbarr_core.guidance.guidance import HoldPose
+    from enbarr_core.models.vessel3dof import AzimuthActuators, AzimuthSpec, CS_SAUCER, Vessel3Dof
+
+    common, _ = _common('saucer', rate)
+    specs = [AzimuthSpec(n, tuple(common[f'azimuths.{n}.position']),
+                         common[f'azimuths.{n}.max_forward'],
+                         common[f'azimuths.{n}.max_reverse'],
+                         common[f'azimuths.{n}.angle_min'], common[f'azimuths.{n}.angle_max'],
+                         common[f'azimuths.{n}.time_constant'],
+                         common[f'azimuths.{n}.max_angle_rate'])
+             for n in common['azimuth_names']]
+    pwm = PwmCalibration(*(tuple(common[f'pwm.{k}']) for k in (
+        'thrust_duty_percent', 'thrust_newton', 'angle_duty_percent', 'angle_rad')))
+    vessel, actuators = Vessel3Dof(CS_SAUCER), AzimuthActuators(specs)
+    allocator = AzimuthAllocator(specs)
+    observer, controller = PassiveObserver(saucer_observer_settings()), DpController(
+        saucer_dp_settings())
+    guidance = HoldPose((0.0, 0.0, 0.0))
+    rng = np.random.default_rng(1)
+    dt = 1.0 / rate
+    eta, nu = np.zeros(3), np.zeros(3)
+    observer.initialize(eta)
+    angle = np.zeros(len(specs))
+    tau_delivered = np.zeros(3)
+    t0 = time.process_time()
+    for _ in range(cycles):
+        eta, nu = vessel.step(eta, nu, actuators.tau(), dt, current=(0.05, 0.0))
+        y = eta + rng.normal(0.0, (0.002, 0.002, 0.005))
+        est = observer.step(y, tau_delivered, dt)
+        ref = guidance.reference(est.eta_hat, dt)
+        tau = controller.step(est.eta_hat, est.nu_hat, est.b_hat, ref, dt).tau
+        r = allocator.allocate(tau, previous_angle=angle)
+        angle, tau_delivered = r.angle, r.tau_delivered
+        duty = [(pwm.thrust_to_duty(f), pwm.angle_to_duty(a)) for f, a in zip(r.thrust, angle)]
+        actuators.step([pwm.duty_to_thrust(d[0]) for d in duty],
+                       [pwm.duty_to_angle(d[1]) for d in duty], dt)
+    return (time.process_time() - t0) / cycles

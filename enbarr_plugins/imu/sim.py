@@ -1,0 +1,85 @@
+"""Simulated 9-DOF IMU: measures the simulated vehicle (``sim/imu``) with sensor errors.
+
+What a real IMU plugin (LSM9DS1, BNO055, ...) publishes, from the true motion instead of a
+chip: gyro = omega + b_g + n_g, accelerometer = f + b_a + n_a (specific force, +9.81 m/s^2 on
+z at rest, REP-145), magnetometer = R^T m_world + n_m. Noise is white Gaussian with the given
+standard deviation per sample, from a seeded generator so runs repeat.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import Imu, MagneticField
+
+from enbarr_core.framework.kinematics import quat_to_rotmat
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import convert, topics
+
+SPECS = [
+    ParamSpec('gyro_noise', 0.002, 'Gyro white noise, std per sample', 'rad/s', 0.0, 1.0),
+    ParamSpec('gyro_bias', [0.004, -0.003, 0.002], 'Constant gyro bias', 'rad/s', -0.5, 0.5),
+    ParamSpec('accel_noise', 0.03, 'Accelerometer white noise, std per sample', 'm/s^2', 0.0,
+              10.0),
+    ParamSpec('accel_bias', [0.0, 0.0, 0.0], 'Constant accelerometer bias', 'm/s^2', -5.0,
+              5.0),
+    ParamSpec('mag_noise', 5e-7, 'Magnetometer white noise, std per sample', 'T', 0.0, 1e-3),
+    ParamSpec('magnetic_field', [0.0, 1.8e-5, -4.8e-5], 'Earth field in odom (ENU): north '
+              '= +y, inclination down', 'T', -1e-3, 1e-3),
+    ParamSpec('seed', 1, 'Seed of the noise generator', '', 0, 2**31 - 1, read_only=True),
+]
+
+
+class SimImuNode(EnbarrNode):
+    """Publishes ``imu/mag`` then ``imu/data_raw`` for every ``sim/imu`` truth sample."""
+
+    def __init__(self, node_name: str = 'imu', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, self._build, self._apply)
+        self._rng = np.random.default_rng(self.settings['seed'])
+        self._raw_pub = self.create_link_publisher(topics.IMU_RAW)
+        self._mag_pub = self.create_link_publisher(topics.IMU_MAG)
+        self.create_link_subscription(topics.SIM_IMU, self._on_truth)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> dict[str, Any]:
+        for k in ('gyro_bias', 'accel_bias', 'magnetic_field'):
+            if len(v[k]) != 3:
+                raise ValueError(f'{k} needs 3 values, got {len(v[k])}')
+        return {**v, **{k: np.array(v[k], dtype=float) for k in (
+            'gyro_bias', 'accel_bias', 'magnetic_field')}}
+
+    def _apply(self, settings: dict[str, Any]) -> None:
+        self.settings = settings
+
+    def _on_truth(self, truth: Imu) -> None:
+        s = self.settings
+        rng = self._rng
+        q = convert.quaternion_to_array(truth.orientation)
+        omega = convert.vector3_to_array(truth.angular_velocity)
+        f = convert.vector3_to_array(truth.linear_acceleration)
+        mag = MagneticField()
+        mag.header.stamp = truth.header.stamp
+        mag.header.frame_id = topics.IMU_FRAME
+        m = quat_to_rotmat(q).T @ s['magnetic_field'] + rng.normal(0.0, s['mag_noise'], 3)
+        convert.set_vector3(mag.magnetic_field, m)
+        mag.magnetic_field_covariance[0] = mag.magnetic_field_covariance[4] = \
+            mag.magnetic_field_covariance[8] = s['mag_noise'] ** 2
+        self._mag_pub.publish(mag)
+        raw = Imu()
+        raw.header.stamp = truth.header.stamp
+        raw.header.frame_id = topics.IMU_FRAME
+        raw.orientation_covariance[0] = -1.0  # no orientation estimate (REP-145)
+        convert.set_vector3(raw.angular_velocity,
+                            omega + s['gyro_bias'] + rng.normal(0.0, s['gyro_noise'], 3))
+        convert.set_vector3(raw.linear_acceleration,
+                            f + s['accel_bias'] + rng.normal(0.0, s['accel_noise'], 3))
+        g2, a2 = s['gyro_noise'] ** 2, s['accel_noise'] ** 2
+        raw.angular_velocity_covariance[0] = raw.angular_velocity_covariance[4] = \
+            raw.angular_velocity_covariance[8] = g2
+        raw.linear_acceleration_covariance[0] = raw.linear_acceleration_covariance[4] = \
+            raw.linear_acceleration_covariance[8] = a2
+        self._raw_pub.publish(raw)

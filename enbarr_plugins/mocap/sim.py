@@ -1,0 +1,84 @@
+"""Simulated motion capture (the CS Saucer manual's Qualisys "GPS"): measures the simulated
+vessel's pose (``sim/odometry``) and publishes it on ``mocap/pose`` at ``rate``, with white
+Gaussian position and heading noise and dropouts: scheduled windows (``dropout_windows``,
+pairs of start and end times in seconds since the first sample) and random single-sample
+losses (``dropout_probability``), as markers hidden behind the lidar or a person do.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+from nav_msgs.msg import Odometry
+
+from enbarr_core.framework.kinematics import ssa
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import convert, topics
+
+SPECS = [
+    ParamSpec('rate', 50.0, 'Measurement rate (at most the simulator rate)', 'Hz', 0.1, 1000.0,
+              read_only=True),
+    ParamSpec('position_noise', 0.002, 'Position noise, std per sample', 'm', 0.0, 1.0),
+    ParamSpec('heading_noise', 0.005, 'Heading noise, std per sample', 'rad', 0.0, 1.0),
+    ParamSpec('dropout_windows', [0.0], 'Dropouts: start, end, start, end, ... (seconds since '
+              'the first sample); [0.0]: none', 's', 0.0, 1e6),
+    ParamSpec('dropout_probability', 0.0, 'Probability that a sample is lost', '', 0.0, 1.0),
+    ParamSpec('seed', 2, 'Seed of the noise generator', '', 0, 2**31 - 1, read_only=True),
+]
+
+
+class SimMocapNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, self._build, self._apply)
+        self._rng = np.random.default_rng(self.settings['seed'])
+        self._period_ns = round(1e9 / self.settings['rate'])
+        self._next_ns: int | None = None
+        self._start_ns: int | None = None
+        self.published = 0
+        self.dropped = 0
+        self._pub = self.create_link_publisher(topics.MOCAP_POSE)
+        self.create_link_subscription(topics.SIM_ODOMETRY, self._on_truth)
+
+    @staticmethod
+    def _build(v: dict[str, Any]) -> dict[str, Any]:
+        w = v['dropout_windows']
+        if w != [0.0]:
+            if len(w) % 2 or any(b <= a for a, b in zip(w[::2], w[1::2])):
+                raise ValueError('dropout_windows: expected pairs of start < end times')
+        return v
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        w = v['dropout_windows']
+        self._windows = [] if w == [0.0] else list(zip(w[::2], w[1::2]))
+        self.settings = v
+
+    def _on_truth(self, truth: Odometry) -> None:
+        t = convert.stamp_to_ns(truth.header.stamp)
+        if self._next_ns is None:
+            self._next_ns = self._start_ns = t
+        if t < self._next_ns:
+            return
+        self._next_ns += self._period_ns * max(1, (t - self._next_ns) // self._period_ns + 1)
+        since = (t - self._start_ns) * 1e-9
+        s = self.settings
+        if any(a <= since < b for a, b in self._windows) or (
+                s['dropout_probability'] > 0.0
+                and self._rng.random() < s['dropout_probability']):
+            self.dropped += 1
+            return
+        eta = convert.pose_to_eta(truth.pose.pose)
+        eta[:2] += self._rng.normal(0.0, s['position_noise'], 2)
+        eta[2] = ssa(eta[2] + self._rng.normal(0.0, s['heading_noise']))
+        msg = PoseStamped()
+        msg.header.stamp = truth.header.stamp
+        msg.header.frame_id = topics.WORLD_FRAME
+        convert.set_pose_eta(msg.pose, eta)
+        self.published += 1
+        self._pub.publish(msg)

@@ -1,0 +1,159 @@
+"""Keyboard teleoperation: an operator at a terminal drives the ROV (a surface station in a
+pinch). Keys change the velocity goal in steps; the goal is sent at ``rate`` with a fresh
+stamp, so when the operator stops the node (or the terminal goes away) the command
+receiver's failsafe stops the vehicle.
+
+    w / s   surge ahead / astern        a / d   sway left / right
+    r / f   heave up / down             q / e   yaw left / right
+    space   all stop                    l       lights on / off (``lights_executor``)
+    m / n   manipulator +/- ``manipulator_step`` steps (``manipulator_executor``)
+
+The terminal is ``device`` (default: this process's standard input when it is a terminal),
+switched to cbreak mode while the node runs and restored when it is destroyed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import os
+import select
+import termios
+import threading
+import tty
+from typing import Any
+
+from geometry_msgs.msg import TwistStamped
+from rcl_interfaces.msg import Parameter
+
+from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import convert, topics
+
+_AXES = {'w': (0, 1), 's': (0, -1), 'a': (1, 1), 'd': (1, -1), 'r': (2, 1), 'f': (2, -1),
+         'q': (5, 1), 'e': (5, -1)}
+
+
+@dataclass(frozen=True)
+class KeyState:
+    """Velocity goal [u, v, w, p, q, r] and the io state the keys have built up."""
+
+    nu: tuple[float, ...] = (0.0,) * 6
+    lights: bool = False
+
+
+def apply_key(state: KeyState, key: str, linear_step: float, angular_step: float,
+              max_linear: float, max_angular: float) -> tuple[KeyState, tuple[str, Any] | None]:
+    """The new state after ``key``, and an io request (executor role, value) if it makes one.
+    Velocities stay within +/- the maxima; unknown keys change nothing."""
+    if key == ' ':
+        return replace(state, nu=(0.0,) * 6), None
+    if key == 'l':
+        new = replace(state, lights=not state.lights)
+        return new, ('lights', new.lights)
+    if key in ('m', 'n'):
+        return state, ('manipulator', 1 if key == 'm' else -1)
+    if key in _AXES:
+        i, sign = _AXES[key]
+        step, limit = (linear_step, max_linear) if i < 3 else (angular_step, max_angular)
+        nu = list(state.nu)
+        nu[i] = round(max(-limit, min(limit, nu[i] + sign * step)), 9)
+        return replace(state, nu=tuple(nu)), None
+    return state, None
+
+
+SPECS = [
+    ParamSpec('device', '', 'Terminal to read keys from; empty: standard input', read_only=True),
+    ParamSpec('rate', 10.0, 'Rate at which the goal is sent', 'Hz', 1.0, 100.0,
+              read_only=True),
+    ParamSpec('linear_step', 0.05, 'Velocity change per key press', 'm/s', 1e-3, 1.0),
+    ParamSpec('angular_step', 0.1, 'Yaw rate change per key press', 'rad/s', 1e-3, 2.0),
+    ParamSpec('max_linear', 0.5, 'Largest linear velocity goal', 'm/s', 0.0, 5.0),
+    ParamSpec('max_angular', 0.5, 'Largest yaw rate goal', 'rad/s', 0.0, 5.0),
+    ParamSpec('lights_executor', 'gpio_12', 'Executor of the lights'),
+    ParamSpec('manipulator_executor', 'manipulator', 'Executor of the manipulator'),
+    ParamSpec('manipulator_step', 50, 'Steps per manipulator key press', 'steps', 1, 100000),
+]
+
+
+class KeyboardTeleopNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'keyboard', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, lambda v: v, self._apply)
+        device = self.settings['device']
+        try:
+            self._fd = os.open(device, os.O_RDONLY | os.O_NOCTTY) if device else os.dup(0)
+            self._saved = termios.tcgetattr(self._fd)
+        except (OSError, termios.error) as err:
+            raise ConfigurationError(
+                f'node {node_name!r}: {device or "standard input"} is not a terminal '
+                f'({err}); run bringup in a terminal or set device', parameter='device') from err
+        self.state = KeyState()
+        self._twist_pub = self.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
+                                                topics.SURFACE_TWIST.qos)
+        self._io_pub = self.create_publisher(Parameter, topics.SURFACE_IO.name,
+                                             topics.SURFACE_IO.qos)
+        self.create_timer(1.0 / self.settings['rate'], self._send)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name='keyboard', daemon=True)
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        self.settings = v
+
+    def start(self) -> None:
+        super().start()
+        tty.setcbreak(self._fd)
+        self.get_logger().info('keys: w/s surge, a/d sway, r/f heave, q/e yaw, space stop, '
+                               'l lights, m/n manipulator')
+        self._thread.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._fd], [], [], 0.1)
+            if not ready:
+                continue
+            try:
+                data = os.read(self._fd, 32)
+            except OSError:  # EIO: the terminal went away
+                data = b''
+            if not data:  # the terminal closed: stop sending, the failsafe takes over
+                self.get_logger().warn('keyboard closed: no more commands')
+                self._stop.set()
+                return
+            for key in data.decode(errors='ignore'):
+                self.on_key(key)
+
+    def on_key(self, key: str) -> None:
+        s = self.settings
+        self.state, io = apply_key(self.state, key.lower(), s['linear_step'],
+                                   s['angular_step'], s['max_linear'], s['max_angular'])
+        if io is not None:
+            role, value = io
+            executor = s['lights_executor'] if role == 'lights' else s['manipulator_executor']
+            value = value * s['manipulator_step'] if role == 'manipulator' else value
+            self._io_pub.publish(Parameter(
+                name=executor, value=convert.python_to_parameter_value(value)))
+        self._send()
+
+    def _send(self) -> None:
+        if self._stop.is_set():
+            return
+        msg = TwistStamped()
+        convert.ns_to_stamp(self.get_clock().now().nanoseconds, msg.header.stamp)
+        msg.header.frame_id = topics.BODY_FRAME
+        convert.set_twist(msg.twist, self.state.nu)
+        self._twist_pub.publish(msg)
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(1.0)
+        try:
+            termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+            os.close(self._fd)
+        except (OSError, termios.error):
+            pass
+        super().destroy_node()

@@ -1,0 +1,127 @@
+"""Simulated thruster control: what a PWM/ESC plugin does, against the simulated vehicle.
+
+Takes ``thruster_commands`` (-1..1 per named thruster), turns them into thrust with each
+thruster's limits and a first-order motor lag, and hands the thrust to the simulator
+(``sim/thrust``). ``thruster_output`` reports what was applied. Like a real ESC driver it
+goes neutral when commands stop for ``command_timeout`` (a crashed controller or a dropped
+link) and on ``safe_state`` (every bringup exit path). Commands outside -1..1 are clipped and
+counted; a command with NaN/Inf or an unknown thruster name is refused and counted.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from enbarr_core.framework.node import CommandWatchdog, EnbarrNode, LatencyLog
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.allocation.thruster_params import declare_thrusters
+from enbarr_interfaces import convert, topics
+
+SPECS = [
+    ParamSpec('time_constant', 0.05, 'First-order thrust response time constant', 's', 0.0,
+              5.0),
+    ParamSpec('command_timeout', 0.25, 'Neutral when no command arrives for this long', 's',
+              0.005, 10.0),
+]
+
+
+class SimThrustersNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
+                                        'thruster commands stopped: thrusters neutral')
+        self.thrusters = declare_thrusters(self)
+        self.names = [t.name for t in self.thrusters]
+        self._index = {n: i for i, n in enumerate(self.names)}
+        self._fwd = np.array([t.max_forward for t in self.thrusters])
+        self._rev = np.array([t.max_reverse for t in self.thrusters])
+        self.settings: dict[str, Any] = {}
+        self.bind_settings(SPECS, lambda v: v, self._apply)
+        self.latency = LatencyLog()  # IMU sample stamp -> command applied
+        self.command = np.zeros(len(self.names))   # applied, normalized
+        self.thrust = np.zeros(len(self.names))    # produced [N]
+        self.neutral = True
+        self.refused = 0
+        self.clipped = 0
+        self._last_apply_ns: int | None = None
+        self._output_pub = self.create_link_publisher(topics.THRUSTER_OUTPUT)
+        self._thrust_pub = self.create_link_publisher(topics.SIM_THRUST)
+        self.create_link_subscription(topics.THRUSTER_COMMANDS, self._on_command)
+        self.create_timer(1.0, self._report)
+        self.safe_state()  # start neutral, also after a restart
+
+    def _apply(self, v: dict[str, Any]) -> None:
+        self.settings = v
+        self.watchdog.set_timeout(v['command_timeout'])
+
+    @property
+    def timeouts(self) -> int:
+        return self.watchdog.timeouts
+
+    def _on_command(self, msg: JointState) -> None:
+        if len(msg.name) != len(msg.effort):
+            self.refused += 1
+            return
+        cmd = np.zeros(len(self.names))
+        for name, value in zip(msg.name, msg.effort):
+            i = self._index.get(name)
+            if i is None or not math.isfinite(value):
+                self.refused += 1
+                self.get_logger().warn(f'refused thruster command {name}={value}',
+                                       throttle_duration_sec=1.0)
+                return
+            cmd[i] = value
+        if np.any(np.abs(cmd) > 1.0):
+            self.clipped += 1
+            np.clip(cmd, -1.0, 1.0, out=cmd)
+        now = time.monotonic_ns()
+        stamp_ns = self.get_clock().now().nanoseconds
+        with self.watchdog.lock:
+            self.watchdog.fed()
+            self._output(cmd, now, stamp_ns)
+        self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
+
+    def _output(self, cmd: np.ndarray, now_ns: int, stamp_ns: int | None = None) -> None:
+        """Apply ``cmd`` (normalized) at monotonic ``now_ns``, stamped with the node clock's
+        ``stamp_ns`` (read now when not given); caller holds the lock."""
+        target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
+        tc = self.settings['time_constant']
+        last, self._last_apply_ns = self._last_apply_ns, now_ns
+        if tc > 0.0 and last is not None and not self.neutral:
+            # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
+            alpha = 1.0 - math.exp(-(now_ns - last) * 1e-9 / tc)
+            self.thrust = self.thrust + alpha * (target - self.thrust)
+        else:
+            self.thrust = target
+        self.command = cmd
+        self.neutral = not np.any(cmd)
+        stamp = convert.ns_to_stamp(
+            self.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns)
+        out = JointState(name=self.names, effort=cmd.tolist())
+        out.header.stamp = stamp
+        out.header.frame_id = topics.BODY_FRAME
+        self._output_pub.publish(out)
+        thrust = JointState(name=self.names, effort=self.thrust.tolist())
+        thrust.header.stamp = stamp
+        thrust.header.frame_id = topics.BODY_FRAME
+        self._thrust_pub.publish(thrust)
+
+    def safe_state(self) -> None:
+        """Command every thruster to neutral now (motor thrust cut, not ramped)."""
+        with self.watchdog.lock:
+            self._neutral_locked()
+
+    def _neutral_locked(self) -> None:
+        self.neutral = True
+        self._output(np.zeros(len(self.names)), time.monotonic_ns())
+
+    def _report(self) -> None:
+        self.publish_diagnostics(0, 'neutral' if self.neutral else 'running', {
+            'refused': self.refused, 'clipped': self.clipped, 'timeouts': self.timeouts})

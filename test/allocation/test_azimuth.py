@@ -1,0 +1,371 @@
+"""Azimuth thrust allocation and PWM calibration (pure algorithm tier: numpy/scipy only).
+
+The allocator is checked against a general constrained least-squares solution (scipy SLSQP
+over thrust and angle with the real bounds), which knows nothing of the extended-thrust trick.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from enbarr_core.allocation.azimuth import (
+    AzimuthAllocator,
+    AzimuthResult,
+    PwmCalibration,
+    extended_allocation_matrix,
+)
+from enbarr_core.models.vessel3dof import AzimuthSpec, azimuth_tau
+from enbarr_core.framework.errors import AllocationError, ConfigurationError
+
+RADIUS = 0.1375                 # [m] Saucer azimuth radius of the profile (not in the manual)
+A_LIM = math.radians(114.0)     # servo travel +/-114 deg (CS Saucer manual Table 1.1)
+F_FWD, F_REV = 1.5, 1.0         # [N] assumed: the manual gives no thrust figures
+LAMBDA = 1e-6                   # thrust regularization of the SLSQP reference
+
+
+def saucer_specs(**overrides) -> list[AzimuthSpec]:
+    """Three azimuths at 90, 210, 330 deg around the centre. Time constant and slew rate are
+    assumed values (not in the manual); they do not matter to the allocator."""
+    kw = dict(max_forward=F_FWD, max_reverse=F_REV, angle_min=-A_LIM, angle_max=A_LIM,
+              time_constant=0.1, max_angle_rate=3.0)
+    kw.update(overrides)
+    return [AzimuthSpec(f'az{k}', (RADIUS * math.cos(math.radians(deg)),
+                                   RADIUS * math.sin(math.radians(deg))), **kw)
+            for k, deg in enumerate((90.0, 210.0, 330.0))]
+
+
+POS = np.array([s.position for s in saucer_specs()])
+# G = B B^T of the force pairs (f_xi, f_yi): columns [1, 0, -y_i] and [0, 1, x_i].
+G = np.array([[3.0, 0.0, -POS[:, 1].sum()], [0.0, 3.0, POS[:, 0].sum()],
+              [-POS[:, 1].sum(), POS[:, 0].sum(), float(np.sum(POS ** 2))]])
+
+
+def limits_for(T: np.ndarray) -> np.ndarray:
+    return np.where(T >= 0.0, F_FWD, F_REV)
+
+
+# -- SLSQP reference: min |B(a) T - tau|^2 + LAMBDA |T|^2 over the box ------------------------
+
+
+def _tau_of(T: np.ndarray, a: np.ndarray) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([T @ c, T @ s, T @ (POS[:, 0] * s - POS[:, 1] * c)])
+
+
+def slsqp_reference(tau: np.ndarray, rng: np.random.Generator, starts: int = 8):
+    """Best of several SLSQP runs from random starts; returns (T, a)."""
+    n = len(POS)
+
+    def objective(z):
+        T, a = z[:n], z[n:]
+        c, s = np.cos(a), np.sin(a)
+        r = _tau_of(T, a) - tau
+        # Jacobian of the residual: d/dT_i and d/da_i of [T c, T s, T (x s - y c)]
+        J_T = np.array([c, s, POS[:, 0] * s - POS[:, 1] * c])
+        J_a = T * np.array([-s, c, POS[:, 0] * c + POS[:, 1] * s])
+        grad = 2.0 * np.r_[J_T.T @ r + LAMBDA * T, J_a.T @ r]
+        return float(r @ r + LAMBDA * T @ T), grad
+
+    bounds = [(-F_REV, F_FWD)] * n + [(-A_LIM, A_LIM)] * n
+    best = None
+    for _ in range(starts):
+        z0 = np.r_[rng.uniform(-F_REV, F_FWD, n), rng.uniform(-A_LIM, A_LIM, n)]
+        res = minimize(objective, z0, jac=True, method='SLSQP', bounds=bounds,
+                       options=dict(ftol=1e-16, maxiter=500))
+        if best is None or res.fun < best.fun:
+            best = res
+    # SLSQP can stop short of the optimum's last digits (seen with scipy 1.17 on some CPUs):
+    # restart it from the best point until the objective stops improving.
+    for _ in range(5):
+        res = minimize(objective, best.x, jac=True, method='SLSQP', bounds=bounds,
+                       options=dict(ftol=1e-16, maxiter=500))
+        if not res.fun < best.fun:
+            break
+        best = res
+    return best.x[:n], best.x[n:]
+
+
+def random_directions(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Unit directions in [X, Y, N / RADIUS] so that yaw gets a fair share."""
+    v = rng.normal(size=(count, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v[:, 2] *= RADIUS
+    return v
+
+
+def unsaturated_ratio(alloc: AzimuthAllocator, tau: np.ndarray) -> float:
+    """max |T_i| / limit_i of the least-norm solution (before any scaling)."""
+    f = (alloc.B_pinv @ tau).reshape(-1, 2)
+    m = np.hypot(f[:, 0], f[:, 1])
+    # The representation chosen without a previous angle is positive thrust when possible.
+    phi = np.arctan2(f[:, 1], f[:, 0])
+    return float(np.max(m / np.where(np.abs(phi) <= A_LIM, F_FWD, F_REV)))
+
+
+def assert_angles_within(res: AzimuthResult) -> None:
+    assert np.all(res.angle >= -A_LIM) and np.all(res.angle <= A_LIM)
+
+
+# -- attainable: delivers tau with the least thrust -------------------------------------------
+
+
+def test_attainable_tau_matches_slsqp_with_least_thrust():
+    alloc = AzimuthAllocator(saucer_specs())
+    rng = np.random.default_rng(20240612)
+    gaps = []
+    for direction in random_directions(rng, 20):
+        tau = direction * rng.uniform(0.1, 0.8) / unsaturated_ratio(alloc, direction)
+        res = alloc.allocate(tau)
+        assert res.feasible and res.scale == 1.0
+        np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
+        np.testing.assert_allclose(azimuth_tau(POS, res.thrust, res.angle), tau, atol=1e-12)
+        assert_angles_within(res)
+        assert np.all(np.abs(res.thrust) <= limits_for(res.thrust))
+        T_ref, a_ref = slsqp_reference(tau, rng)
+        # The reference delivers tau to within what LAMBDA trades away (~1e-6 N).
+        np.testing.assert_allclose(_tau_of(T_ref, a_ref), tau, atol=1e-5)
+        ours, theirs = float(res.thrust @ res.thrust), float(T_ref @ T_ref)
+        # The penalty LAMBDA |T|^2 lets the reference shrink the least-norm thrust by
+        # ~2 LAMBDA |G^-1 tau|^2, G = B B^T of the force-pair matrix (measured: up to 1.6e-5).
+        shrink = 2.0 * LAMBDA * float(np.sum(np.linalg.solve(G, tau) ** 2))
+        assert ours <= theirs + 1.5 * shrink + 1e-9
+        gaps.append(abs(ours - theirs) / theirs)
+    # The comparison is tight: SLSQP's best is mostly the same optimum, not a poor local one.
+    assert np.median(gaps) < 1e-3
+
+
+def test_weighted_least_norm_matches_kkt():
+    """min sum w_i (f_xi^2 + f_yi^2) s.t. B_ext f = tau, from its KKT equations."""
+    weights = [1.0, 4.0, 0.5]
+    alloc = AzimuthAllocator(saucer_specs(), weights=weights)
+    B = extended_allocation_matrix(POS)
+    W = np.diag(np.repeat(weights, 2))
+    kkt = np.block([[W, B.T], [B, np.zeros((3, 3))]])
+    rng = np.random.default_rng(9)
+    for tau in rng.normal(scale=[0.3, 0.3, 0.02], size=(20, 3)):
+        f = np.linalg.solve(kkt, np.r_[np.zeros(6), tau])[:6].reshape(3, 2)
+        res = alloc.allocate(tau)
+        np.testing.assert_allclose(np.abs(res.thrust), np.hypot(f[:, 0], f[:, 1]), atol=1e-12)
+        np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
+    with pytest.raises(ConfigurationError, match='weights'):
+        AzimuthAllocator(saucer_specs(), weights=[1.0, 1.0])
+    with pytest.raises(ConfigurationError, match='weights'):
+        AzimuthAllocator(saucer_specs(), weights=[1.0, 0.0, 1.0])
+
+
+def test_reversed_thrust_when_direction_is_outside_travel():
+    """A force pointing backwards (180 deg) is outside +/-114 deg: angle 0, thrust < 0."""
+    alloc = AzimuthAllocator(saucer_specs())
+    res = alloc.allocate([-0.9, 0.0, 0.0])
+    np.testing.assert_allclose(res.thrust, -0.3, rtol=1e-12)
+    np.testing.assert_allclose(res.angle, 0.0, atol=1e-12)
+    fwd = alloc.allocate([0.9, 0.0, 0.0])
+    np.testing.assert_allclose(fwd.thrust, 0.3, rtol=1e-12)
+
+
+# -- unattainable: scaled along tau -----------------------------------------------------------
+
+
+def test_unattainable_tau_is_scaled_along_its_direction():
+    alloc = AzimuthAllocator(saucer_specs())
+    rng = np.random.default_rng(77)
+    for direction in random_directions(rng, 25):
+        excess = rng.uniform(1.5, 10.0)
+        tau = direction * excess / unsaturated_ratio(alloc, direction)
+        res = alloc.allocate(tau)
+        assert not res.feasible and 0.0 < res.scale < 1.0
+        assert res.scale == pytest.approx(1.0 / excess, rel=1e-9)
+        np.testing.assert_allclose(res.tau_delivered, res.scale * tau, rtol=1e-9, atol=1e-12)
+        cos = res.tau_delivered @ tau / (np.linalg.norm(res.tau_delivered) * np.linalg.norm(tau))
+        assert cos == pytest.approx(1.0, abs=1e-12)
+        ratios = np.abs(res.thrust) / limits_for(res.thrust)
+        assert np.all(ratios <= 1.0 + 1e-12)
+        assert np.max(ratios) == pytest.approx(1.0, abs=1e-12)  # one azimuth at its limit
+        assert_angles_within(res)
+        # SLSQP (box-bounded least squares) gets at least as close to tau, in general not along
+        # it; ours gives up magnitude to keep the direction.
+        T_ref, a_ref = slsqp_reference(tau, rng, starts=4)
+        assert np.all(T_ref <= F_FWD + 1e-9) and np.all(T_ref >= -F_REV - 1e-9)
+        assert (np.linalg.norm(_tau_of(T_ref, a_ref) - tau)
+                <= np.linalg.norm(res.tau_delivered - tau) + 1e-6)
+
+
+# -- angle continuity -------------------------------------------------------------------------
+
+
+def _other_representation(a: np.ndarray) -> np.ndarray:
+    return np.where(a > 0.0, a - math.pi, a + math.pi)
+
+
+def test_rotating_tau_keeps_angles_continuous_when_a_choice_exists():
+    alloc = AzimuthAllocator(saucer_specs())
+    prev = None
+    jumps = 0
+    for theta in np.linspace(0.0, 4.0 * math.pi, 2001):  # 0.36 deg per step
+        tau = np.array([0.8 * math.cos(theta), 0.8 * math.sin(theta), 0.02])
+        res = alloc.allocate(tau, previous_angle=prev)
+        np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
+        assert res.feasible
+        assert_angles_within(res)
+        if prev is not None:
+            step = np.abs(res.angle - prev)
+            for i in np.flatnonzero(step > 0.1):
+                # A flip only when the continuation (the other representation, near prev) has
+                # left the servo travel: there was no choice.
+                jumps += 1
+                assert abs(step[i] - math.pi) < 0.05
+                alt = _other_representation(res.angle[i:i + 1])[0]
+                assert abs(alt) > A_LIM - 1e-9
+        prev = res.angle
+    # Two forced flips per azimuth and revolution, two revolutions.
+    assert jumps == 3 * 2 * 2
+
+
+def test_hysteresis_near_the_travel_limit():
+    """A force direction wobbling across +114 deg: no flip-flopping with previous_angle."""
+    alloc = AzimuthAllocator(saucer_specs())
+    thetas = A_LIM + math.radians(5.0) * np.sin(0.2 * np.arange(300))
+    flips = {True: 0, False: 0}
+    for hysteresis in (True, False):
+        prev = None
+        last = None
+        for theta in thetas:
+            tau = np.array([0.6 * math.cos(theta), 0.6 * math.sin(theta), 0.0])
+            res = alloc.allocate(tau, previous_angle=prev if hysteresis else None)
+            np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
+            if last is not None:
+                flips[hysteresis] += int(np.count_nonzero(np.abs(res.angle - last) > 1.0))
+            last = res.angle
+            prev = res.angle
+    assert flips[True] <= 3       # at most once per azimuth
+    assert flips[False] > 30      # without it: every crossing
+
+
+def test_zero_tau_keeps_previous_angles():
+    alloc = AzimuthAllocator(saucer_specs())
+    res = alloc.allocate([0.0, 0.0, 0.0], previous_angle=[0.3, -1.0, 2.5])
+    np.testing.assert_array_equal(res.thrust, 0.0)
+    np.testing.assert_allclose(res.angle, [0.3, -1.0, A_LIM])  # clipped to the travel
+    assert res.feasible and res.scale == 1.0
+    np.testing.assert_array_equal(res.tau_delivered, 0.0)
+    res = alloc.allocate([1e-15, 0.0, 0.0])
+    np.testing.assert_array_equal(res.thrust, 0.0)
+    np.testing.assert_array_equal(res.angle, 0.0)
+
+
+# -- layout checks ----------------------------------------------------------------------------
+
+
+def test_layout_at_the_centre_cannot_yaw():
+    centre = [AzimuthSpec(f'c{k}', (0.0, 0.0), F_FWD, F_REV) for k in range(3)]
+    with pytest.raises(AllocationError) as info:
+        AzimuthAllocator(centre)
+    missing = str(info.value).split('cannot produce')[1].split('(')[0]
+    assert 'yaw' in missing and 'surge' not in missing and 'sway' not in missing
+    assert 'c0' in str(info.value)
+    assert isinstance(info.value, ConfigurationError)
+
+
+def test_too_little_travel_or_bad_layout_is_rejected():
+    with pytest.raises(ConfigurationError, match='angle_min'):
+        AzimuthAllocator(saucer_specs(angle_min=-1.0, angle_max=1.0))
+    with pytest.raises(AllocationError):
+        AzimuthAllocator([])
+    with pytest.raises(ConfigurationError, match='unique'):
+        AzimuthAllocator([AzimuthSpec('a', (0, 0.1), 1, 1), AzimuthSpec('a', (0, -0.1), 1, 1)])
+    alloc = AzimuthAllocator(saucer_specs())
+    with pytest.raises(ValueError, match='tau'):
+        alloc.allocate([1.0, math.nan, 0.0])
+    with pytest.raises(ValueError, match='previous_angle'):
+        alloc.allocate([1.0, 0.0, 0.0], previous_angle=[0.0, 0.0])
+
+
+# -- PWM calibration --------------------------------------------------------------------------
+
+# Illustrative calibration (the manual only gives the 4.3-9.4 % range): a 0 N dead band over
+# 6.75-6.95 % and a servo mapping -114..114 deg over the full range.
+THRUST_DUTY = [4.3, 5.0, 5.8, 6.5, 6.75, 6.85, 6.95, 7.2, 7.9, 8.6, 9.4]
+THRUST_N = [-1.0, -0.75, -0.4, -0.1, 0.0, 0.0, 0.0, 0.1, 0.6, 1.2, 1.5]
+ANGLE_DUTY = [4.3, 5.6, 6.85, 8.1, 9.4]
+ANGLE_RAD = [math.radians(d) for d in (-114.0, -55.0, 0.0, 57.0, 114.0)]
+
+
+def calibration(**overrides) -> PwmCalibration:
+    kw = dict(thrust_duty_percent=THRUST_DUTY, thrust_newton=THRUST_N,
+              angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD)
+    kw.update(overrides)
+    return PwmCalibration(**kw)
+
+
+def test_pwm_round_trips_and_neutral():
+    cal = calibration()
+    assert PwmCalibration.DUTY_MIN == 4.3 and PwmCalibration.DUTY_MAX == 9.4
+    assert cal.neutral_thrust_duty == pytest.approx(6.85, abs=1e-15)
+    assert cal.thrust_to_duty(0.0) == cal.neutral_thrust_duty  # exactly
+    assert cal.thrust_to_duty(-0.0) == cal.neutral_thrust_duty
+    assert cal.neutral_angle_duty == 6.85
+    for T in np.linspace(-1.0, 1.5, 251):
+        d = cal.thrust_to_duty(T)
+        assert 4.3 <= d <= 9.4
+        assert cal.duty_to_thrust(d) == pytest.approx(T, abs=1e-12)
+        if T > 0.0:
+            assert d > 6.95   # positive thrust never lands in the dead band
+        elif T < 0.0:
+            assert d < 6.75
+    for a in np.linspace(-A_LIM, A_LIM, 101):
+        d = cal.angle_to_duty(a)
+        assert 4.3 <= d <= 9.4
+        assert cal.duty_to_angle(d) == pytest.approx(a, abs=1e-12)
+    # Outside the dead band, duty -> thrust -> duty is the identity too.
+    for d in np.r_[np.linspace(4.3, 6.7, 50), np.linspace(7.0, 9.4, 50)]:
+        assert cal.thrust_to_duty(cal.duty_to_thrust(d)) == pytest.approx(d, abs=1e-12)
+    # Beyond the tables: clipped to their ends.
+    assert cal.thrust_to_duty(5.0) == 9.4 and cal.thrust_to_duty(-5.0) == 4.3
+    assert cal.duty_to_thrust(20.0) == 1.5 and cal.duty_to_thrust(0.0) == -1.0
+    assert cal.angle_to_duty(4.0) == 9.4 and cal.duty_to_angle(0.0) == ANGLE_RAD[0]
+    cal.check_covers(-A_LIM, A_LIM)
+    with pytest.raises(ValueError, match='angle_rad'):
+        cal.check_covers(-math.radians(120.0), A_LIM)
+    # A saturating table (flat top): the smallest duty reaching the thrust is used.
+    flat = calibration(thrust_newton=THRUST_N[:-1] + [1.2])
+    assert flat.thrust_to_duty(1.2) == 8.6 and flat.thrust_to_duty(3.0) == 8.6
+    # A single zero entry is its own neutral.
+    single = calibration(thrust_duty_percent=[4.3, 6.9, 9.4], thrust_newton=[-1.0, 0.0, 1.5])
+    assert single.thrust_to_duty(0.0) == 6.9
+
+
+def test_pwm_bad_tables_name_the_table():
+    with pytest.raises(ValueError, match=r'^thrust_duty_percent\[0\]: 3.0 %'):
+        calibration(thrust_duty_percent=[3.0] + THRUST_DUTY[1:])
+    with pytest.raises(ValueError, match=r'^angle_duty_percent\[4\]'):
+        calibration(angle_duty_percent=ANGLE_DUTY[:-1] + [9.5])
+    with pytest.raises(ValueError, match=r'^thrust_duty_percent\[3\]: must be strictly'):
+        calibration(thrust_duty_percent=THRUST_DUTY[:3] + [5.7] + THRUST_DUTY[4:])
+    with pytest.raises(ValueError, match=r'^thrust_newton\[2\]: must be non-decreasing'):
+        calibration(thrust_newton=[-1.0, -0.75, -0.8] + THRUST_N[3:])
+    with pytest.raises(ValueError, match=r'^thrust_newton: must contain 0'):
+        calibration(thrust_newton=[t if t else 0.01 for t in THRUST_N])
+    with pytest.raises(ValueError, match=r'^angle_rad\[2\]: must be strictly'):
+        calibration(angle_rad=ANGLE_RAD[:2] + [ANGLE_RAD[1]] + ANGLE_RAD[3:])
+    with pytest.raises(ValueError, match=r'^thrust_newton: 10 entries'):
+        calibration(thrust_newton=THRUST_N[:-1])
+    with pytest.raises(ValueError, match=r'^angle_duty_percent: needs at least 2'):
+        calibration(angle_duty_percent=[6.85], angle_rad=[0.0])
+    with pytest.raises(ValueError, match=r'^angle_rad: must span angle 0'):
+        calibration(angle_rad=[a + 3.0 for a in ANGLE_RAD])
+
+
+def test_pwm_from_mapping():
+    d = dict(thrust_duty_percent=THRUST_DUTY, thrust_newton=THRUST_N,
+             angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD)
+    cal = PwmCalibration.from_mapping(d)
+    assert cal == calibration()
+    assert isinstance(cal.thrust_newton, tuple)
+    with pytest.raises(ValueError, match='^angle_rad: missing'):
+        PwmCalibration.from_mapping({k: v for k, v in d.items() if k != 'angle_rad'})
+    with pytest.raises(ValueError, match='^neutral: unknown'):
+        PwmCalibration.from_mapping({**d, 'neutral': 6.85})

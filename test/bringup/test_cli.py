@@ -1,0 +1,244 @@
+"""The ``enbarr`` command line, run as a user runs it: a separate process.
+
+Every error a user can cause ends as one line ``enbarr bringup: error: ...`` on stderr and
+exit code 2, never a traceback. ``--check`` builds every node (in its own rclpy context), so
+parameter names, values, types and the thruster geometry are all checked here.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from enbarr_core.bringup.profile import resolve_profile
+
+# where the bare name resolves (the source tree here, share/enbarr/params when installed)
+SIM = str(resolve_profile('enbarr_sim'))
+
+
+def enbarr(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', *args], env=os.environ,
+                          cwd=cwd, capture_output=True, text=True, timeout=60)
+
+
+def write(path: Path, text: str) -> str:
+    path.write_text(textwrap.dedent(text).lstrip('\n'), encoding='utf-8')
+    return str(path)
+
+
+def refused(result: subprocess.CompletedProcess[str]) -> str:
+    """The one error line of a run that must have been refused with exit code 2."""
+    assert result.returncode == 2, (result.returncode, result.stdout, result.stderr)
+    assert 'Traceback' not in result.stderr, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith('enbarr bringup: error: '), lines[0]
+    return lines[0]
+
+
+def test_check_enbarr_sim_ok(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--profile', 'enbarr_sim', '--check', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f'{SIM}: ok (10 nodes in 1 group(s))'
+    assert 'Traceback' not in r.stderr
+
+
+def test_check_with_set_override(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--profile', SIM, '--check', '--set',
+               'control_loop.kp=[1,2,3,4,5,6]', '--set', 'imu.gyro_noise=0.01', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.rstrip().endswith(': ok (10 nodes in 1 group(s))')
+
+
+def test_bad_profile_file_one_line_error(tmp_path: Path) -> None:
+    path = write(tmp_path / 'bad.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          imu: {plugin: sim_imu, rate: 100.0}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert line == (f'enbarr bringup: error: {path}: nodes.imu.rate: unknown key; expected one '
+                    'of: plugin, namespace, remappings, parameters, group, enabled')
+
+
+def test_invalid_yaml_one_line_error(tmp_path: Path) -> None:
+    path = write(tmp_path / 'broken.yaml', 'nodes:\n  imu: [plugin: sim_imu\n')
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert line.startswith(f'enbarr bringup: error: {path}: line ')
+    assert 'invalid YAML' in line
+
+
+def test_bad_set_value_one_line_error(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--check', '--set',
+                          'control_loop.kp=[1, 2', cwd=tmp_path))
+    assert line.startswith("enbarr bringup: error: --set 'control_loop.kp=[1, 2': value is "
+                           'not valid YAML')
+
+
+def test_unknown_parameter_name_suggests_close_match(tmp_path: Path) -> None:
+    path = write(tmp_path / 'typo.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          control_loop:
+            parameters: {kpp: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0]}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert line.startswith(
+        f"enbarr bringup: error: {path}: nodes.control_loop.parameters.kpp: node "
+        "'control_loop' (velocity_control) has no parameter 'kpp' (did you mean 'kp'?); "
+        'it has: ')
+    assert 'level_gain' in line and 'vehicle.mass' in line
+
+
+def test_unknown_parameter_in_included_file_names_that_file(tmp_path: Path) -> None:
+    """Origin tracking: the typo is in the included file, the error names it."""
+    base = write(tmp_path / 'base.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          imu:
+            parameters: {gyro_bais: [0.0, 0.0, 0.0]}
+        """)
+    child = write(tmp_path / 'child.yaml', """
+        include: [base.yaml]
+        nodes:
+          imu:
+            parameters: {gyro_noise: 0.01}
+        """)
+    line = refused(enbarr('bringup', '--profile', child, '--check', cwd=tmp_path))
+    assert line.startswith(
+        f"enbarr bringup: error: {base}: nodes.imu.parameters.gyro_bais: node 'imu' (sim_imu) "
+        "has no parameter 'gyro_bais' (did you mean 'gyro_bias'?)")
+
+
+def test_unknown_common_parameter(tmp_path: Path) -> None:
+    path = write(tmp_path / 'common.yaml', """
+        include: [enbarr_sim]
+        parameters:
+          vehicle: {masss: 12.0}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert line == (f'enbarr bringup: error: {path}: parameters.vehicle.masss: no node '
+                    "declares the common parameter 'vehicle.masss'")
+
+
+@pytest.mark.parametrize('node,param,value,expected', [
+    ('control_loop', 'level_gain', '-1.0', 'out of range Min: 0.0, Max: 100.0, value: -1.0'),
+    ('imu', 'gyro_noise', '-1', 'out of range Min: 0.0, Max: 1.0, value: -1.0'),
+    ('control_loop', 'kp', '[1.0, 1.0, -1.0, 1.0, 1.0, 1.0]',
+     'kp[2] = -1.0 is outside [0.0, 10000.0]'),
+])
+def test_out_of_range_value(tmp_path: Path, node: str, param: str, value: str,
+                            expected: str) -> None:
+    path = write(tmp_path / 'range.yaml', f"""
+        include: [enbarr_sim]
+        nodes:
+          {node}:
+            parameters: {{{param}: {value}}}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    # The file and key that set the value, not the file that named the plugin.
+    assert line.startswith(f'enbarr bringup: error: {path}: nodes.{node}.parameters.{param}: '
+                           f'node {node!r}: parameter ')
+    assert expected in line
+
+
+def test_wrong_type_names_expected_type(tmp_path: Path) -> None:
+    path = write(tmp_path / 'type.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          control_loop:
+            parameters: {level_gain: fast}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert line == (f'enbarr bringup: error: {path}: nodes.control_loop.parameters.level_gain: '
+                    "node 'control_loop': parameter 'level_gain': expected a float, got 'fast'")
+
+
+def test_wrong_type_via_set(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--check', '--set',
+                          'control_loop.kp=[a, b, c, d, e, f]', cwd=tmp_path))
+    assert "--set: nodes.control_loop.parameters.kp: node 'control_loop': parameter 'kp': " \
+        "expected a list of float, got ['a', 'b', 'c', 'd', 'e', 'f']" in line
+
+
+def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
+    """Every horizontal thruster moved to the centre: surge and sway remain, yaw is gone."""
+    path = write(tmp_path / 'noyaw.yaml', """
+        include: [enbarr_sim]
+        parameters:
+          thrusters:
+            front_right: {position: [0.0, 0.0, 0.0]}
+            front_left: {position: [0.0, 0.0, 0.0]}
+            rear_right: {position: [0.0, 0.0, 0.0]}
+            rear_left: {position: [0.0, 0.0, 0.0]}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert "nodes.thruster_converter: node 'thruster_converter': thruster layout" in line
+    assert 'cannot produce yaw' in line
+    assert 'sway' not in line.split('cannot produce')[1].split('(')[0]
+
+
+def test_negative_duration(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '-1',
+                          cwd=tmp_path))
+    assert line == 'enbarr bringup: error: --duration must be positive, got -1.0'
+
+
+def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'does_not_exist', '--check', cwd=tmp_path))
+    assert "profile 'does_not_exist' not found" in line
+    installed = line.split('installed profiles: ')[1].split(', ')
+    assert {'core', 'enbarr_sim'} <= set(installed)
+
+
+def test_list_nodes(tmp_path: Path) -> None:
+    r = enbarr('list', 'nodes', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    names = [line.split()[0] for line in r.stdout.splitlines()]
+    for name in ('attitude_filter', 'command_receiver', 'velocity_control',
+                 'thruster_converter', 'rov_simulator', 'scripted_commands', 'recorder',
+                 'sim_imu', 'sim_thrusters', 'sim_stepper', 'sim_gpio'):
+        assert name in names
+    assert names == sorted(names)
+    assert 'enbarr_plugins.imu.sim:SimImuNode  (builtin)' in r.stdout
+
+
+def test_list_profiles(tmp_path: Path) -> None:
+    r = enbarr('list', 'profiles', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    rows = [line.split() for line in r.stdout.splitlines()]
+    assert ['enbarr_sim', SIM] in rows
+    assert ['core', str(Path(SIM).parent / 'core.yaml')] in rows
+    assert all(Path(path).is_file() and path.endswith(f'/{name}.yaml') for name, path in rows)
+
+
+def test_bringup_help(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--help', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    for option in ('--profile', '--duration', '--record', '--set', '--check'):
+        assert option in r.stdout
+    assert '--group' not in r.stdout  # internal: the supervisor's children
+
+
+def test_bringup_requires_profile(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--check', cwd=tmp_path)
+    assert r.returncode == 2
+    assert 'the following arguments are required: --profile' in r.stderr
+
+
+def test_out_of_range_vector_element_names_the_index(tmp_path: Path) -> None:
+    """Vector parameters without a natural bound still get one: a CG 1 km away is a typo."""
+    path = write(tmp_path / 'cg.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          simulator:
+            parameters: {vehicle: {r_g: [0.0, 0.0, -1000.0]}}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert f'{path}: nodes.simulator.parameters.vehicle.r_g: ' in line
+    assert 'vehicle.r_g[2] = -1000.0 is outside [-100.0, 100.0]' in line

@@ -1,0 +1,525 @@
+"""Vessel profiles (enbarr_core.bringup.profile): loading, includes, overrides and error messages.
+
+Pure: no ROS is started; profiles are written into ``tmp_path``. Every error message is
+checked for the file, the key path and what was expected.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import textwrap
+
+import pytest
+
+from enbarr_core.bringup import profile as profiles
+from enbarr_core.framework.errors import ProfileError
+from enbarr_core.bringup.profile import load_profile
+
+# where the bare name resolves (the source tree here, share/enbarr/params when installed)
+SIM = str(profiles.resolve_profile('enbarr_sim'))
+CORE = str(Path(SIM).parent / 'core.yaml')
+
+
+def write(path: Path, text: str) -> str:
+    path.write_text(textwrap.dedent(text).lstrip('\n'), encoding='utf-8')
+    return str(path)
+
+
+def load_error(ref: str, overrides: tuple[str, ...] = ()) -> ProfileError:
+    with pytest.raises(ProfileError) as info:
+        load_profile(ref, overrides)
+    return info.value
+
+
+# -- the shipped simulation profile -----------------------------------------------------------
+def test_enbarr_sim_loads_with_core_included() -> None:
+    prof = load_profile('enbarr_sim')  # bare name: found among the installed profiles
+
+    assert prof.name == 'enbarr_sim'
+    assert prof.path == SIM
+    assert prof.files == (CORE, SIM)  # includes first, then the file itself
+    assert prof.node_names() == [
+        'command_receiver', 'filtering', 'control_loop', 'thruster_converter',
+        'simulator', 'imu', 'thruster_control', 'manipulator', 'lights', 'surface']
+    plugins = {n.name: n.plugin for n in prof.nodes}
+    assert plugins == {
+        'command_receiver': 'command_receiver', 'filtering': 'attitude_filter',
+        'control_loop': 'velocity_control', 'thruster_converter': 'thruster_converter',
+        'simulator': 'rov_simulator', 'imu': 'sim_imu', 'thruster_control': 'sim_thrusters',
+        'manipulator': 'sim_stepper', 'lights': 'sim_gpio', 'surface': 'scripted_commands'}
+    # each node remembers which file named its plugin
+    assert prof.node('control_loop').origin == CORE
+    assert prof.node('imu').origin == SIM
+
+    # common parameters: nested mappings flattened to dotted ROS names
+    p = prof.parameters
+    assert p['thrusters.front_right.position'] == [0.156, -0.111, 0.0]
+    assert p['thrusters.vert_rear_left.direction'] == [0.0, 0.0, 1.0]
+    assert p['thrusters.rear_left.max_reverse'] == 40.2
+    assert p['vehicle.mass'] == 11.5
+    assert p['vehicle.d_quad'] == [18.18, 21.66, 36.99, 1.55, 1.55, 1.55]
+    assert p['thruster_names'][0] == 'front_right' and len(p['thruster_names']) == 8
+    assert not any(isinstance(v, dict) for v in p.values())
+    # node parameters: also flattened, and those of core.yaml survive the include
+    sim = prof.node('simulator').parameters
+    assert sim['vehicle.r_g'] == [0.0, 0.0, -0.02]
+    assert sim['initial.position'] == [0.0, 0.0, -0.5]
+    assert sim['rate'] == 400.0
+    assert prof.node('command_receiver').parameters['timeout'] == 0.5
+    assert prof.node('lights').parameters == {'pin': 12}
+    assert len(prof.node('surface').parameters['script']) == 10
+
+    assert prof.environment == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    assert list(prof.groups) == ['main'] and prof.group_names() == ['main']
+    assert prof.record is None
+
+
+def test_apply_environment_and_with_record() -> None:
+    prof = load_profile(SIM)
+    env: dict[str, str] = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'OTHER': 'x'}
+    profiles.apply_environment(prof, env)
+    assert env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'OTHER': 'x'}
+
+    rec = profiles.with_record(prof, 'bags/x', ['/imu/data'])
+    assert rec.record is not None
+    assert (rec.record.path, rec.record.topics, rec.record.segment_seconds) == (
+        'bags/x', ('/imu/data',), 1.0)
+    assert prof.record is None  # the original is unchanged
+
+
+# -- includes and overrides -------------------------------------------------------------------
+def test_include_overrides_parameter_swaps_plugin_and_disables_node(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    vessel = tmp_path / 'vessel'
+    vessel.mkdir()
+    base = write(vessel / 'base.yaml', """
+        profile: base
+        parameters:
+          vehicle: {mass: 10.0, inertia: [0.1, 0.1, 0.1]}
+        nodes:
+          imu:
+            plugin: sim_imu
+            parameters: {gyro_noise: 0.01, gyro_bias: [0.1, 0.2, 0.3]}
+          control_loop:
+            plugin: velocity_control
+            parameters: {level_gain: 2.0, max_gap: 0.5}
+          lights:
+            plugin: sim_gpio
+            parameters: {pin: 12}
+        """)
+    child = write(vessel / 'child.yaml', """
+        profile: child
+        include: base.yaml          # a single string, relative to this file
+        parameters:
+          vehicle: {mass: 12.5}
+        nodes:
+          imu: {plugin: sim_stepper}
+          control_loop:
+            parameters: {level_gain: 3.0}
+          lights: {enabled: false}
+        """)
+    monkeypatch.chdir(tmp_path)  # not the profile's directory: includes are file-relative
+
+    prof = load_profile(child)
+
+    assert prof.name == 'child'
+    assert prof.files == (base, child)
+    assert prof.node_names() == ['imu', 'control_loop']  # lights dropped
+    imu = prof.node('imu')
+    assert imu.plugin == 'sim_stepper'  # swapped in one line ...
+    assert imu.parameters == {'gyro_noise': 0.01, 'gyro_bias': [0.1, 0.2, 0.3]}  # ... rest kept
+    assert imu.origin == child
+    control = prof.node('control_loop')
+    assert control.parameters == {'level_gain': 3.0, 'max_gap': 0.5}
+    assert control.origin == base
+    assert prof.parameters == {'vehicle.mass': 12.5, 'vehicle.inertia': [0.1, 0.1, 0.1]}
+    # origin tracking: who set what
+    assert prof.where('nodes.control_loop.parameters.level_gain') == child
+    assert prof.where('nodes.control_loop.parameters.max_gap') == base
+    assert prof.where('nodes.imu.parameters.gyro_bias') == base
+    assert prof.where('parameters.vehicle.mass') == child
+    assert prof.where('parameters.vehicle.inertia') == base
+
+    # the base itself is unchanged by being included
+    assert load_profile(base).node_names() == ['imu', 'control_loop', 'lights']
+
+
+def test_include_chain_of_installed_profiles(tmp_path: Path) -> None:
+    """A vessel profile including the shipped simulation by its bare name, which itself
+    includes core.yaml; the grandchild overrides a core parameter."""
+    child = write(tmp_path / 'mine.yaml', """
+        include: [enbarr_sim]
+        nodes:
+          command_receiver:
+            parameters: {timeout: 0.25}
+          surface: {enabled: false}
+        """)
+    prof = load_profile(child)
+    assert prof.files == (CORE, SIM, child)
+    assert prof.name == 'enbarr_sim'  # not overridden: the included name stays
+    assert 'surface' not in prof.node_names() and len(prof.nodes) == 9
+    assert prof.node('command_receiver').parameters == {
+        'max_linear': 1.0, 'max_angular': 1.0, 'timeout': 0.25, 'max_age': 0.5}
+    assert prof.where('nodes.command_receiver.parameters.timeout') == child
+    assert prof.where('nodes.command_receiver.parameters.max_age') == CORE
+    assert prof.where('parameters.thrusters.front_right.position') == SIM
+
+
+def test_set_override_applies() -> None:
+    prof = load_profile(SIM, ['control_loop.kp=[1,2,3,4,5,6]', 'imu.gyro_noise=0.5',
+                              'control_loop.ki=[1, 2.5, 3, 4, 5, 6]', 'lights.pin=7'])
+    control = prof.node('control_loop')
+    assert control.parameters['kp'] == [1, 2, 3, 4, 5, 6]
+    assert control.parameters['ki'] == [1.0, 2.5, 3.0, 4.0, 5.0, 6.0]  # mixed numbers: floats
+    assert all(isinstance(v, float) for v in control.parameters['ki'])
+    assert prof.node('imu').parameters == {'gyro_noise': 0.5}
+    assert prof.node('lights').parameters == {'pin': 7}
+    assert prof.where('nodes.control_loop.parameters.kp') == '--set'
+    # the file on disk is untouched: a fresh load has no override
+    assert 'kp' not in load_profile(SIM).node('control_loop').parameters
+
+
+# -- errors: each names the file, the key path and what was expected ---------------------------
+def test_invalid_yaml_names_line_and_column(tmp_path: Path) -> None:
+    path = write(tmp_path / 'bad.yaml', """
+        nodes:
+          imu: {plugin: sim_imu
+          other: 1
+        """)
+    err = load_error(path)
+    assert str(err).startswith(f'{path}: line 3, column 8: invalid YAML: ')
+    assert err.path == path
+
+
+def test_not_utf8_is_a_profile_error(tmp_path: Path) -> None:
+    path = tmp_path / 'latin1.yaml'
+    path.write_bytes(b'nodes:\n  imu: {plugin: sim_imu}  # caf\xe9\n')
+    err = load_error(str(path))
+    assert str(err).startswith(f'{path}: not UTF-8 text')
+
+
+def test_top_level_must_be_a_mapping(tmp_path: Path) -> None:
+    path = write(tmp_path / 'list.yaml', '- imu\n- control\n')
+    err = load_error(path)
+    assert str(err) == f'{path}: expected a mapping at the top level, got a list'
+
+
+def test_unknown_top_key_lists_allowed_keys(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodez:
+          imu: {plugin: sim_imu}
+        """)
+    err = load_error(path)
+    assert str(err) == (f'{path}: nodez: unknown key; expected one of: profile, description, '
+                        'include, environment, parameters, nodes, groups, record, scenario')
+    assert (err.path, err.key) == (path, 'nodez')
+
+
+def test_unknown_node_key_lists_allowed_keys(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, params: {rate: 100.0}}
+        """)
+    err = load_error(path)
+    assert str(err) == (f'{path}: nodes.imu.params: unknown key; expected one of: plugin, '
+                        'namespace, remappings, parameters, group, enabled')
+
+
+def test_missing_plugin_lists_known_names(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {namespace: sensors}
+        """)
+    err = load_error(path)
+    assert str(err).startswith(f'{path}: nodes.imu.plugin: every node needs a plugin')
+    assert 'known: attitude_filter, azimuth_allocation, command_receiver,' in str(err)
+    assert 'sim_imu' in str(err)
+
+
+def test_unknown_plugin_suggests_close_match(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imuu}
+        """)
+    err = load_error(path)
+    assert str(err).startswith(
+        f"{path}: nodes.imu.plugin: unknown node 'sim_imuu' (did you mean 'sim_imu'?); "
+        'known nodes: ')
+    for name in ('sim_imu', 'velocity_control', 'thruster_converter', 'sim_thrusters'):
+        assert name in str(err)
+
+
+def test_unknown_plugin_in_included_file_names_that_file(tmp_path: Path) -> None:
+    base = write(tmp_path / 'base.yaml', """
+        nodes:
+          imu: {plugin: no_such_imu}
+        """)
+    child = write(tmp_path / 'child.yaml', """
+        include: [base.yaml]
+        nodes:
+          imu: {namespace: sensors}
+        """)
+    err = load_error(child)
+    assert str(err).startswith(f"{base}: nodes.imu.plugin: unknown node 'no_such_imu'")
+
+
+def test_include_cycle_shows_the_chain(tmp_path: Path) -> None:
+    a = write(tmp_path / 'a.yaml', 'include: [b.yaml]\n')
+    b = write(tmp_path / 'b.yaml', 'include: [a.yaml]\nnodes: {imu: {plugin: sim_imu}}\n')
+    err = load_error(a)
+    assert str(err) == f'{a}: include cycle: {a} -> {b} -> {a}'
+
+
+def test_include_not_found(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        include: [missing_base.yaml]
+        nodes:
+          imu: {plugin: sim_imu}
+        """)
+    err = load_error(path)
+    assert str(err).startswith(f"{path}: include: profile 'missing_base.yaml' not found "
+                               f'(looked in: {tmp_path}')
+    assert 'installed profiles: ' in str(err) and 'enbarr_sim' in str(err)
+    assert err.key == 'include'
+
+
+def test_include_must_be_a_list_of_names(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', 'include: {a: 1}\n')
+    assert str(load_error(path)) == (
+        f'{path}: include: expected a list of profile names or paths')
+
+
+def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
+    err = load_error('does_not_exist')
+    assert "profile 'does_not_exist' not found" in str(err)
+    installed = str(err).split('installed profiles: ')[1].split(', ')
+    assert {'core', 'enbarr_sim'} <= set(installed) and installed == sorted(installed)
+
+
+def test_empty_list_parameter(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu:
+            plugin: sim_imu
+            parameters: {gyro_bias: []}
+        """)
+    err = load_error(path)
+    assert str(err) == (f'{path}: nodes.imu.parameters.gyro_bias: an empty list has no ROS '
+                        'parameter type; leave the parameter out to keep its default')
+
+
+def test_mixed_type_list_parameter(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu:
+            plugin: sim_imu
+            parameters: {gyro_bias: [0.1, fast, 0.3]}
+        """)
+    err = load_error(path)
+    assert str(err) == (f'{path}: nodes.imu.parameters.gyro_bias: a list parameter holds '
+                        "values of one type (numbers, strings or booleans), got "
+                        "[0.1, 'fast', 0.3]")
+
+
+def test_booleans_do_not_count_as_numbers_in_lists(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, parameters: {gyro_bias: [1, true, 0]}}
+        """)
+    assert 'a list parameter holds values of one type' in str(load_error(path))
+
+
+def test_nested_bad_value_in_common_parameters(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        parameters:
+          thrusters:
+            front_right: {position: [0.1, {x: 1}, 0.0]}
+        nodes:
+          imu: {plugin: sim_imu}
+        """)
+    err = load_error(path)
+    assert str(err).startswith(
+        f'{path}: parameters.thrusters.front_right.position: a list parameter holds values')
+
+
+def test_bad_nested_parameter_from_included_file_names_that_file(tmp_path: Path) -> None:
+    """The bad value sits in the included file: the error names it, not the includer."""
+    base = write(tmp_path / 'base.yaml', """
+        nodes:
+          imu:
+            plugin: sim_imu
+            parameters:
+              gyro_bias: [0.1, 0.2, zero]
+          sim:
+            plugin: rov_simulator
+            parameters:
+              vehicle: {inertia: [], mass: 11.5}
+        """)
+    child = write(tmp_path / 'child.yaml', """
+        include: [base.yaml]
+        nodes:
+          imu:
+            parameters: {gyro_noise: 0.01}
+        """)
+    err = load_error(child)
+    assert str(err).startswith(f'{base}: nodes.imu.parameters.gyro_bias: a list parameter')
+    assert (err.path, err.key) == (base, 'nodes.imu.parameters.gyro_bias')
+
+    write(tmp_path / 'base.yaml', """
+        nodes:
+          sim:
+            plugin: rov_simulator
+            parameters:
+              vehicle: {inertia: [], mass: 11.5}
+        """)
+    err = load_error(child)
+    assert (err.path, err.key) == (base, 'nodes.sim.parameters.vehicle.inertia')
+    assert 'an empty list has no ROS parameter type' in str(err)
+
+
+def test_parameter_value_must_have_a_ros_type(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, parameters: {gyro_noise: null}}
+        """)
+    assert str(load_error(path)) == (
+        f'{path}: nodes.imu.parameters.gyro_noise: expected a number, string, boolean or '
+        'list of them, got nothing')
+
+
+@pytest.mark.parametrize('namespace', ['bad ns', '1robot', 'a//b', 'a-b'])
+def test_bad_namespace(tmp_path: Path, namespace: str) -> None:
+    path = write(tmp_path / 'p.yaml', f"""
+        nodes:
+          imu: {{plugin: sim_imu, namespace: '{namespace}'}}
+        """)
+    assert str(load_error(path)) == (
+        f'{path}: nodes.imu.namespace: {namespace!r} is not a valid ROS namespace')
+
+
+def test_good_namespaces_and_remappings(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu:
+            plugin: sim_imu
+            namespace: /rov1/sensors
+            remappings: {imu/data_raw: imu0/data_raw}
+            group: sensors
+        groups:
+          sensors: {restart_limit: 5, restart_delay: 0.5}
+        """)
+    prof = load_profile(path)
+    imu = prof.node('imu')
+    assert (imu.namespace, imu.remappings, imu.group) == (
+        '/rov1/sensors', (('imu/data_raw', 'imu0/data_raw'),), 'sensors')
+    g = prof.groups['sensors']
+    assert (g.restart_limit, g.restart_delay) == (5, 0.5)
+
+
+def test_bad_remapping(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, remappings: {imu/data: 'bad topic'}}
+        """)
+    assert str(load_error(path)) == (
+        f"{path}: nodes.imu.remappings: 'bad topic' is not a valid topic name")
+
+
+def test_group_with_no_nodes(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, group: sensors}
+        groups:
+          sensors: {restart_limit: 1}
+          drivers: {restart_limit: 2}
+        """)
+    assert str(load_error(path)) == (
+        f"{path}: groups.drivers: group 'drivers' has no nodes; groups in use: sensors")
+
+
+def test_group_settings_are_checked(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        groups:
+          main: {restart_limit: 1.5}
+        """)
+    assert str(load_error(path)) == (
+        f'{path}: groups.main.restart_limit: expected a non-negative integer, got 1.5')
+
+
+def test_record_without_path(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {topics: [/imu/data], segment_seconds: 0.5}
+        """)
+    err = load_error(path)
+    assert str(err) == f'{path}: record.path: expected a directory path'
+
+
+def test_record_section(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {path: bags/run, topics: [/imu/data], segment_seconds: 0.5}
+        """)
+    r = load_profile(path).record
+    assert r is not None and (r.path, r.topics, r.segment_seconds) == (
+        'bags/run', ('/imu/data',), 0.5)
+
+    bad = write(tmp_path / 'q.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {path: bags/run, segment_seconds: 0}
+        """)
+    assert str(load_error(bad)) == (
+        f'{bad}: record.segment_seconds: expected a positive number, got 0')
+
+
+def test_profile_without_nodes(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, enabled: false}
+        """)
+    assert str(load_error(path)) == f'{path}: nodes: the profile runs no nodes'
+
+
+def test_enabled_must_be_boolean(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, enabled: 'no way'}
+        """)
+    assert str(load_error(path)) == f'{path}: nodes.imu.enabled: expected true or false'
+
+
+# -- --set errors ------------------------------------------------------------------------------
+@pytest.mark.parametrize('item', ['control_loop', 'control_loop.kp', 'kp=1', '.kp=1',
+                                  'control_loop.=1'])
+def test_set_malformed(item: str) -> None:
+    err = load_error(SIM, (item,))
+    assert str(err) == (f'--set {item!r}: expected NODE.PARAM=VALUE, e.g. '
+                        'velocity_control.kp=[1.0,1.0,1.0,1.0,1.0,1.0]')
+
+
+def test_set_unknown_node_lists_nodes() -> None:
+    err = load_error(SIM, ('controller.kp=[1,1,1,1,1,1]',))
+    assert str(err).startswith("--set 'controller.kp=[1,1,1,1,1,1]': no node 'controller'; "
+                               'nodes: ')
+    assert 'control_loop' in str(err) and 'imu' in str(err)
+
+
+def test_set_bad_yaml_value_is_one_line() -> None:
+    err = load_error(SIM, ('control_loop.kp=[1, 2',))
+    text = str(err)
+    assert text.startswith("--set 'control_loop.kp=[1, 2': value is not valid YAML")
+    assert "expected ',' or ']'" in text
+    assert '\n' not in text  # the CLI prints errors as one line
+
+
+def test_set_value_without_ros_type() -> None:
+    err = load_error(SIM, ('control_loop.kp=[]',))
+    assert str(err) == ('--set: control_loop.kp: an empty list has no ROS parameter type; '
+                        'leave the parameter out to keep its default')
+    err = load_error(SIM, ('control_loop.kp=[1, a]',))
+    assert 'a list parameter holds values of one type' in str(err)

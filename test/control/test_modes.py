@@ -1,0 +1,266 @@
+"""Operator modes of the CS Saucer (``enbarr_core.control.modes``): the DualShock 4 rules,
+as pure functions of joystick samples, time and estimator health (no ROS)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from enbarr_core.control.modes import Ds4Mapping, Mode, ModeManager, Transition
+
+TAU_MAX = (1.0, 2.0, 0.5)
+N_AXES, N_BUTTONS = 8, 13          # ds4_driver standard Joy
+TRIANGLE, SQUARE, CROSS = 2, 3, 0  # Ds4Mapping defaults
+
+
+def sample(surge: float = 0.0, sway: float = 0.0, yaw: float = 0.0,
+           pressed: tuple[int, ...] = ()) -> tuple[list[float], list[int]]:
+    axes = [0.0] * N_AXES
+    axes[1], axes[0], axes[3] = surge, sway, yaw
+    buttons = [0] * N_BUTTONS
+    for b in pressed:
+        buttons[b] = 1
+    return axes, buttons
+
+
+def manager(joy_timeout: float = 0.5) -> ModeManager:
+    return ModeManager(Ds4Mapping(), TAU_MAX, joy_timeout)
+
+
+def press(m: ModeManager, button: int, now: float, fresh: bool = True,
+          path: bool = False) -> list[Transition]:
+    """Press ``button`` (rising edge) and release it; the transitions of the press."""
+    out = m.on_joy(*sample(pressed=(button,)), now, fresh, path)
+    assert m.on_joy(*sample(), now + 0.01, fresh, path) == []
+    return out
+
+
+def test_starts_manual_with_zero_force():
+    m = manager()
+    assert m.mode is Mode.MANUAL
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert m.rejected_samples == 0
+    assert m.check(100.0, estimate_fresh=False) is None  # no joystick yet: nothing to lose
+
+
+def test_sticks_map_to_manual_force():
+    m = manager()
+    # surge axis 1, sway axis 0, yaw axis 3; tau = tau_max * axis
+    assert m.on_joy(*sample(surge=0.5, sway=-0.25, yaw=1.0), 0.0, True, False) == []
+    assert m.tau_manual == pytest.approx([0.5 * 1.0, -0.25 * 2.0, 1.0 * 0.5], abs=1e-15)
+    # The other axes (triggers, the right stick's vertical) do nothing.
+    axes, buttons = sample(surge=0.2)
+    axes[2] = axes[4] = axes[5] = -1.0
+    m.on_joy(axes, buttons, 0.1, True, False)
+    assert m.tau_manual == pytest.approx([0.2, 0.0, 0.0], abs=1e-15)
+    # Full stick in every direction.
+    m.on_joy(*sample(surge=-1.0, sway=1.0, yaw=-1.0), 0.2, True, False)
+    assert m.tau_manual == pytest.approx([-1.0, 2.0, -0.5], abs=1e-15)
+    # Within the 1e-6 tolerance of |axis| <= 1: accepted and clipped to the full force.
+    m.on_joy(*sample(surge=1.0 + 1e-7), 0.3, True, False)
+    assert m.tau_manual.tolist() == [1.0, 0.0, 0.0]
+    assert m.mode is Mode.MANUAL and m.rejected_samples == 0
+
+
+def test_deadzone():
+    m = manager()
+    m.on_joy(*sample(surge=0.049, sway=-0.04, yaw=0.01), 0.0, True, False)
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    m.on_joy(*sample(surge=0.05, sway=-0.06, yaw=0.049), 0.1, True, False)
+    assert m.tau_manual == pytest.approx([0.05, -0.12, 0.0], abs=1e-15)
+    wide = ModeManager(Ds4Mapping(deadzone=0.3), TAU_MAX)
+    wide.on_joy(*sample(surge=0.29, sway=0.31), 0.0, True, False)
+    assert wide.tau_manual == pytest.approx([0.0, 0.62, 0.0], abs=1e-15)
+
+
+def test_triangle_goes_automatic_with_fresh_estimate():
+    m = manager()
+    m.on_joy(*sample(surge=0.4), 0.0, True, False)
+    out = m.on_joy(*sample(surge=0.4, pressed=(TRIANGLE,)), 0.05, True, False)
+    assert out == [Transition(Mode.AUTOMATIC, Mode.MANUAL, True, 'operator request')]
+    assert m.mode is Mode.AUTOMATIC
+    # The sticks keep being read (the force of the moment), the mode does not change.
+    assert m.tau_manual == pytest.approx([0.4, 0.0, 0.0])
+
+
+def test_triangle_refused_without_fresh_estimate():
+    m = manager()
+    out = press(m, TRIANGLE, 0.0, fresh=False)
+    assert out == [Transition(Mode.AUTOMATIC, Mode.MANUAL, False, 'no fresh pose estimate')]
+    assert m.mode is Mode.MANUAL
+
+
+def test_square_needs_a_path_and_a_fresh_estimate():
+    m = manager()
+    out = press(m, SQUARE, 0.0, fresh=True, path=False)
+    assert out == [Transition(Mode.GUIDANCE, Mode.MANUAL, False, 'no path configured')]
+    assert m.mode is Mode.MANUAL
+    out = press(m, SQUARE, 0.1, fresh=False, path=True)
+    assert len(out) == 1 and not out[0].accepted
+    assert out[0].reason == 'no fresh pose estimate'
+    assert m.mode is Mode.MANUAL
+    out = press(m, SQUARE, 0.2, fresh=True, path=True)
+    assert out == [Transition(Mode.GUIDANCE, Mode.MANUAL, True, 'operator request')]
+    assert m.mode is Mode.GUIDANCE
+
+
+def test_cross_returns_to_manual_from_any_mode():
+    m = manager()
+    press(m, TRIANGLE, 0.0)
+    assert m.mode is Mode.AUTOMATIC
+    out = press(m, CROSS, 0.1, fresh=False)  # manual needs no estimate
+    assert out == [Transition(Mode.MANUAL, Mode.AUTOMATIC, True, 'operator request')]
+    assert m.mode is Mode.MANUAL
+    press(m, SQUARE, 0.2, path=True)
+    assert m.mode is Mode.GUIDANCE
+    assert press(m, CROSS, 0.3)[0].previous is Mode.GUIDANCE
+    assert m.mode is Mode.MANUAL
+    # Cross in manual: nothing changes (refused as 'already manual').
+    out = press(m, CROSS, 0.4)
+    assert out == [Transition(Mode.MANUAL, Mode.MANUAL, False, 'already manual')]
+    # Automatic -> guidance directly.
+    press(m, TRIANGLE, 0.5)
+    out = press(m, SQUARE, 0.6, path=True)
+    assert out == [Transition(Mode.GUIDANCE, Mode.AUTOMATIC, True, 'operator request')]
+
+
+def test_holding_a_button_does_not_retrigger():
+    m = manager()
+    held = sample(pressed=(TRIANGLE,))
+    assert len(m.on_joy(*held, 0.0, False, False)) == 1  # refused: no estimate
+    # Still held when the estimate becomes fresh: no new request, so still manual.
+    for k in range(1, 5):
+        assert m.on_joy(*held, 0.01 * k, True, False) == []
+    assert m.mode is Mode.MANUAL
+    m.on_joy(*sample(), 0.1, True, False)  # release
+    assert [t.accepted for t in m.on_joy(*held, 0.11, True, False)] == [True]
+    assert m.mode is Mode.AUTOMATIC
+    # Held cross: one transition only.
+    cross = sample(pressed=(CROSS,))
+    assert len(m.on_joy(*cross, 0.2, True, False)) == 1
+    assert m.mode is Mode.MANUAL
+    assert m.on_joy(*cross, 0.21, True, False) == []
+    assert m.on_joy(*cross, 0.22, True, False) == []
+
+
+@pytest.mark.parametrize('bad', [
+    {'surge': math.nan}, {'sway': math.inf}, {'yaw': -math.inf},
+    {'surge': 1.5}, {'sway': -1.01}, {'yaw': 1.0 + 1e-5},
+])
+def test_bad_axis_rejects_the_whole_sample(bad):
+    m = manager()
+    m.on_joy(*sample(surge=0.3), 0.0, True, False)
+    before = m.tau_manual.copy()
+    # A bad axis with triangle pressed: neither the force nor the mode changes.
+    args = {'surge': 0.9, 'sway': 0.9, 'yaw': 0.9, **bad}
+    out = m.on_joy(*sample(pressed=(TRIANGLE,), **args), 0.1, True, False)
+    assert out == [] and m.rejected_samples == 1
+    assert m.mode is Mode.MANUAL
+    np.testing.assert_array_equal(m.tau_manual, before)
+    # As if it never arrived: the next valid sample with triangle is the rising edge...
+    out = m.on_joy(*sample(surge=0.3, pressed=(TRIANGLE,)), 0.2, True, False)
+    assert [t.requested for t in out if t.accepted] == [Mode.AUTOMATIC]
+    # ... and it does not keep the joystick alive.
+    m2 = manager(joy_timeout=0.5)
+    m2.on_joy(*sample(), 0.0, True, False)
+    for k in range(1, 10):
+        m2.on_joy(*sample(**args), 0.1 * k, True, False)
+    assert m2.rejected_samples == 9
+    lost = m2.check(0.6, True)
+    assert lost is not None and lost.reason == 'joystick lost'
+
+
+def test_too_few_axes_or_buttons_rejected():
+    m = manager()
+    m.on_joy(*sample(surge=0.5), 0.0, True, False)
+    axes, buttons = sample(surge=0.9, pressed=(TRIANGLE,))
+    assert m.on_joy(axes[:3], buttons, 0.1, True, False) == []  # no axis 3 (yaw)
+    assert m.rejected_samples == 1
+    assert m.on_joy(axes, buttons[:3], 0.2, True, False) == []  # no button 3 (square)
+    assert m.rejected_samples == 2
+    assert m.on_joy([], [], 0.3, True, False) == []
+    assert m.rejected_samples == 3
+    assert m.mode is Mode.MANUAL
+    assert m.tau_manual == pytest.approx([0.5, 0.0, 0.0])
+    # Exactly enough (axes 0..3, buttons 0..3) is fine.
+    assert len(m.on_joy(axes[:4], buttons[:4], 0.4, True, False)) == 1
+    assert m.mode is Mode.AUTOMATIC and m.rejected_samples == 3
+    assert m.tau_manual == pytest.approx([0.9, 0.0, 0.0])
+
+
+def test_joystick_lost_falls_back_to_manual_with_zero_force():
+    m = manager(joy_timeout=0.5)
+    m.on_joy(*sample(surge=0.8, yaw=-0.5), 10.0, True, False)
+    press(m, TRIANGLE, 10.1)
+    m.on_joy(*sample(surge=0.8, yaw=-0.5), 10.2, True, False)
+    assert m.mode is Mode.AUTOMATIC and np.any(m.tau_manual)
+    assert m.check(10.5, True) is None
+    assert m.check(10.7, True) is None    # exactly joy_timeout: not yet
+    t = m.check(10.71, True)
+    assert t == Transition(Mode.MANUAL, Mode.AUTOMATIC, True, 'joystick lost')
+    assert m.mode is Mode.MANUAL
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert m.check(20.0, True) is None  # reported once
+    # The joystick comes back: the sticks act again.
+    m.on_joy(*sample(surge=0.1), 21.0, True, False)
+    assert m.tau_manual == pytest.approx([0.1, 0.0, 0.0])
+    # Lost in manual too: zero force (the last stick must not stay applied).
+    t = m.check(21.6, True)
+    assert t is not None and t.accepted and t.previous is Mode.MANUAL
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize('mode_button, path', [(TRIANGLE, False), (SQUARE, True)])
+def test_stale_estimate_outside_manual_falls_back(mode_button, path):
+    m = manager()
+    m.on_joy(*sample(sway=0.6), 0.0, True, path)
+    press(m, mode_button, 0.05, path=path)
+    m.on_joy(*sample(sway=0.6), 0.1, True, path)
+    assert m.mode is not Mode.MANUAL
+    assert m.check(0.15, estimate_fresh=True) is None
+    t = m.check(0.2, estimate_fresh=False)
+    assert t is not None and t.accepted and t.requested is Mode.MANUAL
+    assert t.reason == 'pose estimate stale'
+    assert m.mode is Mode.MANUAL and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    # In manual a stale estimate is no reason for anything.
+    assert m.check(0.25, estimate_fresh=False) is None
+
+
+def test_mapping_validation():
+    Ds4Mapping().validate()
+    with pytest.raises(ValueError, match='mode buttons must differ'):
+        Ds4Mapping(button_automatic=1, button_guidance=1).validate()
+    with pytest.raises(ValueError, match='mode buttons must differ'):
+        ModeManager(Ds4Mapping(button_manual=2))  # = triangle
+    with pytest.raises(ValueError, match='axis_yaw must be >= 0'):
+        Ds4Mapping(axis_yaw=-1).validate()
+    with pytest.raises(ValueError, match='button_guidance must be >= 0'):
+        ModeManager(Ds4Mapping(button_guidance=-3))
+    for deadzone in (-0.01, 1.0, 1.5):
+        with pytest.raises(ValueError, match='deadzone'):
+            Ds4Mapping(deadzone=deadzone).validate()
+    # Another valid mapping is used as given.
+    m = ModeManager(Ds4Mapping(axis_surge=4, axis_sway=5, axis_yaw=6, button_automatic=7,
+                               button_guidance=8, button_manual=9, deadzone=0.0),
+                    TAU_MAX)
+    axes, buttons = [0.0] * N_AXES, [0] * N_BUTTONS
+    axes[4], axes[5], axes[6] = 0.01, -0.5, 0.2
+    buttons[7] = 1
+    out = m.on_joy(axes, buttons, 0.0, True, False)
+    assert [t.requested for t in out] == [Mode.AUTOMATIC] and out[0].accepted
+    assert m.tau_manual == pytest.approx([0.01, -1.0, 0.1])
+
+
+def test_manual_button_wins_when_pressed_with_another():
+    """Cross together with triangle or square means manual: the safe request wins."""
+    from enbarr_core.control.modes import Mode, ModeManager
+    mm = ModeManager()
+    axes = [0.0] * 8
+    mm.on_joy(axes, [0, 0, 1, 0] + [0] * 9, 0.0, True, True)   # triangle
+    assert mm.mode is Mode.AUTOMATIC
+    mm.on_joy(axes, [0] * 13, 0.1, True, True)                  # release
+    out = mm.on_joy(axes, [1, 0, 0, 1] + [0] * 9, 0.2, True, True)  # cross + square
+    assert mm.mode is Mode.MANUAL
+    assert [t.requested for t in out] == [Mode.MANUAL]

@@ -1,0 +1,157 @@
+"""Process groups: a profile split over processes, supervised by bringup (a real process
+tree), and the ROS 2 workspace path (colcon build + ``ros2 run`` resolution)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from support.bags import read_bag
+
+ROOT = Path(__file__).resolve().parents[2]
+ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
+
+SPLIT_PROFILE = """
+include: [enbarr_sim]
+nodes:
+  filtering: {group: control}
+  control_loop: {group: control}
+  thruster_converter: {group: control}
+  surface:
+    parameters:
+      script: ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0']
+groups:
+  control: {restart_limit: 1, restart_delay: 0.2}
+"""
+
+
+class Output:
+    """Collects a child's merged output lines on a thread."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
+        self._thread.start()
+
+    def _read(self, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.lines.append(line)
+
+    @property
+    def text(self) -> str:
+        return ''.join(self.lines)
+
+    def wait_for(self, pattern: str, timeout: float, start: int = 0) -> re.Match[str]:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = re.search(pattern, ''.join(self.lines[start:]))
+            if m:
+                return m
+            time.sleep(0.1)
+        raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
+
+
+def test_split_profile_survives_a_crashed_group(tmp_path: Path) -> None:
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(SPLIT_PROFILE)
+    bag = tmp_path / 'bag'
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--record',
+                             str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    out = Output(proc)
+    try:
+        pid = int(out.wait_for(r'group control started \(pid (\d+)\)', 60).group(1))
+        # The chain crosses processes (DDS): wait until thrust is applied.
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
+        kill_ns = time.time_ns()
+        os.kill(pid, signal.SIGKILL)
+        mark = len(out.lines)
+        out.wait_for(r'group control died \(signal SIGKILL\); restart 1 of 1', 30, mark)
+        out.wait_for(r'thruster commands stopped: thrusters neutral', 30, mark)
+        pid2 = int(out.wait_for(r'group control started \(pid (\d+)\)', 30, mark).group(1))
+        assert pid2 != pid
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60, mark)  # driving again after restart
+        mark = len(out.lines)
+        os.kill(pid2, signal.SIGKILL)
+        out.wait_for(r'group control died \(signal SIGKILL\); restart limit 1 reached', 30,
+                     mark)
+        assert proc.wait(timeout=60) == 1
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    # No group left behind.
+    assert not subprocess.run(['pgrep', '-f', f'--profile {profile}'],
+                              capture_output=True).stdout
+    outputs = [(t, m) for t, m in read_bag(bag)['/thruster_output']]
+    after_kill = [m for t, m in outputs if t > kill_ns]
+    assert any(not all(e == 0.0 for e in m.effort) for t, m in outputs if t < kill_ns)
+    # Within the watchdog timeout of the kill, the thruster plugin (another process) went
+    # neutral by itself.
+    first_neutral = next(t for t, m in outputs if t > kill_ns and not any(m.effort))
+    assert first_neutral - kill_ns < 1.0e9
+    assert after_kill and not any(outputs[-1][1].effort)
+
+
+def test_sigint_stops_every_group(tmp_path: Path) -> None:
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(SPLIT_PROFILE)
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    out = Output(proc)
+    try:
+        out.wait_for(r'group control started', 60)
+        out.wait_for(r'group main started', 60)
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    time.sleep(0.5)
+    out.wait_for(r'SIGINT received', 5)
+    assert 'died' not in out.text  # a requested stop is not a crash
+
+
+@pytest.mark.skipif(shutil.which('colcon', path=os.path.dirname(sys.executable)) is None,
+                    reason='colcon is installed by requirements-test.txt')
+def test_colcon_build_and_ros2_run_resolution(tmp_path: Path) -> None:
+    colcon = os.path.join(os.path.dirname(sys.executable), 'colcon')
+    build = subprocess.run(
+        [colcon, '--log-base', str(tmp_path / 'log'), 'build', '--paths', str(ROOT),
+         '--build-base', str(tmp_path / 'build'), '--install-base', str(tmp_path / 'install'),
+         '--merge-install'], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
+    install = tmp_path / 'install'
+    env = dict(os.environ)
+    env['AMENT_PREFIX_PATH'] = str(install)
+    site = next(install.glob('lib/python3*/site-packages'))
+    env['PYTHONPATH'] = str(site)
+    # Resolve the executable exactly as `ros2 run enbarr bringup` does.
+    prefix = subprocess.run(
+        [sys.executable, '-c', 'from ament_index_python.packages import get_package_prefix;'
+         'print(get_package_prefix("enbarr"))'], env=env, capture_output=True, text=True,
+        check=True).stdout.strip()
+    assert Path(prefix) == install
+    exe = Path(prefix) / 'lib' / 'enbarr' / 'bringup'
+    assert os.access(exe, os.X_OK)
+    run = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--duration', '2'], env=env,
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert 'enbarr_sim running' in run.stderr
+    # The installed copy ran, with the profile installed beside it.
+    check = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--check'], env=env,
+                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert str(install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml') in check.stdout

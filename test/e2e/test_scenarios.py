@@ -1,0 +1,123 @@
+"""End-to-end tier for the CS Saucer: the named scenarios run headless on simulated time
+(``enbarr scenario``), judged by their metrics against the targets of the issue, and the
+profiles run and validated as users run them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import subprocess
+import sys
+import textwrap
+from typing import Any
+
+
+from support.bags import read_bag
+
+ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
+
+
+def scenario(name: str, out: Path) -> dict[str, Any]:
+    proc = subprocess.run([*ENBARR, 'scenario', name, '--output', str(out)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert Path(result['plot']).stat().st_size > 10_000  # a PNG was drawn
+    assert result['real_time_factor'] > 1.0              # faster than real time
+    return result
+
+
+def test_station_keeping_under_current(tmp_path: Path) -> None:
+    """0.05 m/s current and mocap noise: within 0.05 m RMS and 2 deg after settling."""
+    r = scenario('station_keeping', tmp_path / 'out')
+    assert r['modes'][0][1] == 'automatic' and r['settled']
+    assert r['position_error_rms_m'] < 0.05
+    assert r['heading_error_rms_deg'] < 2.0
+    assert r['thrust_saturation_s'] == 0.0
+
+
+def test_box_path_cross_track(tmp_path: Path) -> None:
+    """Four-waypoint box at 0.2 m/s with line-of-sight guidance: cross-track RMS < 0.1 m."""
+    r = scenario('box_path', tmp_path / 'out')
+    assert r['modes'] == [[1.01, 'guidance']]
+    assert r['all_waypoints_visited']
+    assert r['cross_track_rms_m'] < 0.1
+    assert 35.0 < r['path_time_s'] < 55.0  # 8 m at 0.2 m/s is 40 s
+
+
+def test_manual_to_automatic_mid_run(tmp_path: Path) -> None:
+    r = scenario('manual_to_auto', tmp_path / 'out')
+    assert [m for _, m in r['modes']] == ['automatic']
+    assert r['settled'] and r['time_to_settle_s'] < 30.0
+    # Bumpless: the commanded force does not jump when the mode changes.
+    msgs = read_bag(tmp_path / 'out' / 'bag')
+    switch_ns = next(t for t, m in msgs['/mode'] if m.data == 'automatic')
+    taus = [(t, m.wrench) for t, m in msgs['/trajectory_corrected']]
+    before = [w for t, w in taus if t < switch_ns][-1]
+    after = [w for t, w in taus if t >= switch_ns][0]
+    assert abs(after.force.x - before.force.x) < 1e-6
+    assert abs(after.force.y - before.force.y) < 1e-6
+    assert abs(after.torque.z - before.torque.z) < 1e-6
+
+
+def test_mocap_dropout_is_ridden_through(tmp_path: Path) -> None:
+    r = scenario('mocap_dropout', tmp_path / 'out')
+    assert [m for _, m in r['modes']] == ['automatic']  # never fell back to manual
+    assert r['dropout_position_error_max_m'] < 0.05
+    assert r['position_error_rms_m'] < 0.05
+    msgs = read_bag(tmp_path / 'out' / 'bag')
+    ages = [m.data for _, m in msgs['/observer/measurement_age']]
+    assert max(ages) > 0.9  # it did dead-reckon for about a second
+
+
+def test_unknown_scenario_lists_known(tmp_path: Path) -> None:
+    proc = subprocess.run([*ENBARR, 'scenario', 'nope', '--output', str(tmp_path / 'o')],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert "no scenario 'nope'; scenarios: box_path, manual_to_auto" in proc.stderr
+
+
+def test_real_saucer_profile_validates() -> None:
+    proc = subprocess.run([*ENBARR, 'bringup', '--profile', 'saucer', '--check'],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert 'saucer.yaml: ok' in proc.stdout
+
+
+def test_azimuth_layout_that_cannot_yaw_is_refused(tmp_path: Path) -> None:
+    profile = tmp_path / 'noyaw.yaml'
+    profile.write_text(textwrap.dedent("""
+        include: [saucer_sim]
+        parameters:
+          azimuths:
+            az_bow: {position: [0.0, 0.0]}
+            az_port_aft: {position: [0.0, 0.0]}
+            az_stbd_aft: {position: [0.0, 0.0]}
+        """))
+    proc = subprocess.run([*ENBARR, 'bringup', '--profile', str(profile), '--check'],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert 'yaw' in proc.stderr and 'azimuth' in proc.stderr
+
+
+def test_saucer_sim_duration_end_leaves_pwm_neutral(tmp_path: Path) -> None:
+    bag = tmp_path / 'bag'
+    proc = subprocess.run([*ENBARR, 'bringup', '--profile', 'saucer_sim', '--duration', '4',
+                           '--record', str(bag)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    duty = [m for _, m in read_bag(bag)['/pwm/duty_cycle']]
+    neutral = list(duty[-1].effort)
+    assert duty[-2].effort[0] != neutral[0]  # the motors were running (manual, ahead) ...
+    assert neutral[0::2] == [6.85] * 3       # ... and the last command is neutral
+    assert neutral[1::2] == [6.85] * 3
+
+
+def test_go_to_waypoint(tmp_path: Path) -> None:
+    """One waypoint configured: square sends the vessel there along the straight line."""
+    r = scenario('waypoint', tmp_path / 'out')
+    assert r['modes'] == [[1.01, 'guidance']]
+    assert r['all_waypoints_visited'] and r['path_time_s'] is not None
+    assert r['cross_track_rms_m'] < 0.05
+    msgs = read_bag(tmp_path / 'out' / 'bag')
+    last = msgs['/sim/odometry'][-1][1].pose.pose.position
+    assert abs(last.x - 3.0) < 0.05 and abs(last.y - 1.5) < 0.05

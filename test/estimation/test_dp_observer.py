@@ -1,0 +1,385 @@
+"""Passive DP observer (pure algorithm tier) against a simulated CS Saucer.
+
+The plant is the manual's 3-DOF model (CS Saucer manual, section 1.4), integrated here with RK4
+independently of the observer's own model code:
+
+    eta_dot = R(psi) nu,   M nu_dot + (C(nu) + D + D_n(nu)) nu = tau + R(psi)^T b
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from enbarr_core.estimation.dp_observer import (
+    ObserverEstimate,
+    ObserverSettings,
+    PassiveObserver,
+    place_observer_gains,
+    saucer_observer_settings,
+)
+
+from support.saucer_plant import DT, NOISE, rot, wrap
+from support import saucer_plant
+
+B_WORLD = np.array([0.3, -0.2, 0.02])              # constant world force bias [N, N, N m]
+
+
+def plant_step(x, tau, b=B_WORLD, dt=DT):
+    """RK4 over dt with tau and b held: x = [x, y, psi, u, v, r]."""
+    return saucer_plant.step(x, tau, b, dt)
+
+
+def excitation(t):
+    """A slowly varying force that moves and turns the vessel (so the bias is seen turning)."""
+    return np.array([0.6 * math.sin(0.21 * t), 0.5 * math.cos(0.13 * t),
+                     0.03 * math.sin(0.17 * t + 0.4)])
+
+
+def pose_error(est: ObserverEstimate, x):
+    err = est.eta_hat - x[:3]
+    err[2] = wrap(err[2])
+    return err
+
+
+def simulate(obs, seconds, x, t0=0.0, noise=True, rng=None, dropout=lambda t: False):
+    """Run plant + observer; return the final state, time and the logged errors."""
+    rng = rng if rng is not None else np.random.default_rng(0)
+    log = []
+    tau = excitation(t0)
+    t = t0
+    for _ in range(int(round(seconds / DT))):
+        x = plant_step(x, tau)              # tau held over [t, t + dt]
+        t += DT
+        y = x[:3] + (rng.normal(0.0, NOISE) if noise else 0.0)
+        est = obs.step(None if dropout(t) else y, tau, DT)
+        # 0 t, 1-3 pose error, 4-6 nu error, 7-9 bias error, 10 stale, 11 age, 12 accepted,
+        # 13-18 true state
+        log.append((t, *pose_error(est, x), *(est.nu_hat - x[3:]), *(est.b_hat - B_WORLD),
+                    est.stale, est.age, est.accepted, *x))
+        tau = excitation(t)
+    return x, t, np.array(log, dtype=float)
+
+
+def converged_observer(seconds=90.0, seed=1, noise=True):
+    rng = np.random.default_rng(seed)
+    x = np.array([0.5, -0.3, 0.4, 0.0, 0.0, 0.0])
+    obs = PassiveObserver(saucer_observer_settings())
+    obs.initialize(x[:3] + rng.normal(0.0, NOISE))
+    x, t, log = simulate(obs, seconds, x, noise=noise, rng=rng)
+    return obs, x, t, log, rng
+
+
+# --- convergence -----------------------------------------------------------------------------
+
+
+def test_estimates_converge_with_noise_and_a_world_bias():
+    obs, x, t, log, _ = converged_observer(120.0)
+    late = log[:, 0] > 60.0
+    pos_rms = np.sqrt(np.mean(log[late, 1] ** 2 + log[late, 2] ** 2))
+    psi_rms = np.sqrt(np.mean(log[late, 3] ** 2))
+    vel_rms = np.sqrt(np.mean(log[late, 4:6] ** 2, axis=0))
+    r_rms = np.sqrt(np.mean(log[late, 6] ** 2))
+    b_err = np.abs(log[late, 7:10]).max(axis=0)
+    assert pos_rms < 0.004                 # below the 5 mm measurement noise
+    assert psi_rms < math.radians(0.4)     # below the 0.5 deg noise
+    assert np.all(vel_rms < 0.01)          # [m/s]
+    assert r_rms < 0.02                    # [rad/s]
+    assert b_err[0] < 0.06 and b_err[1] < 0.06 and b_err[2] < 0.006  # 20 % / 30 % of b
+    # Averaged over the last 60 s the bias is right within a few percent.
+    assert np.all(np.abs(np.mean(log[late, 7:10], axis=0)) < [0.01, 0.01, 0.001])
+    assert obs.rejected == 0
+    # The vessel really moved and turned, so the world bias was seen from many headings.
+    assert np.ptp(np.unwrap(log[:, 15])) > math.pi
+    assert np.ptp(log[:, 13]) > 1.0 and np.ptp(log[:, 14]) > 1.0
+
+
+def test_noise_free_error_converges_to_zero_exponentially():
+    """T_b = inf (pure bias integrator): the whole error (pose, velocity, bias) decays
+    exponentially to the O(dt^2) floor of the 50 Hz discretization."""
+    settings = dataclasses.replace(saucer_observer_settings(), T_b=(math.inf,) * 3)
+    obs = PassiveObserver(settings)
+    x = np.array([0.5, -0.3, 0.4, 0.0, 0.0, 0.0])
+    obs.initialize(x[:3] + [0.2, -0.15, 0.3])          # wrong pose, nu_hat = b_hat = 0
+    _, _, log = simulate(obs, 60.0, x, noise=False)
+    norm = np.linalg.norm(log[:, 1:10], axis=1)
+    t = log[:, 0]
+    assert norm[0] > 0.3
+    # ||x_tilde(t)|| <= c exp(-lambda t) + floor, lambda = 0.25 1/s: below the 0.5 design pole
+    # because the quadratic damping of the turning vessel slows the bias poles.
+    envelope = 3.0 * norm[0] * np.exp(-0.25 * t) + 2e-5
+    assert np.all(norm <= envelope)
+    assert np.all(norm[t > 60.0] < 2e-5)
+    assert norm[np.searchsorted(t, 30.0)] < 1e-3 * norm[0]
+    # Finite T_b leaks the bias estimate: steady y_tilde = b_hat / (T_b K2) instead of 0.
+    tb = 1000.0
+    obs = PassiveObserver(dataclasses.replace(settings, T_b=(tb,) * 3))
+    obs.initialize(x[:3])
+    _, _, log = simulate(obs, 120.0, x.copy(), noise=False)
+    late = log[:, 0] > 80.0
+    y_tilde = -np.mean(log[late, 1:4], axis=0)
+    b_hat = np.mean(log[late, 7:10], axis=0) + B_WORLD
+    expected = b_hat / (tb * np.asarray(settings.K2))
+    assert np.all(np.abs(expected) > 2e-5)
+    np.testing.assert_allclose(y_tilde, expected, rtol=0.15)
+
+
+def test_heading_error_wraps_through_pi():
+    obs = PassiveObserver(saucer_observer_settings())
+    obs.initialize([0.0, 0.0, math.pi - 0.01])
+    est = obs.step([0.0, 0.0, -math.pi + 0.01], np.zeros(3), DT)  # 0.02 rad away, not 6.26
+    assert est.accepted and not est.rejected_jump
+    assert -math.pi <= est.eta_hat[2] < math.pi
+    assert abs(wrap(est.eta_hat[2] - (math.pi - 0.01))) < 0.02
+
+
+# --- dropouts, staleness, implausible jumps ---------------------------------------------------
+
+
+def test_dropout_dead_reckons_and_reports_stale():
+    obs, x, t, _, rng = converged_observer()
+    t_drop, x_drop = t, x.copy()
+    x, t, log = simulate(obs, 2.0, x, t0=t, rng=rng,
+                         dropout=lambda tt: tt <= t_drop + 1.0 + 1e-9)
+    during = log[:, 0] <= t_drop + 1.0 + 1e-9
+    after = ~during
+    age = log[during, 11]
+    np.testing.assert_allclose(age, np.arange(1, during.sum() + 1) * DT, atol=1e-9)
+    stale = log[during, 10].astype(bool)
+    np.testing.assert_array_equal(stale, age > 0.5)
+    assert not stale[age <= 0.5].any() and stale[-1]
+    # Dead reckoning: after 1 s without a pose the estimate is still within 1 cm / 0.3 deg
+    # (the model, tau and the bias estimate carry it).
+    end = log[during][-1]
+    assert math.hypot(end[1], end[2]) < 0.01
+    assert abs(end[3]) < math.radians(0.3)
+    assert np.all(np.abs(end[4:6]) < 0.01)
+    # Measurements return: accepted at once, fresh again.
+    first = log[after][0]
+    assert first[12] == 1.0 and first[10] == 0.0 and first[11] == 0.0
+    assert not log[after, 10].any()
+    # A frozen estimate would be off by the distance travelled, several times more.
+    travelled = math.hypot(*(log[during][-1][13:15] - x_drop[:2]))
+    assert travelled > 5.0 * math.hypot(end[1], end[2])
+
+
+def test_implausible_jump_is_rejected_counted_and_treated_as_a_dropout():
+    obs, x, t, _, rng = converged_observer(30.0)
+    tau = excitation(t)
+    x = plant_step(x, tau)
+    now = obs.step(x[:3], tau, DT)
+    twin = PassiveObserver(obs.settings)
+    twin.initialize(now.eta_hat, now.nu_hat, now.b_hat)  # the same state
+    x = plant_step(x, tau)
+    glitch = x[:3] + [1.0, 0.0, 0.0]                    # a 1 m mocap glitch
+    est = obs.step(glitch, tau, DT)
+    ref = twin.step(None, tau, DT)
+    assert est.rejected_jump and not est.accepted and obs.rejected == 1
+    np.testing.assert_array_equal(est.eta_hat, ref.eta_hat)  # exactly a dropout
+    np.testing.assert_array_equal(est.nu_hat, ref.nu_hat)
+    np.testing.assert_array_equal(est.b_hat, ref.b_hat)
+    # A heading glitch counts too; the next good pose is accepted.
+    est = obs.step(x[:3] + [0.0, 0.0, 0.8], tau, DT)
+    assert est.rejected_jump and obs.rejected == 2
+    est = obs.step(x[:3], tau, DT)
+    assert est.accepted and not est.rejected_jump and est.age == 0.0
+    assert obs.reinitializations == 0
+    # Random outliers, however long, are not consistent with each other: never re-initialize.
+    for _ in range(150):
+        est = obs.step(x[:3] + rng.uniform(1.0, 3.0, 3) * rng.choice([-1, 1], 3), tau, DT)
+        assert est.rejected_jump
+    assert obs.reinitializations == 0 and obs.rejected == 152
+    assert est.stale
+
+
+def test_consistent_offset_after_long_dropout_reinitializes():
+    """During a 20 s dropout the vessel is pushed by a force the observer does not know; the
+    dead-reckoned estimate drifts more than max_position_jump. The returning (good) poses are
+    rejected for stale_after, then the estimate re-initializes from them."""
+    obs, x, t, _, rng = converged_observer(30.0)
+    push = np.array([1.5, -1.0, 0.0])
+    for _ in range(int(20.0 / DT)):
+        tau = excitation(t)
+        x = plant_step(x, tau + push)
+        t += DT
+        est = obs.step(None, tau, DT)
+    assert math.hypot(*pose_error(est, x)[:2]) > 0.5 and est.stale
+    rejected, reinit_at = 0, None
+    for k in range(100):
+        tau = excitation(t)
+        x = plant_step(x, tau)
+        t += DT
+        est = obs.step(x[:3] + rng.normal(0.0, NOISE), tau, DT)
+        if est.reinitialized:
+            assert reinit_at is None and est.accepted and not est.rejected_jump
+            reinit_at = k
+            assert math.hypot(*pose_error(est, x)[:2]) < 0.02
+        elif reinit_at is None:
+            assert est.rejected_jump
+            rejected += 1
+        else:
+            assert est.accepted
+    assert reinit_at is not None and obs.reinitializations == 1
+    assert reinit_at * DT == pytest.approx(obs.settings.stale_after, abs=1.5 * DT)
+    assert rejected == reinit_at and obs.rejected == rejected
+    assert not est.stale and math.hypot(*pose_error(est, x)[:2]) < 0.02
+
+
+# --- discretization ---------------------------------------------------------------------------
+
+
+def observer_rhs(z, y, tau, s: ObserverSettings):
+    """The observer ODE written out with matrices (second implementation)."""
+    eta, nu, b = z[:3], z[3:6], z[6:]
+    Mo, Do = np.diag(s.M), np.diag(s.D)
+    Dn = np.diag(np.asarray(s.Dn) * np.abs(nu))
+    m11, m22 = s.M[0], s.M[1]
+    C = np.array([[0.0, 0.0, -m22 * nu[1]], [0.0, 0.0, m11 * nu[0]],
+                  [m22 * nu[1], -m11 * nu[0], 0.0]])                  # Fossen 2021, 3-DOF
+    y_tilde = y - eta
+    y_tilde[2] = wrap(y_tilde[2])
+    R = rot(y[2])
+    eta_dot = R @ nu + np.diag(s.K1) @ y_tilde
+    b_dot = -b / np.asarray(s.T_b) + np.diag(s.K2) @ y_tilde
+    nu_dot = np.linalg.solve(Mo, -(Do + Dn + C) @ nu + R.T @ b + tau
+                             + R.T @ np.diag(s.K3) @ y_tilde)
+    return np.concatenate([eta_dot, nu_dot, b_dot])
+
+
+def heun_vs_rk4(dt, noise, seconds=30.0):
+    """Max |observer - fine RK4 of observer_rhs| per state over a run at step dt."""
+    s = saucer_observer_settings()
+    rng = np.random.default_rng(7)
+    obs = PassiveObserver(s)
+    x = np.array([0.0, 0.0, 0.2, 0.1, 0.0, 0.05])
+    # Right pose (a wrong one would make the first interpolated interval a jump), wrong
+    # velocity and bias.
+    nu0, b0 = np.array([0.0, 0.05, 0.0]), np.array([-0.2, 0.1, 0.01])
+    obs.initialize(x[:3], nu0, b0)
+    z = np.concatenate([x[:3], nu0, b0])
+    y_prev = z[:3].copy()
+    ref_log, obs_log = [], []
+    for k in range(int(round(seconds / dt))):
+        tau = excitation(k * dt)
+        x = plant_step(x, tau, dt=dt)
+        y = x[:3] + (rng.normal(0.0, NOISE) if noise else 0.0)
+        est = obs.step(y, tau, dt)
+        # RK4 on dt / 10, tau held, y(t) the line from the previous sample to this one.
+        dy = y - y_prev
+        dy[2] = wrap(dy[2])
+        n = 10
+        h = dt / n
+        for i in range(n):
+            a, m, b = y_prev + i / n * dy, y_prev + (i + 0.5) / n * dy, y_prev + (i + 1) / n * dy
+            k1 = observer_rhs(z, a, tau, s)
+            k2 = observer_rhs(z + 0.5 * h * k1, m, tau, s)
+            k3 = observer_rhs(z + 0.5 * h * k2, m, tau, s)
+            k4 = observer_rhs(z + h * k3, b, tau, s)
+            z = z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        z[2] = wrap(z[2])
+        y_prev = y
+        ref_log.append(z.copy())
+        obs_log.append(np.concatenate([est.eta_hat, est.nu_hat, est.b_hat]))
+    ref = np.array(ref_log)
+    diff = np.array(obs_log) - ref
+    diff[:, 2] = wrap(diff[:, 2])
+    return np.abs(diff).max(axis=0), np.abs(ref).max(axis=0)
+
+
+def test_heun_discretization_matches_a_fine_rk4_reference():
+    err, scale = heun_vs_rk4(DT, noise=True)
+    assert np.all(err < 5e-3 * scale)        # within 0.5 % of each state's range at 50 Hz
+    assert err[:2].max() < 1e-4              # 0.1 mm in position
+    assert err[2] < 1e-4                     # [rad]
+    # Second order: halving dt cuts the error about 4 times (noise-free, smooth y).
+    e50, _ = heun_vs_rk4(DT, noise=False, seconds=15.0)
+    e100, _ = heun_vs_rk4(DT / 2, noise=False, seconds=15.0)
+    assert np.all(e50 / e100 > 3.0)
+
+
+# --- API ----------------------------------------------------------------------------------
+
+
+def test_first_measurement_initializes_and_none_before_it_is_stale():
+    obs = PassiveObserver(saucer_observer_settings())
+    assert not obs.initialized
+    est = obs.step(None, np.zeros(3), DT)
+    assert est.stale and est.age == math.inf and not est.accepted
+    np.testing.assert_array_equal(est.eta_hat, 0.0)
+    est = obs.step([1.0, 2.0, 4.0], np.zeros(3), DT)
+    assert obs.initialized and est.accepted and not est.stale
+    np.testing.assert_allclose(est.eta_hat, [1.0, 2.0, 4.0 - 2.0 * math.pi])
+
+
+def test_settings_swap_keeps_the_state_and_validates_first():
+    obs, x, t, _, _ = converged_observer(20.0)
+    tau = excitation(t)
+    now = obs.step(x[:3], tau, DT)
+    old = obs.settings
+    with pytest.raises(ValueError, match='K3'):
+        obs.settings = dataclasses.replace(old, K3=(1.0, 2.0, 0.1))  # x != y
+    assert obs.settings is old
+    new = dataclasses.replace(old, K1=(0.5, 0.5, 0.5))
+    obs.settings = new
+    twin = PassiveObserver(new)
+    twin.initialize(now.eta_hat, now.nu_hat, now.b_hat)
+    obs.step(None, tau, DT), twin.step(None, tau, DT)    # both forget the previous pose
+    y = x[:3] + [0.01, -0.01, 0.01]
+    a, b = obs.step(y, tau, DT), twin.step(y, tau, DT)
+    assert a.accepted
+    np.testing.assert_array_equal(a.eta_hat, b.eta_hat)  # state kept, new gains in use
+    np.testing.assert_array_equal(a.nu_hat, b.nu_hat)
+    np.testing.assert_array_equal(a.b_hat, b.b_hat)
+
+
+@pytest.mark.parametrize('bad', [
+    dict(dt=0.0), dict(dt=-0.01), dict(dt=math.nan), dict(dt=math.inf),
+    dict(y=[0.0, math.nan, 0.0]), dict(y=[0.0, 0.0]), dict(tau=[0.0, math.inf, 0.0]),
+])
+def test_bad_inputs_raise(bad):
+    obs = PassiveObserver(saucer_observer_settings())
+    obs.initialize([0.0, 0.0, 0.0])
+    args = dict(y=[0.0, 0.0, 0.0], tau=[0.0, 0.0, 0.0], dt=DT) | bad
+    with pytest.raises(ValueError):
+        obs.step(args['y'], args['tau'], args['dt'])
+
+
+@pytest.mark.parametrize('field, value', [
+    ('K1', (1.0, 1.0)),
+    ('K2', (1.0, 1.0, math.nan)),
+    ('K3', (-1.0, -1.0, 0.1)),
+    ('T_b', (0.0, 100.0, 100.0)),
+    ('M', (9.51, 9.51, 0.0)),
+    ('D', (math.inf, 1.96, 0.168)),
+    ('Dn', ('a', 1.0, 1.0)),
+    ('stale_after', 0.0),
+    ('max_position_jump', -1.0),
+    ('max_heading_jump', math.nan),
+])
+def test_validate_names_the_field(field, value):
+    bad = dataclasses.replace(saucer_observer_settings(), **{field: value})
+    with pytest.raises(ValueError, match=field):
+        bad.validate()
+    with pytest.raises(ValueError, match=field):
+        PassiveObserver(bad)
+
+
+def test_placed_gains_give_the_requested_error_poles():
+    m, d = np.array([9.51, 9.51, 0.116]), np.array([1.96, 1.96, 0.168])
+    poles = np.array([(1.5, 1.0, 0.5), (2.0, 1.0, 0.3), (1.0 + 2.5j, 1.0 - 2.5j, 0.6)])
+    k1, k2, k3 = place_observer_gains(m, d, poles)
+    for j in range(3):
+        # M s^3 + (D + M K1) s^2 + (D K1 + K3) s + K2
+        roots = np.roots([m[j], d[j] + m[j] * k1[j], d[j] * k1[j] + k3[j], k2[j]])
+        np.testing.assert_allclose(np.sort_complex(roots), np.sort_complex(-poles[j]),
+                                   rtol=1e-6)
+    s = saucer_observer_settings()
+    assert (s.K1, s.K2, s.K3) == place_observer_gains(
+        s.M, s.D, [(1.5, 1.0, 0.5), (1.5, 1.0, 0.5), (1.0 + 2.5j, 1.0 - 2.5j, 0.6)])
+    with pytest.raises(ValueError, match='too slow'):
+        place_observer_gains(m, d, (0.01, 0.01, 0.01))
+    with pytest.raises(ValueError, match='conjugate'):
+        place_observer_gains(m, d, (1.0 + 1j, 1.0, 1.0))

@@ -1,0 +1,371 @@
+"""SegmentedBagWriter (enbarr_core.recording.bag): a rosbag2 MCAP bag that survives being killed.
+
+Payloads come from rclpy's ``serialize_message`` as in the recorder; the bags are read back
+with three independent readers: ``rosbags`` (the whole bag through ``metadata.yaml``), the
+``mcap`` reader with the ROS 2 decoder (file by file) and rclpy's ``deserialize_message``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from typing import Any
+
+from geometry_msgs.msg import WrenchStamped
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+import pytest
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import get_typestore, Stores
+from sensor_msgs.msg import Imu, JointState
+import yaml
+
+from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.framework.errors import RecorderError
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+T0 = 1_700_000_000_000_000_000  # ns
+CLASSES = {'sensor_msgs/msg/Imu': Imu, 'sensor_msgs/msg/JointState': JointState,
+           'rcl_interfaces/msg/Parameter': Parameter,
+           'geometry_msgs/msg/WrenchStamped': WrenchStamped}
+
+
+def metadata(bag: Path) -> dict[str, Any]:
+    return yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+
+
+def stamp(msg: Any, t: int) -> Any:
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
+    msg.header.frame_id = 'base_link'
+    return msg
+
+
+def make_messages(i: int, t: int) -> list[tuple[str, str, Any]]:
+    """One of each type, with contents that depend on ``i``."""
+    imu = stamp(Imu(), t)
+    imu.orientation.w = 1.0
+    imu.angular_velocity.z = 0.01 * i
+    imu.linear_acceleration.x = float(i)
+    imu.orientation_covariance[0] = -1.0
+    joints = stamp(JointState(), t)
+    joints.name = [f'joint_{k}' for k in range(1 + i % 4)]  # string sequence: trailing bytes
+    joints.position = [0.5 * k + i for k in range(len(joints.name))]
+    param = Parameter(name=f'kp_{i}', value=ParameterValue(
+        type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=['a', 'bb' * i, 'ccc']))
+    wrench = stamp(WrenchStamped(), t)
+    wrench.wrench.force.x = -float(i)
+    wrench.wrench.torque.z = 0.25 * i
+    return [('/imu/data', 'sensor_msgs/msg/Imu', imu),
+            ('/joint_states', 'sensor_msgs/msg/JointState', joints),
+            ('/parameter_events_like', 'rcl_interfaces/msg/Parameter', param),
+            ('/control/wrench', 'geometry_msgs/msg/WrenchStamped', wrench)]
+
+
+def write_bag(bag: Path, batches: int = 3, per_batch: int = 5) -> list[tuple[str, int, Any]]:
+    """Three segments, ended by explicit flushes; returns (topic, time, message) written."""
+    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    written = []
+    for b in range(batches):
+        for k in range(per_batch):
+            i = b * per_batch + k
+            for j, (topic, msgtype, msg) in enumerate(make_messages(i, T0 + i * 10_000_000)):
+                t = T0 + i * 10_000_000 + j  # distinct, increasing receive times
+                assert writer.write(topic, msgtype, t, serialize_message(msg))
+                written.append((topic, t, msg))
+        writer.flush()
+    writer.close()
+    return written
+
+
+def test_segments_read_back_by_rosbags_mcap_and_rclpy(tmp_path: Path) -> None:
+    bag = tmp_path / 'run'
+    written = write_bag(bag)
+
+    info = metadata(bag)
+    assert info['relative_file_paths'] == ['run_0.mcap', 'run_1.mcap', 'run_2.mcap']
+    assert info['storage_identifier'] == 'mcap'
+    assert info['message_count'] == len(written) == 60
+    assert [f['message_count'] for f in info['files']] == [20, 20, 20]
+    counts = {tm['topic_metadata']['name']: tm['message_count']
+              for tm in info['topics_with_message_count']}
+    assert counts == {'/imu/data': 15, '/joint_states': 15, '/parameter_events_like': 15,
+                      '/control/wrench': 15}
+    assert info['starting_time']['nanoseconds_since_epoch'] == written[0][1]
+    assert info['duration']['nanoseconds'] == written[-1][1] - written[0][1]
+    assert sorted(p.name for p in bag.iterdir()) == [
+        'metadata.yaml', 'run_0.mcap', 'run_1.mcap', 'run_2.mcap']  # no segment dirs left
+
+    # rosbags: the whole bag, in time order, every message equal to what was written
+    with Reader(bag) as reader:
+        assert reader.message_count == 60
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types == {'/imu/data': 'sensor_msgs/msg/Imu',
+                         '/joint_states': 'sensor_msgs/msg/JointState',
+                         '/parameter_events_like': 'rcl_interfaces/msg/Parameter',
+                         '/control/wrench': 'geometry_msgs/msg/WrenchStamped'}
+        read = [(c.topic, t, c.msgtype, raw) for c, t, raw in reader.messages()]
+    assert [(topic, t) for topic, t, _, _ in read] == [(topic, t) for topic, t, _ in written]
+    for (topic, t, msgtype, raw), (_, _, original) in zip(read, written):
+        assert deserialize_message(bytes(raw), CLASSES[msgtype]) == original
+        decoded = TYPESTORE.deserialize_cdr(raw, msgtype)  # exact size: must not raise
+        if msgtype == 'sensor_msgs/msg/JointState':
+            assert list(decoded.name) == list(original.name)
+            assert list(decoded.position) == list(original.position)
+        elif msgtype == 'rcl_interfaces/msg/Parameter':
+            assert decoded.name == original.name
+            assert list(decoded.value.string_array_value) == list(
+                original.value.string_array_value)
+        elif msgtype == 'sensor_msgs/msg/Imu':
+            assert decoded.linear_acceleration.x == original.linear_acceleration.x
+        else:
+            assert decoded.wrench.torque.z == original.wrench.torque.z
+
+    # mcap: each file on its own, complete (summary, statistics), decodable
+    by_file = []
+    for name, finfo in zip(info['relative_file_paths'], info['files']):
+        assert finfo['path'] == name
+        with open(bag / name, 'rb') as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None
+            assert summary.statistics.message_count == finfo['message_count']
+            msgs = [(ch.topic, m.log_time, dec)
+                    for _, ch, m, dec in reader.iter_decoded_messages(log_time_order=True)]
+        assert len(msgs) == finfo['message_count']
+        assert msgs[0][1] == finfo['starting_time']['nanoseconds_since_epoch']
+        by_file += msgs
+    assert [(topic, t) for topic, t, _ in by_file] == [(topic, t) for topic, t, _ in written]
+    for (topic, _, dec), (_, _, original) in zip(by_file, written):
+        if topic == '/joint_states':
+            assert list(dec.name) == list(original.name)
+        elif topic == '/parameter_events_like':
+            assert list(dec.value.string_array_value) == list(
+                original.value.string_array_value)
+        elif topic == '/imu/data':
+            assert dec.header.frame_id == 'base_link'
+            assert dec.angular_velocity.z == original.angular_velocity.z
+
+
+def test_joint_state_trailing_bytes_are_trimmed(tmp_path: Path) -> None:
+    msg = JointState(name=['a', 'bb', 'ccc'], position=[1.0, 2.0, 3.0])
+    data = serialize_message(msg)
+    # the premise: rclpy's buffer is longer than the CDR message and rosbags refuses it
+    with pytest.raises(Exception, match='size mismatch'):
+        TYPESTORE.deserialize_cdr(data, 'sensor_msgs/msg/JointState')
+
+    bag = tmp_path / 'js'
+    writer = SegmentedBagWriter(bag)
+    assert writer.write('/joint_states', 'sensor_msgs/msg/JointState', T0, data)
+    exact = serialize_message(Imu())  # fixed size: passes unchanged
+    assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + 1, exact)
+    writer.close()
+    with Reader(bag) as reader:
+        stored = {c.topic: bytes(raw) for c, _, raw in reader.messages()}
+    assert len(stored['/joint_states']) < len(data)
+    assert data.startswith(stored['/joint_states'])
+    decoded = TYPESTORE.deserialize_cdr(stored['/joint_states'], 'sensor_msgs/msg/JointState')
+    assert list(decoded.name) == ['a', 'bb', 'ccc']
+    assert deserialize_message(stored['/joint_states'], JointState) == msg
+    assert stored['/imu/data'] == exact
+
+
+def test_segments_roll_over_by_time(tmp_path: Path) -> None:
+    bag = tmp_path / 'timed'
+    writer = SegmentedBagWriter(bag, segment_seconds=0.05)
+    data = serialize_message(Imu())
+    for i in range(3):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
+        time.sleep(0.06)
+    writer.maybe_flush()  # idle: the third segment is old enough
+    assert len(metadata(bag)['relative_file_paths']) == 3
+    assert not any(p.name.startswith('.segment') for p in bag.iterdir())
+    writer.close()
+    assert metadata(bag)['message_count'] == 6
+
+
+CHILD = textwrap.dedent('''
+    import sys, time
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Imu, JointState
+    from enbarr_core.recording.bag import SegmentedBagWriter
+
+    writer = SegmentedBagWriter(sys.argv[1], segment_seconds=0.2)
+    i = 0
+    while True:
+        imu = Imu()
+        imu.linear_acceleration.x = float(i)
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', time.time_ns(), serialize_message(imu))
+        if i % 4 == 0:
+            js = JointState(name=['n%d' % i], position=[float(i)])
+            writer.write('/joint_states', 'sensor_msgs/msg/JointState', time.time_ns(),
+                         serialize_message(js))
+        i += 1
+        time.sleep(0.0005)
+''')
+
+
+def _frozen_mid_segment(bag: Path) -> bool:
+    """True when >= 3 segments are listed and the next one is being written (checked while
+    the writer is stopped, so what is seen is what the kill leaves)."""
+    try:
+        listed = metadata(bag)['relative_file_paths']
+    except (FileNotFoundError, KeyError, TypeError, yaml.YAMLError):
+        return False
+    seg = bag / f'.segment_{len(listed)}'
+    return len(listed) >= 3 and seg.is_dir() and any(seg.glob('*.mcap'))
+
+
+def test_killed_writer_leaves_a_readable_bag(tmp_path: Path) -> None:
+    bag = tmp_path / 'crash'
+    proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=os.environ,
+                            stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 30.0
+        while True:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ''
+            assert time.monotonic() < deadline, 'the writer never flushed 3 segments'
+            if (bag / 'metadata.yaml').exists() and len(
+                    metadata(bag)['relative_file_paths']) >= 3:
+                # freeze it, and kill only in the middle of a segment (not inside a flush)
+                os.kill(proc.pid, signal.SIGSTOP)
+                if _frozen_mid_segment(bag):
+                    break
+                os.kill(proc.pid, signal.SIGCONT)
+            time.sleep(0.01)
+        os.kill(proc.pid, signal.SIGKILL)
+        assert proc.wait(10) == -signal.SIGKILL
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        if proc.stderr:
+            proc.stderr.close()
+
+    info = metadata(bag)
+    listed = info['relative_file_paths']
+    assert len(listed) >= 3
+    assert listed == [f'crash_{k}.mcap' for k in range(len(listed))]
+    leftover = [p.name for p in bag.iterdir() if p.name.startswith('.segment')]
+    assert leftover == [f'.segment_{len(listed)}']  # the unfinished one, and not listed
+    assert not any(name.startswith('.') for name in listed)
+
+    # every listed file is complete
+    for name, finfo in zip(listed, info['files']):
+        with open(bag / name, 'rb') as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None, name
+            assert summary.statistics.message_count == finfo['message_count'] > 0
+            assert sum(1 for _ in reader.iter_decoded_messages()) == finfo['message_count']
+
+    # the bag as a whole: counts as in metadata.yaml, no gap, time order
+    with Reader(bag) as reader:
+        assert reader.message_count == info['message_count']
+        msgs = [(c.topic, t, TYPESTORE.deserialize_cdr(raw, c.msgtype))
+                for c, t, raw in reader.messages()]
+    assert len(msgs) == info['message_count'] == sum(f['message_count'] for f in info['files'])
+    per_topic = {tm['topic_metadata']['name']: tm['message_count']
+                 for tm in info['topics_with_message_count']}
+    assert per_topic == {
+        '/imu/data': sum(1 for m in msgs if m[0] == '/imu/data'),
+        '/joint_states': sum(1 for m in msgs if m[0] == '/joint_states')}
+    times = [t for _, t, _ in msgs]
+    assert times == sorted(times)
+    seq = [int(m.linear_acceleration.x) for topic, _, m in msgs if topic == '/imu/data']
+    assert seq == list(range(len(seq)))  # everything up to the last flush, nothing lost
+    joints = [m for topic, _, m in msgs if topic == '/joint_states']
+    assert [list(m.name) for m in joints] == [[f'n{4 * k}'] for k in range(len(joints))]
+
+
+# -- refusals ----------------------------------------------------------------------------------
+def test_refuses_to_overwrite(tmp_path: Path) -> None:
+    bag = tmp_path / 'old'
+    bag.mkdir()
+    (bag / 'metadata.yaml').write_text('precious')
+    with pytest.raises(RecorderError) as info:
+        SegmentedBagWriter(bag)
+    assert str(info.value) == (f'{bag}: exists and is not an empty directory; bags are never '
+                               'overwritten')
+    assert (bag / 'metadata.yaml').read_text() == 'precious'
+
+    a_file = tmp_path / 'file'
+    a_file.write_text('x')
+    with pytest.raises(RecorderError, match='exists and is not an empty directory'):
+        SegmentedBagWriter(a_file)
+
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    SegmentedBagWriter(empty).close()  # an empty directory is fine
+
+    with pytest.raises(RecorderError, match='segment_seconds must be > 0, got 0'):
+        SegmentedBagWriter(tmp_path / 'new', segment_seconds=0)
+
+
+def test_unknown_type_is_skipped_and_remembered(tmp_path: Path) -> None:
+    bag = tmp_path / 'unknown'
+    writer = SegmentedBagWriter(bag)
+    assert writer.knows_type('sensor_msgs/msg/Imu')
+    assert not writer.knows_type('my_msgs/msg/Nope')
+    assert writer.write('/x', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
+    assert writer.write('/y', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
+    assert writer.unknown_types == {'my_msgs/msg/Nope'}
+    assert list(bag.iterdir()) == []  # no segment opened for nothing
+    assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
+    writer.close()
+    assert metadata(bag)['message_count'] == 1
+    assert [tm['topic_metadata']['name'] for tm in metadata(bag)['topics_with_message_count']
+            ] == ['/imu/data']
+
+
+def test_write_after_close(tmp_path: Path) -> None:
+    bag = tmp_path / 'closed'
+    writer = SegmentedBagWriter(bag)
+    writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
+    writer.close()
+    writer.close()  # idempotent
+    with pytest.raises(RecorderError) as info:
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + 1, serialize_message(Imu()))
+    assert str(info.value) == f'{bag}: bag is closed'
+    assert metadata(bag)['message_count'] == 1
+
+
+def test_topic_changing_type_is_refused_within_and_across_segments(tmp_path: Path) -> None:
+    bag = tmp_path / 'typed'
+    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    imu, js = serialize_message(Imu()), serialize_message(JointState(name=['a']))
+    assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, imu)
+    with pytest.raises(RecorderError, match='topic /a changed type from sensor_msgs/msg/Imu '
+                                            'to sensor_msgs/msg/JointState'):
+        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, js)  # same segment
+    writer.flush()
+    with pytest.raises(RecorderError, match='changed type'):
+        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 2, js)  # next segment
+    assert writer.write('/a', 'sensor_msgs/msg/Imu', T0 + 3, imu)
+    writer.close()
+    with Reader(bag) as reader:
+        got = [(c.msgtype, TYPESTORE.deserialize_cdr(raw, c.msgtype))
+               for c, _, raw in reader.messages()]
+    assert [t for t, _ in got] == ['sensor_msgs/msg/Imu'] * 2
+
+
+def test_malformed_payload_is_a_recorder_error(tmp_path: Path) -> None:
+    """Bytes that are not the named type (e.g. a peer with another definition) must be a
+    RecorderError, which the recorder counts as dropped, not any exception that would end
+    its writer thread; and nothing half-written is left behind."""
+    bag = tmp_path / 'malformed'
+    writer = SegmentedBagWriter(bag)
+    for bad in (b'', b'\x00\x01', b'\x00\x01\x00\x00\x01\x02', serialize_message(Imu())[:30]):
+        with pytest.raises(RecorderError, match='not a CDR sensor_msgs/msg/Imu'):
+            writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, bad)
+    assert list(bag.iterdir()) == []
+    assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
+    writer.close()
+    assert metadata(bag)['message_count'] == 1

@@ -1,0 +1,41 @@
+"""The CS Saucer written out once more for the algorithm tests, independently of
+``enbarr_core.models.vessel3dof``: manual section 1.4, RK4 with tau and a world bias
+held over a step. State x = [x, y, psi, u, v, r]."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+DT = 0.02                                             # 50 Hz [s]
+M = np.diag([9.51, 9.51, 0.116])                      # manual eq. 1.2
+D = np.diag([1.96, 1.96, 0.168])                      # manual eq. 1.4
+NOISE = np.array([0.005, 0.005, math.radians(0.5)])   # mocap noise std [m, m, rad]
+
+
+def rot(psi):
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # manual eq. 1.6
+
+
+def wrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def rhs(x, tau, b, quadratic=True):
+    nu = x[3:]
+    C = np.array([[0.0, -9.51 * nu[2], 0.0], [9.51 * nu[2], 0.0, 0.0], [0.0, 0.0, 0.0]])
+    Dn = 7.095 * np.diag(np.abs(nu)) if quadratic else 0.0 * M     # manual eq. 1.5
+    R = rot(x[2])
+    nu_dot = np.linalg.solve(M, tau + R.T @ b - (C + D + Dn) @ nu)  # eq. 1.3 for C
+    return np.concatenate([R @ nu, nu_dot])
+
+
+def step(x, tau, b, dt=DT, quadratic=True):
+    """RK4 over dt with tau and b held."""
+    k1 = rhs(x, tau, b, quadratic)
+    k2 = rhs(x + 0.5 * dt * k1, tau, b, quadratic)
+    k3 = rhs(x + 0.5 * dt * k2, tau, b, quadratic)
+    k4 = rhs(x + dt * k3, tau, b, quadratic)
+    return x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
