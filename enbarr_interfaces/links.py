@@ -136,6 +136,7 @@ class LinkBus:
 
     # -- creation ---------------------------------------------------------------------------
     def create_publisher(self, node: Node, spec: TopicSpec) -> LinkPublisher:
+        _require_fast(spec)
         name = node.resolve_topic_name(spec.name)
         pub = LinkPublisher(self, node, spec, name)
         with self._lock:
@@ -154,6 +155,7 @@ class LinkBus:
 
     def create_subscription(self, node: Node, spec: TopicSpec,
                             callback: Callback) -> LinkSubscription:
+        _require_fast(spec)
         name = node.resolve_topic_name(spec.name)
         sub = LinkSubscription(self, node, spec, name, callback)
         with self._lock:
@@ -222,3 +224,10 @@ class LinkBus:
             if sub in subs:
                 subs.remove(sub)
         self._rewire(sub.name)
+
+
+def _require_fast(spec: TopicSpec) -> None:
+    """Only topics the contract marks ``fast`` travel on the bus (``TopicSpec.fast``)."""
+    if not spec.fast:
+        raise ValueError(f'topic {spec.name!r} is not a fast topic in the contract '
+                         '(enbarr_interfaces.topics); publish it as an ordinary ROS topic')

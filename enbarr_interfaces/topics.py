@@ -6,9 +6,10 @@ normalized -1..1 values appear only at the operator's stick and at the thruster 
 The mapping from the messages of the original Enbarr README is in ``docs/interfaces.md``.
 
 Topic names are relative, so a profile's ``namespace`` and ``remappings`` apply to them.
-``fast=True`` marks the topics of the IMU -> thruster chain: between nodes composed in one
-process they travel as direct calls (see ``enbarr_interfaces.links``), and they reach DDS only
-when something outside the process subscribes.
+``fast=True`` marks the topics of the control chains (IMU -> thrusters, pose -> azimuths)
+and the io requests: ``EnbarrNode.create_topic_publisher`` reads it, and between nodes
+composed in one process these topics travel as direct calls (see ``enbarr_interfaces.links``),
+and they reach DDS only when something outside the process subscribes.
 """
 
 from __future__ import annotations
@@ -82,13 +83,16 @@ TRAJECTORY_REQUEST = TopicSpec(
     'Validated velocity goal from the command receiver (zero on failsafe).', fast=True)
 IO_REQUEST = TopicSpec(
     'io_request', Parameter, COMMAND_QOS, 'plugin-defined', '',
-    'Validated IO request: name = executor (e.g. manipulator, gpio_12), value = request.')
+    'Validated IO request: name = executor (e.g. manipulator, gpio_12), value = request.',
+    fast=True)
 IO_STATE = TopicSpec(
     'io_state', Parameter, COMMAND_QOS, 'plugin-defined', '',
-    'State of an IO plugin after it acted: name = executor, value = new state.')
-TRAJECTORY_CORRECTED = TopicSpec(
-    'trajectory_corrected', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
-    'Generalized force tau from the control loop.', fast=True)
+    'State of an IO plugin after it acted: name = executor, value = new state.',
+    fast=True)
+FORCE_COMMAND = TopicSpec(
+    'force_command', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
+    'Generalized force tau the controller asks of the allocation (the README\'s '
+    '"trajectory_corrected").', fast=True)
 THRUSTER_COMMANDS = TopicSpec(
     'thruster_commands', JointState, SENSOR_QOS, 'normalized -1..1 (effort)', BODY_FRAME,
     'Per-thruster command: name[i] = thruster, effort[i] = -1 (full reverse) .. 1 (full '
@@ -103,7 +107,8 @@ SIM_IMU = TopicSpec(
     fast=True)
 SIM_ODOMETRY = TopicSpec(
     'sim/odometry', Odometry, SENSOR_QOS, 'm, m/s, rad/s', WORLD_FRAME,
-    'Simulator ground truth pose (odom ENU) and body velocity (child frame base_link).')
+    'Simulator ground truth pose (odom ENU) and body velocity (child frame base_link).',
+    fast=True)
 SIM_THRUST = TopicSpec(
     'sim/thrust', JointState, SENSOR_QOS, 'N (effort)', BODY_FRAME,
     'Thrust each simulated thruster produces, applied by the simulator.', fast=True)
@@ -151,6 +156,6 @@ SIM_AZIMUTH_COMMAND = TopicSpec(
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
-    TRAJECTORY_CORRECTED, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
+    FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
     GUIDANCE_REFERENCE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED, PWM_DUTY, SIM_AZIMUTH_COMMAND)

@@ -1,4 +1,4 @@
-"""Azimuth thrust allocation: ``trajectory_corrected`` (tau = [X, Y, N]) -> per-azimuth thrust
+"""Azimuth thrust allocation: ``force_command`` (tau = [X, Y, N]) -> per-azimuth thrust
 and angle on ``azimuth_commands``, and the force actually deliverable on
 ``allocation/delivered``.
 
@@ -40,9 +40,9 @@ class AzimuthAllocationNode(EnbarrNode):
         self.result = None
         self.infeasible = 0
         self.rejected = 0
-        self._pub = self.create_link_publisher(topics.AZIMUTH_COMMANDS)
-        self._delivered_pub = self.create_link_publisher(topics.ALLOCATION_DELIVERED)
-        self.create_link_subscription(topics.TRAJECTORY_CORRECTED, self._on_tau)
+        self._pub = self.create_topic_publisher(topics.AZIMUTH_COMMANDS)
+        self._delivered_pub = self.create_topic_publisher(topics.ALLOCATION_DELIVERED)
+        self.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
         self.create_timer(1.0, self._report)
 
     def _on_tau(self, msg: WrenchStamped) -> None:

@@ -50,8 +50,8 @@ class PwmMapperNode(EnbarrNode):
         self.bind_settings(SPECS, lambda v: v, self._apply)
         self.duty: list[float] = []
         self.rejected = 0
-        self._pub = self.create_link_publisher(topics.PWM_DUTY)
-        self.create_link_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
+        self._pub = self.create_topic_publisher(topics.PWM_DUTY)
+        self.create_topic_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
         self.safe_state()
 
     def _apply(self, v: dict[str, Any]) -> None:

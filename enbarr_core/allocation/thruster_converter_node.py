@@ -1,4 +1,4 @@
-"""Thruster converter: ``trajectory_corrected`` (tau) -> ``thruster_commands`` (-1..1 each).
+"""Thruster converter: ``force_command`` (tau) -> ``thruster_commands`` (-1..1 each).
 
 The README's ``vector_trajectory_converter.py``, for any layout: the allocation matrix comes
 from each thruster's position and direction (``enbarr_core.allocation.thruster_params``), the weighted
@@ -45,8 +45,8 @@ class ThrusterConverterNode(EnbarrNode):
         self.rejected = 0
         self.result = None
         self._names = [t.name for t in thrusters]
-        self._pub = self.create_link_publisher(topics.THRUSTER_COMMANDS)
-        self.create_link_subscription(topics.TRAJECTORY_CORRECTED, self._on_wrench)
+        self._pub = self.create_topic_publisher(topics.THRUSTER_COMMANDS)
+        self.create_topic_subscription(topics.FORCE_COMMAND, self._on_wrench)
         self.create_timer(1.0, self._report)
 
     @staticmethod

@@ -49,12 +49,10 @@ class CommandReceiverNode(EnbarrNode):
         self.io_rejected = 0
         self._failsafe = True
         values = self.bind_settings(SPECS, self._build, self._apply)
-        self._goal_pub = self.create_link_publisher(topics.TRAJECTORY_REQUEST)
-        self._io_pub = self.create_link_publisher(topics.IO_REQUEST)
-        self.create_subscription(TwistStamped, topics.SURFACE_TWIST.name, self._on_twist,
-                                 topics.SURFACE_TWIST.qos)
-        self.create_subscription(Parameter, topics.SURFACE_IO.name, self._on_io,
-                                 topics.SURFACE_IO.qos)
+        self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
+        self._io_pub = self.create_topic_publisher(topics.IO_REQUEST)
+        self.create_topic_subscription(topics.SURFACE_TWIST, self._on_twist)
+        self.create_topic_subscription(topics.SURFACE_IO, self._on_io)
         self.create_timer(1.0 / values.values()['rate'], self._publish_goal)
         self.create_timer(1.0, self._report)
 

@@ -11,7 +11,7 @@ dead-reckoning longer than ``estimate_max_age`` while automatic, returns to manu
 force.
 
 On every ``observer/odometry`` sample the node computes tau (stamped with the sample) on
-``trajectory_corrected`` and, outside manual, the guidance reference on
+``force_command`` and, outside manual, the guidance reference on
 ``guidance/reference``. Gains (3-element diagonals and scalars) are parameters validated
 together and applied live over ``gain_ramp_time``, so the force never jumps.
 """
@@ -129,13 +129,13 @@ class DpControlNode(EnbarrNode):
         self._age = math.inf
         self._last_ns: int | None = None
         self._estimate_ns: int | None = None  # node clock when the last estimate arrived
-        self._tau_pub = self.create_link_publisher(topics.TRAJECTORY_CORRECTED)
-        self._ref_pub = self.create_link_publisher(topics.GUIDANCE_REFERENCE)
-        self._mode_pub = self.create_publisher(String, topics.MODE.name, topics.MODE.qos)
-        self.create_link_subscription(topics.OBSERVER_AGE, self._on_age)
-        self.create_link_subscription(topics.OBSERVER_BIAS, self._on_bias)
-        self.create_link_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
-        self.create_subscription(Joy, topics.JOY.name, self._on_joy, topics.JOY.qos)
+        self._tau_pub = self.create_topic_publisher(topics.FORCE_COMMAND)
+        self._ref_pub = self.create_topic_publisher(topics.GUIDANCE_REFERENCE)
+        self._mode_pub = self.create_topic_publisher(topics.MODE)
+        self.create_topic_subscription(topics.OBSERVER_AGE, self._on_age)
+        self.create_topic_subscription(topics.OBSERVER_BIAS, self._on_bias)
+        self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
+        self.create_topic_subscription(topics.JOY, self._on_joy)
         self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))

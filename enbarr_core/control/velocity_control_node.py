@@ -1,4 +1,4 @@
-"""Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``trajectory_corrected``.
+"""Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``force_command``.
 
 The README's ``control_loop_pi.py``, built as a PID with anti-windup and model-based
 feed-forward (``algorithms.velocity_control``) behind a reference model that turns a step in
@@ -107,12 +107,12 @@ class VelocityControlNode(EnbarrNode):
         self._linear = np.full(3, math.nan)
         self.rejected = 0
         self.binding = self.bind_settings(SPECS, build_settings, self._apply)
-        self._pub = self.create_link_publisher(topics.TRAJECTORY_CORRECTED)
-        self.create_link_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
-        self.create_link_subscription(topics.IMU, self._on_imu)
+        self._pub = self.create_topic_publisher(topics.FORCE_COMMAND)
+        self.create_topic_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
+        self.create_topic_subscription(topics.IMU, self._on_imu)
         velocity_topic = self.binding.values()['velocity_topic']
         if velocity_topic:
-            self.create_link_subscription(TopicSpec(
+            self.create_topic_subscription(TopicSpec(
                 velocity_topic, Odometry, topics.SENSOR_QOS, 'm/s', topics.BODY_FRAME,
                 'linear body velocity source'), self._on_velocity)
 

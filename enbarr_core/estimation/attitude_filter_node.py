@@ -56,9 +56,9 @@ class AttitudeFilterNode(EnbarrNode):
         self._mag: np.ndarray | None = None
         self._mag_ns = 0
         self.bind_settings(SPECS, self._build, self._apply)
-        self._pub = self.create_link_publisher(topics.IMU)
-        self.create_link_subscription(topics.IMU_MAG, self._on_mag)
-        self.create_link_subscription(topics.IMU_RAW, self._on_imu)
+        self._pub = self.create_topic_publisher(topics.IMU)
+        self.create_topic_subscription(topics.IMU_MAG, self._on_mag)
+        self.create_topic_subscription(topics.IMU_RAW, self._on_imu)
         self.create_timer(1.0, self._report)
 
     @staticmethod

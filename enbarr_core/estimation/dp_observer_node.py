@@ -73,11 +73,11 @@ class DpObserverNode(EnbarrNode):
         self._tau = np.zeros(3)
         self._last_ns: int | None = None
         self._period_ns = round(1e9 / binding.values()['rate'])
-        self._odom_pub = self.create_link_publisher(topics.OBSERVER_ODOMETRY)
-        self._bias_pub = self.create_link_publisher(topics.OBSERVER_BIAS)
-        self._age_pub = self.create_link_publisher(topics.OBSERVER_AGE)
-        self.create_link_subscription(topics.ALLOCATION_DELIVERED, self._on_tau)
-        self.create_link_subscription(topics.MOCAP_POSE, self._on_pose)
+        self._odom_pub = self.create_topic_publisher(topics.OBSERVER_ODOMETRY)
+        self._bias_pub = self.create_topic_publisher(topics.OBSERVER_BIAS)
+        self._age_pub = self.create_topic_publisher(topics.OBSERVER_AGE)
+        self.create_topic_subscription(topics.ALLOCATION_DELIVERED, self._on_tau)
+        self.create_topic_subscription(topics.MOCAP_POSE, self._on_pose)
         self.create_timer(WATCHDOG_PERIOD, self._dead_reckon)
         self.create_timer(1.0, self._report)
 

@@ -4,8 +4,9 @@ An ``EnbarrNode`` is an ordinary rclpy ``Node`` (``__init__(node_name, **kwargs)
 ``context``, ``namespace``, ``parameter_overrides``, ``cli_args`` ... through) with four
 additions that the orchestrator relies on:
 
-- ``create_link_publisher`` / ``create_link_subscription``: fast topics over the in-process
-  ``LinkBus`` (``enbarr_interfaces.links``);
+- ``create_topic_publisher`` / ``create_topic_subscription``: a topic of the contract
+  (``enbarr_interfaces.topics``); the contract's ``TopicSpec.fast`` decides whether it travels
+  over the in-process ``LinkBus`` (``enbarr_interfaces.links``) or as an ordinary ROS topic;
 - ``bind_settings``: declared, validated, live-tunable parameters (``enbarr_core.framework.params``);
 - ``create_rate_loop``: a periodic source on its own thread, for drivers and simulators whose
   rate matters more than an executor timer can give (``docs/architecture.md``);
@@ -25,6 +26,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
 
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import Callback, LinkBus, LinkPublisher, LinkSubscription
@@ -189,12 +192,19 @@ class EnbarrNode(Node):
         self._started = False
 
     # -- topics -----------------------------------------------------------------------------
-    def create_link_publisher(self, spec: TopicSpec) -> LinkPublisher:
+    def create_topic_publisher(self, spec: TopicSpec) -> LinkPublisher | Publisher:
+        """Publisher of a contract topic: over the link bus when ``spec.fast``, else ROS."""
+        if not spec.fast:
+            return self.create_publisher(spec.msg_type, spec.name, spec.qos)
         pub = self._bus.create_publisher(self, spec)
         self._links.append(pub)
         return pub
 
-    def create_link_subscription(self, spec: TopicSpec, callback: Callback) -> LinkSubscription:
+    def create_topic_subscription(self, spec: TopicSpec,
+                                  callback: Callback) -> LinkSubscription | Subscription:
+        """Subscription to a contract topic: over the link bus when ``spec.fast``, else ROS."""
+        if not spec.fast:
+            return self.create_subscription(spec.msg_type, spec.name, callback, spec.qos)
         sub = self._bus.create_subscription(self, spec, callback)
         self._links.append(sub)
         return sub

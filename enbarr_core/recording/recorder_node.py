@@ -78,7 +78,7 @@ class RecorderNode(EnbarrNode):
         type_name = pub.spec.type_name
         clock = self.get_clock()
         put = self._queue.put
-        self.create_link_subscription(pub.spec, lambda msg, n=pub.name: put(
+        self.create_topic_subscription(pub.spec, lambda msg, n=pub.name: put(
             (n, type_name, clock.now().nanoseconds, msg)))
 
     def start(self) -> None:

@@ -90,9 +90,9 @@ class RovSimulatorNode(EnbarrNode):
         self.steps = 0        # model steps
         self.samples = 0      # truth samples published (fewer than steps when late)
         self.time_skips = 0
-        self._imu_pub = self.create_link_publisher(topics.SIM_IMU)
-        self._odom_pub = self.create_link_publisher(topics.SIM_ODOMETRY)
-        self.create_link_subscription(topics.SIM_THRUST, self._on_thrust)
+        self._imu_pub = self.create_topic_publisher(topics.SIM_IMU)
+        self._odom_pub = self.create_topic_publisher(topics.SIM_ODOMETRY)
+        self.create_topic_subscription(topics.SIM_THRUST, self._on_thrust)
         self._dt_ns = round(1e9 / v['rate'])
         self._odom_every = max(1, round(v['rate'] / v['odometry_rate']))
         self.create_rate_loop(v['rate'], self.step)

@@ -73,8 +73,8 @@ class SaucerSimulatorNode(EnbarrNode):
         self._cmd_thrust = np.zeros(len(self.azimuths))
         self._cmd_angle = np.zeros(len(self.azimuths))
         self._cmd_ns: int | None = None
-        self._odom_pub = self.create_link_publisher(topics.SIM_ODOMETRY)
-        self.create_link_subscription(topics.SIM_AZIMUTH_COMMAND, self._on_command)
+        self._odom_pub = self.create_topic_publisher(topics.SIM_ODOMETRY)
+        self.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, self._on_command)
         self.create_rate_loop(v['rate'], self.step)
 
     @staticmethod

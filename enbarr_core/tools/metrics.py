@@ -70,7 +70,7 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     modes = _modes(msgs.get('/mode', []))
     out: dict[str, Any] = {'modes': [(round(tm - t0, 2), m) for tm, m in modes]}
     # Thrust saturation: allocation delivered less than the controller asked.
-    asked = {_stamp(m): m.wrench for _, m in msgs.get('/trajectory_corrected', [])}
+    asked = {_stamp(m): m.wrench for _, m in msgs.get('/force_command', [])}
     sat = [not math.isclose(_norm(m.wrench), _norm(asked[_stamp(m)]), rel_tol=1e-6,
                             abs_tol=1e-9)
            for _, m in msgs.get('/allocation/delivered', []) if _stamp(m) in asked]

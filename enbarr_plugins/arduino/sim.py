@@ -40,8 +40,8 @@ class SimArduinoNode(EnbarrNode):
         self.bind_settings(SPECS, lambda v: v, self._apply)
         self.refused = 0
         self.latency = LatencyLog()  # pose stamp -> duty cycles applied
-        self._pub = self.create_link_publisher(topics.SIM_AZIMUTH_COMMAND)
-        self.create_link_subscription(topics.PWM_DUTY, self._on_duty)
+        self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
+        self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v

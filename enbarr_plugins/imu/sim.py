@@ -40,9 +40,9 @@ class SimImuNode(EnbarrNode):
         self.settings: dict[str, Any] = {}
         self.bind_settings(SPECS, self._build, self._apply)
         self._rng = np.random.default_rng(self.settings['seed'])
-        self._raw_pub = self.create_link_publisher(topics.IMU_RAW)
-        self._mag_pub = self.create_link_publisher(topics.IMU_MAG)
-        self.create_link_subscription(topics.SIM_IMU, self._on_truth)
+        self._raw_pub = self.create_topic_publisher(topics.IMU_RAW)
+        self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
+        self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
 
     @staticmethod
     def _build(v: dict[str, Any]) -> dict[str, Any]:

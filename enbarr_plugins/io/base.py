@@ -26,8 +26,8 @@ class IoPluginNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         self.handled = 0
         self.refused = 0
-        self._state_pub = self.create_link_publisher(topics.IO_STATE)
-        self.create_link_subscription(topics.IO_REQUEST, self._on_request)
+        self._state_pub = self.create_topic_publisher(topics.IO_STATE)
+        self.create_topic_subscription(topics.IO_REQUEST, self._on_request)
 
     def _on_request(self, msg: Parameter) -> None:
         if msg.name != self.executor_name:

@@ -76,7 +76,7 @@ class ScriptedJoyNode(EnbarrNode):
         self._press: int | None = None
         self._stopped = False
         self._start_ns: int | None = None
-        self._pub = self.create_publisher(Joy, topics.JOY.name, topics.JOY.qos)
+        self._pub = self.create_topic_publisher(topics.JOY)
         self.create_timer(1.0 / rate, self._tick)
 
     def start(self) -> None:

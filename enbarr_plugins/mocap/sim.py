@@ -43,8 +43,8 @@ class SimMocapNode(EnbarrNode):
         self._start_ns: int | None = None
         self.published = 0
         self.dropped = 0
-        self._pub = self.create_link_publisher(topics.MOCAP_POSE)
-        self.create_link_subscription(topics.SIM_ODOMETRY, self._on_truth)
+        self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
+        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
     @staticmethod
     def _build(v: dict[str, Any]) -> dict[str, Any]:

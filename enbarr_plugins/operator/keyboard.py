@@ -92,10 +92,8 @@ class KeyboardTeleopNode(EnbarrNode):
                 f'node {node_name!r}: {device or "standard input"} is not a terminal '
                 f'({err}); run bringup in a terminal or set device', parameter='device') from err
         self.state = KeyState()
-        self._twist_pub = self.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
-                                                topics.SURFACE_TWIST.qos)
-        self._io_pub = self.create_publisher(Parameter, topics.SURFACE_IO.name,
-                                             topics.SURFACE_IO.qos)
+        self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
+        self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
         self.create_timer(1.0 / self.settings['rate'], self._send)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name='keyboard', daemon=True)

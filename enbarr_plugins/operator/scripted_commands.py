@@ -95,10 +95,8 @@ class ScriptedCommandsNode(EnbarrNode):
         self._next = 0
         self._nu: tuple[float, ...] | None = None
         self._start_ns: int | None = None
-        self._twist_pub = self.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
-                                                topics.SURFACE_TWIST.qos)
-        self._io_pub = self.create_publisher(Parameter, topics.SURFACE_IO.name,
-                                             topics.SURFACE_IO.qos)
+        self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
+        self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
         self.create_timer(1.0 / v[1], self._tick)
 
     @staticmethod

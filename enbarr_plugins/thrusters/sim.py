@@ -51,9 +51,9 @@ class SimThrustersNode(EnbarrNode):
         self.refused = 0
         self.clipped = 0
         self._last_apply_ns: int | None = None
-        self._output_pub = self.create_link_publisher(topics.THRUSTER_OUTPUT)
-        self._thrust_pub = self.create_link_publisher(topics.SIM_THRUST)
-        self.create_link_subscription(topics.THRUSTER_COMMANDS, self._on_command)
+        self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
+        self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
+        self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
         self.create_timer(1.0, self._report)
         self.safe_state()  # start neutral, also after a restart
 

@@ -134,7 +134,7 @@ def test_bag_readable_by_mcap_reader(sim_run: dict[str, Any]) -> None:
 
 def test_every_stage_is_recorded(sim_run: dict[str, Any]) -> None:
     for topic in ('/imu/data_raw', '/imu/mag', '/imu/data', '/trajectory_request',
-                  '/trajectory_corrected', '/thruster_commands', '/thruster_output',
+                  '/force_command', '/thruster_commands', '/thruster_output',
                   '/sim/odometry', '/io_request', '/io_state', '/diagnostics'):
         assert sim_run['msgs'].get(topic), topic
 

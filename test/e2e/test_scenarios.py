@@ -52,7 +52,7 @@ def test_manual_to_automatic_mid_run(tmp_path: Path) -> None:
     # Bumpless: the commanded force does not jump when the mode changes.
     msgs = read_bag(tmp_path / 'out' / 'bag')
     switch_ns = next(t for t, m in msgs['/mode'] if m.data == 'automatic')
-    taus = [(t, m.wrench) for t, m in msgs['/trajectory_corrected']]
+    taus = [(t, m.wrench) for t, m in msgs['/force_command']]
     before = [w for t, w in taus if t < switch_ns][-1]
     after = [w for t, w in taus if t >= switch_ns][0]
     assert abs(after.force.x - before.force.x) < 1e-6

@@ -81,9 +81,9 @@ class PublishSpy:
 def test_local_delivery_is_the_same_object_and_skips_dds(context, executor, monkeypatch):
     a = add(executor, EnbarrNode('producer', context=context))
     b = add(executor, EnbarrNode('consumer', context=context))
-    pub = a.create_link_publisher(topics.IMU)
+    pub = a.create_topic_publisher(topics.IMU)
     got: list[Imu] = []
-    sub = b.create_link_subscription(topics.IMU, got.append)
+    sub = b.create_topic_subscription(topics.IMU, got.append)
     LinkBus.of(context).connect()
     assert sub.local and sub.ros_subscription is None
     assert pub.name == sub.name == '/imu/data'
@@ -107,9 +107,9 @@ def test_publishes_to_dds_while_another_context_subscribes(context, executor, ot
                                                            monkeypatch):
     a = add(executor, EnbarrNode('producer', context=context))
     local: list[Imu] = []
-    add(executor, EnbarrNode('consumer', context=context)).create_link_subscription(
+    add(executor, EnbarrNode('consumer', context=context)).create_topic_subscription(
         topics.IMU, local.append)
-    pub = a.create_link_publisher(topics.IMU)
+    pub = a.create_topic_publisher(topics.IMU)
     LinkBus.of(context).connect()
     assert LinkBus.of(other.context) is not LinkBus.of(context)
     assert pub.ros_publisher.get_subscription_count() == 0
@@ -172,7 +172,7 @@ def test_subscription_without_local_publisher_falls_back_to_dds(context, executo
                                                                 other):
     node = add(executor, EnbarrNode('consumer', context=context))
     got: list[Imu] = []
-    sub = node.create_link_subscription(topics.IMU, got.append)
+    sub = node.create_topic_subscription(topics.IMU, got.append)
     assert sub.ros_subscription is None  # undecided until the process is wired
     LinkBus.of(context).connect()
     assert not sub.local and sub.ros_subscription is not None
@@ -193,12 +193,12 @@ def test_subscription_without_local_publisher_falls_back_to_dds(context, executo
 
     # A subscription created after connect() decides at once.
     late: list[Imu] = []
-    late_sub = node.create_link_subscription(topics.IMU, late.append)
+    late_sub = node.create_topic_subscription(topics.IMU, late.append)
     assert not late_sub.local
 
     # A local publisher appearing later takes both subscriptions over: direct calls again.
     producer = add(executor, EnbarrNode('producer', context=context))
-    link_pub = producer.create_link_publisher(topics.IMU)
+    link_pub = producer.create_topic_publisher(topics.IMU)
     assert sub.local and late_sub.local
     msg = imu(10_000)
     link_pub.publish(msg)
@@ -208,18 +208,18 @@ def test_subscription_without_local_publisher_falls_back_to_dds(context, executo
 def test_failing_callback_is_counted_and_isolated(context, executor):
     a = add(executor, EnbarrNode('producer', context=context))
     b = add(executor, EnbarrNode('consumer', context=context))
-    pub = a.create_link_publisher(topics.TRAJECTORY_CORRECTED)
+    pub = a.create_topic_publisher(topics.FORCE_COMMAND)
     first: list[Any] = []
     last: list[Any] = []
 
     def broken(msg: Any) -> None:
         raise RuntimeError('boom')
 
-    b.create_link_subscription(topics.TRAJECTORY_CORRECTED, first.append)
-    bad = b.create_link_subscription(topics.TRAJECTORY_CORRECTED, broken)
-    b.create_link_subscription(topics.TRAJECTORY_CORRECTED, last.append)
+    b.create_topic_subscription(topics.FORCE_COMMAND, first.append)
+    bad = b.create_topic_subscription(topics.FORCE_COMMAND, broken)
+    b.create_topic_subscription(topics.FORCE_COMMAND, last.append)
     LinkBus.of(context).connect()
-    msg = topics.TRAJECTORY_CORRECTED.msg_type()
+    msg = topics.FORCE_COMMAND.msg_type()
     pub.publish(msg)            # must not raise into the publisher
     pub.publish(msg)
     assert bad.errors == 2
@@ -229,17 +229,17 @@ def test_failing_callback_is_counted_and_isolated(context, executor):
 def test_remapping_applies_to_link_topics(context, executor):
     remapped = add(executor, EnbarrNode(
         'filtering', context=context, cli_args=['--ros-args', '-r', 'imu/data:=imu2/data']))
-    pub = remapped.create_link_publisher(topics.IMU)
+    pub = remapped.create_topic_publisher(topics.IMU)
     assert pub.name == '/imu2/data'
     assert pub.ros_publisher.topic_name == '/imu2/data'
 
     plain = add(executor, EnbarrNode('control_loop', context=context))
     on_imu: list[Imu] = []
-    plain.create_link_subscription(topics.IMU, on_imu.append)
+    plain.create_topic_subscription(topics.IMU, on_imu.append)
     also_remapped = add(executor, EnbarrNode(
         'recorder', context=context, cli_args=['--ros-args', '-r', 'imu/data:=imu2/data']))
     on_imu2: list[Imu] = []
-    also_remapped.create_link_subscription(topics.IMU, on_imu2.append)
+    also_remapped.create_topic_subscription(topics.IMU, on_imu2.append)
     LinkBus.of(context).connect()
 
     msg = imu(1)

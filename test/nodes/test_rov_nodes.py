@@ -133,9 +133,9 @@ def test_command_receiver_gates_commands_failsafe_and_io(context, executor, spin
                                       topics.SURFACE_IO.qos)
     goals: list[np.ndarray] = []
     ios: list[ParameterMsg] = []
-    surface.create_link_subscription(
+    surface.create_topic_subscription(
         topics.TRAJECTORY_REQUEST, lambda m: goals.append(convert.twist_to_nu(m.twist)))
-    surface.create_link_subscription(topics.IO_REQUEST, ios.append)
+    surface.create_topic_subscription(topics.IO_REQUEST, ios.append)
     LinkBus.of(context).connect()
     # The receiver's goal publisher is in this process: the probe is fed by direct calls.
     assert all(s.local for s in surface._links)
@@ -210,7 +210,7 @@ def test_command_receiver_failsafe_after_commands_stop(context, executor, spin):
     twist_pub = surface.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
                                          topics.SURFACE_TWIST.qos)
     goals: list[np.ndarray] = []
-    surface.create_link_subscription(
+    surface.create_topic_subscription(
         topics.TRAJECTORY_REQUEST, lambda m: goals.append(convert.twist_to_nu(m.twist)))
     # A plain ROS subscription (as `ros2 topic echo` would make) gets the link topic via DDS.
     echoed: list[TwistStamped] = []
@@ -268,8 +268,8 @@ def test_velocity_control_live_tuning(context, executor, spin):
         node_name='control_loop', context=context, parameter_overrides=[
             Parameter('ki', value=[0.0] * 6), Parameter('goal_timeout', value=60.0)]))
     feeder = probe(context, executor, 'feeder')
-    imu_pub = feeder.create_link_publisher(topics.IMU)
-    goal_pub = feeder.create_link_publisher(topics.TRAJECTORY_REQUEST)
+    imu_pub = feeder.create_topic_publisher(topics.IMU)
+    goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
     taus: list[np.ndarray] = []
     stamps: list[int] = []
 
@@ -277,7 +277,7 @@ def test_velocity_control_live_tuning(context, executor, spin):
         taus.append(convert.wrench_to_tau(msg.wrench))
         stamps.append(convert.stamp_to_ns(msg.header.stamp))
 
-    feeder.create_link_subscription(topics.TRAJECTORY_CORRECTED, on_tau)
+    feeder.create_topic_subscription(topics.FORCE_COMMAND, on_tau)
     LinkBus.of(context).connect()
     client = _param_client(executor, spin, context, 'control_loop')
 
@@ -354,9 +354,9 @@ def test_attitude_filter_live_tuning(context, executor, spin):
 
 def _io_probe(context: Any, executor: Any) -> tuple[Any, list[tuple[str, Any]]]:
     p = probe(context, executor, 'surface')
-    pub = p.create_link_publisher(topics.IO_REQUEST)
+    pub = p.create_topic_publisher(topics.IO_REQUEST)
     states: list[tuple[str, Any]] = []
-    p.create_link_subscription(
+    p.create_topic_subscription(
         topics.IO_STATE,
         lambda m: states.append((m.name, convert.parameter_value_to_python(m.value))))
     LinkBus.of(context).connect()
@@ -429,11 +429,11 @@ def test_sim_thrusters_output_watchdog_refusals_and_safe_state(context, executor
     names = sim_parameters()['thruster_names']
     assert node.names == names and node.neutral
     p = probe(context, executor, 'controller')
-    cmd_pub = p.create_link_publisher(topics.THRUSTER_COMMANDS)
+    cmd_pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
     outputs: list[JointState] = []
     thrusts: list[JointState] = []
-    p.create_link_subscription(topics.THRUSTER_OUTPUT, outputs.append)
-    p.create_link_subscription(topics.SIM_THRUST, thrusts.append)
+    p.create_topic_subscription(topics.THRUSTER_OUTPUT, outputs.append)
+    p.create_topic_subscription(topics.SIM_THRUST, thrusts.append)
     LinkBus.of(context).connect()
 
     def command(efforts: list[float], names_: list[str] = names) -> None:
@@ -503,7 +503,7 @@ def test_sim_thrusters_time_constant_ramps_thrust(context, executor):
     msg = JointState(name=names, effort=[1.0] * len(names))
     LinkBus.of(context).connect()
     p = probe(context, executor, 'controller')
-    pub = p.create_link_publisher(topics.THRUSTER_COMMANDS)
+    pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
     pub.publish(msg)        # from neutral: no lag on the first command
     assert node.thrust == pytest.approx([51.5] * len(names))
     pub.publish(JointState(name=names, effort=[-1.0] * len(names)))
@@ -552,9 +552,9 @@ def test_thruster_converter_allocates_wrench(context, executor):
     node = add(executor, ThrusterConverterNode(
         node_name='thruster_converter', context=context, parameter_overrides=layout_overrides()))
     p = probe(context, executor, 'controller')
-    pub = p.create_link_publisher(topics.TRAJECTORY_CORRECTED)
+    pub = p.create_topic_publisher(topics.FORCE_COMMAND)
     commands: list[JointState] = []
-    p.create_link_subscription(topics.THRUSTER_COMMANDS, commands.append)
+    p.create_topic_subscription(topics.THRUSTER_COMMANDS, commands.append)
     LinkBus.of(context).connect()
     thrusters = sim_thrusters()
     names = [t.name for t in thrusters]
@@ -611,10 +611,10 @@ G = 9.81
 def test_attitude_filter_level_at_rest(context, executor, mag_body, yaw):
     node = add(executor, AttitudeFilterNode(node_name='filtering', context=context))
     p = probe(context, executor, 'imu')
-    raw_pub = p.create_link_publisher(topics.IMU_RAW)
-    mag_pub = p.create_link_publisher(topics.IMU_MAG)
+    raw_pub = p.create_topic_publisher(topics.IMU_RAW)
+    mag_pub = p.create_topic_publisher(topics.IMU_MAG)
     out: list[Imu] = []
-    p.create_link_subscription(topics.IMU, out.append)
+    p.create_topic_subscription(topics.IMU, out.append)
     LinkBus.of(context).connect()
 
     t = 5_000_000_000
@@ -680,11 +680,11 @@ def test_simulator_truth_and_sim_imu_errors(context, executor):
     truth: dict[int, Imu] = {}
     raw: dict[int, Imu] = {}
     mags: dict[int, MagneticField] = {}
-    p.create_link_subscription(topics.SIM_IMU,
+    p.create_topic_subscription(topics.SIM_IMU,
                                lambda m: truth.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
-    p.create_link_subscription(topics.IMU_RAW,
+    p.create_topic_subscription(topics.IMU_RAW,
                                lambda m: raw.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
-    p.create_link_subscription(topics.IMU_MAG,
+    p.create_topic_subscription(topics.IMU_MAG,
                                lambda m: mags.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
     LinkBus.of(context).connect()
     assert not sim._loops[0].running and imu is not None  # never started: driven by hand
@@ -725,11 +725,11 @@ def test_velocity_control_drops_out_of_order_imu(context, executor):
     would drop the reference model's velocity and jolt the commanded force)."""
     node = add(executor, VelocityControlNode(node_name='control_loop', context=context))
     feeder = probe(context, executor, 'feeder')
-    imu_pub = feeder.create_link_publisher(topics.IMU)
-    goal_pub = feeder.create_link_publisher(topics.TRAJECTORY_REQUEST)
+    imu_pub = feeder.create_topic_publisher(topics.IMU)
+    goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
     taus: list[np.ndarray] = []
-    feeder.create_link_subscription(
-        topics.TRAJECTORY_CORRECTED, lambda m: taus.append(convert.wrench_to_tau(m.wrench)))
+    feeder.create_topic_subscription(
+        topics.FORCE_COMMAND, lambda m: taus.append(convert.wrench_to_tau(m.wrench)))
     LinkBus.of(context).connect()
     goal = TwistStamped()
     goal.twist.linear.x = 0.3
@@ -753,8 +753,8 @@ def test_velocity_control_ignores_a_stale_goal(context, executor):
     """A goal stamped more than goal_timeout before the IMU sample counts as zero."""
     node = add(executor, VelocityControlNode(node_name='control_loop', context=context))
     feeder = probe(context, executor, 'feeder')
-    imu_pub = feeder.create_link_publisher(topics.IMU)
-    goal_pub = feeder.create_link_publisher(topics.TRAJECTORY_REQUEST)
+    imu_pub = feeder.create_topic_publisher(topics.IMU)
+    goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
     LinkBus.of(context).connect()
     goal = TwistStamped()
     goal.twist.linear.x = 0.3

@@ -165,14 +165,14 @@ class DpHarness:
         self.modes: list[str] = []
         p.create_subscription(String, topics.MODE.name, lambda m: self.modes.append(m.data),
                               topics.MODE.qos)
-        self.odom_pub = p.create_link_publisher(topics.OBSERVER_ODOMETRY)
-        self.age_pub = p.create_link_publisher(topics.OBSERVER_AGE)
-        self.bias_pub = p.create_link_publisher(topics.OBSERVER_BIAS)
+        self.odom_pub = p.create_topic_publisher(topics.OBSERVER_ODOMETRY)
+        self.age_pub = p.create_topic_publisher(topics.OBSERVER_AGE)
+        self.bias_pub = p.create_topic_publisher(topics.OBSERVER_BIAS)
         self.taus: list[np.ndarray] = []
         self.tau_stamps: list[int] = []
         self.refs: list[Odometry] = []
-        p.create_link_subscription(topics.TRAJECTORY_CORRECTED, self._on_tau)
-        p.create_link_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
+        p.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
+        p.create_topic_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
         LinkBus.of(context).connect()
         # Count every joystick sample the node's mode manager sees (accepted or not).
         self.joy_seen = 0
@@ -391,11 +391,11 @@ def test_dp_observer_rejects_jumps_and_dead_reckons(context, executor):
                                         parameter_overrides=overrides()))
     clock = SimClock(node)
     p = probe(context, executor, 'mocap')
-    pose_pub = p.create_link_publisher(topics.MOCAP_POSE)
+    pose_pub = p.create_topic_publisher(topics.MOCAP_POSE)
     odoms: list[Odometry] = []
     ages: list[float] = []
-    p.create_link_subscription(topics.OBSERVER_ODOMETRY, odoms.append)
-    p.create_link_subscription(topics.OBSERVER_AGE, lambda m: ages.append(m.data))
+    p.create_topic_subscription(topics.OBSERVER_ODOMETRY, odoms.append)
+    p.create_topic_subscription(topics.OBSERVER_AGE, lambda m: ages.append(m.data))
     LinkBus.of(context).connect()
 
     def pose(dt_s: float, eta: Any) -> None:
@@ -454,11 +454,11 @@ def test_azimuth_allocation(context, executor):
     node = add(executor, AzimuthAllocationNode(node_name='allocation', context=context,
                                                parameter_overrides=overrides()))
     p = probe(context, executor, 'controller')
-    pub = p.create_link_publisher(topics.TRAJECTORY_CORRECTED)
+    pub = p.create_topic_publisher(topics.FORCE_COMMAND)
     commands: list[JointState] = []
     delivered: list[WrenchStamped] = []
-    p.create_link_subscription(topics.AZIMUTH_COMMANDS, commands.append)
-    p.create_link_subscription(topics.ALLOCATION_DELIVERED, delivered.append)
+    p.create_topic_subscription(topics.AZIMUTH_COMMANDS, commands.append)
+    p.create_topic_subscription(topics.ALLOCATION_DELIVERED, delivered.append)
     LinkBus.of(context).connect()
 
     def send(tau: list[float], ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -524,9 +524,9 @@ def test_pwm_mapper_duties_watchdog_safe_state_and_refusals(context, executor, s
     assert node.channels == channels
     assert node.neutral and node.duty == pytest.approx(neutral)  # starts neutral
     p = probe(context, executor, 'allocation')
-    pub = p.create_link_publisher(topics.AZIMUTH_COMMANDS)
+    pub = p.create_topic_publisher(topics.AZIMUTH_COMMANDS)
     duties: list[JointState] = []
-    p.create_link_subscription(topics.PWM_DUTY, duties.append)
+    p.create_topic_subscription(topics.PWM_DUTY, duties.append)
     LinkBus.of(context).connect()
     c = node.calibration
 
@@ -589,9 +589,9 @@ def test_sim_arduino_round_trip_with_pwm_mapper(context, executor):
         node_name='arduino', context=context,
         parameter_overrides=overrides({'command_timeout': 10.0})))
     p = probe(context, executor, 'allocation')
-    pub = p.create_link_publisher(topics.AZIMUTH_COMMANDS)
+    pub = p.create_topic_publisher(topics.AZIMUTH_COMMANDS)
     applied: list[JointState] = []
-    p.create_link_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
+    p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
     LinkBus.of(context).connect()
     assert pwm.calibration == arduino.calibration
 
@@ -620,9 +620,9 @@ def test_sim_arduino_refuses_out_of_range_duties_and_watchdog(context, executor,
         node_name='arduino', context=context,
         parameter_overrides=overrides({'command_timeout': 0.1})))
     p = probe(context, executor, 'pwm')
-    pub = p.create_link_publisher(topics.PWM_DUTY)
+    pub = p.create_topic_publisher(topics.PWM_DUTY)
     applied: list[JointState] = []
-    p.create_link_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
+    p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
     LinkBus.of(context).connect()
     c = node.calibration
 
@@ -665,12 +665,12 @@ def test_saucer_simulator_and_sim_mocap(context, executor):
             Parameter('position_noise', value=0.002), Parameter('heading_noise', value=0.005)]))
     clock = SimClock(sim, mocap)
     p = probe(context, executor, 'arduino')
-    cmd_pub = p.create_link_publisher(topics.SIM_AZIMUTH_COMMAND)
+    cmd_pub = p.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
     truth: dict[int, Odometry] = {}
     poses: dict[int, PoseStamped] = {}
-    p.create_link_subscription(
+    p.create_topic_subscription(
         topics.SIM_ODOMETRY, lambda m: truth.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
-    p.create_link_subscription(
+    p.create_topic_subscription(
         topics.MOCAP_POSE, lambda m: poses.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
     LinkBus.of(context).connect()
     assert not sim._loops[0].running  # never started: stepped by hand
