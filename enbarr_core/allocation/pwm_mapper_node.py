@@ -18,23 +18,16 @@ from enbarr_interfaces import topics
 
 from enbarr_core.allocation.azimuth_params import declare_azimuths, declare_pwm
 from enbarr_core.framework.errors import ConfigurationError
-from enbarr_core.framework.node import CommandWatchdog, EnbarrNode
-from enbarr_core.framework.params import ParamSpec
-
-SPECS = [
-    ParamSpec('command_timeout', 0.25, 'Neutral when commands stop for this long', 's',
-              0.005, 10.0),
-]
+from enbarr_core.framework.driver import ActuatorDriver
 
 
-class PwmMapperNode(EnbarrNode):
+class PwmMapperNode(ActuatorDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'pwm', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
         self.neutral = True
-        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
-                                        'azimuth commands stopped: PWM neutral')
+        super().__init__(node_name, timeout_message='azimuth commands stopped: PWM neutral',
+                         **kwargs)
         specs = declare_azimuths(self)
         self.calibration = declare_pwm(self)
         for a in specs:
@@ -46,21 +39,12 @@ class PwmMapperNode(EnbarrNode):
         self.azimuths = [a.name for a in specs]
         self._index = {n: i for i, n in enumerate(self.azimuths)}
         self.channels = [f'{n}/{k}' for n in self.azimuths for k in ('motor', 'servo')]
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, lambda v: v, self._apply)
         self.duty: list[float] = []
         self.rejected = 0
         self._pub = self.create_topic_publisher(topics.PWM_DUTY)
         self.create_topic_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
         self.safe_state()
-
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
-        self.watchdog.set_timeout(v['command_timeout'])
-
-    @property
-    def timeouts(self) -> int:
-        return self.watchdog.timeouts
+        self.connect()
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort) or len(msg.name) != len(msg.position):
@@ -75,8 +59,7 @@ class PwmMapperNode(EnbarrNode):
                 return
             duty[2 * i] = c.thrust_to_duty(thrust)
             duty[2 * i + 1] = c.angle_to_duty(angle)
-        with self.watchdog.lock:
-            self.watchdog.fed()
+        with self.commanding():
             self._publish(duty, msg.header.stamp, neutral=False)
 
     def _publish(self, duty: list[float], stamp: Any, neutral: bool) -> None:
@@ -85,12 +68,11 @@ class PwmMapperNode(EnbarrNode):
         out.header.stamp = stamp
         self._pub.publish(out)
 
-    def safe_state(self) -> None:
-        """Every motor at its zero-thrust duty, every servo at 0 rad."""
-        with self.watchdog.lock:
-            self._neutral_locked()
+    def is_neutral(self) -> bool:
+        return self.neutral
 
-    def _neutral_locked(self) -> None:
+    def write_neutral(self) -> None:
+        """Every motor at its zero-thrust duty, every servo at 0 rad."""
         c = self.calibration
         self._publish([c.neutral_thrust_duty, c.neutral_angle_duty] * len(self.azimuths),
                       self.get_clock().now().to_msg(), neutral=True)

@@ -37,9 +37,9 @@ from enbarr_core.framework.params import ParamSpec, SettingsBinding
 
 S = TypeVar('S')
 
-#: Period of actuator watchdogs and other supervision timers [s]. Every executor wake-up costs
-#: about half a millisecond of CPU in rclpy whatever the callback does, so supervision runs at
-#: 10 Hz: a command timeout of 0.25 s trips within 0.35 s.
+#: Period of actuator watchdogs and other supervision timers [s] (``framework.driver``). Every
+#: executor wake-up costs about half a millisecond of CPU in rclpy whatever the callback does,
+#: so supervision runs at 10 Hz: a command timeout of 0.25 s trips within 0.35 s.
 WATCHDOG_PERIOD = 0.1
 
 
@@ -102,44 +102,6 @@ class RateLoop:
                 delay = deadline - time.monotonic()
             if delay > 0.0:
                 self._stop.wait(delay)
-
-
-class CommandWatchdog:
-    """Neutral when commands stop: the guard every actuator node shares.
-
-    The node applies each command with ``lock`` held and calls ``fed()``. Every
-    ``WATCHDOG_PERIOD`` the watchdog checks, under the same lock, whether the output is not
-    already neutral and no command came for ``timeout`` seconds; then it calls
-    ``go_neutral()`` (lock held), counts it in ``timeouts`` and logs ``message`` once.
-    Wall-clock (monotonic) time, like the watchdog of a real ESC or Arduino firmware.
-    """
-
-    def __init__(self, node: Node, is_neutral: Callable[[], bool],
-                 go_neutral: Callable[[], None], message: str) -> None:
-        self.lock = threading.Lock()
-        self.timeout_ns = 0
-        self.timeouts = 0
-        self._last_ns = 0
-        self._node = node
-        self._is_neutral = is_neutral
-        self._go_neutral = go_neutral
-        self._message = message
-        node.create_timer(WATCHDOG_PERIOD, self._check)
-
-    def set_timeout(self, seconds: float) -> None:
-        self.timeout_ns = int(seconds * 1e9)
-
-    def fed(self) -> None:
-        """A command was applied just now (call with ``lock`` held)."""
-        self._last_ns = time.monotonic_ns()
-
-    def _check(self) -> None:
-        with self.lock:
-            if self._is_neutral() or time.monotonic_ns() - self._last_ns <= self.timeout_ns:
-                return
-            self.timeouts += 1
-            self._go_neutral()
-        self._node.get_logger().warn(self._message)
 
 
 def sim_steps(time_ns: int, now_ns: int, period_ns: int,

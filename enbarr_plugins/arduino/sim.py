@@ -14,42 +14,26 @@ from sensor_msgs.msg import JointState
 
 from enbarr_core.allocation.azimuth_params import declare_azimuths, declare_pwm
 from enbarr_core.allocation.azimuth import PwmCalibration
-from enbarr_core.framework.node import CommandWatchdog, EnbarrNode, LatencyLog
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.driver import ActuatorDriver
+from enbarr_core.framework.node import LatencyLog
 from enbarr_interfaces import convert, topics
 
-SPECS = [
-    ParamSpec('command_timeout', 0.25, 'Neutral when duty cycles stop for this long', 's',
-              0.005, 10.0),
-]
-
-
-class SimArduinoNode(EnbarrNode):
+class SimArduinoNode(ActuatorDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'arduino', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
         self.neutral = True
-        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
-                                        'PWM input stopped: outputs neutral')
+        super().__init__(node_name, timeout_message='PWM input stopped: outputs neutral',
+                         **kwargs)
         self.names = [a.name for a in declare_azimuths(self)]
         self.calibration = declare_pwm(self)
         self._channels = {f'{n}/{k}': (i, k) for i, n in enumerate(self.names)
                           for k in ('motor', 'servo')}
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, lambda v: v, self._apply)
         self.refused = 0
         self.latency = LatencyLog()  # pose stamp -> duty cycles applied
         self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
-
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
-        self.watchdog.set_timeout(v['command_timeout'])
-
-    @property
-    def timeouts(self) -> int:
-        return self.watchdog.timeouts
+        self.connect()
 
     def _on_duty(self, msg: JointState) -> None:
         c = self.calibration
@@ -66,8 +50,7 @@ class SimArduinoNode(EnbarrNode):
                 thrust[i] = c.duty_to_thrust(duty)
             else:
                 angle[i] = c.duty_to_angle(duty)
-        with self.watchdog.lock:
-            self.watchdog.fed()
+        with self.commanding():
             self.neutral = not any(thrust)
             self._send(thrust, angle)
         if msg.header.stamp.sec:
@@ -79,7 +62,11 @@ class SimArduinoNode(EnbarrNode):
         out.header.stamp = self.get_clock().now().to_msg()
         self._pub.publish(out)
 
-    def _neutral_locked(self) -> None:
+    def is_neutral(self) -> bool:
+        return self.neutral
+
+    def write_neutral(self) -> None:
+        """Every motor at its neutral duty's thrust, every servo at its neutral angle."""
         self.neutral = True
         c = self.calibration
         self._send([c.duty_to_thrust(c.neutral_thrust_duty)] * len(self.names),

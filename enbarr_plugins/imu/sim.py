@@ -14,7 +14,7 @@ import numpy as np
 from sensor_msgs.msg import Imu, MagneticField
 
 from enbarr_core.framework.kinematics import quat_to_rotmat
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 
@@ -32,7 +32,7 @@ SPECS = [
 ]
 
 
-class SimImuNode(EnbarrNode):
+class SimImuNode(SensorDriver):
     """Publishes ``imu/mag`` then ``imu/data_raw`` for every ``sim/imu`` truth sample."""
 
     def __init__(self, node_name: str = 'imu', **kwargs: Any) -> None:
@@ -43,6 +43,7 @@ class SimImuNode(EnbarrNode):
         self._raw_pub = self.create_topic_publisher(topics.IMU_RAW)
         self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
         self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
+        self.connect()
 
     @staticmethod
     def _build(v: dict[str, Any]) -> dict[str, Any]:
@@ -83,3 +84,4 @@ class SimImuNode(EnbarrNode):
         raw.linear_acceleration_covariance[0] = raw.linear_acceleration_covariance[4] = \
             raw.linear_acceleration_covariance[8] = a2
         self._raw_pub.publish(raw)
+        self.sample_received()

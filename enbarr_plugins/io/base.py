@@ -13,12 +13,13 @@ from typing import Any
 
 from rcl_interfaces.msg import Parameter
 
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.driver import DeviceNode
 from enbarr_interfaces import convert, topics
 
 
-class IoPluginNode(EnbarrNode):
-    """Subclasses set ``executor_name`` and implement ``act(value) -> str | None`` (a refusal)."""
+class IoPluginNode(DeviceNode):
+    """Subclasses set ``executor_name``, implement ``act(value) -> str | None`` (a refusal)
+    and call ``connect()`` at the end of their ``__init__``."""
 
     executor_name: str = ''
 
@@ -41,7 +42,12 @@ class IoPluginNode(EnbarrNode):
             self.handled += 1
 
     def act(self, value: Any) -> str | None:
+        """Carry out one request addressed to this executor; return a refusal or None."""
         raise NotImplementedError
+
+    def status_values(self) -> dict[str, Any]:
+        return {'executor': self.executor_name, 'handled': self.handled,
+                'refused': self.refused}
 
     def publish_state(self, value: Any) -> None:
         self._state_pub.publish(Parameter(name=self.executor_name,

@@ -24,6 +24,7 @@ class SimGpioNode(IoPluginNode):
         v = self.bind_settings(SPECS, lambda v: v, lambda _: None).settings
         self.executor_name = f'gpio_{v["pin"]}'
         self.level = v['initial']
+        self.connect()
 
     def act(self, value: Any) -> str | None:
         if not isinstance(value, bool):

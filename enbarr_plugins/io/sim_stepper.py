@@ -35,6 +35,7 @@ class SimStepperNode(IoPluginNode):
         self.position = 0.0
         self.target = 0
         self.create_timer(1.0 / self.settings['update_rate'], self._move)
+        self.connect()
 
     @staticmethod
     def _build(v: dict[str, Any]) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import numpy as np
 from nav_msgs.msg import Odometry
 
 from enbarr_core.framework.kinematics import ssa
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 
@@ -30,7 +30,7 @@ SPECS = [
 ]
 
 
-class SimMocapNode(EnbarrNode):
+class SimMocapNode(SensorDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
@@ -45,6 +45,7 @@ class SimMocapNode(EnbarrNode):
         self.dropped = 0
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
+        self.connect()
 
     @staticmethod
     def _build(v: dict[str, Any]) -> dict[str, Any]:
@@ -53,6 +54,9 @@ class SimMocapNode(EnbarrNode):
             if len(w) % 2 or any(b <= a for a, b in zip(w[::2], w[1::2])):
                 raise ValueError('dropout_windows: expected pairs of start < end times')
         return v
+
+    def status_values(self) -> dict[str, Any]:
+        return {**super().status_values(), 'dropped': self.dropped}
 
     def _apply(self, v: dict[str, Any]) -> None:
         w = v['dropout_windows']
@@ -82,3 +86,4 @@ class SimMocapNode(EnbarrNode):
         convert.set_pose_eta(msg.pose, eta)
         self.published += 1
         self._pub.publish(msg)
+        self.sample_received()

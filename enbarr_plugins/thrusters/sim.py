@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from enbarr_core.framework.node import CommandWatchdog, EnbarrNode, LatencyLog
+from enbarr_core.framework.driver import ActuatorDriver
+from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.allocation.thruster_params import declare_thrusters
 from enbarr_interfaces import convert, topics
@@ -25,18 +26,16 @@ from enbarr_interfaces import convert, topics
 SPECS = [
     ParamSpec('time_constant', 0.05, 'First-order thrust response time constant', 's', 0.0,
               5.0),
-    ParamSpec('command_timeout', 0.25, 'Neutral when no command arrives for this long', 's',
-              0.005, 10.0),
 ]
 
 
-class SimThrustersNode(EnbarrNode):
+class SimThrustersNode(ActuatorDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.watchdog = CommandWatchdog(self, lambda: self.neutral, self._neutral_locked,
-                                        'thruster commands stopped: thrusters neutral')
+        self.neutral = True
+        super().__init__(node_name, timeout_message='thruster commands stopped: thrusters '
+                         'neutral', **kwargs)
         self.thrusters = declare_thrusters(self)
         self.names = [t.name for t in self.thrusters]
         self._index = {n: i for i, n in enumerate(self.names)}
@@ -47,23 +46,17 @@ class SimThrustersNode(EnbarrNode):
         self.latency = LatencyLog()  # IMU sample stamp -> command applied
         self.command = np.zeros(len(self.names))   # applied, normalized
         self.thrust = np.zeros(len(self.names))    # produced [N]
-        self.neutral = True
         self.refused = 0
         self.clipped = 0
         self._last_apply_ns: int | None = None
         self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
         self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
-        self.create_timer(1.0, self._report)
         self.safe_state()  # start neutral, also after a restart
+        self.connect()
 
     def _apply(self, v: dict[str, Any]) -> None:
         self.settings = v
-        self.watchdog.set_timeout(v['command_timeout'])
-
-    @property
-    def timeouts(self) -> int:
-        return self.watchdog.timeouts
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort):
@@ -83,8 +76,7 @@ class SimThrustersNode(EnbarrNode):
             np.clip(cmd, -1.0, 1.0, out=cmd)
         now = time.monotonic_ns()
         stamp_ns = self.get_clock().now().nanoseconds
-        with self.watchdog.lock:
-            self.watchdog.fed()
+        with self.commanding():
             self._output(cmd, now, stamp_ns)
         self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
 
@@ -113,15 +105,13 @@ class SimThrustersNode(EnbarrNode):
         thrust.header.frame_id = topics.BODY_FRAME
         self._thrust_pub.publish(thrust)
 
-    def safe_state(self) -> None:
-        """Command every thruster to neutral now (motor thrust cut, not ramped)."""
-        with self.watchdog.lock:
-            self._neutral_locked()
+    def is_neutral(self) -> bool:
+        return self.neutral
 
-    def _neutral_locked(self) -> None:
+    def write_neutral(self) -> None:
+        """Command every thruster to neutral now (motor thrust cut, not ramped)."""
         self.neutral = True
         self._output(np.zeros(len(self.names)), time.monotonic_ns())
 
-    def _report(self) -> None:
-        self.publish_diagnostics(0, 'neutral' if self.neutral else 'running', {
-            'refused': self.refused, 'clipped': self.clipped, 'timeouts': self.timeouts})
+    def status_values(self) -> dict[str, Any]:
+        return {**super().status_values(), 'refused': self.refused, 'clipped': self.clipped}
