@@ -1,12 +1,13 @@
 """Shared test setup: keep ROS traffic on this machine, in a private domain, and give node
-tests a private rclpy context and a bounded spin helper."""
+tests a private rclpy context and a bounded spin helper.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 
 # Before anything imports rclpy: never leave the machine, never meet another run.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -19,14 +20,18 @@ import itertools  # noqa: E402
 import pytest  # noqa: E402
 
 _domains = itertools.count(int(os.environ['ROS_DOMAIN_ID']))
+# Test runs side by side on one machine keep apart with ENBARR_TEST_DOMAINS=first-last.
+_first, _, _last = os.environ.get('ENBARR_TEST_DOMAINS', '1-100').partition('-')
+_DOMAIN_FIRST, _DOMAIN_COUNT = int(_first), int(_last) - int(_first) + 1
 
 
 @pytest.fixture(autouse=True)
 def private_domain(monkeypatch: pytest.MonkeyPatch) -> str:
     """A fresh ROS_DOMAIN_ID (1..100) for every test and the processes it starts: a test
     that SIGKILLs a run leaves DDS participants (and shared-memory ports) behind until their
-    leases expire, and the next test must not meet them."""
-    domain = str(1 + next(_domains) % 100)
+    leases expire, and the next test must not meet them.
+    """
+    domain = str(_DOMAIN_FIRST + next(_domains) % _DOMAIN_COUNT)
     monkeypatch.setenv('ROS_DOMAIN_ID', domain)
     return domain
 
@@ -60,7 +65,8 @@ def executor(context: object) -> Iterator[object]:
 
 def spin_until(executor: object, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
     """Spin ``executor`` until ``condition()`` holds or ``timeout`` [s] passes (never a fixed
-    sleep: cross-process discovery alone can take 2.5 s)."""
+    sleep: cross-process discovery alone can take 2.5 s).
+    """
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if condition():

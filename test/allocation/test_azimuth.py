@@ -18,8 +18,8 @@ from enbarr_core.allocation.azimuth import (
     PwmCalibration,
     extended_allocation_matrix,
 )
-from enbarr_core.models.vessel3dof import AzimuthSpec, azimuth_tau
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
+from enbarr_core.models.vessel3dof import AzimuthSpec, azimuth_tau
 
 RADIUS = 0.1375                 # [m] Saucer azimuth radius of the profile (not in the manual)
 A_LIM = math.radians(114.0)     # servo travel +/-114 deg (CS Saucer manual Table 1.1)
@@ -29,7 +29,8 @@ LAMBDA = 1e-6                   # thrust regularization of the SLSQP reference
 
 def saucer_specs(**overrides) -> list[AzimuthSpec]:
     """Three azimuths at 90, 210, 330 deg around the centre. Time constant and slew rate are
-    assumed values (not in the manual); they do not matter to the allocator."""
+    assumed values (not in the manual); they do not matter to the allocator.
+    """
     kw = dict(max_forward=F_FWD, max_reverse=F_REV, angle_min=-A_LIM, angle_max=A_LIM,
               time_constant=0.1, max_angle_rate=3.0)
     kw.update(overrides)
@@ -98,7 +99,7 @@ def random_directions(rng: np.random.Generator, count: int) -> np.ndarray:
 
 
 def unsaturated_ratio(alloc: AzimuthAllocator, tau: np.ndarray) -> float:
-    """max |T_i| / limit_i of the least-norm solution (before any scaling)."""
+    """Max |T_i| / limit_i of the least-norm solution (before any scaling)."""
     f = (alloc.B_pinv @ tau).reshape(-1, 2)
     m = np.hypot(f[:, 0], f[:, 1])
     # The representation chosen without a previous angle is positive thrust when possible.
@@ -139,7 +140,7 @@ def test_attainable_tau_matches_slsqp_with_least_thrust():
 
 
 def test_weighted_least_norm_matches_kkt():
-    """min sum w_i (f_xi^2 + f_yi^2) s.t. B_ext f = tau, from its KKT equations."""
+    """Min sum w_i (f_xi^2 + f_yi^2) s.t. B_ext f = tau, from its KKT equations."""
     weights = [1.0, 4.0, 0.5]
     alloc = AzimuthAllocator(saucer_specs(), weights=weights)
     B = extended_allocation_matrix(POS)

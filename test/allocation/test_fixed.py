@@ -11,8 +11,8 @@ from scipy.optimize import linprog, lsq_linear
 from enbarr_core.allocation.fixed import (
     DOF_NAMES,
     AllocationResult,
-    Thruster,
     ThrustAllocator,
+    Thruster,
     allocation_matrix,
 )
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
@@ -93,7 +93,7 @@ def test_unsaturated_equals_lstsq_minimum_norm():
 
 
 def test_weighted_solution_matches_kkt_system():
-    """min f^T W f s.t. B f = tau, solved independently from its KKT equations."""
+    """Min f^T W f s.t. B f = tau, solved independently from its KKT equations."""
     weights = [1.0, 2.0, 0.5, 1.0, 3.0, 1.0, 1.0, 0.25]
     alloc = ThrustAllocator(vectored_8(), weights=weights)
     B = allocation_matrix(vectored_8())

@@ -8,10 +8,10 @@ parameter names, values, types and the thruster geometry are all checked here.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 

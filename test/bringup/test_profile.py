@@ -6,14 +6,14 @@ checked for the file, the key path and what was expected.
 
 from __future__ import annotations
 
-from pathlib import Path
 import textwrap
+from pathlib import Path
 
 import pytest
 
 from enbarr_core.bringup import profile as profiles
-from enbarr_core.framework.errors import ProfileError
 from enbarr_core.bringup.profile import load_profile
+from enbarr_core.framework.errors import ProfileError
 
 # where the bare name resolves (the source tree here, share/enbarr/params when installed)
 SIM = str(profiles.resolve_profile('enbarr_sim'))
@@ -146,7 +146,8 @@ def test_include_overrides_parameter_swaps_plugin_and_disables_node(
 
 def test_include_chain_of_installed_profiles(tmp_path: Path) -> None:
     """A vessel profile including the shipped simulation by its bare name, which itself
-    includes core.yaml; the grandchild overrides a core parameter."""
+    includes core.yaml; the grandchild overrides a core parameter.
+    """
     child = write(tmp_path / 'mine.yaml', """
         include: [enbarr_sim]
         nodes:

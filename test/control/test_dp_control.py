@@ -14,18 +14,17 @@ import math
 import control
 import numpy as np
 import pytest
+from support import saucer_plant
+from support.saucer_plant import DT, NOISE, D, M, rot, wrap
 
 from enbarr_core.control.dp_control import (
-    DpControlSettings,
     DpController,
+    DpControlSettings,
     DpOutput,
     saucer_dp_settings,
 )
 from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
 from enbarr_core.guidance.guidance import HoldPose, Reference
-
-from support.saucer_plant import D, DT, M, NOISE, rot, wrap
-from support import saucer_plant
 
 B_WORLD = np.array([0.4, -0.3, 0.03])                 # current-like world bias [N, N, N m]
 
@@ -120,7 +119,8 @@ def test_station_keeping_with_observer_and_noise():
 
 def test_world_frame_integral_keeps_compensating_while_turning():
     """Integral (no bias feed-forward) converged at psi = 0; the heading setpoint then turns
-    90 deg: the integral, stored in the world frame, still points against the world bias."""
+    90 deg: the integral, stored in the world frame, still points against the world bias.
+    """
     s = settings(bias_feedforward=False)
     ctl = DpController(s)
     _, xs, _ = run_truth(ctl, np.zeros(3), 120.0, np.zeros(6))
@@ -139,7 +139,8 @@ def test_world_frame_integral_keeps_compensating_while_turning():
 def test_anti_windup_limits_overshoot_after_a_long_saturation():
     """A 4 m setpoint step in surge: tau_max saturates for ~10 s. A plain PID (same gains,
     integral of the error, output clipped) winds up and overshoots; ours does not (it only
-    integrates once the output leaves the limit, like any PID)."""
+    integrates once the output leaves the limit, like any PID).
+    """
     s = settings(bias_feedforward=False)
     kp, ki, kd, tm = (np.asarray(v) for v in (s.Kp, s.Ki, s.Kd, s.tau_max))
     eta_d = np.array([4.0, 0.0, 0.0])
@@ -271,7 +272,8 @@ def test_lowering_the_integral_limit_is_ramped_too():
 
 def test_bumpless_reset_first_output_equals_tau_now():
     """Manual mode pushes with 1.2 N surge, 0.4 N sway, 0.05 N m; the operator switches to
-    automatic holding the pose of that moment."""
+    automatic holding the pose of that moment.
+    """
     s = settings()
     ctl = DpController(s)
     x = np.zeros(6)
@@ -357,7 +359,8 @@ def test_linearized_closed_loop_per_dof_matches_python_control(dof):
         x / x_d = (Kp s + Ki) / (M s^3 + (D + Kd) s^2 + Kp s + Ki)
 
     python-control gives poles (all in the left half plane) and the step response; the
-    simulated loop (controller at 100 Hz, linear plant: no D_n, no limits) follows it."""
+    simulated loop (controller at 100 Hz, linear plant: no D_n, no limits) follows it.
+    """
     s = settings(tau_max=(math.inf,) * 3, integral_limit=(math.inf,) * 3,
                  Dn=(0.0, 0.0, 0.0), bias_feedforward=False)
     m, d = M[dof, dof], D[dof, dof]
@@ -430,7 +433,8 @@ def test_output_arrays_are_fresh():
 def test_masked_integral_bleeds_off_after_bumpless_entry():
     """Entering line-of-sight guidance bumplessly leaves a force in the integral; a DOF
     tracked by velocity only (mask False) cannot integrate it back, so it must bleed off
-    over gain_ramp_time instead of biasing the whole leg."""
+    over gain_ramp_time instead of biasing the whole leg.
+    """
     from enbarr_core.control.dp_control import DpController, saucer_dp_settings
     from enbarr_core.guidance.guidance import Reference
     ctrl = DpController(saucer_dp_settings())

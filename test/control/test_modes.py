@@ -1,5 +1,6 @@
 """Operator modes of the CS Saucer (``enbarr_core.control.modes``): the DualShock 4 rules,
-as pure functions of joystick samples, time and estimator health (no ROS)."""
+as pure functions of joystick samples, time and estimator health (no ROS).
+"""
 
 from __future__ import annotations
 

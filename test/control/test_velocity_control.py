@@ -47,7 +47,7 @@ class LinearPlant:
 
 
 def quadratic_plant_step(v, tau, m, d_lin, d_quad, dt, substeps=20):
-    """m v_dot = tau - d_lin v - d_quad |v| v, RK4 with the input held over dt."""
+    """M v_dot = tau - d_lin v - d_quad |v| v, RK4 with the input held over dt."""
     def f(x):
         return (tau - d_lin * x - d_quad * np.abs(x) * x) / m
     h = dt / substeps

@@ -1,18 +1,18 @@
 """End-to-end tier: whole profiles run as users run them (a real process tree), checked
-through the bag they record."""
+through the bag they record.
+"""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
-
 from support.bags import read_bag, stamp
 
 ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']

@@ -1,10 +1,10 @@
 """Process groups: a profile split over processes, supervised by bringup (a real process
-tree), and the ROS 2 workspace path (colcon build + ``ros2 run`` resolution)."""
+tree), and the ROS 2 workspace path (colcon build + ``ros2 run`` resolution).
+"""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 import re
 import shutil
 import signal
@@ -12,9 +12,9 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
-
 from support.bags import read_bag
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,16 +1,16 @@
 """End-to-end tier for the CS Saucer: the named scenarios run headless on simulated time
 (``enbarr scenario``), judged by their metrics against the targets of the issue, and the
-profiles run and validated as users run them."""
+profiles run and validated as users run them.
+"""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 from typing import Any
-
 
 from support.bags import read_bag
 

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 import pytest
+from support import saucer_plant
+from support.saucer_plant import DT, NOISE, rot, wrap
 
 from enbarr_core.estimation.dp_observer import (
     ObserverEstimate,
@@ -21,9 +23,6 @@ from enbarr_core.estimation.dp_observer import (
     place_observer_gains,
     saucer_observer_settings,
 )
-
-from support.saucer_plant import DT, NOISE, rot, wrap
-from support import saucer_plant
 
 B_WORLD = np.array([0.3, -0.2, 0.02])              # constant world force bias [N, N, N m]
 
@@ -99,7 +98,8 @@ def test_estimates_converge_with_noise_and_a_world_bias():
 
 def test_noise_free_error_converges_to_zero_exponentially():
     """T_b = inf (pure bias integrator): the whole error (pose, velocity, bias) decays
-    exponentially to the O(dt^2) floor of the 50 Hz discretization."""
+    exponentially to the O(dt^2) floor of the 50 Hz discretization.
+    """
     settings = dataclasses.replace(saucer_observer_settings(), T_b=(math.inf,) * 3)
     obs = PassiveObserver(settings)
     x = np.array([0.5, -0.3, 0.4, 0.0, 0.0, 0.0])
@@ -198,7 +198,8 @@ def test_implausible_jump_is_rejected_counted_and_treated_as_a_dropout():
 def test_consistent_offset_after_long_dropout_reinitializes():
     """During a 20 s dropout the vessel is pushed by a force the observer does not know; the
     dead-reckoned estimate drifts more than max_position_jump. The returning (good) poses are
-    rejected for stale_after, then the estimate re-initializes from them."""
+    rejected for stale_after, then the estimate re-initializes from them.
+    """
     obs, x, t, _, rng = converged_observer(30.0)
     push = np.array([1.5, -1.0, 0.0])
     for _ in range(int(20.0 / DT)):

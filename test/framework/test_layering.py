@@ -1,7 +1,8 @@
 """Algorithms know nothing of ROS: every module of the algorithm folders (estimation,
 control, guidance, allocation, models) except the nodes (``*_node.py``) and their parameter
 declarations (``*_params.py``), and the framework's maths and the bag format, imports with
-rclpy made unimportable."""
+rclpy made unimportable.
+"""
 
 from __future__ import annotations
 

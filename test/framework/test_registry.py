@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -53,7 +53,7 @@ def env_with(*paths: Path) -> dict[str, str]:
     return env
 
 
-PROBE = textwrap.dedent('''
+PROBE = textwrap.dedent("""
     import json, sys
     from enbarr_core.framework import registry
     from enbarr_core.framework.errors import RegistryError
@@ -72,7 +72,7 @@ PROBE = textwrap.dedent('''
     except RegistryError as err:
         out['resolve_error'] = str(err)
     print(json.dumps(out))
-''')
+""")
 
 
 def probe(site: Path, name: str) -> dict:
@@ -126,7 +126,7 @@ def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
     assert out['is_enbarr_node'] is True
 
     prof = site / 'mine.yaml'
-    prof.write_text(textwrap.dedent('''
+    prof.write_text(textwrap.dedent("""
         profile: mine
         nodes:
           mine:
@@ -134,7 +134,7 @@ def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
             parameters: {gain: 2.5}
           imu:
             plugin: sim_imu
-        '''))
+        """))
     cli = [sys.executable, '-m', 'enbarr_core.bringup.cli']
     r = subprocess.run([*cli, 'bringup', '--profile', str(prof), '--check'],
                        env=env_with(site), cwd=tmp_path, capture_output=True, text=True,

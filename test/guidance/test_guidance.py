@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 import pytest
+from support import saucer_plant
+from support.saucer_plant import DT, NOISE, rot, wrap
 
 from enbarr_core.control.dp_control import DpController, saucer_dp_settings
 from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
@@ -22,9 +24,6 @@ from enbarr_core.guidance.guidance import (
     Reference,
     trapezoid,
 )
-
-from support.saucer_plant import DT, NOISE, rot, wrap
-from support import saucer_plant
 
 B_WORLD = np.array([0.25, -0.15, 0.02])               # current-like world bias [N, N, N m]
 
@@ -95,11 +94,13 @@ def test_los_cross_track_sign_and_course():
 
 def test_los_feed_forward_matches_finite_differences():
     """A kinematic vessel that flies the LOS velocity and heading exactly: nu_d changes at the
-    rate nu_d_dot says, and chi_d at the rate r_d says."""
+    rate nu_d_dot says, and chi_d at the rate r_d says.
+    """
     los = LosPath([(0.0, 0.0), (30.0, 5.0)], speed=0.3, lookahead=0.8, acceptance_radius=0.1)
     dt = 1e-3
     p, psi = np.array([1.0, 2.0]), 0.3
     prev = None
+    e0 = math.inf
     for k in range(3000):
         ref = los.reference([p[0], p[1], psi], dt)
         if k >= 2:  # after the first call the heading jumps from 0.3 to chi_d
@@ -111,7 +112,8 @@ def test_los_feed_forward_matches_finite_differences():
         p = p + v_world * dt
         psi = ref.eta_d[2]                # heading = course (one step late: r ~ r_d)
         prev = ref
-        e0 = ref.cross_track if k == 0 else e0
+        if k == 0:
+            e0 = ref.cross_track
     assert 0.0 < ref.cross_track < 0.7 * e0   # converging onto the path from its left
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.models.vessel3dof import (
     CS_SAUCER,
     SERVO_LIMIT,
@@ -17,7 +18,6 @@ from enbarr_core.models.vessel3dof import (
     Vessel3DofParams,
     azimuth_tau,
 )
-from enbarr_core.framework.errors import ConfigurationError
 
 # The manual's numbers typed again here (CS Saucer manual eqs. 1.2-1.5), not taken from the
 # module, so that a typo in CS_SAUCER fails the tests.
@@ -30,7 +30,8 @@ RADIUS = 0.1375  # [m] Saucer azimuth radius of the Enbarr profile (not in the m
 
 def saucer_specs(**overrides) -> list[AzimuthSpec]:
     """Three azimuths at 90, 210, 330 deg; +/-114 deg travel (manual Table 1.1). Thrust limits,
-    time constant and slew rate are assumed (the manual does not give them)."""
+    time constant and slew rate are assumed (the manual does not give them).
+    """
     kw = dict(max_forward=1.5, max_reverse=1.0, angle_min=-math.radians(114.0),
               angle_max=math.radians(114.0), time_constant=0.1, max_angle_rate=3.0)
     kw.update(overrides)
@@ -197,7 +198,7 @@ def test_steady_surge_speed_closed_form(X):
 
 
 def test_current_carries_the_vessel_along():
-    """tau = 0: the relative velocity decays, the world velocity tends to the current."""
+    """Tau = 0: the relative velocity decays, the world velocity tends to the current."""
     model = Vessel3Dof(CS_SAUCER)
     current = (0.1, -0.05)
     eta, nu = np.array([0.0, 0.0, 0.3]), np.zeros(3)

@@ -6,15 +6,15 @@ import os
 import subprocess
 import sys
 
-from geometry_msgs.msg import TwistStamped
 import pytest
+from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_interfaces import convert, topics
-from enbarr_plugins.operator.keyboard import apply_key, KeyboardTeleopNode, KeyState
+from enbarr_plugins.operator.keyboard import KeyboardTeleopNode, KeyState, apply_key
 
 
 def test_keys_step_and_saturate():

@@ -8,27 +8,27 @@ with three independent readers: ``rosbags`` (the whole bag through ``metadata.ya
 from __future__ import annotations
 
 import os
-from pathlib import Path
 import signal
 import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 from typing import Any
 
+import pytest
+import yaml
 from geometry_msgs.msg import WrenchStamped
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader
-from rosbags.typesys import get_typestore, Stores
+from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Imu, JointState
-import yaml
 
-from enbarr_core.recording.bag import SegmentedBagWriter
 from enbarr_core.framework.errors import RecorderError
+from enbarr_core.recording.bag import SegmentedBagWriter
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T0 = 1_700_000_000_000_000_000  # ns
@@ -191,7 +191,7 @@ def test_segments_roll_over_by_time(tmp_path: Path) -> None:
     assert metadata(bag)['message_count'] == 6
 
 
-CHILD = textwrap.dedent('''
+CHILD = textwrap.dedent("""
     import sys, time
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState
@@ -209,12 +209,13 @@ CHILD = textwrap.dedent('''
                          serialize_message(js))
         i += 1
         time.sleep(0.0005)
-''')
+""")
 
 
 def _frozen_mid_segment(bag: Path) -> bool:
     """True when >= 3 segments are listed and the next one is being written (checked while
-    the writer is stopped, so what is seen is what the kill leaves)."""
+    the writer is stopped, so what is seen is what the kill leaves).
+    """
     try:
         listed = metadata(bag)['relative_file_paths']
     except (FileNotFoundError, KeyError, TypeError, yaml.YAMLError):
@@ -359,7 +360,8 @@ def test_topic_changing_type_is_refused_within_and_across_segments(tmp_path: Pat
 def test_malformed_payload_is_a_recorder_error(tmp_path: Path) -> None:
     """Bytes that are not the named type (e.g. a peer with another definition) must be a
     RecorderError, which the recorder counts as dropped, not any exception that would end
-    its writer thread; and nothing half-written is left behind."""
+    its writer thread; and nothing half-written is left behind.
+    """
     bag = tmp_path / 'malformed'
     writer = SegmentedBagWriter(bag)
     for bad in (b'', b'\x00\x01', b'\x00\x01\x00\x00\x01\x02', serialize_message(Imu())[:30]):

@@ -1,6 +1,7 @@
 """The CS Saucer written out once more for the algorithm tests, independently of
 ``enbarr_core.models.vessel3dof``: manual section 1.4, RK4 with tau and a world bias
-held over a step. State x = [x, y, psi, u, v, r]."""
+held over a step. State x = [x, y, psi, u, v, r].
+"""
 
 from __future__ import annotations
 
