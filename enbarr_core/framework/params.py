@@ -6,6 +6,23 @@ not fit together). ``declare_settings`` declares them with a ``ParameterDescript
 (description, units, range), refuses any ``set_parameters`` (what ``ros2 param set`` calls)
 whose result ``build`` rejects, with the reason and the old value kept, and otherwise swaps
 the new settings object into the node with ``apply`` after the set succeeded.
+
+The one pattern every node follows::
+
+    SPECS = [ParamSpec('time_constant', 0.05, 'Motor lag', 's', 0.0, 5.0), ...]
+
+    @dataclass(frozen=True)
+    class SimThrustersSettings:
+        time_constant: float  # [s]
+
+        @classmethod
+        def from_params(cls, v: Mapping[str, Any]) -> SimThrustersSettings:
+            return cls(time_constant=v['time_constant'])   # ValueError with a reason
+
+    # in the node's __init__:
+    self.bind_settings(SPECS, SimThrustersSettings.from_params, self._apply)
+
+and the node reads typed attributes (``self.settings.time_constant``), never string keys.
 """
 
 from __future__ import annotations

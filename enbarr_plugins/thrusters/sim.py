@@ -10,6 +10,8 @@ counted; a command with NaN/Inf or an unknown thruster name is refused and count
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 import time
 from typing import Any
@@ -29,6 +31,18 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SimThrustersSettings:
+    """Settings of ``SimThrustersNode`` (see ``SPECS``)."""
+
+    time_constant: float  # [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimThrustersSettings:
+        """Build from the declared parameters' values."""
+        return cls(time_constant=v['time_constant'])
+
+
 class SimThrustersNode(ActuatorDriver):
     """See the module docstring."""
 
@@ -41,8 +55,8 @@ class SimThrustersNode(ActuatorDriver):
         self._index = {n: i for i, n in enumerate(self.names)}
         self._fwd = np.array([t.max_forward for t in self.thrusters])
         self._rev = np.array([t.max_reverse for t in self.thrusters])
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, lambda v: v, self._apply)
+        self.settings: SimThrustersSettings
+        self.bind_settings(SPECS, SimThrustersSettings.from_params, self._apply)
         self.latency = LatencyLog()  # IMU sample stamp -> command applied
         self.command = np.zeros(len(self.names))   # applied, normalized
         self.thrust = np.zeros(len(self.names))    # produced [N]
@@ -55,8 +69,8 @@ class SimThrustersNode(ActuatorDriver):
         self.safe_state()  # start neutral, also after a restart
         self.connect()
 
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
+    def _apply(self, settings: SimThrustersSettings) -> None:
+        self.settings = settings
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort):
@@ -84,7 +98,7 @@ class SimThrustersNode(ActuatorDriver):
         """Apply ``cmd`` (normalized) at monotonic ``now_ns``, stamped with the node clock's
         ``stamp_ns`` (read now when not given); caller holds the lock."""
         target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
-        tc = self.settings['time_constant']
+        tc = self.settings.time_constant
         last, self._last_apply_ns = self._last_apply_ns, now_ns
         if tc > 0.0 and last is not None and not self.neutral:
             # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
