@@ -23,7 +23,7 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import Imu, JointState, Joy, MagneticField
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 
 #: Commands and events: nothing may be lost, a short queue.
 COMMAND_QOS = QoSProfile(
@@ -147,9 +147,13 @@ ALLOCATION_DELIVERED = TopicSpec(
     'allocation/delivered', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
     'Force the allocation can deliver (less than asked when saturated).', fast=True)
 PWM_DUTY = TopicSpec(
-    'pwm/duty_cycle', JointState, SENSOR_QOS, 'effort: duty cycle %', '',
-    'PWM duty cycle per channel (name: <azimuth>/motor, <azimuth>/servo), 4.3..9.4 %.',
-    fast=True)
+    'pwm/duty_cycle', Float64MultiArray, SENSOR_QOS, 'duty cycle %', '',
+    'PWM duty cycle per channel, data[i] for channel i: <azimuth>/motor, <azimuth>/servo for '
+    'each azimuth in azimuth_names order (also the output order of the Arduino); '
+    'layout.dim[0]: label duty_cycle_percent, size = stride = number of channels. Within '
+    'pwm.duty_min_percent .. pwm.duty_max_percent of the profile.', fast=True)
+PWM_DUTY_LABEL = 'duty_cycle_percent'
+"""``layout.dim[0].label`` of a ``PWM_DUTY`` message: what its ``data`` holds."""
 SIM_AZIMUTH_COMMAND = TopicSpec(
     'sim/azimuth_command', JointState, SENSOR_QOS, 'effort N, position rad', BODY_FRAME,
     'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)

@@ -1,4 +1,4 @@
-"""Azimuth thrust allocation and the PWM calibration of the CS Saucer (Fossen 2021, ch. 11).
+"""Azimuth thrust allocation and the PWM calibration of an azimuth (Fossen 2021, ch. 11).
 
 Extended thrust formulation (Fossen 2021, ch. 11): azimuth i at (x_i, y_i) [m] with thrust
 T_i along angle a_i is written as two orthogonal forces f_xi = T_i cos a_i, f_yi = T_i sin a_i,
@@ -20,21 +20,19 @@ import bisect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from enbarr_core.models.vessel3dof import AzimuthSpec, _floats, _tau_xyn
+from enbarr_core.allocation.least_norm import check_weights, unreachable_rows, weighted_pinv
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
+from enbarr_core.models.vessel3dof import AzimuthSpec, _floats, _tau_xyn
 
 Vector = NDArray[np.float64]
 
 DOF_NAMES_3: tuple[str, str, str] = ('surge', 'sway', 'yaw')
 """Names of the three degrees of freedom, in the order of tau = [X, Y, N]."""
-
-_RANK_RTOL = 1e-9
-"""Singular values below this fraction of the largest one count as zero."""
 
 _ZERO_FORCE = 1e-9
 """Force pairs below this fraction of the smallest thrust limit count as zero thrust [-]."""
@@ -85,21 +83,13 @@ class AzimuthAllocator:
                     f'azimuth {s.name!r}: angle_max - angle_min must be >= pi rad (180 deg) '
                     f'for the allocator, got {s.angle_max - s.angle_min:.4f} rad',
                     parameter='angle_min')
-        if weights is None:
-            w = np.ones(n)
-        else:
-            w = np.asarray(weights, dtype=float).reshape(-1)
-            if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w <= 0.0):
-                raise ConfigurationError(
-                    f'weights must be {n} positive finite numbers (one per azimuth), '
-                    f'got {list(weights)}', parameter='weights')
+        w = check_weights(weights, n, 'azimuth')
 
         positions = np.array([s.position for s in self.specs])
         B = extended_allocation_matrix(positions)
         self._check_reachable(B, names)
-        # B^+ = W^-1 B^T (B W^-1 B^T)^-1 = W^-1/2 pinv(B W^-1/2), W = diag(w_i, w_i per pair)
-        w_isqrt = np.repeat(1.0 / np.sqrt(w), 2)
-        B_pinv = w_isqrt[:, None] * np.linalg.pinv(B * w_isqrt[None, :])
+        # B^+ = W^-1 B^T (B W^-1 B^T)^-1, W = diag(w_i, w_i per pair)
+        B_pinv = weighted_pinv(B, np.repeat(w, 2))
         for a in (positions, B, B_pinv, w):
             a.setflags(write=False)
         self.positions: Vector = positions
@@ -119,14 +109,10 @@ class AzimuthAllocator:
     @staticmethod
     def _check_reachable(B: Vector, names: list[str]) -> None:
         """Raise AllocationError unless rank(B_ext) == 3, naming the DOFs outside its range."""
-        U, s, _ = np.linalg.svd(B)
-        tol = _RANK_RTOL * (s[0] if s.size and s[0] > 0.0 else 1.0)
-        rank = int(np.count_nonzero(s > tol))
+        rank, rows = unreachable_rows(B)
         if rank == 3:
             return
-        U_r = U[:, :rank]
-        residual = 1.0 - np.sum(U_r * U_r, axis=1)  # |(I - U_r U_r^T) e_j|^2
-        missing = [DOF_NAMES_3[j] for j in range(3) if residual[j] > 1e-6]
+        missing = [DOF_NAMES_3[j] for j in rows]
         raise AllocationError(
             f'azimuth layout [{", ".join(names)}] cannot produce {", ".join(missing)} '
             f'(rank {rank} of 3 DOFs surge, sway, yaw); '
@@ -221,11 +207,12 @@ def _interp(x: float, xp: Sequence[float], fp: Sequence[float], right: bool) -> 
 
 @dataclass(frozen=True)
 class PwmCalibration:
-    """Thrust and servo-angle maps to the Arduino PWM duty cycle [%] of one azimuth.
+    """Thrust and servo-angle maps to the PWM duty cycle [%] of one azimuth.
 
-    The Arduino Mega drives the Torpedo 800 motor drives and the servos with duty cycles
-    between 4.3 % and 9.4 % (CS Saucer manual Table 1.1). Both tables are measured per
-    thruster (the manual gives no thrust curve) and interpolated linearly:
+    The PWM board accepts duties in [``duty_min_percent``, ``duty_max_percent``] (a vessel
+    profile gives them: the CS Saucer's Arduino Mega drives its Torpedo 800 motor drives and
+    servos between 4.3 % and 9.4 %, manual Table 1.1). Both tables are measured per thruster
+    and interpolated linearly:
 
     - thrust: ``thrust_duty_percent`` strictly increasing, ``thrust_newton`` [N] non-decreasing
       and containing 0; a dead band of several 0 N entries is allowed and the neutral duty is
@@ -234,28 +221,42 @@ class PwmCalibration:
       angle 0 (the neutral duty); it should cover the servo's [angle_min, angle_max]
       (``check_covers``).
 
-    Construction validates (ValueError naming the table and the index).
+    Every duty of the tables lies within the duty limits. Construction validates (ValueError
+    naming the field, and the index in a table).
     """
-
-    DUTY_MIN: ClassVar[float] = 4.3  # [%] CS Saucer manual Table 1.1
-    DUTY_MAX: ClassVar[float] = 9.4  # [%] CS Saucer manual Table 1.1
 
     thrust_duty_percent: tuple[float, ...]
     thrust_newton: tuple[float, ...]
     angle_duty_percent: tuple[float, ...]
     angle_rad: tuple[float, ...]
+    duty_min_percent: float  # [%] lowest duty the PWM board accepts
+    duty_max_percent: float  # [%] highest duty the PWM board accepts
     _zero: tuple[int, int] = field(init=False, repr=False, compare=False, default=(0, 0))
 
+    _TABLES = ('thrust_duty_percent', 'thrust_newton', 'angle_duty_percent', 'angle_rad')
+
     def __post_init__(self) -> None:
-        for f in fields(self):
-            if f.init:
-                object.__setattr__(self, f.name, _table(f.name, getattr(self, f.name)))
+        for name in self._TABLES:
+            object.__setattr__(self, name, _table(name, getattr(self, name)))
+        for name in ('duty_min_percent', 'duty_max_percent'):
+            value = getattr(self, name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f'{name}: expected a number, got {value!r}') from None
+            if not 0.0 <= value <= 100.0:
+                raise ValueError(f'{name}: expected a duty cycle in [0, 100] %, got {value}')
+            object.__setattr__(self, name, value)
+        if not self.duty_min_percent < self.duty_max_percent:
+            raise ValueError(f'duty_max_percent: must be above duty_min_percent '
+                             f'({self.duty_min_percent} %), got {self.duty_max_percent} %')
         self.validate()
         zeros = [i for i, t in enumerate(self.thrust_newton) if t == 0.0]
         object.__setattr__(self, '_zero', (zeros[0], zeros[-1]))
 
     def validate(self) -> None:
         """Raise ValueError naming the table (and index) if a table is unusable."""
+        lo, hi = self.duty_min_percent, self.duty_max_percent
         for duty, values in (('thrust_duty_percent', 'thrust_newton'),
                              ('angle_duty_percent', 'angle_rad')):
             d = _table(duty, getattr(self, duty))
@@ -265,10 +266,10 @@ class PwmCalibration:
             if len(v) != len(d):
                 raise ValueError(f'{values}: {len(v)} entries but {duty} has {len(d)}')
             for i, c in enumerate(d):
-                if not self.DUTY_MIN <= c <= self.DUTY_MAX:
+                if not lo <= c <= hi:
                     raise ValueError(
-                        f'{duty}[{i}]: {c} % is outside the Arduino PWM range '
-                        f'[{self.DUTY_MIN}, {self.DUTY_MAX}] % (CS Saucer manual Table 1.1)')
+                        f'{duty}[{i}]: {c} % is outside the PWM range [{lo}, {hi}] % '
+                        '(duty_min_percent, duty_max_percent)')
                 if i and c <= d[i - 1]:
                     raise ValueError(f'{duty}[{i}]: must be strictly increasing, '
                                      f'got {c} after {d[i - 1]}')
@@ -285,9 +286,13 @@ class PwmCalibration:
             raise ValueError('angle_rad: must span angle 0 (the neutral duty), got '
                              f'[{self.angle_rad[0]}, {self.angle_rad[-1]}]')
 
+    def accepts(self, duty: float) -> bool:
+        """Return whether ``duty`` [%] is finite and within the PWM board's limits."""
+        return math.isfinite(duty) and self.duty_min_percent <= duty <= self.duty_max_percent
+
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any]) -> PwmCalibration:
-        """Build and validate from a mapping whose keys are the four table names."""
+        """Build and validate from a mapping whose keys are the field names."""
         names = [f.name for f in fields(cls) if f.init]
         unknown = sorted(str(k) for k in set(d) - set(names))
         if unknown:

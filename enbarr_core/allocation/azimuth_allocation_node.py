@@ -1,15 +1,17 @@
-"""Azimuth thrust allocation: ``force_command`` (tau = [X, Y, N]) -> per-azimuth thrust
-and angle on ``azimuth_commands``, and the force actually deliverable on
-``allocation/delivered``.
+"""Azimuth thrust allocation: ``force_command`` (tau = [X, Y, N]) -> thrust and angle.
 
-Smallest thrust within the servo travel and thrust limits (``algorithms.azimuth``); when tau
-is not achievable the thrusts are scaled together (direction kept) and the shortfall is
-reported: a warning, the ``infeasible`` counter and ``allocation/delivered``. The previous
-angles are passed back each time so servos do not flip 180 degrees needlessly.
+Publishes per-azimuth thrust and angle on ``azimuth_commands`` and the force actually
+deliverable on ``allocation/delivered``: the smallest thrust within the servo travel and
+thrust limits (``allocation.azimuth``); when tau is not achievable the thrusts are scaled
+together (direction kept) and the shortfall is reported: a warning, the ``infeasible`` counter
+and ``allocation/delivered``. The previous angles are passed back each time so servos do not
+flip 180 degrees needlessly.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
@@ -19,9 +21,23 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.azimuth import AzimuthAllocator
-from enbarr_core.allocation.azimuth_params import declare_azimuths
+from enbarr_core.allocation.layout_params import AZIMUTHS
 from enbarr_core.framework.errors import AllocationError
 from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.models.vessel3dof import AzimuthSpec
+
+
+@dataclass(frozen=True)
+class AzimuthAllocationSettings:
+    """Settings of ``AzimuthAllocationNode``: the azimuth layout (read only)."""
+
+    azimuths: tuple[AzimuthSpec, ...]
+
+    @classmethod
+    def from_params(cls, names: Sequence[str],
+                    v: Mapping[str, Any]) -> AzimuthAllocationSettings:
+        """Build from the declared parameters' values (ValueError naming the azimuth)."""
+        return cls(AZIMUTHS.from_params(names, v))
 
 
 class AzimuthAllocationNode(EnbarrNode):
@@ -29,7 +45,12 @@ class AzimuthAllocationNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'allocation', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        specs = declare_azimuths(self)
+        names = AZIMUTHS.names(self)
+        self.settings: AzimuthAllocationSettings = self.bind_settings(
+            AZIMUTHS.specs(self, names),
+            lambda v: AzimuthAllocationSettings.from_params(names, v),
+            lambda _: None).settings  # every parameter is read only
+        specs = self.settings.azimuths
         try:
             self.allocator = AzimuthAllocator(specs)
         except AllocationError as err:

@@ -24,16 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from enbarr_core.allocation.least_norm import check_weights, unreachable_rows, weighted_pinv
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
 
 Vector = NDArray[np.float64]
 
 DOF_NAMES: tuple[str, ...] = ('surge', 'sway', 'heave', 'roll', 'pitch', 'yaw')
 """Names of the six degrees of freedom, in the order of ``tau = [X, Y, Z, K, M, N]``."""
-
-_RANK_RTOL = 1e-9
-"""Singular values below this fraction of the largest one count as zero."""
-
 
 def _vector3(value: Sequence[float], what: str) -> tuple[float, float, float]:
     try:
@@ -77,8 +74,10 @@ class Thruster:
 
 
 def allocation_matrix(thrusters: Sequence[Thruster]) -> Vector:
-    """Thrust configuration matrix ``B`` (6 x n): column i = [d_i; r_i x d_i] (Fossen 2021,
-    ch. 11, ``T`` for fixed thrusters)."""
+    """Thrust configuration matrix ``B`` (6 x n): column i = [d_i; r_i x d_i].
+
+    Fossen 2021, ch. 11, ``T`` for fixed thrusters.
+    """
     B = np.zeros((6, len(thrusters)))
     for i, t in enumerate(thrusters):
         d = np.asarray(t.direction, dtype=float)
@@ -122,23 +121,13 @@ class ThrustAllocator:
                 f'controlled_dofs must be distinct indices in 0..5, got {tuple(controlled_dofs)}')
         self.controlled_dofs: tuple[int, ...] = tuple(sorted(dofs))
 
-        if weights is None:
-            w = np.ones(n)
-        else:
-            w = np.asarray(weights, dtype=float).reshape(-1)
-            if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w <= 0.0):
-                raise ConfigurationError(
-                    f'weights must be {n} positive finite numbers (one per thruster), '
-                    f'got {list(weights)}')
+        w = check_weights(weights, n, 'thruster')
 
         B = allocation_matrix(self.thrusters)
         B_c = B[list(self.controlled_dofs), :]
         self._check_reachable(B_c, names)
 
-        # B_c^+ = W^-1 B_c^T (B_c W^-1 B_c^T)^-1 = W^-1/2 pinv(B_c W^-1/2): the weighted
-        # least-norm solution, computed through the SVD for conditioning.
-        w_isqrt = 1.0 / np.sqrt(w)
-        B_pinv = w_isqrt[:, None] * np.linalg.pinv(B_c * w_isqrt[None, :])
+        B_pinv = weighted_pinv(B_c, w)  # B_c^+ = W^-1 B_c^T (B_c W^-1 B_c^T)^-1
 
         B.setflags(write=False)
         B_pinv.setflags(write=False)
@@ -157,15 +146,10 @@ class ThrustAllocator:
         produces it alone (without also producing something else it cannot cancel).
         """
         m = B_c.shape[0]
-        U, s, _ = np.linalg.svd(B_c)
-        tol = _RANK_RTOL * (s[0] if s.size and s[0] > 0.0 else 1.0)
-        rank = int(np.count_nonzero(s > tol))
+        rank, rows = unreachable_rows(B_c)
         if rank == m:
             return
-        U_r = U[:, :rank]
-        # || (I - U_r U_r^T) e_j ||^2 = 1 - || U_r[j, :] ||^2
-        residual = 1.0 - np.sum(U_r * U_r, axis=1)
-        missing = [DOF_NAMES[self.controlled_dofs[j]] for j in range(m) if residual[j] > 1e-6]
+        missing = [DOF_NAMES[self.controlled_dofs[j]] for j in rows]
         raise AllocationError(
             f'thruster layout [{", ".join(names)}] cannot produce {", ".join(missing)} '
             f'(rank {rank} of {m} controlled DOFs '

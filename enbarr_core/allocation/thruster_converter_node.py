@@ -1,14 +1,16 @@
 """Thruster converter: ``force_command`` (tau) -> ``thruster_commands`` (-1..1 each).
 
 The README's ``vector_trajectory_converter.py``, for any layout: the allocation matrix comes
-from each thruster's position and direction (``enbarr_core.allocation.thruster_params``), the weighted
+from each thruster's position and direction (``layout_params.THRUSTERS``), the weighted
 pseudo-inverse gives the smallest thrust, and saturation scales all thrusters together so the
-delivered force keeps the requested direction (``algorithms.allocation``). A layout that
-cannot produce a controlled degree of freedom is refused at start with the DOF named.
+delivered force keeps the requested direction (``allocation.fixed``). A layout that cannot
+produce a controlled degree of freedom is refused at start with the DOF named.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
@@ -17,17 +19,35 @@ from sensor_msgs.msg import JointState
 
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.allocation.fixed import ThrustAllocator
+from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
+from enbarr_core.allocation.layout_params import THRUSTERS
 from enbarr_core.framework.errors import AllocationError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.allocation.thruster_params import declare_thrusters
 
-_DOFS = ('surge', 'sway', 'heave', 'roll', 'pitch', 'yaw')
 SPECS = [
-    ParamSpec('controlled_dofs', ['surge', 'sway', 'heave', 'roll', 'pitch', 'yaw'],
+    ParamSpec('controlled_dofs', list(DOF_NAMES),
               'Degrees of freedom the thrusters must produce', read_only=True),
 ]
+
+
+@dataclass(frozen=True)
+class ThrusterConverterSettings:
+    """Settings of ``ThrusterConverterNode`` (``SPECS`` and the thruster layout)."""
+
+    thrusters: tuple[Thruster, ...]
+    controlled_dofs: tuple[int, ...]  # indices into DOF_NAMES
+
+    @classmethod
+    def from_params(cls, names: Sequence[str],
+                    v: Mapping[str, Any]) -> ThrusterConverterSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        unknown = [d for d in v['controlled_dofs'] if d not in DOF_NAMES]
+        if unknown:
+            raise ValueError(f'controlled_dofs: unknown {unknown}; expected some of '
+                             f'{DOF_NAMES}')
+        return cls(THRUSTERS.from_params(names, v),
+                   tuple(DOF_NAMES.index(d) for d in v['controlled_dofs']))
 
 
 class ThrusterConverterNode(EnbarrNode):
@@ -35,26 +55,23 @@ class ThrusterConverterNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'thruster_converter', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        thrusters = declare_thrusters(self)
-        dofs = self.bind_settings(SPECS, self._build, lambda _: None).settings
+        names = THRUSTERS.names(self)
+        self.settings: ThrusterConverterSettings = self.bind_settings(
+            THRUSTERS.specs(self, names) + SPECS,
+            lambda v: ThrusterConverterSettings.from_params(names, v),
+            lambda _: None).settings  # every parameter is read only
+        s = self.settings
         try:
-            self.allocator = ThrustAllocator(thrusters, controlled_dofs=dofs)
+            self.allocator = ThrustAllocator(s.thrusters, controlled_dofs=s.controlled_dofs)
         except AllocationError as err:
             raise AllocationError(f'node {node_name!r}: {err}') from err
         self.saturated = 0
         self.rejected = 0
         self.result = None
-        self._names = [t.name for t in thrusters]
+        self._names = [t.name for t in s.thrusters]
         self._pub = self.create_topic_publisher(topics.THRUSTER_COMMANDS)
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_wrench)
         self.create_timer(1.0, self._report)
-
-    @staticmethod
-    def _build(v: dict[str, Any]) -> tuple[int, ...]:
-        unknown = [d for d in v['controlled_dofs'] if d not in _DOFS]
-        if unknown:
-            raise ValueError(f'controlled_dofs: unknown {unknown}; expected some of {_DOFS}')
-        return tuple(_DOFS.index(d) for d in v['controlled_dofs'])
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau(msg.wrench)
@@ -71,4 +88,3 @@ class ThrusterConverterNode(EnbarrNode):
     def _report(self) -> None:
         self.publish_diagnostics(0, 'ok', {'saturated': self.saturated,
                                            'rejected': self.rejected})
-

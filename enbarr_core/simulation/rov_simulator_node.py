@@ -26,7 +26,7 @@ from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, Rigid
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.allocation.thruster_params import declare_thrusters
+from enbarr_core.allocation.layout_params import declare_thrusters
 
 MAX_CATCH_UP = 10  # model steps integrated in one late tick before time is skipped
 

@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.models.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
-from enbarr_core.allocation.azimuth_params import declare_azimuths
+from enbarr_core.allocation.layout_params import declare_azimuths
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec

@@ -36,14 +36,14 @@ import numpy as np
 class Chain:
     profile: str
     nodes: tuple[str, ...]
-    sink: str  # the actuator plugin holding the LatencyLog
+    sink: str  # the node holding the LatencyLog (last one that has the sensor stamp)
 
 
 CHAINS = {
     'rov': Chain('enbarr_sim', ('simulator', 'imu', 'filtering', 'control_loop',
                                 'thruster_converter', 'thruster_control'), 'thruster_control'),
     'saucer': Chain('saucer_sim', ('simulator', 'mocap', 'observer', 'dp_control',
-                                   'allocation', 'pwm', 'arduino', 'joystick'), 'arduino'),
+                                   'allocation', 'pwm', 'arduino', 'joystick'), 'pwm'),
 }
 
 
@@ -78,7 +78,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _overrides(chain: Chain, rate: float) -> list[str]:
-    if chain.sink == 'arduino':
+    if chain.sink == 'pwm':
         return [f'simulator.rate={rate}', f'mocap.rate={rate}',
                 "joystick.script=['0.0 sticks 0.0 0.0 0.0', '0.5 press triangle']"]
     return [f'simulator.rate={rate}']
@@ -201,8 +201,8 @@ def run_pure_saucer(rate: float, cycles: int = 2000) -> float:
                          common[f'azimuths.{n}.time_constant'],
                          common[f'azimuths.{n}.max_angle_rate'])
              for n in common['azimuth_names']]
-    pwm = PwmCalibration(*(tuple(common[f'pwm.{k}']) for k in (
-        'thrust_duty_percent', 'thrust_newton', 'angle_duty_percent', 'angle_rad')))
+    pwm = PwmCalibration.from_mapping({k.removeprefix('pwm.'): v for k, v in common.items()
+                                       if k.startswith('pwm.')})
     vessel, actuators = Vessel3Dof(CS_SAUCER), AzimuthActuators(specs)
     allocator = AzimuthAllocator(specs)
     observer, controller = PassiveObserver(saucer_observer_settings()), DpController(

@@ -1,0 +1,1 @@
+"""Arduino PWM boards: ``sim`` is the simulated board of the CS Saucer."""

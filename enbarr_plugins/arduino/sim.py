@@ -1,22 +1,42 @@
-"""Simulated Arduino PWM board with the Saucer's ESCs and servos: reads ``pwm/duty_cycle``
-(percent per channel) and sets the simulated azimuths (``sim/azimuth_command``) through the
+"""Simulated Arduino PWM board with the Saucer's ESCs and servos.
+
+Reads ``pwm/duty_cycle`` (``std_msgs/Float64MultiArray``: one duty [%] per channel,
+``<azimuth>/motor, <azimuth>/servo`` for each azimuth in ``azimuth_names`` order, labelled
+``duty_cycle_percent``) and sets the simulated azimuths (``sim/azimuth_command``) through the
 same calibration tables the real hardware was measured with. Like firmware with a watchdog,
 it drives every channel to its neutral duty when duty cycles stop for ``command_timeout``.
-Duties outside the manual's 4.3 .. 9.4 % or non-finite ones are refused and counted.
+A message with another label or size, and duties outside the profile's
+``pwm.duty_min_percent .. pwm.duty_max_percent`` or non-finite ones, are refused and counted.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
-from enbarr_core.allocation.azimuth_params import declare_azimuths, declare_pwm
 from enbarr_core.allocation.azimuth import PwmCalibration
+from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
 from enbarr_core.framework.driver import ActuatorDriver
-from enbarr_core.framework.node import LatencyLog
-from enbarr_interfaces import convert, topics
+from enbarr_core.models.vessel3dof import AzimuthSpec
+from enbarr_interfaces import topics
+
+
+@dataclass(frozen=True)
+class SimArduinoSettings:
+    """Settings of ``SimArduinoNode``: the azimuth layout and the PWM calibration (read only)."""
+
+    azimuths: tuple[AzimuthSpec, ...]
+    calibration: PwmCalibration
+
+    @classmethod
+    def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> SimArduinoSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        return cls(AZIMUTHS.from_params(names, v), pwm_from_params(v))
+
 
 class SimArduinoNode(ActuatorDriver):
     """See the module docstring."""
@@ -25,37 +45,33 @@ class SimArduinoNode(ActuatorDriver):
         self.neutral = True
         super().__init__(node_name, timeout_message='PWM input stopped: outputs neutral',
                          **kwargs)
-        self.names = [a.name for a in declare_azimuths(self)]
-        self.calibration = declare_pwm(self)
-        self._channels = {f'{n}/{k}': (i, k) for i, n in enumerate(self.names)
-                          for k in ('motor', 'servo')}
+        names = AZIMUTHS.names(self)
+        self.settings: SimArduinoSettings = self.bind_settings(
+            AZIMUTHS.specs(self, names) + pwm_specs(self),
+            lambda v: SimArduinoSettings.from_params(names, v),
+            lambda _: None).settings  # every parameter is read only
+        self.names = list(names)
+        self.calibration = self.settings.calibration
+        self.channels = 2 * len(self.names)  # motor, servo per azimuth
         self.refused = 0
-        self.latency = LatencyLog()  # pose stamp -> duty cycles applied
         self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
         self.connect()
 
-    def _on_duty(self, msg: JointState) -> None:
+    def _on_duty(self, msg: Float64MultiArray) -> None:
         c = self.calibration
-        thrust = [0.0] * len(self.names)
-        angle = [0.0] * len(self.names)
-        for name, duty in zip(msg.name, msg.effort):
-            channel = self._channels.get(name)
-            if channel is None or not math.isfinite(duty) or not (
-                    PwmCalibration.DUTY_MIN <= duty <= PwmCalibration.DUTY_MAX):
-                self.refused += 1
-                return
-            i, kind = channel
-            if kind == 'motor':
-                thrust[i] = c.duty_to_thrust(duty)
-            else:
-                angle[i] = c.duty_to_angle(duty)
+        dim = msg.layout.dim
+        n = self.channels
+        if (len(dim) != 1 or dim[0].label != topics.PWM_DUTY_LABEL or dim[0].size != n
+                or dim[0].stride != n or len(msg.data) != n
+                or not all(c.accepts(d) for d in msg.data)):
+            self.refused += 1
+            return
+        thrust = [c.duty_to_thrust(d) for d in msg.data[0::2]]
+        angle = [c.duty_to_angle(d) for d in msg.data[1::2]]
         with self.commanding():
             self.neutral = not any(thrust)
             self._send(thrust, angle)
-        if msg.header.stamp.sec:
-            self.latency.add(self.get_clock().now().nanoseconds
-                             - convert.stamp_to_ns(msg.header.stamp))
 
     def _send(self, thrust: list[float], angle: list[float]) -> None:
         out = JointState(name=self.names, effort=thrust, position=angle)
@@ -63,6 +79,7 @@ class SimArduinoNode(ActuatorDriver):
         self._pub.publish(out)
 
     def is_neutral(self) -> bool:
+        """Return whether every motor is at zero thrust."""
         return self.neutral
 
     def write_neutral(self) -> None:

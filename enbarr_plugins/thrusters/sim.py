@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState
 from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.allocation.thruster_params import declare_thrusters
+from enbarr_core.allocation.layout_params import declare_thrusters
 from enbarr_interfaces import convert, topics
 
 SPECS = [

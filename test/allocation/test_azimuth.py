@@ -107,6 +107,16 @@ def unsaturated_ratio(alloc: AzimuthAllocator, tau: np.ndarray) -> float:
     return float(np.max(m / np.where(np.abs(phi) <= A_LIM, F_FWD, F_REV)))
 
 
+def tau_by_hand(specs, thrust, angle) -> list[float]:
+    """[X, Y, N]: thruster i at (x, y) pushes T (cos a, sin a), a moment x f_y - y f_x."""
+    X = Y = N = 0.0
+    for spec, T, a in zip(specs, thrust, angle):
+        x, y = spec.position
+        f_x, f_y = T * math.cos(a), T * math.sin(a)
+        X, Y, N = X + f_x, Y + f_y, N + x * f_y - y * f_x
+    return [X, Y, N]
+
+
 def assert_angles_within(res: AzimuthResult) -> None:
     assert np.all(res.angle >= -A_LIM) and np.all(res.angle <= A_LIM)
 
@@ -124,6 +134,9 @@ def test_attainable_tau_matches_slsqp_with_least_thrust():
         assert res.feasible and res.scale == 1.0
         np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
         np.testing.assert_allclose(azimuth_tau(POS, res.thrust, res.angle), tau, atol=1e-12)
+        # Independently of the package: each azimuth's force summed by hand.
+        np.testing.assert_allclose(tau_by_hand(alloc.specs, res.thrust, res.angle), tau,
+                                   atol=1e-12)
         assert_angles_within(res)
         assert np.all(np.abs(res.thrust) <= limits_for(res.thrust))
         T_ref, a_ref = slsqp_reference(tau, rng)
@@ -295,16 +308,20 @@ ANGLE_DUTY = [4.3, 5.6, 6.85, 8.1, 9.4]
 ANGLE_RAD = [math.radians(d) for d in (-114.0, -55.0, 0.0, 57.0, 114.0)]
 
 
+DUTY_MIN, DUTY_MAX = 4.3, 9.4  # [%] the CS Saucer's Arduino PWM range (manual Table 1.1)
+
+
 def calibration(**overrides) -> PwmCalibration:
     kw = dict(thrust_duty_percent=THRUST_DUTY, thrust_newton=THRUST_N,
-              angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD)
+              angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD,
+              duty_min_percent=DUTY_MIN, duty_max_percent=DUTY_MAX)
     kw.update(overrides)
     return PwmCalibration(**kw)
 
 
 def test_pwm_round_trips_and_neutral():
     cal = calibration()
-    assert PwmCalibration.DUTY_MIN == 4.3 and PwmCalibration.DUTY_MAX == 9.4
+    assert cal.duty_min_percent == 4.3 and cal.duty_max_percent == 9.4
     assert cal.neutral_thrust_duty == pytest.approx(6.85, abs=1e-15)
     assert cal.thrust_to_duty(0.0) == cal.neutral_thrust_duty  # exactly
     assert cal.thrust_to_duty(-0.0) == cal.neutral_thrust_duty
@@ -360,13 +377,37 @@ def test_pwm_bad_tables_name_the_table():
         calibration(angle_rad=[a + 3.0 for a in ANGLE_RAD])
 
 
+def test_pwm_duty_limits_come_from_the_calibration():
+    # Another board with a wider range: the same tables fit, and more.
+    wide = calibration(duty_min_percent=2.5, duty_max_percent=12.5,
+                       thrust_duty_percent=[2.5] + THRUST_DUTY[1:])
+    assert wide.thrust_to_duty(-5.0) == 2.5
+    assert wide.accepts(2.5) and wide.accepts(12.5) and not wide.accepts(12.6)
+    cal = calibration()
+    assert cal.accepts(4.3) and cal.accepts(9.4) and cal.accepts(6.85)
+    for bad in (4.2, 9.5, math.nan, math.inf, -math.inf):
+        assert not cal.accepts(bad), bad
+    # Tables beyond the limits, and limits that make no sense, are refused by name.
+    with pytest.raises(ValueError, match=r'^thrust_duty_percent\[0\]: 4.3 % is outside'):
+        calibration(duty_min_percent=5.0)
+    with pytest.raises(ValueError, match=r'^duty_max_percent: must be above'):
+        calibration(duty_min_percent=9.4, duty_max_percent=4.3)
+    with pytest.raises(ValueError, match=r'^duty_min_percent: expected a duty cycle'):
+        calibration(duty_min_percent=-1.0)
+    with pytest.raises(ValueError, match=r'^duty_max_percent: expected a number'):
+        calibration(duty_max_percent='high')
+
+
 def test_pwm_from_mapping():
     d = dict(thrust_duty_percent=THRUST_DUTY, thrust_newton=THRUST_N,
-             angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD)
+             angle_duty_percent=ANGLE_DUTY, angle_rad=ANGLE_RAD,
+             duty_min_percent=DUTY_MIN, duty_max_percent=DUTY_MAX)
     cal = PwmCalibration.from_mapping(d)
     assert cal == calibration()
     assert isinstance(cal.thrust_newton, tuple)
     with pytest.raises(ValueError, match='^angle_rad: missing'):
         PwmCalibration.from_mapping({k: v for k, v in d.items() if k != 'angle_rad'})
+    with pytest.raises(ValueError, match='^duty_max_percent: missing'):
+        PwmCalibration.from_mapping({k: v for k, v in d.items() if k != 'duty_max_percent'})
     with pytest.raises(ValueError, match='^neutral: unknown'):
         PwmCalibration.from_mapping({**d, 'neutral': 6.85})

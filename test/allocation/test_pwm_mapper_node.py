@@ -1,44 +1,89 @@
-"""Node tests: pwm mapper node."""
+"""Node tests: pwm mapper node (one behaviour per test)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 from support.nodes import TIMEOUT, add, probe
-from support.saucer import DUTY_MAX, DUTY_MIN, NAMES, NEUTRAL_DUTY, azimuth_msg, overrides
+from support.saucer import (
+    COMMON, DUTY_MAX, DUTY_MIN, NAMES, NEUTRAL_DUTY, azimuth_msg, overrides)
 
 from enbarr_core.allocation.pwm_mapper_node import PwmMapperNode
-from enbarr_interfaces import convert, topics
+from enbarr_core.framework.errors import ConfigurationError
+from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 
+CHANNELS = [f'{n}/{k}' for n in NAMES for k in ('motor', 'servo')]
+NEUTRAL = [NEUTRAL_DUTY] * len(CHANNELS)
+THRUST = [0.3, -0.45, 1.5]
+ANGLE = [0.4, -1.0, 1.98968]
 
-def test_pwm_mapper_duties_watchdog_safe_state_and_refusals(context, executor, spin):
-    node = add(executor, PwmMapperNode(node_name='pwm', context=context,
-                                       parameter_overrides=overrides({'command_timeout': 0.1})))
-    channels = [f'{n}/{k}' for n in NAMES for k in ('motor', 'servo')]
-    neutral = [NEUTRAL_DUTY] * len(channels)
-    assert node.channels == channels
-    assert node.neutral and node.duty == pytest.approx(neutral)  # starts neutral
+
+@dataclass
+class Rig:
+    node: PwmMapperNode
+    pub: Any
+    duties: list[Float64MultiArray]
+
+
+def rig(context: Any, executor: Any, timeout: float = 10.0) -> Rig:
+    node = add(executor, PwmMapperNode(
+        node_name='pwm', context=context,
+        parameter_overrides=overrides({'command_timeout': timeout})))
     p = probe(context, executor, 'allocation')
     pub = p.create_topic_publisher(topics.AZIMUTH_COMMANDS)
-    duties: list[JointState] = []
+    duties: list[Float64MultiArray] = []
     p.create_topic_subscription(topics.PWM_DUTY, duties.append)
     LinkBus.of(context).connect()
-    c = node.calibration
+    return Rig(node, pub, duties)
 
-    thrust = [0.3, -0.45, 1.5]
-    angle = [0.4, -1.0, 1.98968]
-    pub.publish(azimuth_msg(thrust, angle, stamp_ns=1_234_000_000))
-    assert len(duties) == 1 and not node.neutral
-    out = duties[-1]
-    assert list(out.name) == channels
-    assert convert.stamp_to_ns(out.header.stamp) == 1_234_000_000
-    d = np.array(out.effort)
+
+def test_pwm_mapper_channels_in_profile_order_and_starts_neutral(context, executor):
+    r = rig(context, executor)
+    assert r.node.channels == CHANNELS
+    assert r.node.neutral and r.node.duty == pytest.approx(NEUTRAL)
+
+
+def test_pwm_mapper_message_is_labelled_duty_cycle_percent(context, executor):
+    r = rig(context, executor)
+    r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=1_234_000_000))
+    assert len(r.duties) == 1 and not r.node.neutral
+    out = r.duties[-1]
+    assert isinstance(out, Float64MultiArray)
+    assert len(out.layout.dim) == 1
+    dim = out.layout.dim[0]
+    assert dim.label == 'duty_cycle_percent' == topics.PWM_DUTY_LABEL
+    assert dim.size == dim.stride == len(CHANNELS) == len(out.data)
+    assert out.layout.data_offset == 0
+
+
+def test_pwm_mapper_latency_from_the_command_stamp(context, executor):
+    # The duty message has no header: the mapper logs command stamp -> duties delivered.
+    r = rig(context, executor)
+    stamp = 1_234_000_000
+    before = r.node.get_clock().now().nanoseconds
+    r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=stamp))
+    after = r.node.get_clock().now().nanoseconds
+    assert r.node.latency.count == 1
+    assert before - stamp <= r.node.latency.last(1)[0] <= after - stamp
+    r.pub.publish(azimuth_msg(THRUST, ANGLE))  # no stamp: nothing to measure
+    assert r.node.latency.count == 1
+
+
+def test_pwm_mapper_duties_follow_the_profile_tables(context, executor):
+    r = rig(context, executor)
+    c = r.node.calibration
+    r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=1_234_000_000))
+    d = np.array(r.duties[-1].data)
     assert np.all((d >= DUTY_MIN) & (d <= DUTY_MAX))
-    expected = [v for f, a in zip(thrust, angle) for v in (c.thrust_to_duty(f),
+    expected = [v for f, a in zip(THRUST, ANGLE) for v in (c.thrust_to_duty(f),
                                                             c.angle_to_duty(a))]
     assert d.tolist() == pytest.approx(expected, abs=1e-12)
     # The same numbers from the profile's tables by hand: 0.3 N half-way from 7.0 % (0 N) to
@@ -47,32 +92,69 @@ def test_pwm_mapper_duties_watchdog_safe_state_and_refusals(context, executor, s
     assert d[1] == pytest.approx(6.85 + 0.4 / 1.98968 * 2.55, abs=1e-12)
     assert d[5] == pytest.approx(9.4, abs=1e-12)
 
-    # Beyond the tables: clipped to the PWM range.
-    pub.publish(azimuth_msg([5.0, -5.0, 0.0], [3.0, -3.0, 0.0]))
-    assert np.array(duties[-1].effort).tolist() == pytest.approx(
+
+def test_pwm_mapper_clips_beyond_the_tables(context, executor):
+    r = rig(context, executor)
+    r.pub.publish(azimuth_msg([5.0, -5.0, 0.0], [3.0, -3.0, 0.0]))
+    assert np.array(r.duties[-1].data).tolist() == pytest.approx(
         [9.4, 9.4, 4.3, 4.3, NEUTRAL_DUTY, NEUTRAL_DUTY], abs=1e-12)
 
-    # safe_state(): neutral at once.
-    node.safe_state()
-    assert np.array(duties[-1].effort).tolist() == pytest.approx(neutral)
-    assert node.neutral
 
-    # Refused (counted, nothing published): NaN thrust, NaN angle, unknown azimuth, lengths.
-    pub.publish(azimuth_msg(thrust, angle))
-    n, before = len(duties), list(node.duty)
-    pub.publish(azimuth_msg([math.nan, 0.1, 0.1], angle))
-    pub.publish(azimuth_msg(thrust, [0.0, math.inf, 0.0]))
-    pub.publish(azimuth_msg([0.1], [0.0], names=['az_mid']))
-    pub.publish(JointState(name=NAMES, effort=thrust, position=[0.0]))
-    assert node.rejected == 4 and len(duties) == n and node.duty == before
+def test_pwm_mapper_safe_state_is_neutral_at_once(context, executor):
+    r = rig(context, executor)
+    r.pub.publish(azimuth_msg(THRUST, ANGLE))
+    assert not r.node.neutral
+    r.node.safe_state()
+    assert np.array(r.duties[-1].data).tolist() == pytest.approx(NEUTRAL)
+    assert r.node.neutral
 
-    # Commands stop: neutral by itself after command_timeout, once.
-    assert node.timeouts == 0 and not node.neutral
-    assert spin(executor, lambda: node.timeouts == 1, TIMEOUT)
-    assert len(duties) == n + 1
-    assert np.array(duties[-1].effort).tolist() == pytest.approx(neutral)
-    assert node.neutral
+
+def test_pwm_mapper_refuses_bad_commands(context, executor):
+    # Refused (counted, nothing published): NaN thrust, Inf angle, unknown azimuth, lengths.
+    r = rig(context, executor)
+    r.pub.publish(azimuth_msg(THRUST, ANGLE))
+    n, before = len(r.duties), list(r.node.duty)
+    r.pub.publish(azimuth_msg([math.nan, 0.1, 0.1], ANGLE))
+    r.pub.publish(azimuth_msg(THRUST, [0.0, math.inf, 0.0]))
+    r.pub.publish(azimuth_msg([0.1], [0.0], names=['az_mid']))
+    r.pub.publish(JointState(name=NAMES, effort=THRUST, position=[0.0]))
+    assert r.node.rejected == 4 and len(r.duties) == n and r.node.duty == before
+
+
+def test_pwm_mapper_goes_neutral_once_when_commands_stop(context, executor, spin):
+    r = rig(context, executor, timeout=0.1)
+    r.pub.publish(azimuth_msg(THRUST, ANGLE))
+    n = len(r.duties)
+    assert r.node.timeouts == 0 and not r.node.neutral
+    assert spin(executor, lambda: r.node.timeouts == 1, TIMEOUT)
+    assert len(r.duties) == n + 1
+    assert np.array(r.duties[-1].data).tolist() == pytest.approx(NEUTRAL)
+    assert r.node.neutral
     ticks = [0]
-    node.create_timer(0.05, lambda: ticks.__setitem__(0, ticks[0] + 1))
+    r.node.create_timer(0.05, lambda: ticks.__setitem__(0, ticks[0] + 1))
     assert spin(executor, lambda: ticks[0] >= 4, TIMEOUT)
-    assert node.timeouts == 1 and len(duties) == n + 1  # not repeated
+    assert r.node.timeouts == 1 and len(r.duties) == n + 1  # not repeated
+
+
+@pytest.mark.parametrize('missing', [
+    'pwm.duty_min_percent', 'pwm.duty_max_percent', 'pwm.angle_rad',
+    'azimuths.az_port_aft.angle_max', 'azimuths.az_bow.max_angle_rate'])
+def test_pwm_mapper_needs_every_profile_value(context, missing):
+    values = {k: v for k, v in COMMON.items() if k != missing}
+    with pytest.raises(ConfigurationError, match=f"parameter '{missing}' is not set") as info:
+        PwmMapperNode(node_name='pwm', context=context,
+                      parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+    assert info.value.parameter == missing
+
+
+def test_pwm_mapper_duty_limits_come_from_the_profile(context, executor):
+    # A table duty outside the profile's limits is refused at start, naming the table.
+    with pytest.raises(ConfigurationError, match=r'thrust_duty_percent\[5\]: 9.4 % is outside'):
+        PwmMapperNode(node_name='pwm', context=context,
+                      parameter_overrides=overrides({'pwm.duty_max_percent': 9.0}))
+    # A wider range accepts the same tables.
+    r = add(executor, PwmMapperNode(
+        node_name='pwm_wide', context=context,
+        parameter_overrides=overrides({'pwm.duty_min_percent': 2.0,
+                                       'pwm.duty_max_percent': 12.0})))
+    assert (r.calibration.duty_min_percent, r.calibration.duty_max_percent) == (2.0, 12.0)

@@ -106,8 +106,9 @@ def test_saucer_sim_duration_end_leaves_pwm_neutral(tmp_path: Path) -> None:
                            '--record', str(bag)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     duty = [m for _, m in read_bag(bag)['/pwm/duty_cycle']]
-    neutral = list(duty[-1].effort)
-    assert duty[-2].effort[0] != neutral[0]  # the motors were running (manual, ahead) ...
+    assert {m.layout.dim[0].label for m in duty} == {'duty_cycle_percent'}
+    neutral = list(duty[-1].data)
+    assert duty[-2].data[0] != neutral[0]    # the motors were running (manual, ahead) ...
     assert neutral[0::2] == [6.85] * 3       # ... and the last command is neutral
     assert neutral[1::2] == [6.85] * 3
 

@@ -1,12 +1,15 @@
-"""Node tests: sim arduino."""
+"""Node tests: sim arduino (one behaviour per test)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from support.nodes import TIMEOUT, add, probe
 from support.saucer import NAMES, azimuth_msg, duty_msg, overrides
 
@@ -15,8 +18,41 @@ from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins.arduino.sim import SimArduinoNode
 
+# Motor at 8.2 % (0.6 N), servo at 9.4 % (1.98968 rad) on every azimuth, in channel order.
+GOOD = [8.2, 9.4] * len(NAMES)
+MOTOR = {n: 2 * i for i, n in enumerate(NAMES)}
+SERVO = {n: 2 * i + 1 for i, n in enumerate(NAMES)}
 
-def test_sim_arduino_round_trip_with_pwm_mapper(context, executor):
+
+def with_duty(changes: dict[int, float]) -> list[float]:
+    out = list(GOOD)
+    for i, d in changes.items():
+        out[i] = d
+    return out
+
+
+@dataclass
+class Rig:
+    node: SimArduinoNode
+    pub: Any
+    applied: list[JointState]
+
+
+def rig(context: Any, executor: Any, timeout: float = 10.0, **extra: Any) -> Rig:
+    node = add(executor, SimArduinoNode(
+        node_name='arduino', context=context,
+        parameter_overrides=overrides({'command_timeout': timeout, **extra})))
+    p = probe(context, executor, 'pwm')
+    pub = p.create_topic_publisher(topics.PWM_DUTY)
+    applied: list[JointState] = []
+    p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
+    LinkBus.of(context).connect()
+    return Rig(node, pub, applied)
+
+
+@pytest.fixture
+def chain(context, executor):
+    """PWM mapper -> sim Arduino, fed with azimuth commands."""
     pwm = add(executor, PwmMapperNode(node_name='pwm', context=context,
                                       parameter_overrides=overrides({'command_timeout': 10.0})))
     arduino = add(executor, SimArduinoNode(
@@ -27,8 +63,16 @@ def test_sim_arduino_round_trip_with_pwm_mapper(context, executor):
     applied: list[JointState] = []
     p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
     LinkBus.of(context).connect()
+    return pwm, arduino, pub, applied
+
+
+def test_sim_arduino_shares_the_mapper_calibration(chain):
+    pwm, arduino, _, _ = chain
     assert pwm.calibration == arduino.calibration
 
+
+def test_sim_arduino_round_trip_with_pwm_mapper(chain):
+    _, arduino, pub, applied = chain
     rng = np.random.default_rng(5)
     cases = [([0.3, -0.45, 1.5], [0.4, -1.0, 1.98968]),
              ([-1.0, 0.6, 1e-3], [-1.98968, 0.0, -0.2]),
@@ -44,43 +88,83 @@ def test_sim_arduino_round_trip_with_pwm_mapper(context, executor):
         np.testing.assert_allclose(out.effort, thrust, rtol=0.0, atol=1e-9)
         np.testing.assert_allclose(out.position, angle, rtol=0.0, atol=1e-9)
     assert arduino.refused == 0 and not arduino.neutral
+
+
+def test_sim_arduino_zero_thrust_is_the_dead_band_middle(chain):
     # Zero thrust is the middle of the dead band and comes back as zero.
+    _, arduino, pub, applied = chain
+    pub.publish(azimuth_msg([0.3, 0.3, 0.3], [0.0, 0.0, 0.0]))
+    assert not arduino.neutral
     pub.publish(azimuth_msg([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
     assert list(applied[-1].effort) == [0.0, 0.0, 0.0] and arduino.neutral
 
 
-def test_sim_arduino_refuses_out_of_range_duties_and_watchdog(context, executor, spin):
-    node = add(executor, SimArduinoNode(
-        node_name='arduino', context=context,
-        parameter_overrides=overrides({'command_timeout': 0.1})))
-    p = probe(context, executor, 'pwm')
-    pub = p.create_topic_publisher(topics.PWM_DUTY)
-    applied: list[JointState] = []
-    p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
-    LinkBus.of(context).connect()
-    c = node.calibration
+def test_sim_arduino_applies_duties_in_channel_order(context, executor):
+    r = rig(context, executor)
+    r.pub.publish(duty_msg(GOOD))
+    assert len(r.applied) == 1 and not r.node.neutral
+    assert list(r.applied[-1].effort) == pytest.approx([0.6] * 3, abs=1e-12)
+    assert list(r.applied[-1].position) == pytest.approx([1.98968] * 3, abs=1e-12)
+    # One channel each: az_port_aft's motor and az_stbd_aft's servo.
+    r.pub.publish(duty_msg(with_duty({MOTOR['az_port_aft']: 4.3,
+                                      SERVO['az_stbd_aft']: 6.85})))
+    assert list(r.applied[-1].effort) == pytest.approx([0.6, -1.0, 0.6], abs=1e-12)
+    assert list(r.applied[-1].position) == pytest.approx([1.98968, 1.98968, 0.0], abs=1e-12)
 
-    good = {f'{n}/{k}': d for n in NAMES for k, d in (('motor', 8.2), ('servo', 9.4))}
-    pub.publish(duty_msg(good))
-    assert len(applied) == 1 and not node.neutral
-    assert list(applied[-1].effort) == pytest.approx([0.6] * 3, abs=1e-12)
-    assert list(applied[-1].position) == pytest.approx([1.98968] * 3, abs=1e-12)
 
+def test_sim_arduino_refuses_duties_outside_the_profile_limits(context, executor):
+    r = rig(context, executor)
+    r.pub.publish(duty_msg(GOOD))
     for bad in (3.0, 12.0, 4.2, 9.5, math.nan, math.inf):
-        n = node.refused
-        pub.publish(duty_msg({**good, 'az_bow/motor': bad}))
-        assert node.refused == n + 1, bad
-        pub.publish(duty_msg({**good, 'az_stbd_aft/servo': bad}))
-        assert node.refused == n + 2, bad
-    pub.publish(duty_msg({'az_mid/motor': 7.0}))
-    assert node.refused == 13 and len(applied) == 1
+        n = r.node.refused
+        r.pub.publish(duty_msg(with_duty({MOTOR['az_bow']: bad})))
+        assert r.node.refused == n + 1, bad
+        r.pub.publish(duty_msg(with_duty({SERVO['az_stbd_aft']: bad})))
+        assert r.node.refused == n + 2, bad
+    assert r.node.refused == 12 and len(r.applied) == 1
     # The limits themselves are valid duties.
-    pub.publish(duty_msg({**good, 'az_bow/motor': 4.3, 'az_port_aft/motor': 9.4}))
-    assert len(applied) == 2 and list(applied[-1].effort) == pytest.approx([-1.0, 1.5, 0.6])
+    r.pub.publish(duty_msg(with_duty({MOTOR['az_bow']: 4.3, MOTOR['az_port_aft']: 9.4})))
+    assert len(r.applied) == 2 and list(r.applied[-1].effort) == pytest.approx([-1.0, 1.5, 0.6])
 
-    # Duty cycles stop: neutral by itself after command_timeout.
-    assert node.timeouts == 0
-    assert spin(executor, lambda: node.timeouts == 1, TIMEOUT)
-    assert len(applied) == 3 and node.neutral
-    assert list(applied[-1].effort) == [c.duty_to_thrust(c.neutral_thrust_duty)] * 3 == [0.0] * 3
-    assert list(applied[-1].position) == pytest.approx([0.0] * 3, abs=1e-12)
+
+def test_sim_arduino_limits_come_from_the_profile(context, executor):
+    # With a wider range in the profile, 3.0 % and 12.0 % are accepted (clipped by the tables).
+    r = rig(context, executor, **{'pwm.duty_min_percent': 2.0, 'pwm.duty_max_percent': 12.5})
+    r.pub.publish(duty_msg(with_duty({MOTOR['az_bow']: 3.0, MOTOR['az_port_aft']: 12.0})))
+    assert r.node.refused == 0 and len(r.applied) == 1
+    assert list(r.applied[-1].effort) == pytest.approx([-1.0, 1.5, 0.6])
+    r.pub.publish(duty_msg(with_duty({MOTOR['az_bow']: 1.9})))
+    assert r.node.refused == 1 and len(r.applied) == 1
+
+
+def test_sim_arduino_refuses_a_wrong_label_or_size(context, executor):
+    r = rig(context, executor)
+
+    def message(label: str, size: int, stride: int, data: list[float]) -> Float64MultiArray:
+        msg = Float64MultiArray(data=data)
+        msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)]
+        return msg
+
+    n = len(GOOD)
+    bad = [message('effort', n, n, GOOD),                    # not a duty cycle
+           message('duty_cycle_percent', n - 1, n - 1, GOOD[:-1]),  # a channel missing
+           message('duty_cycle_percent', n + 2, n + 2, GOOD + [7.0, 7.0]),  # one too many
+           message('duty_cycle_percent', n, n, GOOD[:-1]),   # size says 6, data has 5
+           message('duty_cycle_percent', n, 1, GOOD),        # stride is not the size
+           Float64MultiArray(data=GOOD)]                     # no layout at all
+    for i, msg in enumerate(bad):
+        r.pub.publish(msg)
+        assert r.node.refused == i + 1 and not r.applied, i
+    r.pub.publish(message('duty_cycle_percent', n, n, GOOD))
+    assert r.node.refused == len(bad) and len(r.applied) == 1
+
+
+def test_sim_arduino_goes_neutral_when_duties_stop(context, executor, spin):
+    r = rig(context, executor, timeout=0.1)
+    c = r.node.calibration
+    r.pub.publish(duty_msg(GOOD))
+    assert r.node.timeouts == 0 and len(r.applied) == 1
+    assert spin(executor, lambda: r.node.timeouts == 1, TIMEOUT)
+    assert len(r.applied) == 2 and r.node.neutral
+    assert list(r.applied[-1].effort) == [c.duty_to_thrust(c.neutral_thrust_duty)] * 3 == [0.0] * 3
+    assert list(r.applied[-1].position) == pytest.approx([0.0] * 3, abs=1e-12)

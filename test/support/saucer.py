@@ -13,8 +13,9 @@ from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from rclpy.time import Time
 from sensor_msgs.msg import JointState, Joy
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 
+from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.dp_control_node import DpControlNode
 from enbarr_interfaces import convert, topics
@@ -116,8 +117,9 @@ def azimuth_msg(thrust: list[float], angle: list[float], names: list[str] = NAME
     return msg
 
 
-def duty_msg(duties: dict[str, float]) -> JointState:
-    return JointState(name=list(duties), effort=[float(d) for d in duties.values()])
+def duty_msg(duties: list[float]) -> Float64MultiArray:
+    """A ``pwm/duty_cycle`` message: one duty [%] per channel, in the profile's order."""
+    return duty_message(duties)
 
 
 def tau_of(positions: np.ndarray, thrust: Any, angle: Any) -> np.ndarray:
