@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from enbarr_core.framework.params import ParamSpec
@@ -16,15 +18,32 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SimGpioSettings:
+    """Settings of ``SimGpioNode`` (see ``SPECS``)."""
+
+    pin: int        # BCM pin number
+    initial: bool   # level at start
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimGpioSettings:
+        """Build from the declared parameters' values."""
+        return cls(pin=v['pin'], initial=v['initial'])
+
+
 class SimGpioNode(IoPluginNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'lights', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        v = self.bind_settings(SPECS, lambda v: v, lambda _: None).settings
-        self.executor_name = f'gpio_{v["pin"]}'
-        self.level = v['initial']
+        self.settings: SimGpioSettings
+        self.bind_settings(SPECS, SimGpioSettings.from_params, self._apply)
+        self.executor_name = f'gpio_{self.settings.pin}'
+        self.level = self.settings.initial
         self.connect()
+
+    def _apply(self, settings: SimGpioSettings) -> None:
+        self.settings = settings
 
     def act(self, value: Any) -> str | None:
         if not isinstance(value, bool):

@@ -14,6 +14,7 @@ switched to cbreak mode while the node runs and restored when it is destroyed.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import os
 import select
@@ -76,14 +77,34 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class KeyboardTeleopSettings:
+    """Settings of ``KeyboardTeleopNode`` (see ``SPECS``)."""
+
+    device: str                # terminal to read ('' : standard input)
+    rate: float                # goal sending rate [Hz]
+    linear_step: float         # [m/s] per key press
+    angular_step: float        # [rad/s] per key press
+    max_linear: float          # [m/s]
+    max_angular: float         # [rad/s]
+    lights_executor: str
+    manipulator_executor: str
+    manipulator_step: int      # [steps] per key press
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> KeyboardTeleopSettings:
+        """Build from the declared parameters' values."""
+        return cls(**{name: v[name] for name in cls.__dataclass_fields__})
+
+
 class KeyboardTeleopNode(EnbarrNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'keyboard', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, lambda v: v, self._apply)
-        device = self.settings['device']
+        self.settings: KeyboardTeleopSettings
+        self.bind_settings(SPECS, KeyboardTeleopSettings.from_params, self._apply)
+        device = self.settings.device
         try:
             self._fd = os.open(device, os.O_RDONLY | os.O_NOCTTY) if device else os.dup(0)
             self._saved = termios.tcgetattr(self._fd)
@@ -94,12 +115,12 @@ class KeyboardTeleopNode(EnbarrNode):
         self.state = KeyState()
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
-        self.create_timer(1.0 / self.settings['rate'], self._send)
+        self.create_timer(1.0 / self.settings.rate, self._send)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name='keyboard', daemon=True)
 
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
+    def _apply(self, settings: KeyboardTeleopSettings) -> None:
+        self.settings = settings
 
     def start(self) -> None:
         super().start()
@@ -126,12 +147,12 @@ class KeyboardTeleopNode(EnbarrNode):
 
     def on_key(self, key: str) -> None:
         s = self.settings
-        self.state, io = apply_key(self.state, key.lower(), s['linear_step'],
-                                   s['angular_step'], s['max_linear'], s['max_angular'])
+        self.state, io = apply_key(self.state, key.lower(), s.linear_step, s.angular_step,
+                                   s.max_linear, s.max_angular)
         if io is not None:
             role, value = io
-            executor = s['lights_executor'] if role == 'lights' else s['manipulator_executor']
-            value = value * s['manipulator_step'] if role == 'manipulator' else value
+            executor = s.lights_executor if role == 'lights' else s.manipulator_executor
+            value = value * s.manipulator_step if role == 'manipulator' else value
             self._io_pub.publish(Parameter(
                 name=executor, value=convert.python_to_parameter_value(value)))
         self._send()
