@@ -1,6 +1,6 @@
 """Common part of IO plugins: act on ``io_request`` messages addressed to one executor.
 
-An IO plugin has an executor name (the README's ``args``): the stepper uses its ``executor``
+An IO plugin has an executor name (what an ``io_request`` addresses): the stepper uses its ``executor``
 parameter as is, the GPIO plugin makes ``gpio_<pin>``. Requests for other executors are
 ignored; requests for this one with a value of the wrong type are refused, logged and
 counted. After acting, the plugin publishes its new state on ``io_state`` under its executor

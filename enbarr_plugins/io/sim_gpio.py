@@ -1,4 +1,4 @@
-"""Simulated Raspberry Pi GPIO output (the README's lights): ``io_request`` bool on
+"""Simulated Raspberry Pi GPIO output (the lights): ``io_request`` bool on
 ``gpio_<pin>`` sets the pin high or low; ``io_state`` reports the level."""
 
 from __future__ import annotations

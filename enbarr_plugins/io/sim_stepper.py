@@ -1,4 +1,4 @@
-"""Simulated stepper motor (the README's manipulator): ``io_request`` int32 = steps to move.
+"""Simulated stepper motor (the manipulator): ``io_request`` int32 = steps to move.
 
 The position moves toward its target at ``max_rate`` steps/s, within ``[min_position,
 max_position]`` (a request beyond them is refused, as a real manipulator's end stops would
