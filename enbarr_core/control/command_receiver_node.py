@@ -1,5 +1,6 @@
-"""Command receiver: surface commands -> velocity goal (``trajectory_request``) and
-``io_request``.
+"""Command receiver: surface commands -> velocity goal and io requests.
+
+Surface commands become ``trajectory_request`` (the velocity goal) and ``io_request``.
 
 Velocity commands (``surface_command/twist``) pass through ``CommandGate``: non-finite,
 out-of-range, stale and future-stamped ones are refused and counted, never passed on. The goal

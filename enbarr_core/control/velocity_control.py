@@ -85,6 +85,7 @@ class VelocityController:
 
     @property
     def settings(self) -> VelocityControlSettings:
+        """Return the gains, limits and model in use."""
         return self._settings
 
     @settings.setter
@@ -220,6 +221,7 @@ class VelocityReference:
         self.nu_ref_dot = np.zeros(6)
 
     def reset(self, nu: ArrayLike | None = None) -> None:
+        """Start the reference at ``nu`` (zero when None)."""
         self.nu_ref = np.zeros(6) if nu is None else vector('nu', nu, 6).copy()
         self.nu_ref_dot = np.zeros(6)
 

@@ -1,12 +1,12 @@
 """Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``force_command``.
 
 A PID with anti-windup and model-based feed-forward (``enbarr_core.control.velocity_control``)
-behind a reference model that turns a step in the goal into a reachable velocity trajectory. It runs once per filtered IMU sample, with dt
-from the sample stamps. Rates p, q, r are measured by the gyro; roll and pitch feed the
-leveling term. Linear velocity is not measured by an IMU: unless ``velocity_topic`` names an
-``nav_msgs/Odometry`` source (a DVL, an acoustic or visual odometry), surge, sway and heave run
-on the feed-forward alone. A velocity goal stamped more than ``goal_timeout`` before the
-IMU sample counts as zero.
+behind a reference model that turns a step in the goal into a reachable velocity trajectory. It
+runs once per filtered IMU sample, with dt from the sample stamps. Rates p, q, r are measured
+by the gyro; roll and pitch feed the leveling term. Linear velocity is not measured by an IMU:
+unless ``velocity_topic`` names an ``nav_msgs/Odometry`` source (a DVL, an acoustic or visual
+odometry), surge, sway and heave run on the feed-forward alone. A velocity goal stamped more
+than ``goal_timeout`` before the IMU sample counts as zero.
 Every gain is a parameter; a new value acts on the next sample without a jump in tau.
 """
 

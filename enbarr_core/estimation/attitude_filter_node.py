@@ -1,8 +1,8 @@
 """Orientation filter node: ``imu/data_raw`` (+ ``imu/mag``) -> ``imu/data``.
 
-An error-state Kalman filter on filterpy (``enbarr_core.estimation.attitude_filter``). dt comes from the sample stamps. A sample with NaN/Inf, a
-stamp that does not advance, or a gap longer than ``max_gap`` is dropped and counted (a gap
-re-initializes the filter from the next sample).
+An error-state Kalman filter on filterpy (``enbarr_core.estimation.attitude_filter``). dt comes
+from the sample stamps. A sample with NaN/Inf, a stamp that does not advance, or a gap longer
+than ``max_gap`` is dropped and counted (a gap re-initializes the filter from the next sample).
 """
 
 from __future__ import annotations

@@ -12,9 +12,11 @@ import numpy as np
 def check_gain_vectors(settings: Any, names: Sequence[str], size: int, labels: str, *,
                        may_be_infinite: Sequence[str] = (),
                        positive: Sequence[str] = ()) -> None:
-    """Each named field is ``size`` non-negative numbers (``labels`` names the entries in the
-    message), finite unless in ``may_be_infinite`` (+inf: no limit), never NaN, and > 0 when
-    in ``positive``."""
+    """Check that each named field is ``size`` non-negative numbers.
+
+    ``labels`` names the entries in the message. Each is finite unless in ``may_be_infinite``
+    (+inf: no limit), never NaN, and > 0 when in ``positive``.
+    """
     for name in names:
         raw = getattr(settings, name)
         try:

@@ -76,16 +76,19 @@ class ParamSpec:
 
     @property
     def is_array(self) -> bool:
+        """Whether the parameter is a list."""
         return isinstance(self.default, (list, tuple))
 
     @property
     def ros_type(self) -> int:
+        """Return the ``ParameterType`` the default fixes."""
         if self.is_array:
             element = self.element or type(self.default[0])
             return _ARRAY_TYPES[element]
         return _TYPES[type(self.default)]
 
     def descriptor(self) -> ParameterDescriptor:
+        """Return the descriptor: description with units, type, range, read-only."""
         text = self.description + (f' [{self.units}]' if self.units else '')
         if self.is_array and (self.low is not None or self.high is not None):
             text += f' (each element in [{self.low}, {self.high}])'
@@ -153,6 +156,7 @@ class SettingsBinding(Generic[S]):
         node.add_post_set_parameters_callback(self._post_set)
 
     def values(self) -> dict[str, Any]:
+        """Return the current values of the bound parameters (arrays as lists)."""
         return {name: _plain(self.node.get_parameter(name).value) for name in self.specs}
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
@@ -179,7 +183,7 @@ class SettingsBinding(Generic[S]):
 
 
 def _plain(value: Any) -> Any:
-    """rclpy hands arrays back as ``array.array``; make them lists."""
+    """Rclpy hands arrays back as ``array.array``; make them lists."""
     if value is not None and not isinstance(value, (bool, int, float, str, list)):
         return list(value)
     return value
@@ -220,8 +224,10 @@ def _declare(node: Node, spec: ParamSpec) -> None:
 
 
 def _given_value(node: Node, spec: ParamSpec) -> Any:
-    """The override of ``spec.name`` as given, whatever its type (the parameter is left
-    undeclared)."""
+    """Return the override of ``spec.name`` as given, whatever its type.
+
+    The parameter is left undeclared.
+    """
     node.declare_parameter(spec.name, spec.default, ParameterDescriptor(dynamic_typing=True))
     try:
         return _plain(node.get_parameter(spec.name).value)

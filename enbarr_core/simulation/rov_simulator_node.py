@@ -189,6 +189,7 @@ class RovSimulatorNode(EnbarrNode):
             f'thrust {np.abs(self._thrust).sum():5.1f} N')
 
     def odometry(self, now_ns: int) -> Odometry:
+        """Return the true state as ``nav_msgs/Odometry`` stamped ``now_ns``."""
         s = self.state
         msg = Odometry()
         convert.ns_to_stamp(now_ns, msg.header.stamp)

@@ -1,5 +1,8 @@
-"""Simulated Raspberry Pi GPIO output (the lights): ``io_request`` bool on
-``gpio_<pin>`` sets the pin high or low; ``io_state`` reports the level."""
+"""Simulated Raspberry Pi GPIO output (the lights).
+
+An ``io_request`` bool on ``gpio_<pin>`` sets the pin high or low; ``io_state`` reports the
+level.
+"""
 
 from __future__ import annotations
 
@@ -46,6 +49,7 @@ class SimGpioNode(IoPluginNode):
         self.settings = settings
 
     def act(self, value: Any) -> str | None:
+        """Set the level; refuse what is not a bool."""
         if not isinstance(value, bool):
             return 'expected a boolean (true = high)'
         self.level = value

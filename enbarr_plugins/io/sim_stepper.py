@@ -63,6 +63,7 @@ class SimStepperNode(IoPluginNode):
         self.settings = settings
 
     def act(self, value: Any) -> str | None:
+        """Move the target by ``value`` steps, within the end stops."""
         if isinstance(value, bool) or not isinstance(value, int):
             return 'expected an integer number of steps'
         target = self.target + value

@@ -1,7 +1,8 @@
-"""Keyboard teleoperation: an operator at a terminal drives the ROV (a surface station in a
-pinch). Keys change the velocity goal in steps; the goal is sent at ``rate`` with a fresh
-stamp, so when the operator stops the node (or the terminal goes away) the command
-receiver's failsafe stops the vehicle.
+"""Keyboard teleoperation: an operator at a terminal drives the ROV.
+
+A surface station in a pinch. Keys change the velocity goal in steps; the goal is sent at
+``rate`` with a fresh stamp, so when the operator stops the node (or the terminal goes away)
+the command receiver's failsafe stops the vehicle.
 
     w / s   surge ahead / astern        a / d   sway left / right
     r / f   heave up / down             q / e   yaw left / right
@@ -45,8 +46,10 @@ class KeyState:
 
 def apply_key(state: KeyState, key: str, linear_step: float, angular_step: float,
               max_linear: float, max_angular: float) -> tuple[KeyState, tuple[str, Any] | None]:
-    """The new state after ``key``, and an io request (executor role, value) if it makes one.
-    Velocities stay within +/- the maxima; unknown keys change nothing."""
+    """Return the state after ``key``, and an io request (executor role, value) if any.
+
+    Velocities stay within +/- the maxima; unknown keys change nothing.
+    """
     if key == ' ':
         return replace(state, nu=(0.0,) * 6), None
     if key == 'l':
@@ -123,6 +126,7 @@ class KeyboardTeleopNode(EnbarrNode):
         self.settings = settings
 
     def start(self) -> None:
+        """Switch the terminal to cbreak mode and start reading keys."""
         super().start()
         tty.setcbreak(self._fd)
         self.get_logger().info('keys: w/s surge, a/d sway, r/f heave, q/e yaw, space stop, '
@@ -146,6 +150,7 @@ class KeyboardTeleopNode(EnbarrNode):
                 self.on_key(key)
 
     def on_key(self, key: str) -> None:
+        """Apply one key press and send the new goal at once."""
         s = self.settings
         self.state, io = apply_key(self.state, key.lower(), s.linear_step, s.angular_step,
                                    s.max_linear, s.max_angular)
@@ -167,6 +172,7 @@ class KeyboardTeleopNode(EnbarrNode):
         self._twist_pub.publish(msg)
 
     def destroy_node(self) -> None:
+        """Stop reading, restore the terminal, then destroy the node."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(1.0)

@@ -1,5 +1,6 @@
-"""Timed scripts: the lines an operator stand-in (scripted surface commands, a scripted
-joystick) plays back, parsed once into typed steps. Free of ROS.
+"""Timed scripts, parsed once into typed steps; free of ROS.
+
+The lines an operator stand-in (scripted surface commands, a scripted joystick) plays back.
 
 A script is a list of lines ``'<time> <verb> <args...>'``, the time in seconds from the start,
 blank lines ignored::

@@ -95,9 +95,11 @@ class ScriptedCommandsNode(EnbarrNode):
 
     @property
     def finished(self) -> bool:
+        """Whether every step was played and no goal is being sent."""
         return self._next >= len(self.script) and self._nu is None
 
     def start(self) -> None:
+        """Start the script clock."""
         super().start()
         self._start_ns = self.get_clock().now().nanoseconds
 
