@@ -16,7 +16,7 @@ ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_c
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.errors', 'enbarr_core.recording.bag',
              'enbarr_plugins.transport.i2c', 'enbarr_plugins.transport.serial_link',
-             'enbarr_plugins.transport.net')
+             'enbarr_plugins.transport.net', 'enbarr_plugins.operator.script')
 
 
 def pure_modules() -> list[str]:
