@@ -10,7 +10,7 @@ import pytest
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.parameter import Parameter
 from support.nodes import add, get_param, param_client, probe, set_param
-from support.rov import _imu
+from support.rov import imu_sample
 
 from enbarr_core.control.velocity_control_node import VelocityControlNode
 from enbarr_core.framework import registry
@@ -51,7 +51,7 @@ class Loop:
 
     def sample(self) -> None:
         self.t += 10_000_000
-        self.imu_pub.publish(_imu(self.t, rate_z=0.5))  # yaw rate error -0.5 rad/s
+        self.imu_pub.publish(imu_sample(self.t, rate_z=0.5))  # yaw rate error -0.5 rad/s
 
     def feed(self, count: int) -> np.ndarray:
         for _ in range(count):
@@ -149,7 +149,7 @@ class Feeder:
     def run(self, n: int) -> None:
         for _ in range(n):
             self.t += 10_000_000
-            self.imu_pub.publish(_imu(self.t, rate_z=0.0))
+            self.imu_pub.publish(imu_sample(self.t, rate_z=0.0))
 
 
 @pytest.fixture
@@ -165,8 +165,8 @@ def test_out_of_order_imu_is_dropped_and_the_state_kept(feeder):
     feeder.run(50)
     ref_before = node.reference.nu_ref.copy()
     assert ref_before[0] > 0.1 and len(taus) == 49
-    feeder.imu_pub.publish(_imu(feeder.t - 5_000_000, rate_z=0.0))  # from the past
-    feeder.imu_pub.publish(_imu(feeder.t, rate_z=0.0))              # repeated
+    feeder.imu_pub.publish(imu_sample(feeder.t - 5_000_000, rate_z=0.0))  # from the past
+    feeder.imu_pub.publish(imu_sample(feeder.t, rate_z=0.0))              # repeated
     assert node.rejected == 2 and len(taus) == 49
     np.testing.assert_array_equal(node.reference.nu_ref, ref_before)
     feeder.run(1)

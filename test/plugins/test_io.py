@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from rclpy.parameter import Parameter
 from support.nodes import TIMEOUT, add
-from support.rov import _io_probe, io_msg
+from support.rov import io_probe, io_msg
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_plugins.io.sim_gpio import SimGpioNode
@@ -18,7 +18,7 @@ from enbarr_plugins.io.sim_stepper import SimStepperNode
 def gpio(context, executor):
     node = add(executor, SimGpioNode(node_name='lights', context=context,
                                      parameter_overrides=[Parameter('pin', value=12)]))
-    pub, states = _io_probe(context, executor)
+    pub, states = io_probe(context, executor)
     return node, pub, states
 
 
@@ -62,7 +62,7 @@ def stepper(context, executor):
                                             Parameter('executor', value='manipulator'),
                                             Parameter('max_rate', value=400.0),
                                             Parameter('max_position', value=500)]))
-    pub, states = _io_probe(context, executor)
+    pub, states = io_probe(context, executor)
     assert node.executor_name == 'manipulator'
     return node, pub, states
 
