@@ -313,3 +313,51 @@ def test_the_error_travels_on_the_diagnostics_topic(context, executor, spin, clo
     assert spin(executor, report_and_look, TIMEOUT)
     status = next(s for s in seen if s.hardware_id == 'fake_actuator')
     assert status.level == bytes([ERROR]) and 'fake0: no answer' in status.message
+
+
+# -- a driver over the transport layer -------------------------------------------------------
+
+class I2cSensor(SensorDriver):
+    """A sensor checked by its identity register over the fake I2C bus."""
+
+    WHO_AM_I = 0x75
+
+    def __init__(self, bus: Any, **kwargs: Any) -> None:
+        from enbarr_plugins.transport.i2c import I2cDevice
+        self.chip = I2cDevice(bus, 0x68, bus_name='i2c-1', retries=1, retry_delay=0.0)
+        super().__init__('i2c_sensor', device=self.chip.name, **kwargs)
+        self.connect()
+
+    def open_device(self) -> None:
+        if self.chip.read_u8(self.WHO_AM_I) != 0x71:
+            raise DeviceError(f'{self.chip.name}: not the expected chip')
+
+    def poll(self) -> None:
+        try:
+            self.chip.read_block(0x3B, 6)
+        except DeviceError as err:
+            self.device_fault(err)
+            return
+        self.sample_received()
+
+
+def test_a_driver_over_the_fake_i2c_bus_faults_and_recovers(context, clock):
+    from enbarr_plugins.transport.i2c import FakeI2cBus, RegisterMap
+    bus = FakeI2cBus()
+    clock.at(0.0)
+    node = I2cSensor(bus, context=context, parameter_overrides=[
+        Parameter('reconnect.initial_delay', value=0.5)])
+    assert not node.connected and 'i2c-1 0x68: read register 0x75' in node.last_fault
+    bus.attach(0x68, RegisterMap({0x75: 0x71}))
+    tick(node, clock, 0.5)
+    assert node.connected and node.device == 'i2c-1 0x68'
+    node.poll()
+    assert node.samples == 1
+    bus.nack(0x68, 2)  # more NACKs than the retries cover
+    node.poll()
+    assert not node.connected and 'EREMOTEIO' in node.last_fault
+    tick(node, clock, 1.0)
+    assert node.connected
+    node.poll()
+    assert node.samples == 2
+    node.destroy_node()
