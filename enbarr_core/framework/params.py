@@ -27,9 +27,10 @@ and the node reads typed attributes (``self.settings.time_constant``), never str
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
+import re
 from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
@@ -150,7 +151,8 @@ class SettingsBinding(Generic[S]):
         try:
             self.settings: S = build(values)
         except ValueError as err:
-            raise ConfigurationError(f'node {node.get_name()!r}: {err}') from err
+            raise ConfigurationError(f'node {node.get_name()!r}: {err}',
+                                     parameter=_named(str(err), self.specs)) from err
         apply(self.settings)
         node.add_on_set_parameters_callback(self._on_set)
         node.add_post_set_parameters_callback(self._post_set)
@@ -187,6 +189,12 @@ def _plain(value: Any) -> Any:
     if value is not None and not isinstance(value, (bool, int, float, str, list)):
         return list(value)
     return value
+
+
+def _named(message: str, specs: Mapping[str, ParamSpec]) -> str | None:
+    """Return the parameter a settings error names first (``'kp[5]: ...'`` -> ``'kp'``)."""
+    head = re.split(r'[\[:\s]', message, maxsplit=1)[0]
+    return head if head in specs else None
 
 
 def _type_text(spec: ParamSpec) -> str:

@@ -91,3 +91,15 @@ def test_wrong_array_type_is_refused(context):
     with pytest.raises(ConfigurationError,
                        match=r"parameter 'bias': expected a list of float, got \['a', 'b'\]"):
         make(context, [Parameter('bias', value=['a', 'b'])])
+
+
+def test_a_settings_error_names_its_parameter(context):
+    node = EnbarrNode('tuned', context=context)
+
+    def build(v):
+        raise ValueError('bias[1]: must be below gain')
+
+    with pytest.raises(ConfigurationError, match=r"^node 'tuned': bias\[1\]: must be") as info:
+        node.bind_settings(SPECS, build, lambda s: None)
+    assert info.value.parameter == 'bias'
+    node.destroy_node()
