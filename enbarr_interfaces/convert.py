@@ -32,10 +32,12 @@ def ns_to_stamp(ns: int, out: Time | None = None) -> Time:
 
 
 def vector3_to_array(v: Vector3) -> NDArray[np.float64]:
+    """Return a ``Vector3`` as a (3,) array."""
     return np.array((v.x, v.y, v.z))
 
 
 def set_vector3(v: Vector3, a: Any) -> None:
+    """Set a ``Vector3`` from 3 numbers."""
     v.x, v.y, v.z = float(a[0]), float(a[1]), float(a[2])
 
 
@@ -45,6 +47,7 @@ def quaternion_to_array(q: Any) -> NDArray[np.float64]:
 
 
 def set_quaternion(q: Any, a: Any) -> None:
+    """Set a ``Quaternion`` from [x, y, z, w]."""
     q.x, q.y, q.z, q.w = float(a[0]), float(a[1]), float(a[2]), float(a[3])
 
 
@@ -54,6 +57,7 @@ def twist_to_nu(t: Twist) -> NDArray[np.float64]:
 
 
 def set_twist(t: Twist, nu: Any) -> None:
+    """Set a ``Twist`` from nu = [u, v, w, p, q, r]."""
     set_vector3(t.linear, nu[:3])
     set_vector3(t.angular, nu[3:6])
 
@@ -64,6 +68,7 @@ def wrench_to_tau(w: Wrench) -> NDArray[np.float64]:
 
 
 def set_wrench(w: Wrench, tau: Any) -> None:
+    """Set a ``Wrench`` from tau = [X, Y, Z, K, M, N]."""
     set_vector3(w.force, tau[:3])
     set_vector3(w.torque, tau[3:6])
 
@@ -85,6 +90,7 @@ def pose_to_eta(pose: Any) -> NDArray[np.float64]:
 
 
 def set_pose_eta(pose: Any, eta: Any) -> None:
+    """Set a ``Pose`` from eta = [x, y, psi] (planar)."""
     pose.position.x, pose.position.y, pose.position.z = float(eta[0]), float(eta[1]), 0.0
     yaw_to_quaternion(float(eta[2]), pose.orientation)
 
@@ -95,6 +101,7 @@ def twist_to_nu3(t: Twist) -> NDArray[np.float64]:
 
 
 def set_twist_nu3(t: Twist, nu: Any) -> None:
+    """Set a ``Twist`` from nu = [u, v, r] (planar)."""
     t.linear.x, t.linear.y, t.angular.z = float(nu[0]), float(nu[1]), float(nu[2])
 
 
@@ -104,6 +111,7 @@ def wrench_to_tau3(w: Wrench) -> NDArray[np.float64]:
 
 
 def set_wrench_tau3(w: Wrench, tau: Any) -> None:
+    """Set a ``Wrench`` from tau = [X, Y, N] (planar)."""
     w.force.x, w.force.y, w.torque.z = float(tau[0]), float(tau[1]), float(tau[2])
 
 
@@ -113,11 +121,12 @@ def set_covariance3(field: Any, cov: NDArray[np.float64]) -> None:
 
 
 def all_finite(*arrays: Any) -> bool:
+    """Whether every element of every array is finite."""
     return all(bool(np.all(np.isfinite(a))) for a in arrays)
 
 
 def parameter_value_to_python(value: ParameterValue) -> Any:
-    """The typed content of an ``rcl_interfaces/ParameterValue`` (``None`` when NOT_SET)."""
+    """Return the typed content of an ``rcl_interfaces/ParameterValue`` (``None`` when NOT_SET)."""
     t = value.type
     if t == ParameterType.PARAMETER_BOOL:
         return bool(value.bool_value)
@@ -141,7 +150,7 @@ def parameter_value_to_python(value: ParameterValue) -> Any:
 
 
 def python_to_parameter_value(value: Any) -> ParameterValue:
-    """A Python bool/int/float/str (or homogeneous list of them) -> ``ParameterValue``."""
+    """Convert a Python bool/int/float/str (or homogeneous list) to a ``ParameterValue``."""
     pv = ParameterValue()
     if isinstance(value, bool):
         pv.type, pv.bool_value = ParameterType.PARAMETER_BOOL, value
@@ -168,7 +177,7 @@ def python_to_parameter_value(value: Any) -> ParameterValue:
 
 
 def parameter_value_is_finite(value: ParameterValue) -> bool:
-    """False when a double (or double array) value holds NaN or Inf."""
+    """Return False when a double (or double array) value holds NaN or Inf."""
     if value.type == ParameterType.PARAMETER_DOUBLE:
         return math.isfinite(value.double_value)
     if value.type == ParameterType.PARAMETER_DOUBLE_ARRAY:

@@ -56,6 +56,7 @@ class LinkSubscription:
         return self.ros_subscription is None
 
     def deliver(self, msg: Any) -> None:
+        """Hand ``msg`` to the callback (errors are logged, never raised)."""
         try:
             self.callback(msg)
         except Exception as err:  # noqa: BLE001 - one faulty node must not stop the chain
@@ -65,6 +66,7 @@ class LinkSubscription:
                 throttle_duration_sec=1.0)
 
     def destroy(self) -> None:
+        """Leave the bus."""
         self.bus._remove_subscription(self)
         if self.ros_subscription is not None:
             self.node.destroy_subscription(self.ros_subscription)
@@ -92,9 +94,11 @@ class LinkPublisher:
 
     @property
     def topic_name(self) -> str:
+        """Return the resolved topic name."""
         return self.name
 
     def publish(self, msg: Any) -> None:
+        """Deliver ``msg`` to every subscriber of the topic."""
         for sub in self._subscribers:
             sub.deliver(msg)
         # Only DDS readers count: in-process link subscribers never create one, so this is
@@ -108,6 +112,7 @@ class LinkPublisher:
             self.ros_publisher.publish(msg)
 
     def destroy(self) -> None:
+        """Leave the bus."""
         self.bus._remove_publisher(self)
         self.node.destroy_publisher(self.ros_publisher)
 
@@ -127,7 +132,7 @@ class LinkBus:
 
     @classmethod
     def of(cls, context: Any) -> LinkBus:
-        """The bus of ``context`` (created on first use)."""
+        """Return the bus of ``context`` (created on first use)."""
         with cls._buses_lock:
             bus = cls._buses.get(context)
             if bus is None:
@@ -136,6 +141,7 @@ class LinkBus:
 
     # -- creation ---------------------------------------------------------------------------
     def create_publisher(self, node: Node, spec: TopicSpec) -> LinkPublisher:
+        """Create a publisher of the fast topic ``spec`` for ``node``."""
         _require_fast(spec)
         name = node.resolve_topic_name(spec.name)
         pub = LinkPublisher(self, node, spec, name)
@@ -155,6 +161,7 @@ class LinkBus:
 
     def create_subscription(self, node: Node, spec: TopicSpec,
                             callback: Callback) -> LinkSubscription:
+        """Create a subscription to the fast topic ``spec`` for ``node``."""
         _require_fast(spec)
         name = node.resolve_topic_name(spec.name)
         sub = LinkSubscription(self, node, spec, name, callback)
@@ -191,12 +198,13 @@ class LinkBus:
             tap(pub)
 
     def remove_tap(self, tap: Callable[[LinkPublisher], None]) -> None:
+        """Stop calling ``tap`` for new publishers."""
         with self._lock:
             if tap in self._taps:
                 self._taps.remove(tap)
 
     def local_topics(self) -> dict[str, TopicSpec]:
-        """Resolved names and specs of the topics published through this bus."""
+        """Return the resolved names and specs of the topics published through this bus."""
         with self._lock:
             return {name: pubs[0].spec for name, pubs in self._publishers.items() if pubs}
 

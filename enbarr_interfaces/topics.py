@@ -91,8 +91,8 @@ IO_STATE = TopicSpec(
     fast=True)
 FORCE_COMMAND = TopicSpec(
     'force_command', WrenchStamped, SENSOR_QOS, 'N, N m', BODY_FRAME,
-    'Generalized force tau the controller asks of the allocation (the README\'s '
-    '"trajectory_corrected").', fast=True)
+    'Generalized force tau the controller asks of the allocation (called '
+    '"trajectory_corrected" before; see docs/interfaces.md).', fast=True)
 THRUSTER_COMMANDS = TopicSpec(
     'thruster_commands', JointState, SENSOR_QOS, 'normalized -1..1 (effort)', BODY_FRAME,
     'Per-thruster command: name[i] = thruster, effort[i] = -1 (full reverse) .. 1 (full '

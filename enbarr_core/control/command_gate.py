@@ -17,6 +17,8 @@ from numpy.typing import NDArray
 
 
 class Verdict(enum.Enum):
+    """What the gate made of one command."""
+
     ACCEPTED = 'accepted'
     NON_FINITE = 'non_finite'
     OUT_OF_RANGE = 'out_of_range'
@@ -26,6 +28,8 @@ class Verdict(enum.Enum):
 
 @dataclass(frozen=True)
 class GateSettings:
+    """Limits, staleness and failsafe timeout of the gate."""
+
     max_linear: float = 1.0      # largest |u|, |v|, |w| accepted [m/s]
     max_angular: float = 1.0     # largest |p|, |q|, |r| accepted [rad/s]
     timeout: float = 0.5         # no accepted command for this long -> zero goal [s]
@@ -33,6 +37,7 @@ class GateSettings:
     max_future: float = 0.05     # stamps further in the future are refused [s]
 
     def validate(self) -> None:
+        """Raise ValueError naming the first bad field."""
         for name in ('max_linear', 'max_angular', 'timeout', 'max_age', 'max_future'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
@@ -52,6 +57,7 @@ class CommandGate:
         self.counts = {v: 0 for v in Verdict}
 
     def check(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int) -> Verdict:
+        """Judge ``nu`` stamped ``stamp_ns`` at ``now_ns`` without taking it."""
         s = self.settings
         if not np.all(np.isfinite(nu)):
             return Verdict.NON_FINITE
@@ -73,11 +79,12 @@ class CommandGate:
         return verdict
 
     def failsafe(self, now_ns: int) -> bool:
-        """True when no command was accepted within ``timeout`` (the goal is then zero)."""
+        """Return True when no command was accepted within ``timeout`` (the goal is then zero)."""
         return (self.last_accept_ns is None
                 or now_ns - self.last_accept_ns > self.settings.timeout * 1e9)
 
     def current_goal(self, now_ns: int) -> NDArray[np.float64]:
+        """Return the velocity goal now: the last accepted command, zero in failsafe."""
         if self.failsafe(now_ns):
             self.goal = np.zeros(6)
         return self.goal

@@ -1,5 +1,6 @@
-"""Command receiver: surface commands -> velocity goal (``trajectory_request``) and
-``io_request``.
+"""Command receiver: surface commands -> velocity goal and io requests.
+
+Surface commands become ``trajectory_request`` (the velocity goal) and ``io_request``.
 
 Velocity commands (``surface_command/twist``) pass through ``CommandGate``: non-finite,
 out-of-range, stale and future-stamped ones are refused and counted, never passed on. The goal
@@ -11,6 +12,8 @@ Counters go to ``/diagnostics`` every second.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import re
 from typing import Any
 
@@ -39,6 +42,23 @@ SPECS = [
 _EXECUTOR = re.compile(r'^[A-Za-z][A-Za-z0-9_/]*$')
 
 
+@dataclass(frozen=True)
+class CommandReceiverSettings:
+    """Settings of ``CommandReceiverNode`` (see ``SPECS``)."""
+
+    gate: GateSettings  # limits, staleness and failsafe timeout of velocity commands
+    rate: float         # goal republishing rate [Hz]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> CommandReceiverSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        gate = GateSettings(max_linear=v['max_linear'], max_angular=v['max_angular'],
+                            timeout=v['timeout'], max_age=v['max_age'],
+                            max_future=v['max_future'])
+        gate.validate()
+        return cls(gate=gate, rate=v['rate'])
+
+
 class CommandReceiverNode(EnbarrNode):
     """See the module docstring."""
 
@@ -48,23 +68,18 @@ class CommandReceiverNode(EnbarrNode):
         self.io_forwarded = 0
         self.io_rejected = 0
         self._failsafe = True
-        values = self.bind_settings(SPECS, self._build, self._apply)
+        self.settings: CommandReceiverSettings
+        self.bind_settings(SPECS, CommandReceiverSettings.from_params, self._apply)
         self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
         self._io_pub = self.create_topic_publisher(topics.IO_REQUEST)
         self.create_topic_subscription(topics.SURFACE_TWIST, self._on_twist)
         self.create_topic_subscription(topics.SURFACE_IO, self._on_io)
-        self.create_timer(1.0 / values.values()['rate'], self._publish_goal)
+        self.create_timer(1.0 / self.settings.rate, self._publish_goal)
         self.create_timer(1.0, self._report)
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> GateSettings:
-        s = GateSettings(v['max_linear'], v['max_angular'], v['timeout'], v['max_age'],
-                         v['max_future'])
-        s.validate()
-        return s
-
-    def _apply(self, settings: GateSettings) -> None:
-        self.gate.settings = settings
+    def _apply(self, settings: CommandReceiverSettings) -> None:
+        self.settings = settings
+        self.gate.settings = settings.gate
 
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds

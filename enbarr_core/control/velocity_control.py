@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from enbarr_core.framework.checks import check_gain_vectors, check_non_negative
+from enbarr_core.framework.checks import check_gain_vectors, check_non_negative, vector
 
 Vector = NDArray[np.float64]
 
@@ -73,13 +73,6 @@ def _all_finite(v: Vector) -> bool:
     return bool(np.isfinite(v).all())
 
 
-def _vector6(value: ArrayLike, what: str) -> Vector:
-    v = np.asarray(value, dtype=float)
-    if v.shape != (6,):
-        raise ValueError(f'{what} must have shape (6,), got {v.shape}')
-    return v
-
-
 class VelocityController:
     """Six decoupled velocity loops; call :meth:`step` once per control period."""
 
@@ -92,6 +85,7 @@ class VelocityController:
 
     @property
     def settings(self) -> VelocityControlSettings:
+        """Return the gains, limits and model in use."""
         return self._settings
 
     @settings.setter
@@ -140,10 +134,10 @@ class VelocityController:
         """
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'dt must be finite and > 0, got {dt!r}')
-        nu_d = _vector6(nu_d, 'nu_d')
+        nu_d = vector('nu_d', nu_d, 6)
         if not _all_finite(nu_d):
             raise ValueError(f'nu_d must be finite, got {nu_d}')
-        y = _vector6(nu, 'nu')
+        y = vector('nu', nu, 6)
         all_measured = _all_finite(y)
         if not all_measured and np.isinf(y).any():
             raise ValueError(f'nu must be finite or NaN (not measured), got {y}')
@@ -153,7 +147,7 @@ class VelocityController:
         # tau_ff = M nu_d_dot + D_lin nu_d + D_quad |nu_d| nu_d
         tau_ff = (self._d_lin + self._d_quad * np.abs(nu_d)) * nu_d
         if nu_d_dot is not None:
-            nu_d_dot = _vector6(nu_d_dot, 'nu_d_dot')
+            nu_d_dot = vector('nu_d_dot', nu_d_dot, 6)
             if not _all_finite(nu_d_dot):
                 raise ValueError(f'nu_d_dot must be finite, got {nu_d_dot}')
             tau_ff += self._inertia * nu_d_dot
@@ -219,22 +213,23 @@ class VelocityReference:
     """
 
     def __init__(self, time_constant: ArrayLike, max_accel: ArrayLike) -> None:
-        self.time_constant = _vector6(time_constant, 'time_constant')
-        self.max_accel = _vector6(max_accel, 'max_accel')
+        self.time_constant = vector('time_constant', time_constant, 6)
+        self.max_accel = vector('max_accel', max_accel, 6)
         if not (np.all(self.time_constant > 0.0) and np.all(self.max_accel > 0.0)):
             raise ValueError('time_constant and max_accel must be > 0')
         self.nu_ref = np.zeros(6)
         self.nu_ref_dot = np.zeros(6)
 
     def reset(self, nu: ArrayLike | None = None) -> None:
-        self.nu_ref = np.zeros(6) if nu is None else _vector6(nu, 'nu').copy()
+        """Start the reference at ``nu`` (zero when None)."""
+        self.nu_ref = np.zeros(6) if nu is None else vector('nu', nu, 6).copy()
         self.nu_ref_dot = np.zeros(6)
 
     def step(self, nu_goal: ArrayLike, dt: float) -> tuple[Vector, Vector]:
         """Advance by ``dt`` [s] toward ``nu_goal``; return (nu_ref, nu_ref_dot)."""
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'dt must be finite and > 0, got {dt!r}')
-        goal = _vector6(nu_goal, 'nu_goal')
+        goal = vector('nu_goal', nu_goal, 6)
         # Never step past the goal: the rate is also limited to (goal - ref) / dt.
         rate = (goal - self.nu_ref) / np.maximum(self.time_constant, dt)
         self.nu_ref_dot = np.clip(rate, -self.max_accel, self.max_accel)

@@ -1,18 +1,19 @@
 """Velocity control loop: ``trajectory_request`` + ``imu/data`` -> ``force_command``.
 
-The README's ``control_loop_pi.py``, built as a PID with anti-windup and model-based
-feed-forward (``algorithms.velocity_control``) behind a reference model that turns a step in
-the goal into a reachable velocity trajectory. It runs once per filtered IMU sample, with dt
-from the sample stamps. Rates p, q, r are measured by the gyro; roll and pitch feed the
-leveling term. Linear velocity is not measured by an IMU: unless ``velocity_topic`` names an
-``nav_msgs/Odometry`` source (a DVL, an acoustic or visual odometry), surge, sway and heave run
-on the feed-forward alone. A velocity goal stamped more than ``goal_timeout`` before the
-IMU sample counts as zero.
+A PID with anti-windup and model-based feed-forward (``enbarr_core.control.velocity_control``)
+behind a reference model that turns a step in the goal into a reachable velocity trajectory. It
+runs once per filtered IMU sample, with dt from the sample stamps. Rates p, q, r are measured
+by the gyro; roll and pitch feed the leveling term. Linear velocity is not measured by an IMU:
+unless ``velocity_topic`` names an ``nav_msgs/Odometry`` source (a DVL, an acoustic or visual
+odometry), surge, sway and heave run on the feed-forward alone. A velocity goal stamped more
+than ``goal_timeout`` before the IMU sample counts as zero.
 Every gain is a parameter; a new value acts on the next sample without a jump in tau.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 from typing import Any
 
@@ -24,9 +25,10 @@ from sensor_msgs.msg import Imu
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.topics import TopicSpec
 
-from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.control.velocity_control import (
     VelocityControlSettings, VelocityController, VelocityReference)
+from enbarr_core.framework.checks import floats
+from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 
@@ -69,34 +71,48 @@ SPECS = [
 ]
 
 
-def build_settings(v: dict[str, Any]) -> tuple[VelocityControlSettings, dict[str, Any]]:
-    inertia = v['vehicle.inertia']
-    if len(inertia) == 9:
-        inertia = [inertia[0], inertia[4], inertia[8]]
-    elif len(inertia) != 3:
-        raise ValueError(f'vehicle.inertia: expected 3 or 9 values, got {len(inertia)}')
-    m = v['vehicle.mass']
-    rigid = [m, m, m, *inertia]
-    added = v['vehicle.added_mass']
-    if len(added) != 6:
-        raise ValueError(f'vehicle.added_mass: expected 6 values, got {len(added)}')
-    settings = VelocityControlSettings(
-        kp=tuple(v['kp']), ki=tuple(v['ki']), kd=tuple(v['kd']),
-        integral_limit=tuple(v['integral_limit']), tau_max=tuple(v['tau_max']),
-        d_lin=tuple(v['vehicle.d_lin']), d_quad=tuple(v['vehicle.d_quad']),
-        inertia=tuple(a + b for a, b in zip(rigid, added)), level_gain=v['level_gain'],
-        derivative_filter=v['derivative_filter'])
-    settings.validate()
-    for k in ('reference_time_constant', 'max_accel'):
-        if len(v[k]) != 6:
-            raise ValueError(f'{k}: expected 6 values, got {len(v[k])}')
-    return settings, v
+@dataclass(frozen=True)
+class VelocityControlNodeSettings:
+    """Settings of ``VelocityControlNode`` (see ``SPECS``); vectors are [X Y Z K M N]."""
+
+    controller: VelocityControlSettings        # gains, limits and feed-forward model
+    reference_time_constant: tuple[float, ...]  # [s]
+    max_accel: tuple[float, ...]                # [m/s^2, rad/s^2]
+    goal_timeout: float                         # [s]
+    max_gap: float                              # [s]
+    velocity_topic: str
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> VelocityControlNodeSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        inertia = floats('vehicle.inertia', v['vehicle.inertia'], (3, 9))
+        if len(inertia) == 9:
+            inertia = (inertia[0], inertia[4], inertia[8])
+        m = v['vehicle.mass']
+        rigid = (m, m, m, *inertia)
+        added = floats('vehicle.added_mass', v['vehicle.added_mass'], 6)
+        controller = VelocityControlSettings(
+            kp=floats('kp', v['kp'], 6), ki=floats('ki', v['ki'], 6),
+            kd=floats('kd', v['kd'], 6),
+            integral_limit=floats('integral_limit', v['integral_limit'], 6, finite=False),
+            tau_max=floats('tau_max', v['tau_max'], 6, finite=False),
+            d_lin=floats('vehicle.d_lin', v['vehicle.d_lin'], 6),
+            d_quad=floats('vehicle.d_quad', v['vehicle.d_quad'], 6),
+            inertia=tuple(a + b for a, b in zip(rigid, added)), level_gain=v['level_gain'],
+            derivative_filter=v['derivative_filter'])
+        controller.validate()
+        return cls(controller=controller,
+                   reference_time_constant=floats(
+                       'reference_time_constant', v['reference_time_constant'], 6),
+                   max_accel=floats('max_accel', v['max_accel'], 6),
+                   goal_timeout=v['goal_timeout'], max_gap=v['max_gap'],
+                   velocity_topic=v['velocity_topic'])
 
 
 class VelocityControlNode(EnbarrNode):
     """See the module docstring."""
 
-    def __init__(self, node_name: str = 'control_loop', **kwargs: Any) -> None:
+    def __init__(self, node_name: str = 'velocity_control', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.controller: VelocityController | None = None
         self.reference: VelocityReference | None = None
@@ -106,28 +122,29 @@ class VelocityControlNode(EnbarrNode):
         self._last_ns: int | None = None
         self._linear = np.full(3, math.nan)
         self.rejected = 0
-        self.binding = self.bind_settings(SPECS, build_settings, self._apply)
+        self.settings: VelocityControlNodeSettings
+        self.bind_settings(SPECS, VelocityControlNodeSettings.from_params, self._apply)
         self._pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self.create_topic_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
         self.create_topic_subscription(topics.IMU, self._on_imu)
-        velocity_topic = self.binding.values()['velocity_topic']
+        velocity_topic = self.settings.velocity_topic
         if velocity_topic:
             self.create_topic_subscription(TopicSpec(
                 velocity_topic, Odometry, topics.SENSOR_QOS, 'm/s', topics.BODY_FRAME,
                 'linear body velocity source'), self._on_velocity)
 
-    def _apply(self, built: tuple[VelocityControlSettings, dict[str, Any]]) -> None:
-        settings, v = built
+    def _apply(self, settings: VelocityControlNodeSettings) -> None:
+        self.settings = settings
         if self.controller is None:
-            self.controller = VelocityController(settings)
+            self.controller = VelocityController(settings.controller)
         else:
-            self.controller.settings = settings
-        reference = VelocityReference(v['reference_time_constant'], v['max_accel'])
+            self.controller.settings = settings.controller
+        reference = VelocityReference(settings.reference_time_constant, settings.max_accel)
         if self.reference is not None:  # keep the trajectory in progress: no jump
             reference.nu_ref = self.reference.nu_ref
         self.reference = reference
-        self._goal_timeout_ns = int(v['goal_timeout'] * 1e9)
-        self._max_gap_ns = int(v['max_gap'] * 1e9)
+        self._goal_timeout_ns = int(settings.goal_timeout * 1e9)
+        self._max_gap_ns = int(settings.max_gap * 1e9)
 
     def _on_goal(self, msg: TwistStamped) -> None:
         nu = convert.twist_to_nu(msg.twist)

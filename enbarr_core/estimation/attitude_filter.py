@@ -194,6 +194,7 @@ class AttitudeFilter:
 
     @property
     def settings(self) -> AttitudeFilterSettings:
+        """Return the noise model and gates in use."""
         return self._settings
 
     @settings.setter
@@ -204,6 +205,7 @@ class AttitudeFilter:
 
     @property
     def initialized(self) -> bool:
+        """Whether the filter has an attitude (from its first sample on)."""
         return self._initialized
 
     def reset(self) -> None:

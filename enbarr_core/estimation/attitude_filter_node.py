@@ -1,14 +1,14 @@
 """Orientation filter node: ``imu/data_raw`` (+ ``imu/mag``) -> ``imu/data``.
 
-The README's ``core/filtering/kalman.py``, built as an error-state Kalman filter on filterpy
-(``algorithms.attitude_filter``). dt comes from the sample stamps. A sample with NaN/Inf, a
-stamp that does not advance, or a gap longer than ``max_gap`` is dropped and counted (a gap
-re-initializes the filter from the next sample).
+An error-state Kalman filter on filterpy (``enbarr_core.estimation.attitude_filter``). dt comes
+from the sample stamps. A sample with NaN/Inf, a stamp that does not advance, or a gap longer
+than ``max_gap`` is dropped and counted (a gap re-initializes the filter from the next sample).
 """
 
 from __future__ import annotations
 
-from dataclasses import fields
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -44,6 +44,22 @@ SPECS = [
 _FIELDS = [f.name for f in fields(AttitudeFilterSettings)]
 
 
+@dataclass(frozen=True)
+class AttitudeFilterNodeSettings:
+    """Settings of ``AttitudeFilterNode`` (see ``SPECS``)."""
+
+    filter: AttitudeFilterSettings  # noise model and gates of the filter
+    max_gap: float                  # a longer gap between samples re-initializes [s]
+    mag_max_age: float              # largest |IMU stamp - mag stamp| for a heading update [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> AttitudeFilterNodeSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        settings = AttitudeFilterSettings(**{k: v[k] for k in _FIELDS})
+        settings.validate()
+        return cls(filter=settings, max_gap=v['max_gap'], mag_max_age=v['mag_max_age'])
+
+
 class AttitudeFilterNode(EnbarrNode):
     """See the module docstring."""
 
@@ -55,22 +71,18 @@ class AttitudeFilterNode(EnbarrNode):
         self._last_ns: int | None = None
         self._mag: np.ndarray | None = None
         self._mag_ns = 0
-        self.bind_settings(SPECS, self._build, self._apply)
+        self.settings: AttitudeFilterNodeSettings
+        self.bind_settings(SPECS, AttitudeFilterNodeSettings.from_params, self._apply)
         self._pub = self.create_topic_publisher(topics.IMU)
         self.create_topic_subscription(topics.IMU_MAG, self._on_mag)
         self.create_topic_subscription(topics.IMU_RAW, self._on_imu)
         self.create_timer(1.0, self._report)
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> tuple[AttitudeFilterSettings, dict[str, Any]]:
-        settings = AttitudeFilterSettings(**{k: v[k] for k in _FIELDS})
-        settings.validate()
-        return settings, v
-
-    def _apply(self, built: tuple[AttitudeFilterSettings, dict[str, Any]]) -> None:
-        self.filter.settings = built[0]
-        self._max_gap_ns = int(built[1]['max_gap'] * 1e9)
-        self._mag_age_ns = int(built[1]['mag_max_age'] * 1e9)
+    def _apply(self, settings: AttitudeFilterNodeSettings) -> None:
+        self.settings = settings
+        self.filter.settings = settings.filter
+        self._max_gap_ns = int(settings.max_gap * 1e9)
+        self._mag_age_ns = int(settings.mag_max_age * 1e9)
 
     def _on_mag(self, msg: MagneticField) -> None:
         m = convert.vector3_to_array(msg.magnetic_field)

@@ -1,0 +1,1 @@
+"""The framework every node stands on: base node, drivers, parameters, registry, errors."""

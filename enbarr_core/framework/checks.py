@@ -12,9 +12,11 @@ import numpy as np
 def check_gain_vectors(settings: Any, names: Sequence[str], size: int, labels: str, *,
                        may_be_infinite: Sequence[str] = (),
                        positive: Sequence[str] = ()) -> None:
-    """Each named field is ``size`` non-negative numbers (``labels`` names the entries in the
-    message), finite unless in ``may_be_infinite`` (+inf: no limit), never NaN, and > 0 when
-    in ``positive``."""
+    """Check that each named field is ``size`` non-negative numbers.
+
+    ``labels`` names the entries in the message. Each is finite unless in ``may_be_infinite``
+    (+inf: no limit), never NaN, and > 0 when in ``positive``.
+    """
     for name in names:
         raw = getattr(settings, name)
         try:
@@ -42,3 +44,52 @@ def check_non_negative(settings: Any, names: Sequence[str]) -> None:
             raise ValueError(f'{name}: must be a number, got {raw!r}') from exc
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f'{name}: must be finite and non-negative, got {raw!r}')
+
+
+def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,
+           finite: bool = True) -> tuple[float, ...]:
+    """``value`` (a sequence of numbers) as a tuple of floats, else ``ValueError`` naming ``name``.
+
+    ``n`` is the required length, or the allowed lengths (``(3, 9)``), or None for any;
+    ``finite`` refuses NaN and +/-inf. Booleans are not numbers here.
+    """
+    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
+        raise ValueError(f'{name}: expected a list of numbers, got {value!r}')
+    items = list(value)
+    lengths = (n,) if isinstance(n, int) else tuple(n) if n is not None else None
+    if lengths is not None and len(items) not in lengths:
+        want = ' or '.join(str(k) for k in lengths)
+        raise ValueError(f'{name}: expected {want} values, got {len(items)}')
+    out = []
+    for i, item in enumerate(items):
+        if isinstance(item, bool):
+            raise ValueError(f'{name}[{i}]: expected a number, got {item!r}')
+        try:
+            number = float(item)
+        except (TypeError, ValueError):
+            raise ValueError(f'{name}[{i}]: expected a number, got {item!r}') from None
+        if finite and not math.isfinite(number):
+            raise ValueError(f'{name}[{i}]: must be finite, got {number}')
+        out.append(number)
+    return tuple(out)
+
+
+def vector(name: str, value: Any, n: int | Sequence[int], *,
+           finite: bool = False) -> np.ndarray:
+    """``value`` as a 1-D float array of length ``n`` (or one of the lengths ``n``).
+
+    The array twin of ``floats`` for the hot path (a model's or controller's step): one
+    ``np.asarray`` and a shape test. ``ValueError`` names ``name``; ``finite`` also refuses
+    NaN and +/-inf.
+    """
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected numbers, got {value!r}') from None
+    lengths = (n,) if isinstance(n, int) else n
+    if a.ndim != 1 or a.shape[0] not in lengths:
+        want = ' or '.join(f'({k},)' for k in lengths)
+        raise ValueError(f'{name}: expected shape {want}, got {a.shape}')
+    if finite and not np.isfinite(a).all():
+        raise ValueError(f'{name}: values must be finite, got {a.tolist()}')
+    return a

@@ -1,5 +1,6 @@
-"""The contract every device driver meets, real or simulated (ros2_control's hardware
-interfaces play the same part).
+"""The contract every device driver meets, real or simulated.
+
+ros2_control's hardware interfaces play the same part.
 
 A driver is an ``EnbarrNode`` with a device behind it. The base classes own what every driver
 must get right, so a new driver writes only its device's bytes:
@@ -77,9 +78,11 @@ class Backoff:
         return delay
 
     def due(self, now_ns: int) -> bool:
+        """Whether the next attempt is due at ``now_ns``."""
         return self.next_ns is not None and now_ns >= self.next_ns
 
     def reset(self) -> None:
+        """Back to the initial delay, nothing scheduled (the device works)."""
         self.delay = self.initial
         self.next_ns = None
 
@@ -103,10 +106,11 @@ class CommandWatchdog:
         self._go_neutral = go_neutral
 
     def set_timeout(self, seconds: float) -> None:
+        """Set the command timeout [s]."""
         self.timeout_ns = int(seconds * 1e9)
 
     def fed(self) -> None:
-        """A command was applied just now (call with ``lock`` held)."""
+        """Note a command applied just now (call with ``lock`` held)."""
         self._last_ns = time.monotonic_ns()
 
     def check(self) -> bool:
@@ -172,7 +176,7 @@ class DeviceNode(EnbarrNode):
         return True
 
     def device_fault(self, err: DeviceError) -> None:
-        """The device failed at run time: safe state, close, retry with backoff."""
+        """Handle a run-time failure of the device: safe state, close, retry with backoff."""
         if not self.connected:
             return
         self._fail(err)
@@ -222,6 +226,7 @@ class DeviceNode(EnbarrNode):
         self._backoff = backoff
 
     def destroy_node(self) -> None:
+        """Close the device, then destroy the node."""
         if self.connected:
             self.connected = False
             try:
@@ -272,15 +277,17 @@ class ActuatorDriver(DeviceNode):
             yield
 
     def safe_state(self) -> None:
-        """Outputs neutral now (every bringup exit path, device faults)."""
+        """Put the outputs neutral now (every bringup exit path, device faults)."""
         with self.watchdog.lock:
             self.write_neutral()
 
     def supervise(self) -> None:
+        """Run the command watchdog."""
         if self.watchdog.check():
             self.get_logger().warn(self._timeout_message)
 
     def status_values(self) -> dict[str, Any]:
+        """Return whether the outputs are neutral and the watchdog count."""
         return {'neutral': self.is_neutral(), 'timeouts': self.timeouts}
 
 
@@ -311,10 +318,12 @@ class SensorDriver(DeviceNode):
         return last is None or time.monotonic_ns() - last > self._sample_timeout_ns
 
     def status(self) -> tuple[int, str]:
+        """Return ERROR while faulted, WARN while samples are late, else OK."""
         level, message = super().status()
         if level == OK and self.stale:
             return WARN, 'no samples' if self._last_sample_ns is None else 'samples stopped'
         return level, message
 
     def status_values(self) -> dict[str, Any]:
+        """Return the sample count."""
         return {'samples': self.samples}

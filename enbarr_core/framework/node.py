@@ -7,7 +7,7 @@ additions that the orchestrator relies on:
 - ``create_topic_publisher`` / ``create_topic_subscription``: a topic of the contract
   (``enbarr_interfaces.topics``); the contract's ``TopicSpec.fast`` decides whether it travels
   over the in-process ``LinkBus`` (``enbarr_interfaces.links``) or as an ordinary ROS topic;
-- ``bind_settings``: declared, validated, live-tunable parameters (``enbarr_core.framework.params``);
+- ``bind_settings``: declared, validated, live-tunable parameters (``framework.params``);
 - ``create_rate_loop``: a periodic source on its own thread, for drivers and simulators whose
   rate matters more than an executor timer can give (``docs/architecture.md``);
 - ``start`` / ``stop`` / ``safe_state``: bringup starts sources once the graph is wired,
@@ -67,9 +67,11 @@ class RateLoop:
 
     @property
     def running(self) -> bool:
+        """Whether the loop thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
     def start(self) -> None:
+        """Start the loop thread (a no-op when it runs)."""
         if self.running:
             return
         self._stop.clear()
@@ -77,6 +79,7 @@ class RateLoop:
         self._thread.start()
 
     def stop(self, timeout: float = 2.0) -> None:
+        """Stop the loop and wait up to ``timeout`` [s] for its thread."""
         self._stop.set()
         thread, self._thread = self._thread, None
         if thread is not None and thread is not threading.current_thread():
@@ -125,19 +128,22 @@ def sim_steps(time_ns: int, now_ns: int, period_ns: int,
 
 
 class LatencyLog:
-    """Ring buffer of sensor-stamp -> actuator latencies [ns], kept by actuator plugins so
-    ``enbarr bench`` (and a curious user) can read what the chain really costs."""
+    """Ring buffer of sensor-stamp -> actuator latencies [ns], kept by actuator plugins.
+
+    ``enbarr bench`` (and a curious user) reads there what the chain really costs.
+    """
 
     def __init__(self, size: int = 4096) -> None:
         self.samples = np.zeros(size, dtype=np.int64)
         self.count = 0
 
     def add(self, latency_ns: int) -> None:
+        """Record one latency [ns]."""
         self.samples[self.count % len(self.samples)] = latency_ns
         self.count += 1
 
     def last(self, n: int) -> np.ndarray:
-        """The newest ``n`` samples (at most the buffer size) [ns]."""
+        """Return the newest ``n`` samples (at most the buffer size) [ns]."""
         n = min(n, self.count, len(self.samples))
         return self.samples[np.arange(self.count - n, self.count) % len(self.samples)]
 
@@ -155,7 +161,7 @@ class EnbarrNode(Node):
 
     # -- topics -----------------------------------------------------------------------------
     def create_topic_publisher(self, spec: TopicSpec) -> LinkPublisher | Publisher:
-        """Publisher of a contract topic: over the link bus when ``spec.fast``, else ROS."""
+        """Create a publisher of a contract topic: link bus when ``spec.fast``, else ROS."""
         if not spec.fast:
             return self.create_publisher(spec.msg_type, spec.name, spec.qos)
         pub = self._bus.create_publisher(self, spec)
@@ -173,15 +179,18 @@ class EnbarrNode(Node):
 
     @property
     def link_bus(self) -> LinkBus:
+        """Return the in-process link bus of this node's context."""
         return self._bus
 
     # -- parameters -------------------------------------------------------------------------
     def bind_settings(self, specs: Sequence[ParamSpec], build: Callable[[dict[str, Any]], S],
                       apply: Callable[[S], None]) -> SettingsBinding[S]:
+        """Declare ``specs``; bind them to the settings ``build`` makes (see params)."""
         return SettingsBinding(self, specs, build, apply)
 
     # -- sources and lifecycle --------------------------------------------------------------
     def create_rate_loop(self, rate_hz: float, callback: Callable[[], None]) -> RateLoop:
+        """Call ``callback`` at ``rate_hz`` on its own thread once started."""
         loop = RateLoop(self, rate_hz, callback, f'{self.get_name()}_loop')
         self._loops.append(loop)
         if self._started:
@@ -218,6 +227,7 @@ class EnbarrNode(Node):
         self._diagnostics_pub.publish(msg)
 
     def destroy_node(self) -> None:
+        """Stop the sources, drop the links, then destroy the node."""
         self.stop()
         for link in self._links:
             link.destroy()

@@ -27,9 +27,10 @@ and the node reads typed attributes (``self.settings.time_constant``), never str
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
+import re
 from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
@@ -76,16 +77,19 @@ class ParamSpec:
 
     @property
     def is_array(self) -> bool:
+        """Whether the parameter is a list."""
         return isinstance(self.default, (list, tuple))
 
     @property
     def ros_type(self) -> int:
+        """Return the ``ParameterType`` the default fixes."""
         if self.is_array:
             element = self.element or type(self.default[0])
             return _ARRAY_TYPES[element]
         return _TYPES[type(self.default)]
 
     def descriptor(self) -> ParameterDescriptor:
+        """Return the descriptor: description with units, type, range, read-only."""
         text = self.description + (f' [{self.units}]' if self.units else '')
         if self.is_array and (self.low is not None or self.high is not None):
             text += f' (each element in [{self.low}, {self.high}])'
@@ -136,19 +140,8 @@ class SettingsBinding(Generic[S]):
         self._build = build
         self._apply = apply
         self._pending: S | None = None
-        _coerce_integer_overrides(node, specs)
         for spec in specs:
-            try:
-                node.declare_parameter(spec.name, spec.default, spec.descriptor())
-            except InvalidParameterTypeException as err:
-                given = getattr(node, '_parameter_overrides', {}).get(spec.name)
-                got = f', got {given.value!r}' if given is not None else ''
-                raise ConfigurationError(
-                    f'node {node.get_name()!r}: parameter {spec.name!r}: expected '
-                    f'{_type_text(spec)}{got}', parameter=spec.name) from err
-            except Exception as err:  # rclpy refuses values out of the declared range
-                raise ConfigurationError(f'node {node.get_name()!r}: parameter '
-                                         f'{spec.name!r}: {err}', parameter=spec.name) from err
+            _declare(node, spec)
         values = self.values()
         for spec in specs:
             reason = spec.check(values[spec.name])
@@ -158,12 +151,14 @@ class SettingsBinding(Generic[S]):
         try:
             self.settings: S = build(values)
         except ValueError as err:
-            raise ConfigurationError(f'node {node.get_name()!r}: {err}') from err
+            raise ConfigurationError(f'node {node.get_name()!r}: {err}',
+                                     parameter=_named(str(err), self.specs)) from err
         apply(self.settings)
         node.add_on_set_parameters_callback(self._on_set)
         node.add_post_set_parameters_callback(self._post_set)
 
     def values(self) -> dict[str, Any]:
+        """Return the current values of the bound parameters (arrays as lists)."""
         return {name: _plain(self.node.get_parameter(name).value) for name in self.specs}
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
@@ -190,10 +185,16 @@ class SettingsBinding(Generic[S]):
 
 
 def _plain(value: Any) -> Any:
-    """rclpy hands arrays back as ``array.array``; make them lists."""
+    """Rclpy hands arrays back as ``array.array``; make them lists."""
     if value is not None and not isinstance(value, (bool, int, float, str, list)):
         return list(value)
     return value
+
+
+def _named(message: str, specs: Mapping[str, ParamSpec]) -> str | None:
+    """Return the parameter a settings error names first (``'kp[5]: ...'`` -> ``'kp'``)."""
+    head = re.split(r'[\[:\s]', message, maxsplit=1)[0]
+    return head if head in specs else None
 
 
 def _type_text(spec: ParamSpec) -> str:
@@ -202,23 +203,52 @@ def _type_text(spec: ParamSpec) -> str:
     return f'a {type(spec.default).__name__}'
 
 
-def _coerce_integer_overrides(node: Node, specs: Sequence[ParamSpec]) -> None:
-    """Let a profile write ``kp: 2`` for a float gain, as YAML users expect.
+def _declare(node: Node, spec: ParamSpec) -> None:
+    """Declare ``spec`` on ``node``, taking the override the node was given, if any.
 
-    rclpy keeps the overrides it was given in ``Node._parameter_overrides``; an INTEGER (or
-    INTEGER_ARRAY) override of a DOUBLE (array) parameter is turned into a DOUBLE before the
-    declaration checks its type. Anything else is left for the declaration to refuse.
+    A profile may write ``kp: 2`` for a float gain, as YAML users expect: when the declaration
+    refuses an INTEGER (array) override of a DOUBLE (array) parameter, the override is read
+    through a dynamically typed declaration (public calls only: ``declare_parameter``,
+    ``get_parameter``, ``undeclare_parameter``), turned into a DOUBLE and declared again with
+    ``ignore_override``. Any other type is refused with a ``ConfigurationError`` naming the
+    parameter, the expected type and the value given.
     """
-    overrides = getattr(node, '_parameter_overrides', None)
-    if not isinstance(overrides, dict):
-        return
-    for spec in specs:
-        p = overrides.get(spec.name)
-        if p is None:
-            continue
-        if spec.ros_type == ParameterType.PARAMETER_DOUBLE and p.type_ == Parameter.Type.INTEGER:
-            overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(p.value))
-        elif (spec.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY
-              and p.type_ == Parameter.Type.INTEGER_ARRAY):
-            overrides[spec.name] = Parameter(
-                spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in p.value])
+    where = f'node {node.get_name()!r}: parameter {spec.name!r}'
+    try:
+        try:
+            node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            return
+        except InvalidParameterTypeException as err:
+            given = _given_value(node, spec)
+            coerced = _coerce(spec, given)
+            if coerced is None:
+                raise ConfigurationError(f'{where}: expected {_type_text(spec)}, got {given!r}',
+                                         parameter=spec.name) from err
+        node.declare_parameter(spec.name, coerced, spec.descriptor(), ignore_override=True)
+    except ConfigurationError:
+        raise
+    except Exception as err:  # rclpy refuses values out of the declared range
+        raise ConfigurationError(f'{where}: {err}', parameter=spec.name) from err
+
+
+def _given_value(node: Node, spec: ParamSpec) -> Any:
+    """Return the override of ``spec.name`` as given, whatever its type.
+
+    The parameter is left undeclared.
+    """
+    node.declare_parameter(spec.name, spec.default, ParameterDescriptor(dynamic_typing=True))
+    try:
+        return _plain(node.get_parameter(spec.name).value)
+    finally:
+        node.undeclare_parameter(spec.name)
+
+
+def _coerce(spec: ParamSpec, value: Any) -> Any:
+    """``value`` as the float (list) ``spec`` wants when it is an int (list), else None."""
+    if spec.ros_type == ParameterType.PARAMETER_DOUBLE:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+    elif spec.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, list):
+        if value and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            return [float(v) for v in value]
+    return None

@@ -51,6 +51,8 @@ BUILTIN: dict[str, str] = {
 
 @dataclass(frozen=True)
 class NodeEntry:
+    """A node type known by name, and where it comes from."""
+
     name: str
     target: str
     origin: str  # 'builtin' or the distribution that declared the entry point
@@ -70,11 +72,12 @@ def entries() -> dict[str, NodeEntry]:
 
 
 def names() -> list[str]:
+    """Return the known node type names, sorted."""
     return sorted(entries())
 
 
 def resolve(name: str) -> type[Any]:
-    """The node class registered as ``name``."""
+    """Return the node class registered as ``name``."""
     known = entries()
     entry = known.get(name)
     if entry is None:

@@ -20,13 +20,14 @@ are the readable reference forms and the tests check the fast path against them.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from enbarr_core.framework.checks import vector
 from enbarr_core.framework.kinematics import (
     quat_from_euler,
     quat_normalize,
@@ -39,20 +40,6 @@ Matrix = NDArray[np.float64]
 
 # Relative tolerance of the symmetry check on a full 3x3 inertia matrix.
 _SYMMETRY_RTOL = 1e-9
-
-
-def _finite_vector(name: str, value: Any, lengths: Sequence[int]) -> Vector:
-    """``value`` as a finite float vector whose length is one of ``lengths``, else ValueError."""
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected numbers, got {value!r}') from None
-    if a.ndim != 1 or a.shape[0] not in lengths:
-        want = ' or '.join(str(n) for n in lengths)
-        raise ValueError(f'{name}: expected {want} values, got shape {a.shape}')
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f'{name}: values must be finite, got {a.tolist()}')
-    return a
 
 
 def _finite_scalar(name: str, value: Any) -> float:
@@ -138,13 +125,13 @@ class RigidBodyParams:
         buoyancy = _finite_scalar('buoyancy', self.buoyancy)
         if buoyancy < 0.0:
             raise ValueError(f'buoyancy: must be >= 0 N, got {buoyancy}')
-        r_g = _finite_vector('r_g', self.r_g, (3,))
-        _finite_vector('r_b', self.r_b, (3,))
+        r_g = vector('r_g', self.r_g, (3,), finite=True)
+        vector('r_b', self.r_b, (3,), finite=True)
         for name in ('added_mass', 'd_lin', 'd_quad'):
-            values = _finite_vector(name, getattr(self, name), (6,))
+            values = vector(name, getattr(self, name), 6, finite=True)
             if np.any(values < 0.0):
                 raise ValueError(f'{name}: values must be >= 0, got {values.tolist()}')
-        I_o = inertia_matrix(_finite_vector('inertia', self.inertia, (3, 9)))
+        I_o = inertia_matrix(vector('inertia', self.inertia, (3, 9), finite=True))
         scale = float(np.max(np.abs(I_o)))
         if float(np.max(np.abs(I_o - I_o.T))) > _SYMMETRY_RTOL * max(scale, 1.0):
             raise ValueError(f'inertia: matrix is not symmetric: {I_o.tolist()}')
@@ -184,7 +171,7 @@ class RigidBodyParams:
                 if f.name == 'inertia' and _shape(value) == (3, 3):
                     value = np.ravel(value)  # a nested 3x3 list is row-major too
                 lengths = {'inertia': (3, 9), 'r_g': (3,), 'r_b': (3,)}.get(f.name, (6,))
-                kwargs[f.name] = tuple(_finite_vector(f.name, value, lengths).tolist())
+                kwargs[f.name] = tuple(vector(f.name, value, lengths, finite=True).tolist())
         params = cls(**kwargs)
         params.validate()
         return params
@@ -200,9 +187,7 @@ class RigidBodyState:
 
     def __post_init__(self) -> None:
         for name, n in (('p', 3), ('q', 4), ('nu', 6)):
-            a = np.array(getattr(self, name), dtype=float)
-            if a.shape != (n,):
-                raise ValueError(f'{name}: expected shape ({n},), got {a.shape}')
+            a = np.array(vector(name, getattr(self, name), n))
             a.flags.writeable = False
             object.__setattr__(self, name, a)
 
@@ -301,12 +286,8 @@ class RigidBodyModel:
 
         nu_dot = M^-1 (tau + tau_ext - C(nu) nu - D(nu) nu - g(eta)); ``tau`` [N, N m].
         """
-        qv = np.asarray(q, dtype=float)
-        nuv = np.asarray(nu, dtype=float)
-        if qv.shape != (4,):
-            raise ValueError(f'q: expected shape (4,), got {qv.shape}')
-        if nuv.shape != (6,):
-            raise ValueError(f'nu: expected shape (6,), got {nuv.shape}')
+        qv = vector('q', q, 4)
+        nuv = vector('nu', nu, 6)
         tau_l = self._total_tau(tau, tau_ext)
         x = [0.0, 0.0, 0.0, *qv.tolist(), *nuv.tolist()]
         return np.array(self._f(x, tau_l)[7:])
@@ -357,14 +338,9 @@ class RigidBodyModel:
     # -- fast path ---------------------------------------------------------------------------
 
     def _total_tau(self, tau: ArrayLike, tau_ext: ArrayLike | None) -> list[float]:
-        t = np.asarray(tau, dtype=float)
-        if t.shape != (6,):
-            raise ValueError(f'tau: expected shape (6,), got {t.shape}')
+        t = vector('tau', tau, 6)
         if tau_ext is not None:
-            e = np.asarray(tau_ext, dtype=float)
-            if e.shape != (6,):
-                raise ValueError(f'tau_ext: expected shape (6,), got {e.shape}')
-            t = t + e
+            t = t + vector('tau_ext', tau_ext, 6)
         out = t.tolist()
         if not math.isfinite(math.fsum(out)):
             raise ValueError(f'tau: values must be finite, got {out}')

@@ -9,6 +9,8 @@ drives the whole IMU -> thruster chain synchronously through the link bus) and, 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 import threading
 import time
@@ -23,7 +25,7 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
-from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.checks import floats
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.allocation.layout_params import declare_thrusters
@@ -62,8 +64,31 @@ SPECS = [
 VEHICLE_FIELDS = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad')
 
 
-def _vehicle(v: dict[str, Any]) -> RigidBodyParams:
-    return RigidBodyParams.from_mapping({f: v[f'vehicle.{f}'] for f in VEHICLE_FIELDS})
+@dataclass(frozen=True)
+class RovSimulatorSettings:
+    """Settings of ``RovSimulatorNode`` (see ``SPECS``)."""
+
+    rate: float                  # integration and IMU truth rate [Hz]
+    odometry_rate: float         # rate of sim/odometry [Hz]
+    thrust_timeout: float        # thrust older than this counts as zero [s]
+    vehicle: RigidBodyParams     # the simulated vehicle (Fossen 2021)
+    status_period: float         # period of the log status line, 0: none [s]
+    initial_position: tuple[float, ...]  # start position in odom (ENU) [m]
+    initial_rpy: tuple[float, ...]       # start roll, pitch, yaw [rad]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> RovSimulatorSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        try:
+            vehicle = RigidBodyParams.from_mapping({f: v[f'vehicle.{f}'] for f in VEHICLE_FIELDS})
+        except ValueError as err:  # the message starts with the field: name the parameter
+            raise ValueError(f'vehicle.{err}') from err
+        return cls(
+            rate=v['rate'], odometry_rate=v['odometry_rate'],
+            thrust_timeout=v['thrust_timeout'], vehicle=vehicle,
+            status_period=v['status_period'],
+            initial_position=floats('initial.position', v['initial.position'], 3),
+            initial_rpy=floats('initial.rpy', v['initial.rpy'], 3))
 
 
 class RovSimulatorNode(EnbarrNode):
@@ -76,14 +101,11 @@ class RovSimulatorNode(EnbarrNode):
         self._B = allocation_matrix(self.thrusters)
         self._index = {t.name: i for i, t in enumerate(self.thrusters)}
         self._model: RigidBodyModel | None = None
-        self.params = self.bind_settings(SPECS, self._build, self._apply).settings
-        v = self.params
-        p0 = v['initial.position']
-        if len(p0) != 3 or len(v['initial.rpy']) != 3:
-            raise ConfigurationError(f'node {node_name!r}: initial.position and initial.rpy '
-                                     'need 3 values each')
-        self.state = RigidBodyState(np.array(p0, dtype=float),
-                                    quat_from_euler(*v['initial.rpy']), np.zeros(6))
+        self.settings: RovSimulatorSettings
+        self.bind_settings(SPECS, RovSimulatorSettings.from_params, self._apply)
+        v = self.settings
+        self.state = RigidBodyState(np.array(v.initial_position),
+                                    quat_from_euler(*v.initial_rpy), np.zeros(6))
         self.time_ns = 0
         self._thrust = np.zeros(len(self.thrusters))
         self._thrust_ns = 0  # monotonic stamp of the last sim/thrust
@@ -93,20 +115,17 @@ class RovSimulatorNode(EnbarrNode):
         self._imu_pub = self.create_topic_publisher(topics.SIM_IMU)
         self._odom_pub = self.create_topic_publisher(topics.SIM_ODOMETRY)
         self.create_topic_subscription(topics.SIM_THRUST, self._on_thrust)
-        self._dt_ns = round(1e9 / v['rate'])
-        self._odom_every = max(1, round(v['rate'] / v['odometry_rate']))
-        self.create_rate_loop(v['rate'], self.step)
-        if v['status_period'] > 0.0:
-            self.create_timer(v['status_period'], self._status)
+        self._dt_ns = round(1e9 / v.rate)
+        self._odom_every = max(1, round(v.rate / v.odometry_rate))
+        self.create_rate_loop(v.rate, self.step)
+        if v.status_period > 0.0:
+            self.create_timer(v.status_period, self._status)
 
-    def _build(self, v: dict[str, Any]) -> dict[str, Any]:
-        _vehicle(v)  # raises ValueError naming the field
-        return v
-
-    def _apply(self, v: dict[str, Any]) -> None:
+    def _apply(self, settings: RovSimulatorSettings) -> None:
         with self._lock:
-            self._model = RigidBodyModel(_vehicle(v))
-            self._thrust_timeout_ns = int(v['thrust_timeout'] * 1e9)
+            self.settings = settings
+            self._model = RigidBodyModel(settings.vehicle)
+            self._thrust_timeout_ns = int(settings.thrust_timeout * 1e9)
 
     def _on_thrust(self, msg: JointState) -> None:
         thrust = np.zeros(len(self.thrusters))
@@ -170,6 +189,7 @@ class RovSimulatorNode(EnbarrNode):
             f'thrust {np.abs(self._thrust).sum():5.1f} N')
 
     def odometry(self, now_ns: int) -> Odometry:
+        """Return the true state as ``nav_msgs/Odometry`` stamped ``now_ns``."""
         s = self.state
         msg = Odometry()
         convert.ns_to_stamp(now_ns, msg.header.stamp)

@@ -141,7 +141,7 @@ def run_pure_rov(rate: float, cycles: int = 2000) -> float:
     from enbarr_core.framework.kinematics import quat_to_rotmat
     from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
     from enbarr_core.control.velocity_control import VelocityController, VelocityReference
-    from enbarr_core.control.velocity_control_node import build_settings, SPECS
+    from enbarr_core.control.velocity_control_node import SPECS, VelocityControlNodeSettings
 
     common, prof = _common('rov', rate)
     sim = {**common, **prof.node('simulator').parameters}
@@ -158,7 +158,7 @@ def run_pure_rov(rate: float, cycles: int = 2000) -> float:
     values = {s.name: s.default for s in SPECS}
     values.update({k: v for k, v in {**common, **prof.node('control_loop').parameters}.items()
                    if k in values})
-    controller = VelocityController(build_settings(values)[0])
+    controller = VelocityController(VelocityControlNodeSettings.from_params(values).controller)
     reference = VelocityReference(values['reference_time_constant'], values['max_accel'])
     filt = AttitudeFilter()
     rng = np.random.default_rng(1)

@@ -1,0 +1,1 @@
+"""IMU plugins: the simulated 9-DOF IMU."""

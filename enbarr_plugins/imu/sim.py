@@ -8,13 +8,16 @@ standard deviation per sample, from a seeded generator so runs repeat.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from sensor_msgs.msg import Imu, MagneticField
 
-from enbarr_core.framework.kinematics import quat_to_rotmat
+from enbarr_core.framework.checks import floats
 from enbarr_core.framework.driver import SensorDriver
+from enbarr_core.framework.kinematics import quat_to_rotmat
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 
@@ -32,29 +35,48 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SimImuSettings:
+    """Settings of ``SimImuNode`` (see ``SPECS``): the error model of the simulated chip."""
+
+    gyro_noise: float                  # std per sample [rad/s]
+    gyro_bias: tuple[float, ...]       # constant bias [rad/s]
+    accel_noise: float                 # std per sample [m/s^2]
+    accel_bias: tuple[float, ...]      # constant bias [m/s^2]
+    mag_noise: float                   # std per sample [T]
+    magnetic_field: tuple[float, ...]  # Earth field in odom (ENU) [T]
+    seed: int                          # seed of the noise generator
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimImuSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        return cls(gyro_noise=v['gyro_noise'], gyro_bias=floats('gyro_bias', v['gyro_bias'], 3),
+                   accel_noise=v['accel_noise'],
+                   accel_bias=floats('accel_bias', v['accel_bias'], 3),
+                   mag_noise=v['mag_noise'],
+                   magnetic_field=floats('magnetic_field', v['magnetic_field'], 3),
+                   seed=v['seed'])
+
+
 class SimImuNode(SensorDriver):
     """Publishes ``imu/mag`` then ``imu/data_raw`` for every ``sim/imu`` truth sample."""
 
     def __init__(self, node_name: str = 'imu', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, self._build, self._apply)
-        self._rng = np.random.default_rng(self.settings['seed'])
+        self.settings: SimImuSettings
+        self.bind_settings(SPECS, SimImuSettings.from_params, self._apply)
+        self._rng = np.random.default_rng(self.settings.seed)
         self._raw_pub = self.create_topic_publisher(topics.IMU_RAW)
         self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
         self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
         self.connect()
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> dict[str, Any]:
-        for k in ('gyro_bias', 'accel_bias', 'magnetic_field'):
-            if len(v[k]) != 3:
-                raise ValueError(f'{k} needs 3 values, got {len(v[k])}')
-        return {**v, **{k: np.array(v[k], dtype=float) for k in (
-            'gyro_bias', 'accel_bias', 'magnetic_field')}}
-
-    def _apply(self, settings: dict[str, Any]) -> None:
+    def _apply(self, settings: SimImuSettings) -> None:
         self.settings = settings
+        # The per-sample arithmetic wants arrays; made once per settings change.
+        self._gyro_bias = np.array(settings.gyro_bias)
+        self._accel_bias = np.array(settings.accel_bias)
+        self._magnetic_field = np.array(settings.magnetic_field)
 
     def _on_truth(self, truth: Imu) -> None:
         s = self.settings
@@ -65,20 +87,20 @@ class SimImuNode(SensorDriver):
         mag = MagneticField()
         mag.header.stamp = truth.header.stamp
         mag.header.frame_id = topics.IMU_FRAME
-        m = quat_to_rotmat(q).T @ s['magnetic_field'] + rng.normal(0.0, s['mag_noise'], 3)
+        m = quat_to_rotmat(q).T @ self._magnetic_field + rng.normal(0.0, s.mag_noise, 3)
         convert.set_vector3(mag.magnetic_field, m)
         mag.magnetic_field_covariance[0] = mag.magnetic_field_covariance[4] = \
-            mag.magnetic_field_covariance[8] = s['mag_noise'] ** 2
+            mag.magnetic_field_covariance[8] = s.mag_noise ** 2
         self._mag_pub.publish(mag)
         raw = Imu()
         raw.header.stamp = truth.header.stamp
         raw.header.frame_id = topics.IMU_FRAME
         raw.orientation_covariance[0] = -1.0  # no orientation estimate (REP-145)
         convert.set_vector3(raw.angular_velocity,
-                            omega + s['gyro_bias'] + rng.normal(0.0, s['gyro_noise'], 3))
+                            omega + self._gyro_bias + rng.normal(0.0, s.gyro_noise, 3))
         convert.set_vector3(raw.linear_acceleration,
-                            f + s['accel_bias'] + rng.normal(0.0, s['accel_noise'], 3))
-        g2, a2 = s['gyro_noise'] ** 2, s['accel_noise'] ** 2
+                            f + self._accel_bias + rng.normal(0.0, s.accel_noise, 3))
+        g2, a2 = s.gyro_noise ** 2, s.accel_noise ** 2
         raw.angular_velocity_covariance[0] = raw.angular_velocity_covariance[4] = \
             raw.angular_velocity_covariance[8] = g2
         raw.linear_acceleration_covariance[0] = raw.linear_acceleration_covariance[4] = \

@@ -1,0 +1,1 @@
+"""IO plugins: GPIO outputs and steppers, addressed by executor name."""

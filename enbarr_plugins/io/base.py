@@ -1,10 +1,10 @@
 """Common part of IO plugins: act on ``io_request`` messages addressed to one executor.
 
-An IO plugin has an executor name (the README's ``args``): the stepper uses its ``executor``
-parameter as is, the GPIO plugin makes ``gpio_<pin>``. Requests for other executors are
-ignored; requests for this one with a value of the wrong type are refused, logged and
-counted. After acting, the plugin publishes its new state on ``io_state`` under its executor
-name.
+An IO plugin has an executor name (what an ``io_request`` addresses): the stepper uses its
+``executor`` parameter as is, the GPIO plugin makes ``gpio_<pin>``. Requests for other
+executors are ignored; requests for this one with a value of the wrong type are refused, logged
+and counted. After acting, the plugin publishes its new state on ``io_state`` under its
+executor name.
 """
 
 from __future__ import annotations
@@ -18,8 +18,11 @@ from enbarr_interfaces import convert, topics
 
 
 class IoPluginNode(DeviceNode):
-    """Subclasses set ``executor_name``, implement ``act(value) -> str | None`` (a refusal)
-    and call ``connect()`` at the end of their ``__init__``."""
+    """Base of IO plugins; see the module docstring.
+
+    Subclasses set ``executor_name``, implement ``act(value) -> str | None`` (a refusal)
+    and call ``connect()`` at the end of their ``__init__``.
+    """
 
     executor_name: str = ''
 
@@ -46,9 +49,11 @@ class IoPluginNode(DeviceNode):
         raise NotImplementedError
 
     def status_values(self) -> dict[str, Any]:
+        """Return the executor name and the request counters."""
         return {'executor': self.executor_name, 'handled': self.handled,
                 'refused': self.refused}
 
     def publish_state(self, value: Any) -> None:
+        """Publish this executor's new state on ``io_state``."""
         self._state_pub.publish(Parameter(name=self.executor_name,
                                           value=convert.python_to_parameter_value(value)))

@@ -1,4 +1,4 @@
-"""Simulated stepper motor (the README's manipulator): ``io_request`` int32 = steps to move.
+"""Simulated stepper motor (the manipulator): ``io_request`` int32 = steps to move.
 
 The position moves toward its target at ``max_rate`` steps/s, within ``[min_position,
 max_position]`` (a request beyond them is refused, as a real manipulator's end stops would
@@ -7,6 +7,8 @@ demand); ``io_state`` carries the position while it changes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from enbarr_core.framework.params import ParamSpec
@@ -24,36 +26,50 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SimStepperSettings:
+    """Settings of ``SimStepperNode`` (see ``SPECS``)."""
+
+    executor: str        # executor name ('' : the node name)
+    max_rate: float      # [steps/s]
+    min_position: int    # end stop [steps]
+    max_position: int    # end stop [steps]
+    update_rate: float   # rate of the simulated motion [Hz]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimStepperSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the field."""
+        if v['min_position'] > v['max_position']:
+            raise ValueError('min_position must not exceed max_position')
+        return cls(executor=v['executor'], max_rate=v['max_rate'],
+                   min_position=v['min_position'], max_position=v['max_position'],
+                   update_rate=v['update_rate'])
+
+
 class SimStepperNode(IoPluginNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'manipulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, self._build, self._apply)
-        self.executor_name = self.settings['executor'] or self.get_name()
+        self.settings: SimStepperSettings
+        self.bind_settings(SPECS, SimStepperSettings.from_params, self._apply)
+        self.executor_name = self.settings.executor or self.get_name()
         self.position = 0.0
         self.target = 0
-        self.create_timer(1.0 / self.settings['update_rate'], self._move)
+        self.create_timer(1.0 / self.settings.update_rate, self._move)
         self.connect()
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> dict[str, Any]:
-        if v['min_position'] > v['max_position']:
-            raise ValueError('min_position must not exceed max_position')
-        return v
-
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
+    def _apply(self, settings: SimStepperSettings) -> None:
+        self.settings = settings
 
     def act(self, value: Any) -> str | None:
+        """Move the target by ``value`` steps, within the end stops."""
         if isinstance(value, bool) or not isinstance(value, int):
             return 'expected an integer number of steps'
         target = self.target + value
         s = self.settings
-        if not s['min_position'] <= target <= s['max_position']:
-            return (f'target {target} is outside [{s["min_position"]}, '
-                    f'{s["max_position"]}] steps')
+        if not s.min_position <= target <= s.max_position:
+            return f'target {target} is outside [{s.min_position}, {s.max_position}] steps'
         self.target = target
         return None
 
@@ -61,7 +77,7 @@ class SimStepperNode(IoPluginNode):
         error = self.target - self.position
         if error == 0:
             return
-        step = self.settings['max_rate'] / self.settings['update_rate']
+        step = self.settings.max_rate / self.settings.update_rate
         self.position = float(self.target) if abs(error) <= step else (
             self.position + step * (1 if error > 0 else -1))
         self.publish_state(int(round(self.position)))

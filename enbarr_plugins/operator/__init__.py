@@ -1,0 +1,1 @@
+"""Operator stand-ins: scripted surface commands and keyboard teleoperation."""

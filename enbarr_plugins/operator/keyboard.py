@@ -1,7 +1,8 @@
-"""Keyboard teleoperation: an operator at a terminal drives the ROV (a surface station in a
-pinch). Keys change the velocity goal in steps; the goal is sent at ``rate`` with a fresh
-stamp, so when the operator stops the node (or the terminal goes away) the command
-receiver's failsafe stops the vehicle.
+"""Keyboard teleoperation: an operator at a terminal drives the ROV.
+
+A surface station in a pinch. Keys change the velocity goal in steps; the goal is sent at
+``rate`` with a fresh stamp, so when the operator stops the node (or the terminal goes away)
+the command receiver's failsafe stops the vehicle.
 
     w / s   surge ahead / astern        a / d   sway left / right
     r / f   heave up / down             q / e   yaw left / right
@@ -14,6 +15,7 @@ switched to cbreak mode while the node runs and restored when it is destroyed.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import os
 import select
@@ -44,8 +46,10 @@ class KeyState:
 
 def apply_key(state: KeyState, key: str, linear_step: float, angular_step: float,
               max_linear: float, max_angular: float) -> tuple[KeyState, tuple[str, Any] | None]:
-    """The new state after ``key``, and an io request (executor role, value) if it makes one.
-    Velocities stay within +/- the maxima; unknown keys change nothing."""
+    """Return the state after ``key``, and an io request (executor role, value) if any.
+
+    Velocities stay within +/- the maxima; unknown keys change nothing.
+    """
     if key == ' ':
         return replace(state, nu=(0.0,) * 6), None
     if key == 'l':
@@ -76,14 +80,34 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class KeyboardTeleopSettings:
+    """Settings of ``KeyboardTeleopNode`` (see ``SPECS``)."""
+
+    device: str                # terminal to read ('' : standard input)
+    rate: float                # goal sending rate [Hz]
+    linear_step: float         # [m/s] per key press
+    angular_step: float        # [rad/s] per key press
+    max_linear: float          # [m/s]
+    max_angular: float         # [rad/s]
+    lights_executor: str
+    manipulator_executor: str
+    manipulator_step: int      # [steps] per key press
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> KeyboardTeleopSettings:
+        """Build from the declared parameters' values."""
+        return cls(**{name: v[name] for name in cls.__dataclass_fields__})
+
+
 class KeyboardTeleopNode(EnbarrNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'keyboard', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, lambda v: v, self._apply)
-        device = self.settings['device']
+        self.settings: KeyboardTeleopSettings
+        self.bind_settings(SPECS, KeyboardTeleopSettings.from_params, self._apply)
+        device = self.settings.device
         try:
             self._fd = os.open(device, os.O_RDONLY | os.O_NOCTTY) if device else os.dup(0)
             self._saved = termios.tcgetattr(self._fd)
@@ -94,14 +118,15 @@ class KeyboardTeleopNode(EnbarrNode):
         self.state = KeyState()
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
-        self.create_timer(1.0 / self.settings['rate'], self._send)
+        self.create_timer(1.0 / self.settings.rate, self._send)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name='keyboard', daemon=True)
 
-    def _apply(self, v: dict[str, Any]) -> None:
-        self.settings = v
+    def _apply(self, settings: KeyboardTeleopSettings) -> None:
+        self.settings = settings
 
     def start(self) -> None:
+        """Switch the terminal to cbreak mode and start reading keys."""
         super().start()
         tty.setcbreak(self._fd)
         self.get_logger().info('keys: w/s surge, a/d sway, r/f heave, q/e yaw, space stop, '
@@ -125,13 +150,14 @@ class KeyboardTeleopNode(EnbarrNode):
                 self.on_key(key)
 
     def on_key(self, key: str) -> None:
+        """Apply one key press and send the new goal at once."""
         s = self.settings
-        self.state, io = apply_key(self.state, key.lower(), s['linear_step'],
-                                   s['angular_step'], s['max_linear'], s['max_angular'])
+        self.state, io = apply_key(self.state, key.lower(), s.linear_step, s.angular_step,
+                                   s.max_linear, s.max_angular)
         if io is not None:
             role, value = io
-            executor = s['lights_executor'] if role == 'lights' else s['manipulator_executor']
-            value = value * s['manipulator_step'] if role == 'manipulator' else value
+            executor = s.lights_executor if role == 'lights' else s.manipulator_executor
+            value = value * s.manipulator_step if role == 'manipulator' else value
             self._io_pub.publish(Parameter(
                 name=executor, value=convert.python_to_parameter_value(value)))
         self._send()
@@ -146,6 +172,7 @@ class KeyboardTeleopNode(EnbarrNode):
         self._twist_pub.publish(msg)
 
     def destroy_node(self) -> None:
+        """Stop reading, restore the terminal, then destroy the node."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(1.0)

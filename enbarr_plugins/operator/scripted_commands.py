@@ -12,8 +12,8 @@ after ``stop`` nothing more is sent, so the command receiver's failsafe takes ov
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-import math
 from typing import Any
 
 from geometry_msgs.msg import TwistStamped
@@ -24,57 +24,47 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_plugins.operator.script import Step, no_arguments, numbers, parse_script
 
 
 @dataclass(frozen=True)
-class ScriptLine:
-    time: float
-    kind: str  # 'twist', 'io' or 'stop'
-    nu: tuple[float, ...] = ()
-    executor: str = ''
-    value: Any = None
+class IoRequest:
+    """What an ``io`` line asks: set ``executor`` to ``value``."""
+
+    executor: str
+    value: Any  # bool, int, float or str
 
 
-def parse_script(lines: list[str]) -> list[ScriptLine]:
-    """Parse and check a script; ``ValueError`` names the entry and what is wrong."""
-    out: list[ScriptLine] = []
-    for i, line in enumerate(lines):
-        where = f'script[{i}] {line!r}'
-        parts = line.split()
-        if not parts:
-            continue
-        try:
-            t = float(parts[0])
-        except ValueError:
-            raise ValueError(f'{where}: expected a time in seconds first') from None
-        if not math.isfinite(t) or t < 0.0:
-            raise ValueError(f'{where}: time must be finite and >= 0')
-        if out and t < out[-1].time:
-            raise ValueError(f'{where}: times must not decrease')
-        kind = parts[1] if len(parts) > 1 else ''
-        if kind == 'twist':
-            try:
-                nu = tuple(float(x) for x in parts[2:])
-            except ValueError:
-                raise ValueError(f'{where}: twist takes 6 numbers u v w p q r') from None
-            if len(nu) != 6 or not all(math.isfinite(x) for x in nu):
-                raise ValueError(f'{where}: twist takes 6 finite numbers u v w p q r')
-            out.append(ScriptLine(t, 'twist', nu=nu))
-        elif kind == 'io':
-            if len(parts) != 4:
-                raise ValueError(f'{where}: io takes an executor and one value')
-            value = yaml.safe_load(parts[3])
-            try:
-                convert.python_to_parameter_value(value)
-            except TypeError:
-                raise ValueError(f'{where}: value {parts[3]!r} is not a bool, int, float or '
-                                 'string') from None
-            out.append(ScriptLine(t, 'io', executor=parts[2], value=value))
-        elif kind == 'stop' and len(parts) == 2:
-            out.append(ScriptLine(t, 'stop'))
-        else:
-            raise ValueError(f'{where}: expected "twist", "io" or "stop" after the time')
-    return out
+def _io(args: Sequence[str]) -> IoRequest:
+    if len(args) != 2:
+        raise ValueError('takes an executor and one value')
+    value = yaml.safe_load(args[1])
+    try:
+        convert.python_to_parameter_value(value)
+    except TypeError:
+        raise ValueError(f'value {args[1]!r} is not a bool, int, float or string') from None
+    return IoRequest(args[0], value)
+
+
+#: The verbs of a surface script and the typed value each step carries.
+VERBS = {
+    'twist': lambda args: numbers(args, 6, 'u v w p q r'),  # velocity goal [m/s, rad/s]
+    'io': _io,                                              # IoRequest
+    'stop': no_arguments,                                   # None
+}
+
+
+@dataclass(frozen=True)
+class ScriptedCommandsSettings:
+    """Settings of ``ScriptedCommandsNode`` (see ``SPECS``)."""
+
+    script: tuple[Step, ...]  # parsed, in time order
+    rate: float               # rate of the velocity goal [Hz]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> ScriptedCommandsSettings:
+        """Build from the declared parameters' values; ``ValueError`` names the line."""
+        return cls(script=parse_script(v['script'], VERBS), rate=v['rate'])
 
 
 SPECS = [
@@ -90,24 +80,26 @@ class ScriptedCommandsNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'surface', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        v = self.bind_settings(SPECS, self._build, lambda _: None).settings
-        self.script: list[ScriptLine] = v[0]
+        self.settings: ScriptedCommandsSettings
+        self.bind_settings(SPECS, ScriptedCommandsSettings.from_params, self._apply)
+        self.script = self.settings.script
         self._next = 0
         self._nu: tuple[float, ...] | None = None
         self._start_ns: int | None = None
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
-        self.create_timer(1.0 / v[1], self._tick)
+        self.create_timer(1.0 / self.settings.rate, self._tick)
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> tuple[list[ScriptLine], float]:
-        return parse_script([line for line in v['script'] if line.strip()]), v['rate']
+    def _apply(self, settings: ScriptedCommandsSettings) -> None:
+        self.settings = settings
 
     @property
     def finished(self) -> bool:
+        """Whether every step was played and no goal is being sent."""
         return self._next >= len(self.script) and self._nu is None
 
     def start(self) -> None:
+        """Start the script clock."""
         super().start()
         self._start_ns = self.get_clock().now().nanoseconds
 
@@ -117,16 +109,17 @@ class ScriptedCommandsNode(EnbarrNode):
         now = self.get_clock().now().nanoseconds
         elapsed = (now - self._start_ns) * 1e-9
         while self._next < len(self.script) and self.script[self._next].time <= elapsed:
-            line = self.script[self._next]
+            step = self.script[self._next]
             self._next += 1
-            if line.kind == 'twist':
-                self._nu = line.nu
-            elif line.kind == 'stop':
+            if step.verb == 'twist':
+                self._nu = step.value
+            elif step.verb == 'stop':
                 self._nu = None
             else:
+                io: IoRequest = step.value
                 self._io_pub.publish(Parameter(
-                    name=line.executor, value=convert.python_to_parameter_value(line.value)))
-                self.get_logger().info(f'io request {line.executor} = {line.value!r}')
+                    name=io.executor, value=convert.python_to_parameter_value(io.value)))
+                self.get_logger().info(f'io request {io.executor} = {io.value!r}')
         if self._nu is not None:
             msg = TwistStamped()
             convert.ns_to_stamp(now, msg.header.stamp)

@@ -1,0 +1,1 @@
+"""Thruster plugins: the simulated ESCs and motors."""

@@ -95,8 +95,10 @@ class SimThrustersNode(ActuatorDriver):
         self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
 
     def _output(self, cmd: np.ndarray, now_ns: int, stamp_ns: int | None = None) -> None:
-        """Apply ``cmd`` (normalized) at monotonic ``now_ns``, stamped with the node clock's
-        ``stamp_ns`` (read now when not given); caller holds the lock."""
+        """Apply ``cmd`` (normalized) at monotonic ``now_ns``; the caller holds the lock.
+
+        Outputs are stamped with the node clock's ``stamp_ns`` (read now when not given).
+        """
         target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
         tc = self.settings.time_constant
         last, self._last_apply_ns = self._last_apply_ns, now_ns
@@ -120,6 +122,7 @@ class SimThrustersNode(ActuatorDriver):
         self._thrust_pub.publish(thrust)
 
     def is_neutral(self) -> bool:
+        """Whether every thruster is commanded to zero."""
         return self.neutral
 
     def write_neutral(self) -> None:
@@ -128,4 +131,5 @@ class SimThrustersNode(ActuatorDriver):
         self._output(np.zeros(len(self.names)), time.monotonic_ns())
 
     def status_values(self) -> dict[str, Any]:
+        """Return the driver counters plus refused and clipped commands."""
         return {**super().status_values(), 'refused': self.refused, 'clipped': self.clipped}

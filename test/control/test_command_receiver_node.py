@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
@@ -18,113 +20,147 @@ from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 
 
-def test_command_receiver_gates_commands_failsafe_and_io(context, executor, spin):
-    node = add(executor, CommandReceiverNode(
-        node_name='command_receiver', context=context, parameter_overrides=[
-            Parameter('timeout', value=0.2), Parameter('max_age', value=5.0),
-            Parameter('max_linear', value=1.0)]))
-    surface = probe(context, executor, 'surface')
-    twist_pub = surface.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
-                                         topics.SURFACE_TWIST.qos)
-    io_pub = surface.create_publisher(ParameterMsg, topics.SURFACE_IO.name,
-                                      topics.SURFACE_IO.qos)
-    goals: list[np.ndarray] = []
-    ios: list[ParameterMsg] = []
-    surface.create_topic_subscription(
-        topics.TRAJECTORY_REQUEST, lambda m: goals.append(convert.twist_to_nu(m.twist)))
-    surface.create_topic_subscription(topics.IO_REQUEST, ios.append)
-    LinkBus.of(context).connect()
+class Surface:
+    """The receiver and a surface station talking to it over ROS topics."""
+
+    def __init__(self, context: Any, executor: Any, spin: Any) -> None:
+        self.executor, self.spin = executor, spin
+        self.node = add(executor, CommandReceiverNode(
+            node_name='command_receiver', context=context, parameter_overrides=[
+                Parameter('timeout', value=0.2), Parameter('max_age', value=5.0),
+                Parameter('max_linear', value=1.0)]))
+        self.probe = surface = probe(context, executor, 'surface')
+        self.twist_pub = surface.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
+                                                  topics.SURFACE_TWIST.qos)
+        self.io_pub = surface.create_publisher(ParameterMsg, topics.SURFACE_IO.name,
+                                               topics.SURFACE_IO.qos)
+        self.goals: list[np.ndarray] = []
+        self.ios: list[ParameterMsg] = []
+        surface.create_topic_subscription(
+            topics.TRAJECTORY_REQUEST, lambda m: self.goals.append(convert.twist_to_nu(m.twist)))
+        surface.create_topic_subscription(topics.IO_REQUEST, self.ios.append)
+        # A plain ROS subscription (as `ros2 topic echo` would make) gets the link topic.
+        self.echoed: list[TwistStamped] = []
+        surface.create_subscription(TwistStamped, topics.TRAJECTORY_REQUEST.name,
+                                    self.echoed.append, topics.TRAJECTORY_REQUEST.qos)
+        LinkBus.of(context).connect()
+        assert spin(executor, lambda: self.twist_pub.get_subscription_count() > 0
+                    and self.io_pub.get_subscription_count() > 0, TIMEOUT)
+
+    def until(self, condition: Any) -> bool:
+        return self.spin(self.executor, condition, TIMEOUT)
+
+    def send(self, nu: list[float], offset_s: float = 0.0) -> None:
+        self.twist_pub.publish(twist(self.probe, nu, offset_s))
+
+
+@pytest.fixture
+def rig(context, executor, spin) -> Surface:
+    return Surface(context, executor, spin)
+
+
+WANTED = [0.3, -0.2, 0.1, 0.0, 0.05, -0.4]
+
+
+# -- velocity commands -----------------------------------------------------------------------
+
+def test_goal_travels_over_the_link_bus(rig):
     # The receiver's goal publisher is in this process: the probe is fed by direct calls.
-    assert all(s.local for s in surface._links)
-    assert spin(executor, lambda: twist_pub.get_subscription_count() > 0
-                and io_pub.get_subscription_count() > 0, TIMEOUT)
+    assert all(s.local for s in rig.probe._links)
 
-    # Before any command: failsafe, a zero goal is republished.
-    assert spin(executor, lambda: len(goals) >= 2, TIMEOUT)
-    assert not np.any(goals[-1])
 
-    # A fresh valid command is passed on as the goal.
-    wanted = [0.3, -0.2, 0.1, 0.0, 0.05, -0.4]
-    twist_pub.publish(twist(surface, wanted))
-    assert spin(executor, lambda: any(np.allclose(g, wanted) for g in goals), TIMEOUT)
-    assert node.gate.counts[Verdict.ACCEPTED] == 1
+def test_zero_goal_before_any_command(rig):
+    assert rig.until(lambda: len(rig.goals) >= 2)
+    assert not np.any(rig.goals[-1])
 
-    # Refused commands: counted per verdict and never passed on.
-    refused = [
-        (Verdict.NON_FINITE, twist(surface, [math.nan, 0, 0, 0, 0, 0])),
-        (Verdict.NON_FINITE, twist(surface, [0, 0, 0, 0, 0, math.inf])),
-        (Verdict.OUT_OF_RANGE, twist(surface, [1.5, 0, 0, 0, 0, 0])),
-        (Verdict.OUT_OF_RANGE, twist(surface, [0, 0, 0, 0, 0, -1.25])),
-        (Verdict.STALE, twist(surface, [0.77, 0, 0, 0, 0, 0], offset_s=-30.0)),
-        (Verdict.FUTURE, twist(surface, [0.66, 0, 0, 0, 0, 0], offset_s=+30.0)),
-    ]
+
+def test_plain_ros_subscribers_get_the_goal(rig):
+    assert rig.until(lambda: len(rig.echoed) >= 2)
+    assert rig.echoed[-1].header.frame_id == topics.BODY_FRAME
+
+
+def test_a_fresh_valid_command_becomes_the_goal(rig):
+    rig.send(WANTED)
+    assert rig.until(lambda: any(np.allclose(g, WANTED) for g in rig.goals))
+    assert rig.node.gate.counts[Verdict.ACCEPTED] == 1
+
+
+REFUSED = [
+    (Verdict.NON_FINITE, [math.nan, 0, 0, 0, 0, 0], 0.0),
+    (Verdict.NON_FINITE, [0, 0, 0, 0, 0, math.inf], 0.0),
+    (Verdict.OUT_OF_RANGE, [1.5, 0, 0, 0, 0, 0], 0.0),
+    (Verdict.OUT_OF_RANGE, [0, 0, 0, 0, 0, -1.25], 0.0),
+    (Verdict.STALE, [0.77, 0, 0, 0, 0, 0], -30.0),
+    (Verdict.FUTURE, [0.66, 0, 0, 0, 0, 0], +30.0),
+]
+
+
+def test_refused_commands_are_counted_and_never_passed_on(rig):
+    rig.send(WANTED)
+    assert rig.until(lambda: rig.node.gate.counts[Verdict.ACCEPTED] == 1)
     expected = {v: 0 for v in Verdict}
     expected[Verdict.ACCEPTED] = 1
-    for verdict, msg in refused:
+    for verdict, nu, offset in REFUSED:
         expected[verdict] += 1
-        twist_pub.publish(msg)
-        assert spin(executor, lambda v=verdict: node.gate.counts[v] == expected[v], TIMEOUT), \
-            f'{verdict} not counted: {node.gate.counts}'
-    assert node.gate.counts == expected
-    for g in goals:
+        rig.send(nu, offset)
+        assert rig.until(lambda v=verdict: rig.node.gate.counts[v] == expected[v]), \
+            f'{verdict} not counted: {rig.node.gate.counts}'
+    assert rig.node.gate.counts == expected
+    for g in rig.goals:
         assert np.all(np.isfinite(g))
         assert np.all(np.abs(g) <= 1.0)
         assert not np.isclose(g[0], 0.77) and not np.isclose(g[0], 0.66)
 
-    # No accepted command for `timeout`: the goal falls to zero by itself.
-    n = len(goals)
-    assert spin(executor, lambda: len(goals) > n and not np.any(goals[-1]), TIMEOUT)
-    assert node.gate.failsafe(stamp_ns(node))
 
-    # IO: valid requests forwarded as they are, invalid ones refused and counted.
-    io_pub.publish(io_msg('gpio_12', True))
-    io_pub.publish(io_msg('manipulator', 400))
-    io_pub.publish(io_msg('manipulator', 2.5))
-    assert spin(executor, lambda: len(ios) == 3, TIMEOUT)
-    assert [(m.name, convert.parameter_value_to_python(m.value)) for m in ios] == [
-        ('gpio_12', True), ('manipulator', 400), ('manipulator', 2.5)]
-    io_pub.publish(io_msg('manipulator', math.nan))
-    assert spin(executor, lambda: node.io_rejected == 1, TIMEOUT)
-    io_pub.publish(io_msg('', True))
-    assert spin(executor, lambda: node.io_rejected == 2, TIMEOUT)
-    io_pub.publish(io_msg('lights', ParameterValue(type=ParameterType.PARAMETER_NOT_SET)))
-    assert spin(executor, lambda: node.io_rejected == 3, TIMEOUT)
-    assert node.io_forwarded == 3
-
-    # The failsafe (still active, goals keep coming) never emits io.
-    n = len(goals)
-    assert spin(executor, lambda: len(goals) >= n + 3, TIMEOUT)
-    assert not np.any(goals[-1])
-    assert len(ios) == 3
+def test_goal_falls_to_zero_when_commands_stop(rig):
+    rig.send(WANTED)
+    assert rig.until(lambda: any(np.allclose(g, WANTED) for g in rig.goals))
+    n = len(rig.goals)
+    assert rig.until(lambda: len(rig.goals) > n and not np.any(rig.goals[-1]))
+    assert rig.node.gate.failsafe(stamp_ns(rig.node))
 
 
-def test_command_receiver_failsafe_after_commands_stop(context, executor, spin):
-    """A stream of commands, then silence: zero goal after `timeout`, and back on a new one."""
-    node = add(executor, CommandReceiverNode(
-        node_name='command_receiver', context=context, parameter_overrides=[
-            Parameter('timeout', value=0.2), Parameter('max_age', value=5.0)]))
-    surface = probe(context, executor, 'surface')
-    twist_pub = surface.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
-                                         topics.SURFACE_TWIST.qos)
-    goals: list[np.ndarray] = []
-    surface.create_topic_subscription(
-        topics.TRAJECTORY_REQUEST, lambda m: goals.append(convert.twist_to_nu(m.twist)))
-    # A plain ROS subscription (as `ros2 topic echo` would make) gets the link topic via DDS.
-    echoed: list[TwistStamped] = []
-    surface.create_subscription(TwistStamped, topics.TRAJECTORY_REQUEST.name, echoed.append,
-                                topics.TRAJECTORY_REQUEST.qos)
-    LinkBus.of(context).connect()
-    assert spin(executor, lambda: twist_pub.get_subscription_count() > 0, TIMEOUT)
-    assert spin(executor, lambda: len(echoed) >= 2, TIMEOUT)
-    assert echoed[-1].header.frame_id == topics.BODY_FRAME
+def test_failsafe_ends_with_a_new_command_and_comes_back(rig):
+    """A command, then silence: zero goal after `timeout`, and back on a new one."""
     wanted = [0.0, 0.0, -0.2, 0.0, 0.0, 0.1]
-    for round_ in range(2):
-        accepted = node.gate.counts[Verdict.ACCEPTED]
-        n = len(goals)
-        twist_pub.publish(twist(surface, wanted))
-        assert spin(executor, lambda a=accepted: node.gate.counts[Verdict.ACCEPTED] > a,
-                    TIMEOUT)
-        assert any(np.allclose(g, wanted) for g in goals[n:])  # passed on at once
-        n = len(goals)
-        assert spin(executor, lambda n=n: len(goals) > n and not np.any(goals[-1]), TIMEOUT)
-        assert node._failsafe
+    for _ in range(2):
+        accepted = rig.node.gate.counts[Verdict.ACCEPTED]
+        n = len(rig.goals)
+        rig.send(wanted)
+        assert rig.until(lambda a=accepted: rig.node.gate.counts[Verdict.ACCEPTED] > a)
+        assert any(np.allclose(g, wanted) for g in rig.goals[n:])  # passed on at once
+        n = len(rig.goals)
+        assert rig.until(lambda n=n: len(rig.goals) > n and not np.any(rig.goals[-1]))
+        assert rig.node._failsafe
+
+
+# -- io requests -----------------------------------------------------------------------------
+
+def test_valid_io_requests_are_forwarded_as_they_are(rig):
+    rig.io_pub.publish(io_msg('gpio_12', True))
+    rig.io_pub.publish(io_msg('manipulator', 400))
+    rig.io_pub.publish(io_msg('manipulator', 2.5))
+    assert rig.until(lambda: len(rig.ios) == 3)
+    assert [(m.name, convert.parameter_value_to_python(m.value)) for m in rig.ios] == [
+        ('gpio_12', True), ('manipulator', 400), ('manipulator', 2.5)]
+    assert rig.node.io_forwarded == 3
+
+
+@pytest.mark.parametrize('msg', [
+    io_msg('manipulator', math.nan),
+    io_msg('', True),
+    io_msg('lights', ParameterValue(type=ParameterType.PARAMETER_NOT_SET)),
+], ids=['not finite', 'no executor', 'not set'])
+def test_invalid_io_requests_are_refused_and_counted(rig, msg):
+    rig.io_pub.publish(msg)
+    assert rig.until(lambda: rig.node.io_rejected == 1)
+    assert rig.node.io_forwarded == 0 and rig.ios == []
+
+
+def test_the_failsafe_never_emits_io(rig):
+    rig.io_pub.publish(io_msg('gpio_12', True))
+    assert rig.until(lambda: len(rig.ios) == 1)
+    n = len(rig.goals)
+    assert rig.until(lambda: len(rig.goals) >= n + 3)  # failsafe active, goals keep coming
+    assert not np.any(rig.goals[-1])
+    assert len(rig.ios) == 1

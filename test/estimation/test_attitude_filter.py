@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from enbarr_core.framework.kinematics import ssa
 from enbarr_core.estimation.attitude_filter import (
     AttitudeEstimate,
     AttitudeFilter,
@@ -112,7 +113,7 @@ class Run:
         """(n, 3) roll, pitch, yaw errors [rad] (estimate minus truth, wrapped)."""
         true = self.imu.rot[1:].as_euler('ZYX')[:, ::-1]
         est = Rotation.from_quat(self.q()).as_euler('ZYX')[:, ::-1]
-        return (est - true + math.pi) % (2 * math.pi) - math.pi
+        return ssa(est - true)
 
     def body_errors(self) -> np.ndarray:
         """(n, 3) dtheta with q_true = q_est (x) q{dtheta}: the filter's error [rad]."""
@@ -233,8 +234,7 @@ def test_roll_pitch_converge_without_magnetometer(imu60: Imu, use_magnetometer: 
     yaw_var = [(Rotation.from_quat(e.q).as_matrix() @ e.orientation_cov
                 @ Rotation.from_quat(e.q).as_matrix().T)[2, 2] for e in (r.est[0], r.est[-1])]
     assert 0.0 < yaw_var[0] < math.radians(0.1) ** 2 < yaw_var[1]
-    drift = math.remainder(r.euler_errors()[-1, 2] + imu60.rot[0].as_euler('ZYX')[0],
-                           2 * math.pi)
+    drift = ssa(r.euler_errors()[-1, 2] + imu60.rot[0].as_euler('ZYX')[0])
     assert abs(drift) < 3.0 * math.sqrt(yaw_var[1]), (drift, yaw_var[1])
 
 

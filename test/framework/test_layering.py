@@ -1,7 +1,7 @@
 """Algorithms know nothing of ROS: every module of the algorithm folders (estimation,
 control, guidance, allocation, models) except the nodes (``*_node.py``) and their parameter
 declarations (``*_params.py``), and the framework's maths and the bag format, imports with
-rclpy made unimportable.
+rclpy made unimportable; so do the device transport layer and the pure plugin modules.
 """
 
 from __future__ import annotations
@@ -14,7 +14,9 @@ import sys
 ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_core.guidance',
                       'enbarr_core.allocation', 'enbarr_core.models')
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
-             'enbarr_core.framework.errors', 'enbarr_core.recording.bag')
+             'enbarr_core.framework.errors', 'enbarr_core.recording.bag',
+             'enbarr_plugins.transport.i2c', 'enbarr_plugins.transport.serial_link',
+             'enbarr_plugins.transport.net', 'enbarr_plugins.operator.script')
 
 
 def pure_modules() -> list[str]:

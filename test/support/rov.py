@@ -17,8 +17,6 @@ from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 from support.nodes import probe
 
-
-
 SIM_PROFILE = os.path.join(os.path.dirname(__file__), '..', '..', 'params', 'enbarr_sim.yaml')
 
 
@@ -77,7 +75,8 @@ def io_msg(name: str, value: Any) -> ParameterMsg:
     return ParameterMsg(name=name, value=convert.python_to_parameter_value(value))
 
 
-def _imu(t_ns: int, rate_z: float) -> Imu:
+def imu_sample(t_ns: int, rate_z: float) -> Imu:
+    """A level ``imu/data`` sample stamped ``t_ns`` turning at ``rate_z`` [rad/s]."""
     msg = Imu()
     convert.ns_to_stamp(t_ns, msg.header.stamp)
     msg.header.frame_id = topics.IMU_FRAME
@@ -86,7 +85,8 @@ def _imu(t_ns: int, rate_z: float) -> Imu:
     return msg
 
 
-def _io_probe(context: Any, executor: Any) -> tuple[Any, list[tuple[str, Any]]]:
+def io_probe(context: Any, executor: Any) -> tuple[Any, list[tuple[str, Any]]]:
+    """A surface probe: an ``io_request`` publisher and the (executor, value) states seen."""
     p = probe(context, executor, 'surface')
     pub = p.create_topic_publisher(topics.IO_REQUEST)
     states: list[tuple[str, Any]] = []
@@ -97,4 +97,4 @@ def _io_probe(context: Any, executor: Any) -> tuple[Any, list[tuple[str, Any]]]:
     return pub, states
 
 
-G = 9.81
+G = 9.81  # [m/s^2] what the simulated IMU reads at rest

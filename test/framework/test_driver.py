@@ -1,0 +1,363 @@
+"""The driver contract (``framework/driver.py``): an absent device, run-time faults, the
+actuator watchdog and stale sensors. Time is a fake monotonic clock the test moves, and the
+supervision tick (``_supervise``) is called directly: nothing here depends on how fast the
+machine is.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+from rclpy.parameter import Parameter
+from support.nodes import TIMEOUT, add, probe
+
+from enbarr_core.framework import driver
+from enbarr_core.framework.driver import ERROR, OK, WARN, ActuatorDriver, SensorDriver
+from enbarr_core.framework.errors import DeviceError
+from enbarr_interfaces import topics
+
+S = 1_000_000_000  # ns per s
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.ns = 1000 * S
+
+    def at(self, seconds: float) -> None:
+        self.ns = 1000 * S + int(seconds * S)
+
+
+@pytest.fixture
+def clock(monkeypatch: pytest.MonkeyPatch) -> FakeClock:
+    c = FakeClock()
+    monkeypatch.setattr(driver, 'time', SimpleNamespace(monotonic_ns=lambda: c.ns))
+    return c
+
+
+class Reports:
+    """What a driver put on /diagnostics: (level, message, values) per report."""
+
+    def __init__(self, node: Any) -> None:
+        self.items: list[tuple[int, str, dict[str, Any]]] = []
+        publish = node.publish_diagnostics
+
+        def record(level: int, message: str, values: dict[str, Any]) -> None:
+            self.items.append((level, message, values))
+            publish(level, message, values)
+
+        node.publish_diagnostics = record
+
+    @property
+    def last(self) -> tuple[int, str, dict[str, Any]]:
+        return self.items[-1]
+
+
+class FakeActuator(ActuatorDriver):
+    """One output on a device that can be absent; counts opens and closes."""
+
+    def __init__(self, present: bool = True, **kwargs: Any) -> None:
+        self.present = present
+        self.opens = 0
+        self.closes = 0
+        self.neutral = True
+        self.outputs: list[float] = []
+        super().__init__('fake_actuator', device='fake0', **kwargs)
+        self.connect()
+
+    def open_device(self) -> None:
+        self.opens += 1
+        if not self.present:
+            raise DeviceError('fake0: no answer')
+
+    def close_device(self) -> None:
+        self.closes += 1
+
+    def is_neutral(self) -> bool:
+        return self.neutral
+
+    def write_neutral(self) -> None:
+        self.neutral = True
+        self.outputs.append(0.0)
+
+    def command(self, value: float) -> None:
+        with self.commanding():
+            self.neutral = value == 0.0
+            self.outputs.append(value)
+
+
+class FakeSensor(SensorDriver):
+    def __init__(self, **kwargs: Any) -> None:
+        self.present = True
+        super().__init__('fake_sensor', device='fake1', **kwargs)
+        self.connect()
+
+    def open_device(self) -> None:
+        if not self.present:
+            raise DeviceError('fake1: gone')
+
+
+def actuator(context: Any, present: bool = True, **params: Any) -> FakeActuator:
+    values = {'reconnect.initial_delay': 0.5, 'reconnect.max_delay': 4.0,
+              'command_timeout': 0.25, **params}
+    return FakeActuator(present, context=context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in values.items()])
+
+
+def tick(node: Any, clock: FakeClock, seconds: float) -> None:
+    clock.at(seconds)
+    node._supervise()
+
+
+# -- an absent device ------------------------------------------------------------------------
+
+def test_absent_device_at_start_is_an_error_on_diagnostics(context, clock):
+    node = actuator(context, present=False)
+    reports = Reports(node)
+    assert not node.connected and node.faults == 1 and node.opens == 1
+    tick(node, clock, 0.0)
+    level, message, values = reports.last
+    assert level == ERROR
+    assert 'fake0: no answer' in message
+    assert values['connected'] is False and values['faults'] == 1 and values['device'] == 'fake0'
+    node.destroy_node()
+
+
+def test_absent_device_is_retried_with_growing_backoff(context, clock):
+    clock.at(0.0)
+    node = actuator(context, present=False)
+    attempts = []
+    t = 0.0
+    while t < 30.0:
+        t = round(t + 0.05, 2)
+        before = node.opens
+        tick(node, clock, t)
+        if node.opens > before:
+            attempts.append(t)
+    gaps = [round(b - a, 2) for a, b in zip([0.0] + attempts, attempts)]
+    # 0.5 s, doubling, capped at reconnect.max_delay = 4 s.
+    assert gaps[:6] == [0.5, 1.0, 2.0, 4.0, 4.0, 4.0]
+    assert not node.connected and node.faults == 1 + len(attempts)
+    node.destroy_node()
+
+
+def test_device_appearing_connects_and_reports_ok(context, clock):
+    clock.at(0.0)
+    node = actuator(context, present=False)
+    reports = Reports(node)
+    tick(node, clock, 0.5)       # second attempt fails; next in 1 s
+    node.present = True
+    tick(node, clock, 1.0)
+    assert not node.connected    # not due yet: the backoff holds
+    tick(node, clock, 1.5)
+    assert node.connected and node.opens == 3
+    tick(node, clock, 3.0)
+    assert reports.last[0] == OK and reports.last[2]['connected'] is True
+    assert node._backoff.delay == 0.5  # reset for the next fault
+    node.destroy_node()
+
+
+# -- a fault at run time ---------------------------------------------------------------------
+
+def test_run_time_fault_puts_outputs_in_safe_state(context, clock):
+    node = actuator(context)
+    node.command(0.5)
+    assert not node.is_neutral()
+    node.device_fault(DeviceError('fake0: unplugged'))
+    assert node.is_neutral() and node.outputs[-1] == 0.0
+    assert not node.connected and node.closes == 1 and node.faults == 1
+    assert node.last_fault == 'fake0: unplugged'
+    node.destroy_node()
+
+
+def test_run_time_fault_is_reported_as_error(context, clock):
+    node = actuator(context)
+    reports = Reports(node)
+    node.device_fault(DeviceError('fake0: unplugged'))
+    tick(node, clock, 0.1)
+    assert reports.last[0] == ERROR and 'fake0: unplugged' in reports.last[1]
+    node.destroy_node()
+
+
+def test_run_time_fault_is_retried_and_commands_resume(context, clock):
+    clock.at(0.0)
+    node = actuator(context)
+    node.present = False
+    node.device_fault(DeviceError('fake0: unplugged'))
+    tick(node, clock, 0.5)
+    assert node.opens == 2 and not node.connected
+    node.present = True
+    tick(node, clock, 1.5)
+    assert node.connected and node.opens == 3
+    node.command(0.3)
+    assert node.outputs[-1] == 0.3 and not node.is_neutral()
+    node.destroy_node()
+
+
+def test_a_second_fault_report_while_down_is_ignored(context, clock):
+    node = actuator(context)
+    node.device_fault(DeviceError('fake0: unplugged'))
+    node.device_fault(DeviceError('fake0: again'))
+    assert node.faults == 1 and node.closes == 1 and node.last_fault == 'fake0: unplugged'
+    node.destroy_node()
+
+
+# -- the actuator watchdog -------------------------------------------------------------------
+
+def test_watchdog_goes_neutral_after_command_timeout(context, clock):
+    clock.at(0.0)
+    node = actuator(context)
+    node.command(0.5)
+    tick(node, clock, 0.2)
+    assert not node.is_neutral() and node.timeouts == 0
+    tick(node, clock, 0.3)
+    assert node.is_neutral() and node.timeouts == 1
+    node.destroy_node()
+
+
+def test_watchdog_neutral_is_not_repeated(context, clock):
+    clock.at(0.0)
+    node = actuator(context)
+    node.command(0.5)
+    tick(node, clock, 0.3)
+    n = len(node.outputs)
+    tick(node, clock, 0.6)
+    tick(node, clock, 5.0)
+    assert node.timeouts == 1 and len(node.outputs) == n
+    node.destroy_node()
+
+
+def test_watchdog_is_fed_by_commands(context, clock):
+    clock.at(0.0)
+    node = actuator(context)
+    for i in range(1, 10):
+        clock.at(0.2 * i)
+        node.command(0.5)
+        node._supervise()
+    assert node.timeouts == 0 and not node.is_neutral()
+    node.destroy_node()
+
+
+def test_watchdog_count_is_reported(context, clock):
+    clock.at(0.0)
+    node = actuator(context)
+    reports = Reports(node)
+    node.command(0.5)
+    tick(node, clock, 2.0)
+    assert reports.last[2]['timeouts'] == 1 and reports.last[2]['neutral'] is True
+    node.destroy_node()
+
+
+# -- a sensor going stale --------------------------------------------------------------------
+
+def sensor(context: Any) -> FakeSensor:
+    return FakeSensor(context=context, parameter_overrides=[
+        Parameter('sample_timeout', value=1.0)])
+
+
+def test_sensor_without_samples_warns(context, clock):
+    node = sensor(context)
+    reports = Reports(node)
+    tick(node, clock, 0.0)
+    assert reports.last[0] == WARN and reports.last[1] == 'no samples'
+    node.destroy_node()
+
+
+def test_sensor_with_fresh_samples_is_ok(context, clock):
+    clock.at(0.0)
+    node = sensor(context)
+    reports = Reports(node)
+    node.sample_received()
+    tick(node, clock, 0.9)
+    assert reports.last[0] == OK and reports.last[2]['samples'] == 1
+    node.destroy_node()
+
+
+def test_sensor_whose_samples_stop_warns(context, clock):
+    clock.at(0.0)
+    node = sensor(context)
+    reports = Reports(node)
+    node.sample_received()
+    tick(node, clock, 1.1)
+    assert node.stale
+    assert reports.last[0] == WARN and reports.last[1] == 'samples stopped'
+    node.destroy_node()
+
+
+def test_a_faulted_sensor_is_an_error_not_a_warning(context, clock):
+    node = sensor(context)
+    reports = Reports(node)
+    node.present = False
+    node.device_fault(DeviceError('fake1: gone'))
+    tick(node, clock, 0.0)
+    assert reports.last[0] == ERROR
+    node.destroy_node()
+
+
+# -- the real topic --------------------------------------------------------------------------
+
+def test_the_error_travels_on_the_diagnostics_topic(context, executor, spin, clock):
+    node = add(executor, actuator(context, present=False))
+    seen = []
+    p = probe(context, executor, 'monitor')
+    p.create_subscription(topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
+                          lambda m: seen.extend(m.status), topics.DIAGNOSTICS.qos)
+    t = [0.0]
+
+    def report_and_look() -> bool:
+        t[0] += 1.0  # one report per call
+        tick(node, clock, t[0])
+        return any(s.hardware_id == 'fake_actuator' for s in seen)
+
+    assert spin(executor, report_and_look, TIMEOUT)
+    status = next(s for s in seen if s.hardware_id == 'fake_actuator')
+    assert status.level == bytes([ERROR]) and 'fake0: no answer' in status.message
+
+
+# -- a driver over the transport layer -------------------------------------------------------
+
+class I2cSensor(SensorDriver):
+    """A sensor checked by its identity register over the fake I2C bus."""
+
+    WHO_AM_I = 0x75
+
+    def __init__(self, bus: Any, **kwargs: Any) -> None:
+        from enbarr_plugins.transport.i2c import I2cDevice
+        self.chip = I2cDevice(bus, 0x68, bus_name='i2c-1', retries=1, retry_delay=0.0)
+        super().__init__('i2c_sensor', device=self.chip.name, **kwargs)
+        self.connect()
+
+    def open_device(self) -> None:
+        if self.chip.read_u8(self.WHO_AM_I) != 0x71:
+            raise DeviceError(f'{self.chip.name}: not the expected chip')
+
+    def poll(self) -> None:
+        try:
+            self.chip.read_block(0x3B, 6)
+        except DeviceError as err:
+            self.device_fault(err)
+            return
+        self.sample_received()
+
+
+def test_a_driver_over_the_fake_i2c_bus_faults_and_recovers(context, clock):
+    from enbarr_plugins.transport.i2c import FakeI2cBus, RegisterMap
+    bus = FakeI2cBus()
+    clock.at(0.0)
+    node = I2cSensor(bus, context=context, parameter_overrides=[
+        Parameter('reconnect.initial_delay', value=0.5)])
+    assert not node.connected and 'i2c-1 0x68: read register 0x75' in node.last_fault
+    bus.attach(0x68, RegisterMap({0x75: 0x71}))
+    tick(node, clock, 0.5)
+    assert node.connected and node.device == 'i2c-1 0x68'
+    node.poll()
+    assert node.samples == 1
+    bus.nack(0x68, 2)  # more NACKs than the retries cover
+    node.poll()
+    assert not node.connected and 'EREMOTEIO' in node.last_fault
+    tick(node, clock, 1.0)
+    assert node.connected
+    node.poll()
+    assert node.samples == 2
+    node.destroy_node()

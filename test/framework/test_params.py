@@ -1,0 +1,105 @@
+"""Declared parameters: overrides coerced as YAML users expect, errors that name the parameter."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+from rclpy.parameter import Parameter
+
+from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+
+SPECS = [
+    ParamSpec('gain', 1.0, 'A gain', '1/s', 0.0, 10.0),
+    ParamSpec('bias', [0.0, 0.0, 0.0], 'A bias', 'm', -5.0, 5.0),
+    ParamSpec('count', 3, 'A count', '', 0, 100),
+    ParamSpec('fixed', 0.5, 'A read-only number', 's', 0.0, 1.0, read_only=True),
+]
+
+
+@dataclass(frozen=True)
+class Settings:
+    gain: float
+    bias: tuple[float, ...]
+    count: int
+    fixed: float
+
+
+def make(context, overrides=None, cli=None) -> tuple[EnbarrNode, list[Settings]]:
+    node = EnbarrNode('tuned', context=context, parameter_overrides=overrides or [],
+                      cli_args=cli)
+    applied: list[Settings] = []
+    node.bind_settings(SPECS, lambda v: Settings(v['gain'], tuple(v['bias']), v['count'],
+                                                 v['fixed']), applied.append)
+    return node, applied
+
+
+def test_defaults_without_overrides(context):
+    node, applied = make(context)
+    assert applied == [Settings(1.0, (0.0, 0.0, 0.0), 3, 0.5)]
+    node.destroy_node()
+
+
+def test_integer_override_of_a_float_becomes_a_float(context):
+    node, applied = make(context, [Parameter('gain', value=2), Parameter('fixed', value=1)])
+    assert applied[-1].gain == 2.0 and isinstance(applied[-1].gain, float)
+    assert node.get_parameter('gain').type_ == Parameter.Type.DOUBLE
+    assert applied[-1].fixed == 1.0
+    node.destroy_node()
+
+
+def test_integer_list_override_of_a_float_array_becomes_floats(context):
+    node, applied = make(context, [Parameter('bias', value=[1, 2, 3])])
+    assert applied[-1].bias == (1.0, 2.0, 3.0)
+    assert node.get_parameter('bias').type_ == Parameter.Type.DOUBLE_ARRAY
+    node.destroy_node()
+
+
+def test_integer_override_from_the_command_line(context):
+    node, applied = make(context, cli=['--ros-args', '-p', 'gain:=4'])
+    assert applied[-1].gain == 4.0
+    node.destroy_node()
+
+
+def test_coerced_value_keeps_its_range(context):
+    with pytest.raises(ConfigurationError, match="parameter 'gain'") as info:
+        make(context, [Parameter('gain', value=20)])
+    assert info.value.parameter == 'gain'
+
+
+def test_coerced_value_stays_read_only(context):
+    node, _ = make(context, [Parameter('fixed', value=1)])
+    result = node.set_parameters([Parameter('fixed', value=0.25)])[0]
+    assert not result.successful
+    node.destroy_node()
+
+
+def test_wrong_type_names_parameter_expected_type_and_value(context):
+    with pytest.raises(ConfigurationError,
+                       match=r"^node 'tuned': parameter 'gain': expected a float, got 'fast'$"):
+        make(context, [Parameter('gain', value='fast')])
+
+
+def test_float_override_of_an_integer_is_refused(context):
+    with pytest.raises(ConfigurationError, match=r"parameter 'count': expected a int, got 2.5"):
+        make(context, [Parameter('count', value=2.5)])
+
+
+def test_wrong_array_type_is_refused(context):
+    with pytest.raises(ConfigurationError,
+                       match=r"parameter 'bias': expected a list of float, got \['a', 'b'\]"):
+        make(context, [Parameter('bias', value=['a', 'b'])])
+
+
+def test_a_settings_error_names_its_parameter(context):
+    node = EnbarrNode('tuned', context=context)
+
+    def build(v):
+        raise ValueError('bias[1]: must be below gain')
+
+    with pytest.raises(ConfigurationError, match=r"^node 'tuned': bias\[1\]: must be") as info:
+        node.bind_settings(SPECS, build, lambda s: None)
+    assert info.value.parameter == 'bias'
+    node.destroy_node()
