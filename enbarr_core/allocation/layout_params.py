@@ -60,28 +60,6 @@ class Field:
     high: float | None = None
 
 
-def _given(node: Node, name: str) -> bool:
-    """Whether the node was started with a value for parameter ``name``.
-
-    rclpy 7.1.6 has no public way to ask this before declaring; like
-    ``framework.params._coerce_integer_overrides`` this reads ``Node._parameter_overrides``,
-    which holds both constructor overrides and ``--params-file`` values.
-    """
-    return name in getattr(node, '_parameter_overrides', {})
-
-
-def require_given(node: Node, specs: Sequence[ParamSpec], what: str) -> None:
-    """Raise ``ConfigurationError`` naming the first of ``specs`` the profile does not give.
-
-    For vessel data, which has no default: call it before declaring ``specs``.
-    """
-    for spec in specs:
-        if not _given(node, spec.name):
-            raise ConfigurationError(
-                f'node {node.get_name()!r}: parameter {spec.name!r} is not set; the profile '
-                f'must give {what} (vessel data has no default)', parameter=spec.name)
-
-
 @dataclass(frozen=True)
 class Layout(Generic[T]):
     """A named layout: a list of names, then the same parameters per name.
@@ -118,13 +96,11 @@ class Layout(Generic[T]):
         return tuple(names)
 
     def specs(self, node: Node, names: Sequence[str]) -> list[ParamSpec]:
-        """Return the per-member parameters of ``names``, checked to be given to ``node``."""
+        """Return the per-member parameters of ``names`` (required: vessel data)."""
         specs = [ParamSpec(f'{self.section}.{n}.{f.key}', f.default,
                            f'{f.description} of {self.kind} {n}', f.units, f.low, f.high,
-                           read_only=True)
+                           read_only=True, required=True)
                  for n in names for f in self.fields]
-        require_given(node, specs, f'every {self.kind} its '
-                      + ', '.join(f.key for f in self.fields))
         return specs
 
     def from_params(self, names: Sequence[str], v: Mapping[str, Any]) -> tuple[T, ...]:
@@ -192,24 +168,23 @@ def declare_azimuths(node: Node) -> tuple[AzimuthSpec, ...]:
 
 PWM_SPECS = [
     ParamSpec('pwm.duty_min_percent', 0.0, 'Lowest duty cycle the PWM board accepts', '%',
-              0.0, 100.0, read_only=True),
+              0.0, 100.0, read_only=True, required=True),
     ParamSpec('pwm.duty_max_percent', 0.0, 'Highest duty cycle the PWM board accepts', '%',
-              0.0, 100.0, read_only=True),
+              0.0, 100.0, read_only=True, required=True),
     ParamSpec('pwm.thrust_duty_percent', [0.0], 'Thrust calibration: duty cycles, increasing',
-              '%', 0.0, 100.0, read_only=True),
+              '%', 0.0, 100.0, read_only=True, required=True),
     ParamSpec('pwm.thrust_newton', [0.0],
               'Thrust calibration: thrust at each duty (0 N entries = dead band)', 'N', -1e4,
-              1e4, read_only=True),
+              1e4, read_only=True, required=True),
     ParamSpec('pwm.angle_duty_percent', [0.0], 'Servo calibration: duty cycles, increasing',
-              '%', 0.0, 100.0, read_only=True),
+              '%', 0.0, 100.0, read_only=True, required=True),
     ParamSpec('pwm.angle_rad', [0.0], 'Servo calibration: angle at each duty', 'rad',
-              -math.pi, math.pi, read_only=True),
+              -math.pi, math.pi, read_only=True, required=True),
 ]
 
 
 def pwm_specs(node: Node) -> list[ParamSpec]:
-    """``PWM_SPECS``, checked to be given to ``node`` (no default: vessel data)."""
-    require_given(node, PWM_SPECS, 'the PWM duty limits and calibration tables')
+    """``PWM_SPECS`` (required: vessel data has no default)."""
     return list(PWM_SPECS)
 
 

@@ -35,7 +35,7 @@ from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
-from rclpy.exceptions import InvalidParameterTypeException
+from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -63,7 +63,9 @@ class ParamSpec:
 
     ``default`` fixes the type: a float (``0.0``, never ``0``) for gains, a list for arrays
     (``element`` then names the element type, needed when the default list is empty).
-    ``low``/``high`` bound a number or every element of a number array.
+    ``low``/``high`` bound a number or every element of a number array. A ``required``
+    parameter (vessel data: geometry, calibration) takes no value from ``default``, which then
+    only gives the type: a node started without it is refused, naming it.
     """
 
     name: str
@@ -74,6 +76,7 @@ class ParamSpec:
     high: float | None = None
     read_only: bool = False
     element: type | None = None
+    required: bool = False
 
     @property
     def is_array(self) -> bool:
@@ -214,9 +217,18 @@ def _declare(node: Node, spec: ParamSpec) -> None:
     parameter, the expected type and the value given.
     """
     where = f'node {node.get_name()!r}: parameter {spec.name!r}'
+    # A required parameter is declared statically typed with no value: it has one only when
+    # the node was given an override (a profile value).
+    value = Parameter.Type(spec.ros_type) if spec.required else spec.default
     try:
         try:
-            node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            node.declare_parameter(spec.name, value, spec.descriptor())
+            if spec.required:
+                try:
+                    node.get_parameter(spec.name)
+                except ParameterUninitializedException:
+                    raise ConfigurationError(f'{where} is not set; the profile must give it '
+                                             '(it has no default)', parameter=spec.name)
             return
         except InvalidParameterTypeException as err:
             given = _given_value(node, spec)
