@@ -112,6 +112,7 @@ class DpController:
 
     @property
     def settings(self) -> DpControlSettings:
+        """The settings being blended in (or in use when no ramp is in progress)."""
         return self._settings
 
     @settings.setter

@@ -72,7 +72,7 @@ SPECS = [
               0.0, 1e4),
     ParamSpec('tau_max', list(_UNSET), f'Force limits {_XYN}; required', 'N, N m', 0.0, 1e4),
     ParamSpec('gain_ramp_time', 1.0, 'Time a gain change takes to act fully', 's', 0.0, 60.0),
-    ParamSpec('bias_feedforward', True, 'Cancel the observer\'s bias estimate'),
+    ParamSpec('bias_feedforward', True, "Cancel the observer's bias estimate"),
     *VESSEL_SPECS,
     ParamSpec('manual_tau_max', list(_UNSET), f'Force at full stick {_XYN}; required',
               'N, N m', 0.0, 1e4),
@@ -194,7 +194,7 @@ class DpControlNode(EnbarrNode):
         return self.manager.mode
 
     def _fresh(self) -> bool:
-        """A pose was accepted recently, and the observer itself is still publishing."""
+        """Tell whether a pose was accepted recently and the observer still publishes."""
         limit = self.settings.estimate_max_age
         return (self._eta is not None and self._age <= limit and self._estimate_ns is not None
                 and self.get_clock().now().nanoseconds - self._estimate_ns <= limit * 1e9)

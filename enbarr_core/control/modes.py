@@ -26,6 +26,8 @@ from numpy.typing import NDArray
 
 
 class Mode(enum.Enum):
+    """The operator mode; the value is what ``mode`` carries."""
+
     MANUAL = 'manual'
     AUTOMATIC = 'automatic'
     GUIDANCE = 'guidance'
@@ -83,8 +85,11 @@ class ModeManager:
 
     def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float,
                estimate_fresh: bool, has_path: bool) -> list[Transition]:
-        """One ``Joy`` sample at time ``now`` [s]. Non-finite axes or missing indices
-        reject the whole sample (counted), as if it never arrived."""
+        """Handle one ``Joy`` sample at time ``now`` [s]; return the transitions it asked for.
+
+        Non-finite axes or missing indices reject the whole sample (counted), as if it never
+        arrived.
+        """
         m = self.mapping
         try:
             sticks = [axes[m.axis_surge], axes[m.axis_sway], axes[m.axis_yaw]]
@@ -111,6 +116,7 @@ class ModeManager:
         return [self.request(mode_of[b], estimate_fresh, has_path) for b in rising]
 
     def request(self, mode: Mode, estimate_fresh: bool, has_path: bool) -> Transition:
+        """Change to ``mode`` if that is safe; the transition says whether and why not."""
         previous = self.mode
         if mode is previous:
             return Transition(mode, previous, False, f'already {mode.value}')

@@ -151,6 +151,7 @@ class PassiveObserver:
 
     @property
     def settings(self) -> ObserverSettings:
+        """The settings in use."""
         return self._settings
 
     @settings.setter
@@ -172,6 +173,7 @@ class PassiveObserver:
 
     @property
     def initialized(self) -> bool:
+        """A first pose (or ``initialize``) has set the state."""
         return self._initialized
 
     def initialize(self, y: ArrayLike, nu_hat: ArrayLike | None = None,
@@ -237,9 +239,11 @@ class PassiveObserver:
     # -- internals -------------------------------------------------------------------------
 
     def _reinitialize(self, y: tuple[float, float, float]) -> None:
-        """eta_hat = y; nu_hat from the consistent far poses (a finite difference over the
-        window, ~0.02 m/s of noise over 0.5 s), as the dead-reckoned one is as stale as the
-        pose; b_hat kept."""
+        """Set eta_hat = y, nu_hat from the consistent far poses, keep b_hat.
+
+        nu_hat is a finite difference over the window (~0.02 m/s of noise over 0.5 s), as the
+        dead-reckoned one is as stale as the pose.
+        """
         first, span = self._far_first, self._far_time
         c, s = math.cos(y[2]), math.sin(y[2])
         vx, vy = (y[0] - first[0]) / span, (y[1] - first[1]) / span  # world velocity

@@ -1,5 +1,7 @@
-"""DP observer node: ``mocap/pose`` + ``allocation/delivered`` -> ``observer/odometry``,
-``observer/bias`` and ``observer/measurement_age``.
+"""DP observer node: pose and delivered force in, estimate, bias and measurement age out.
+
+``mocap/pose`` + ``allocation/delivered`` -> ``observer/odometry``, ``observer/bias`` and
+``observer/measurement_age``.
 
 A nonlinear passive observer (``estimation.dp_observer``, Fossen 2021 ch. 13) estimating pose,
 velocity and a slowly varying bias. It steps on every pose (dt from the stamps) and, when

@@ -54,8 +54,9 @@ MODE_INDEX = 3              # twist.covariance: the mode the reference was made 
 
 
 def reference_to_msg(ref: Reference, mode: Mode, header: Any) -> Odometry:
-    """The ``guidance/reference`` message of ``ref``, made for ``mode`` and the estimate of
-    ``header``.
+    """Build the ``guidance/reference`` message of ``ref`` for ``mode`` and ``header``.
+
+    ``header`` is the header of the estimate the reference was made for.
 
     Odometry has no field for the desired acceleration, the feedback mask or the mode, and the
     interfaces stay standard types, so the (otherwise meaningless) covariances carry them:
@@ -80,8 +81,10 @@ def reference_to_msg(ref: Reference, mode: Mode, header: Any) -> Odometry:
 
 
 def msg_to_reference(msg: Odometry) -> tuple[Reference, Mode | None]:
-    """The reference of a ``guidance/reference`` message and the mode it was made for
-    (``None`` when the tag is missing or unknown)."""
+    """Read a ``guidance/reference`` message: the reference and the mode it was made for.
+
+    The mode is ``None`` when the tag is missing or unknown.
+    """
     pose_cov, twist_cov = msg.pose.covariance, msg.twist.covariance
     mask = tuple(bool(pose_cov[i] == 0.0) for i in _MASK_INDEX)
     ref = Reference(convert.pose_to_eta(msg.pose.pose), convert.twist_to_nu3(msg.twist.twist),

@@ -29,7 +29,7 @@ VESSEL_SPECS = [
 
 
 def vessel_from_params(v: Mapping[str, Any]) -> Vessel3DofParams:
-    """The vessel model of the declared ``vessel.*`` values (ValueError naming the parameter)."""
+    """Build the vessel model of the ``vessel.*`` values (ValueError naming the parameter)."""
     params = Vessel3DofParams(
         M=required_vector(v, 'vessel.inertia'),  # type: ignore[arg-type]
         D=required_vector(v, 'vessel.linear_damping'),  # type: ignore[arg-type]
@@ -43,7 +43,7 @@ def vessel_from_params(v: Mapping[str, Any]) -> Vessel3DofParams:
 
 
 def required_vector(v: Mapping[str, Any], name: str, n: int = 3) -> tuple[float, ...]:
-    """``v[name]`` as ``n`` floats; refuses the unset default with what the profile must give."""
+    """Return ``v[name]`` as ``n`` floats; refuse the unset default, saying what is missing."""
     value = list(v[name])
     if value == _UNSET:
         raise ValueError(f'{name} is not set; the profile must give it ({n} values)')

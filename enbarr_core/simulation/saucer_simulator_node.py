@@ -1,12 +1,12 @@
 """Simulated 3-DOF surface vessel with azimuth thrusters (``models.vessel3dof``).
 
-The vessel (``vessel.*``) and its azimuths (``azimuth_names``, ``azimuths.<name>.*``) come
-from the profile: the CS Saucer's manual model in ``saucer_core.yaml``, another vessel in its
-own profile. Each step of 1/``rate``: the azimuth actuators move toward the latest ``sim/azimuth_command``
-(first-order thrust, rate-limited servos; neutral when commands stop for ``command_timeout``,
-as the Arduino's outputs would), the vessel is integrated with their force under the
-scenario's current and force bias, and the truth goes out on ``sim/odometry`` (which the
-simulated motion capture measures). The current can vary slowly: a sinusoid of
+The vessel (``vessel.*``) and its azimuths (``azimuth_names``, ``azimuths.<name>.*``) come from
+the profile: the CS Saucer's manual model in ``saucer_core.yaml``, another vessel in its own
+profile. Each step of 1/``rate``: the azimuth actuators move toward the latest
+``sim/azimuth_command`` (first-order thrust, rate-limited servos; neutral when commands stop
+for ``command_timeout``, as the Arduino's outputs would), the vessel is integrated with their
+force under the scenario's current and force bias, and the truth goes out on ``sim/odometry``
+(which the simulated motion capture measures). The current can vary slowly: a sinusoid of
 ``current_amplitude`` and ``current_period`` on top of ``current``.
 """
 
@@ -119,6 +119,7 @@ class SaucerSimulatorNode(EnbarrNode):
         self._cmd_ns = self.get_clock().now().nanoseconds
 
     def current_at(self, t_s: float) -> np.ndarray:
+        """Return the current (east, north) [m/s] at simulated time ``t_s`` [s]."""
         phase = math.sin(2.0 * math.pi * t_s / self.settings.current_period)
         return self._current + phase * self._current_amplitude
 

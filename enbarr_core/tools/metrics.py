@@ -1,5 +1,8 @@
-"""Figures and a picture of a recorded DP run (``enbarr scenario``): errors after settling,
-cross-track error, time to settle, thrust saturation time, from the bag alone."""
+"""Figures and a picture of a recorded DP run (``enbarr scenario``), from the bag alone.
+
+The figures: errors after settling, cross-track error, time to settle, thrust saturation
+time. The picture draws the hull outline from the profile's geometry (``hull_radius``).
+"""
 
 from __future__ import annotations
 
@@ -56,9 +59,11 @@ def _waypoints(profile: Any) -> np.ndarray:
 
 
 def hull_radius(profile: Any) -> float:
-    """Radius of the drawn hull outline [m]: the profile's ``hull_radius`` if it gives one,
-    else the circle through the farthest azimuth (they sit on the rim of a round hull), else
-    0 (no outline)."""
+    """Radius of the drawn hull outline [m], from the profile.
+
+    The profile's ``hull_radius`` if it gives one, else the circle through the farthest
+    azimuth (they sit on the rim of a round hull), else 0 (no outline).
+    """
     p = profile.parameters
     if 'hull_radius' in p:
         return float(p['hull_radius'])
@@ -76,6 +81,7 @@ def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
 
 
 def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
+    """Compute the figures of a recorded run from its bag (see the module docstring)."""
     msgs = read_bag(bag)
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]

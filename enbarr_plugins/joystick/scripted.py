@@ -1,5 +1,6 @@
-"""Scripted joystick: a game-controller stand-in publishing ``sensor_msgs/Joy`` from a timed
-script, so a run without a person exercises every mode. Lines, times in seconds from start::
+"""Scripted joystick: a game-controller stand-in publishing ``sensor_msgs/Joy`` from a script.
+
+A run without a person exercises every mode this way. Lines, times in seconds from start::
 
     '0.0  sticks 0.5 0.0 0.0'   # surge, sway, yaw stick positions (-1..1), held
     '5.0  press triangle'       # press and release a button named in ``buttons``
@@ -29,7 +30,7 @@ N_AXES, N_BUTTONS = 8, 13  # at least this many, as ds4_driver's standard messag
 
 def parse_joy_script(lines: list[str],
                      buttons: Mapping[str, int]) -> list[tuple[float, str, Any]]:
-    """The timed events of ``lines``; ``buttons`` maps a button name to its index."""
+    """Parse ``lines`` into timed events; ``buttons`` maps a button name to its index."""
     out: list[tuple[float, str, Any]] = []
     for i, line in enumerate(lines):
         parts = line.split()
@@ -133,6 +134,7 @@ class ScriptedJoyNode(EnbarrNode):
         self.settings = settings
 
     def start(self) -> None:
+        """Start the script's clock now."""
         super().start()
         self._start_ns = self.get_clock().now().nanoseconds
 

@@ -1,8 +1,10 @@
-"""Simulated motion capture (a Qualisys-like pose measurement): measures the simulated
-vessel's pose (``sim/odometry``) and publishes it on ``mocap/pose`` at ``rate``, with white
-Gaussian position and heading noise and dropouts: scheduled windows (``dropout_windows``,
-pairs of start and end times in seconds since the first sample) and random single-sample
-losses (``dropout_probability``), as markers hidden behind the lidar or a person do.
+"""Simulated motion capture (a Qualisys-like pose measurement).
+
+It measures the simulated vessel's pose (``sim/odometry``) and publishes it on ``mocap/pose``
+at ``rate``, with white Gaussian position and heading noise and dropouts: scheduled windows
+(``dropout_windows``, pairs of start and end times in seconds since the first sample) and
+random single-sample losses (``dropout_probability``), as markers hidden behind the lidar or a
+person do.
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ class SimMocapNode(SensorDriver):
         self.connect()
 
     def status_values(self) -> dict[str, Any]:
+        """Return the driver's status, with the count of dropped samples."""
         return {**super().status_values(), 'dropped': self.dropped}
 
     def _apply(self, v: SimMocapSettings) -> None:
