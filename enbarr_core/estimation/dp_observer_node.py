@@ -7,10 +7,10 @@ A nonlinear passive observer (``estimation.dp_observer``, Fossen 2021 ch. 13) es
 velocity and a slowly varying bias. It steps on every pose (dt from the stamps) and, when
 poses stop, on its own timer at ``rate``, dead-reckoning with the model and the delivered
 force; ``observer/measurement_age`` tells how long it has been doing so. Poses that jump
-implausibly far from the estimate, or hold NaN/Inf, are rejected and counted. Gains
-(``k1``, ``k2``, ``k3``, ``t_b``: 3-element diagonals) and the vessel model (``vessel.*``) come
-from the profile, have no default (a node started without them refuses, naming the parameter)
-and change live, the state kept.
+implausibly far from the estimate, or hold NaN/Inf, are rejected and counted. The gains
+(``k1``, ``k2``, ``k3``: 3-element diagonals) and the vessel model (``vessel.*``) come from the
+profile and have no default (a node started without them refuses, naming the parameter);
+they and ``t_b`` change live, the state kept.
 """
 
 from __future__ import annotations
