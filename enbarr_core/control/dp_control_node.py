@@ -18,8 +18,9 @@ force in manual; the automatic button holds the pose where the vessel is; the gu
 follows the path (refused while the guidance node announces no path on
 ``guidance/path_available``); the manual button returns to manual. Every mode change is
 published on ``mode`` (latched) and logged; a refused request is logged with its reason.
-Losing the joystick, or the observer dead-reckoning longer than ``estimate_max_age`` while
-automatic, returns to manual with zero force.
+Losing the joystick, the observer dead-reckoning longer than ``estimate_max_age`` while
+automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
+or one that cannot make a reference), returns to manual with zero force.
 
 Ordering: the mode reaches the guidance node through the executor while estimates and
 references travel over the in-process link bus, so a reference made for the previous mode can
@@ -165,6 +166,7 @@ class DpControlNode(EnbarrNode):
         self._estimate_ns: int | None = None  # node clock when the last estimate arrived
         self._estimates: deque[_Estimate] = deque(maxlen=_ESTIMATES_KEPT)
         self._pending: tuple[int, Any] | None = None  # a reference waiting for its estimate
+        self._reference_ns: int | None = None  # node clock at mode entry or last reference
         self._tau_pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self._mode_pub = self.create_topic_publisher(topics.MODE)
         self.create_topic_subscription(topics.OBSERVER_AGE, self._on_age)
@@ -224,8 +226,13 @@ class DpControlNode(EnbarrNode):
         if self.manager.mode is Mode.MANUAL:
             self._publish_tau(self.manager.tau_manual, msg.header.stamp)
 
+    def _reference_fresh(self) -> bool:
+        """Tell whether a reference was applied (or the mode entered) recently."""
+        return (self._reference_ns is not None and self.get_clock().now().nanoseconds
+                - self._reference_ns <= self.settings.estimate_max_age * 1e9)
+
     def _supervise(self) -> None:
-        t = self.manager.check(self._now_s(), self._fresh())
+        t = self.manager.check(self._now_s(), self._fresh(), self._reference_fresh())
         if t is not None:
             self._transition(t)
             self._publish_tau(self.manager.tau_manual, self.get_clock().now().to_msg())
@@ -236,6 +243,7 @@ class DpControlNode(EnbarrNode):
             self.get_logger().warn(f'{t.requested.value} mode refused: {t.reason}')
             return
         self._pending = None
+        self._reference_ns = self.get_clock().now().nanoseconds  # the guidance node's grace
         if t.requested is not Mode.MANUAL:
             self.controller.reset(tau_now=self.tau)  # bumpless: continue from the force now
         self.get_logger().info(f'mode {t.previous.value} -> {t.requested.value} ({t.reason})')
@@ -265,6 +273,7 @@ class DpControlNode(EnbarrNode):
         if estimate.last_ns is None or t <= estimate.last_ns:
             return
         self.reference = ref
+        self._reference_ns = self.get_clock().now().nanoseconds
         self.tau = self.controller.step(estimate.eta, estimate.nu, self._bias, ref,
                                         (t - estimate.last_ns) * 1e-9).tau
         self._publish_tau(self.tau, estimate.stamp)

@@ -5,7 +5,8 @@ asks for automatic mode (hold the pose where the vessel is), another for guidanc
 configured path), and a third returns to manual. A request is refused, with a reason, when it
 is unsafe: automatic or guidance need a fresh pose estimate, guidance needs a path. Losing the
 joystick (no sample for ``joy_timeout``), or the pose estimate going stale while the vessel is
-automatic, falls back to manual with zero force.
+automatic, falls back to manual with zero force; so does the absence of guidance references
+outside manual (no guidance node, or one that cannot make them).
 
 Which axis and button does what is the vessel profile's (``JoyMapping``, parameters
 ``joy.*``): a DualShock 4 through ds4_driver and a pad through ROS ``joy`` number their
@@ -127,8 +128,13 @@ class ModeManager:
         self.mode = mode
         return Transition(mode, previous, True, 'operator request')
 
-    def check(self, now: float, estimate_fresh: bool) -> Transition | None:
-        """Supervise: joystick loss or a stale estimate in automatic -> manual, zero force."""
+    def check(self, now: float, estimate_fresh: bool,
+              reference_fresh: bool = True) -> Transition | None:
+        """Supervise: fall back to manual with zero force when that is the safe thing.
+
+        That is on joystick loss, and outside manual on a stale estimate or when no guidance
+        reference arrives.
+        """
         if self._last_joy is not None and now - self._last_joy > self.joy_timeout:
             self.tau_manual = np.zeros(3)
             self._last_joy = None
@@ -138,4 +144,8 @@ class ModeManager:
             previous, self.mode = self.mode, Mode.MANUAL
             self.tau_manual = np.zeros(3)
             return Transition(Mode.MANUAL, previous, True, 'pose estimate stale')
+        if self.mode is not Mode.MANUAL and not reference_fresh:
+            previous, self.mode = self.mode, Mode.MANUAL
+            self.tau_manual = np.zeros(3)
+            return Transition(Mode.MANUAL, previous, True, 'no guidance reference')
         return None

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-import math
 from typing import Any
 
 from nav_msgs.msg import Odometry
@@ -196,9 +195,8 @@ class GuidanceNode(EnbarrNode):
         self._ref_pub.publish(reference_to_msg(ref, self.mode, msg.header))
 
     def _report(self) -> None:
-        finished = self.reference is not None and self.reference.finished
+        ref = self.reference
+        cross_track = ref.cross_track if ref is not None else None
         self.publish_diagnostics(0 if self.failures == 0 else 1, self.mode.value, {
-            'failures': self.failures, 'finished': finished,
-            'cross_track': 'none' if self.reference is None or self.reference.cross_track
-            is None or not math.isfinite(self.reference.cross_track)
-            else self.reference.cross_track})
+            'failures': self.failures, 'finished': ref is not None and ref.finished,
+            'cross_track': 'none' if cross_track is None else cross_track})

@@ -168,6 +168,22 @@ def test_stale_estimate_in_automatic_falls_back_to_manual(context, executor, spi
     assert h.node.manager.tau_manual.tolist() == [0.0, 0.0, 0.0]
 
 
+def test_no_reference_outside_manual_falls_back_to_manual(context, executor, spin):
+    """A profile without a guidance node (or one that cannot make a reference) must not
+    leave the vessel in automatic with the force of the switch."""
+    h = DpHarness(context, executor, spin, {'estimate_max_age': 0.5, 'joy_timeout': 5.0})
+    to_automatic(h)
+    h.guidance.law = None  # the guidance node makes nothing from now on
+    n = len(h.modes)
+    for _ in range(4):  # estimates keep coming: only the references are missing
+        h.clock.advance(0.2)
+        h.estimate(ETA0)
+        spin(executor, lambda: len(h.modes) > n, 0.2)
+    assert spin(executor, lambda: len(h.modes) > n and h.modes[-1] == 'manual', TIMEOUT)
+    assert h.node.mode is Mode.MANUAL
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+
+
 def test_a_reference_made_for_another_mode_never_reaches_the_controller(context, executor,
                                                                         spin):
     h = DpHarness(context, executor, spin)

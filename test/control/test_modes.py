@@ -238,6 +238,19 @@ def test_stale_estimate_outside_manual_falls_back(mode_button, path):
     assert m.check(0.25, estimate_fresh=False) is None
 
 
+@pytest.mark.parametrize('mode_button, path', [(TRIANGLE, False), (SQUARE, True)])
+def test_no_guidance_reference_outside_manual_falls_back(mode_button, path):
+    m = manager()
+    m.on_joy(*sample(sway=0.6), 0.0, True, path)
+    press(m, mode_button, 0.05, path=path)
+    assert m.check(0.15, True, reference_fresh=True) is None
+    t = m.check(0.2, True, reference_fresh=False)
+    assert t is not None and t.accepted and t.requested is Mode.MANUAL
+    assert t.reason == 'no guidance reference'
+    assert m.mode is Mode.MANUAL and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert m.check(0.25, True, reference_fresh=False) is None  # in manual: nothing to do
+
+
 def test_mapping_validation():
     DS4.validate()
     with pytest.raises(ValueError, match='mode buttons must differ'):
