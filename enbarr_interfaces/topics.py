@@ -23,7 +23,7 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import Imu, JointState, Joy, MagneticField
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 
 #: Commands and events: nothing may be lost, a short queue.
 COMMAND_QOS = QoSProfile(
@@ -136,10 +136,18 @@ OBSERVER_AGE = TopicSpec(
     'Time since the observer last accepted a pose; grows while it dead-reckons.', fast=True)
 MODE = TopicSpec(
     'mode', String, LATCHED_QOS, '', '',
-    'Operator mode: manual, automatic or guidance (latched).')
+    'Operator mode: manual, automatic or guidance (latched), from the controller.')
 GUIDANCE_REFERENCE = TopicSpec(
     'guidance/reference', Odometry, SENSOR_QOS, 'm, rad; m/s, rad/s', WORLD_FRAME,
-    'Guidance reference: pose eta_d in odom, body velocity nu_d.', fast=True)
+    'Guidance reference for the estimate of the same stamp: pose eta_d in odom, body velocity '
+    'nu_d. The covariances carry what Odometry has no field for: pose.covariance[0, 7, 35] '
+    '(x, y, yaw) = 0 where that pose component is fed back, -1 where it is not; '
+    'twist.covariance[0:3] = nu_d_dot (m/s^2, rad/s^2); twist.covariance[3] = the mode it was '
+    'made for (1 automatic, 2 guidance). See enbarr_core.guidance.guidance_node.', fast=True)
+GUIDANCE_PATH_AVAILABLE = TopicSpec(
+    'guidance/path_available', Bool, LATCHED_QOS, '', '',
+    'Whether the guidance node has a path or waypoint to follow (the controller refuses '
+    'guidance without one); latched.')
 AZIMUTH_COMMANDS = TopicSpec(
     'azimuth_commands', JointState, SENSOR_QOS, 'effort N (signed thrust), position rad',
     BODY_FRAME, 'Per-azimuth thrust and angle from the allocation.', fast=True)
@@ -162,4 +170,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
-    GUIDANCE_REFERENCE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED, PWM_DUTY, SIM_AZIMUTH_COMMAND)
+    GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
+    PWM_DUTY, SIM_AZIMUTH_COMMAND)

@@ -10,8 +10,9 @@ nu_hat = [u, v, r] (body FLU), the world bias b_hat of the observer and a
     tau_ff   = M nu_d_dot + (D + D_n(nu_d) + C(nu_d)) nu_d - R(psi)^T b_hat
     tau      = sat(tau_ff - Kp e - I - Kd nu_tilde),   I_dot = Ki e
 
-D_n(nu) = diag(Dn) |nu|, C(nu) nu = [-M22 v r, M11 u r, (M22 - M11) u v] (CS Saucer manual
-eq. 1.3 for M11 = M22). The bias term is used when ``bias_feedforward`` is on.
+D_n(nu) = diag(Dn) |nu|, C(nu) nu = [-M22 v r, M11 u r, (M22 - M11) u v] (the rigid-body
+Coriolis of a diagonal M). Gains and model come from the vessel's profile. The bias term is
+used when ``bias_feedforward`` is on.
 
 * position_mask: pose-error components (world x, y, psi) where the mask is False are ignored
   before the rotation: that DOF tracks nu_d only (LOS path following uses
@@ -43,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.checks import check_gain_vectors, check_non_negative
+from enbarr_core.framework.kinematics import ssa
 
 if TYPE_CHECKING:
     from enbarr_core.guidance.guidance import Reference
@@ -51,7 +53,6 @@ Vector = NDArray[np.float64]
 
 _VECTOR_FIELDS = ('Kp', 'Ki', 'Kd', 'integral_limit', 'tau_max', 'M', 'D', 'Dn')
 _MAY_BE_INFINITE = ('integral_limit', 'tau_max')  # +inf means "no limit"
-_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -76,14 +77,6 @@ class DpControlSettings:
         check_non_negative(self, ('gain_ramp_time',))
         if not isinstance(self.bias_feedforward, (bool, np.bool_)):
             raise ValueError(f'bias_feedforward: must be a bool, got {self.bias_feedforward!r}')
-
-
-def saucer_dp_settings() -> DpControlSettings:
-    """Defaults for the CS Saucer (manual section 1.4; three ~1.5 N azimuths)."""
-    return DpControlSettings(
-        Kp=(10.0, 10.0, 1.5), Ki=(1.0, 1.0, 0.15), Kd=(12.0, 12.0, 0.6),
-        integral_limit=(1.0, 1.0, 0.15), tau_max=(2.0, 2.0, 0.3),
-        M=(9.51, 9.51, 0.116), D=(1.96, 1.96, 0.168), Dn=(7.095, 7.095, 7.095))
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,6 +112,7 @@ class DpController:
 
     @property
     def settings(self) -> DpControlSettings:
+        """The settings being blended in (or in use when no ramp is in progress)."""
         return self._settings
 
     @settings.setter
@@ -181,7 +175,7 @@ class DpController:
         # e = R^T [x - x_d, y - y_d, ssa(psi - psi_d)], masked components ignored
         ewx = x - xd if mx else 0.0
         ewy = y - yd if my else 0.0
-        e3 = (psi - psid + math.pi) % _TWO_PI - math.pi if mpsi else 0.0
+        e3 = ssa(psi - psid) if mpsi else 0.0
         e1, e2 = c * ewx + s * ewy, -s * ewx + c * ewy
         # tau_ff = M nu_d_dot + (D + D_n(nu_d)) nu_d + C(nu_d) nu_d - w_b R^T b_hat
         f1 = m1 * ad + (d1 + n1 * abs(ud)) * ud - m2 * vd * rd - wb * (c * bx + s * by)

@@ -1,23 +1,44 @@
-"""DP control node: the operator modes (DualShock 4), guidance and the DP controller.
+"""DP control node: the operator modes and the DP controller (estimate + reference -> force).
 
-``joy`` drives the mode rules of ``algorithms.modes`` (manual: the sticks command surge,
-sway and yaw force; triangle: automatic, holding the pose where the vessel is; square:
-guidance at ``path.speed``, to the waypoint when ``path.waypoints`` holds one, else along the
-path with line of sight; cross: manual). Every
-mode change is published on ``mode`` (latched), logged and, into automatic or guidance,
-bumpless: the controller's integral is set so its first output equals the force of the
-moment. A refused request is logged with its reason. Losing the joystick, or the observer
-dead-reckoning longer than ``estimate_max_age`` while automatic, returns to manual with zero
-force.
+Two things live here, and only these: the DP controller (``control.dp_control``) turning
+the observer's estimate (``observer/odometry``, ``observer/bias``) and the guidance reference
+(``guidance/reference``, from the guidance node) into ``force_command``; and the operator
+modes (``control.modes``) turning ``joy`` into the mode and, in manual, the force.
 
-On every ``observer/odometry`` sample the node computes tau (stamped with the sample) on
-``force_command`` and, outside manual, the guidance reference on
-``guidance/reference``. Gains (3-element diagonals and scalars) are parameters validated
+The modes are kept in the controller node, not in a node of their own, because every one of
+their rules acts on the controller: entry into automatic or guidance is bumpless (the
+controller's integral is set so that its first output equals the force of the moment, which
+only the node that sent that force knows); a stale estimate while automatic (the estimates
+arrive here anyway) falls back to manual; and the manual force and the controller's force
+leave on ``force_command`` from one publisher, so nothing downstream has to choose between
+two force sources. The guidance node only follows the ``mode`` published here.
+
+Mode rules (buttons from the profile's ``joy.*``): the sticks command surge, sway and yaw
+force in manual; the automatic button holds the pose where the vessel is; the guidance button
+follows the path (refused while the guidance node announces no path on
+``guidance/path_available``); the manual button returns to manual. Every mode change is
+published on ``mode`` (latched) and logged; a refused request is logged with its reason.
+Losing the joystick, the observer dead-reckoning longer than ``estimate_max_age`` while
+automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
+or one that cannot make a reference), returns to manual with zero force.
+
+Ordering: the mode reaches the guidance node through the executor while estimates and
+references travel over the in-process link bus, so a reference made for the previous mode can
+still arrive after a change. References are tagged with the mode they were made for, and one
+for another mode than the controller's is dropped (counted in ``stale_references``). A
+reference is applied with the estimate of the same stamp (kept for a few samples, whichever
+of the two arrives first), with dt from the estimate before it; tau is stamped with it.
+
+Gains (3-element diagonals and scalars) and the vessel model come from the profile (they have
+no default: a node started without them refuses, naming the parameter), are validated
 together and applied live over ``gain_ramp_time``, so the force never jumps.
 """
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 from typing import Any
 
@@ -25,90 +46,103 @@ from geometry_msgs.msg import WrenchStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Joy
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Bool, Float64, String
 
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.control.dp_control import DpControlSettings, DpController, saucer_dp_settings
-from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath
-from enbarr_core.control.modes import Ds4Mapping, Mode, ModeManager, Transition
+from enbarr_core.control.dp_control import DpControlSettings, DpController
+from enbarr_core.control.modes import JoyMapping, Mode, ModeManager, Transition
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.guidance.guidance_node import msg_to_reference
+from enbarr_core.models.vessel3dof_params import (
+    required_vector, VESSEL_SPECS, vessel_from_params)
 
-_D = saucer_dp_settings()
-_M = Ds4Mapping()
 _XYN = '(surge, sway, yaw)'
+_UNSET = [0.0]
+_UNSET_INDEX = -1
+_ESTIMATES_KEPT = 8  # estimates kept to pair with their reference
 SPECS = [
-    ParamSpec('Kp', list(_D.Kp), f'Proportional gains {_XYN}', 'N/m, N m/rad', 0.0, 1e4),
-    ParamSpec('Ki', list(_D.Ki), f'Integral gains {_XYN}', 'N/(m s), N m/(rad s)', 0.0, 1e4),
-    ParamSpec('Kd', list(_D.Kd), f'Derivative gains {_XYN}', 'N s/m, N m s/rad', 0.0, 1e4),
-    ParamSpec('integral_limit', list(_D.integral_limit), f'Integral clamp {_XYN}', 'N, N m',
-              0.0, 1e4),
-    ParamSpec('tau_max', list(_D.tau_max), f'Force limits {_XYN}', 'N, N m', 1e-6, 1e4),
-    ParamSpec('gain_ramp_time', _D.gain_ramp_time, 'Time a gain change takes to act fully',
-              's', 0.0, 60.0),
-    ParamSpec('bias_feedforward', _D.bias_feedforward, 'Cancel the observer\'s bias estimate'),
-    ParamSpec('vessel.M', list(_D.M), 'Inertia M (manual eq. 1.2)', 'kg, kg m^2', 1e-6, 1e6),
-    ParamSpec('vessel.D', list(_D.D), 'Linear damping D (manual eq. 1.4)', 'N s/m, N m s', 0.0,
-              1e6),
-    ParamSpec('vessel.Dn', list(_D.Dn), 'Nonlinear damping coefficients (manual eq. 1.5)',
-              'N s^2/m^2, N m s^2', 0.0, 1e6),
-    ParamSpec('manual_tau_max', [1.5, 1.5, 0.2], f'Force at full stick {_XYN}', 'N, N m', 0.0,
+    ParamSpec('kp', list(_UNSET), f'Proportional gains {_XYN}; required', 'N/m, N m/rad', 0.0,
               1e4),
+    ParamSpec('ki', list(_UNSET), f'Integral gains {_XYN}; required', 'N/(m s), N m/(rad s)',
+              0.0, 1e4),
+    ParamSpec('kd', list(_UNSET), f'Derivative gains {_XYN}; required', 'N s/m, N m s/rad', 0.0,
+              1e4),
+    ParamSpec('integral_limit', list(_UNSET), f'Integral clamp {_XYN}; required', 'N, N m',
+              0.0, 1e4),
+    ParamSpec('tau_max', list(_UNSET), f'Force limits {_XYN}; required', 'N, N m', 0.0, 1e4),
+    ParamSpec('gain_ramp_time', 1.0, 'Time a gain change takes to act fully', 's', 0.0, 60.0),
+    ParamSpec('bias_feedforward', True, "Cancel the observer's bias estimate"),
+    *VESSEL_SPECS,
+    ParamSpec('manual_tau_max', list(_UNSET), f'Force at full stick {_XYN}; required',
+              'N, N m', 0.0, 1e4),
     ParamSpec('estimate_max_age', 1.5, 'Automatic needs a pose accepted within this time', 's',
               0.01, 60.0),
     ParamSpec('joy_timeout', 0.5, 'No joystick sample for this long: manual, zero force', 's',
               0.01, 60.0),
-    ParamSpec('joy.axis_surge', _M.axis_surge, 'Joy axis for surge (up = +1)', '', 0, 64),
-    ParamSpec('joy.axis_sway', _M.axis_sway, 'Joy axis for sway (left = +1)', '', 0, 64),
-    ParamSpec('joy.axis_yaw', _M.axis_yaw, 'Joy axis for yaw (left = +1)', '', 0, 64),
-    ParamSpec('joy.button_automatic', _M.button_automatic, 'Button to automatic (triangle)',
-              '', 0, 64),
-    ParamSpec('joy.button_guidance', _M.button_guidance, 'Button to guidance (square)', '', 0,
+    ParamSpec('joy.axis_surge', _UNSET_INDEX, 'Joy axis for surge (up = +1); required', '',
+              -1, 64),
+    ParamSpec('joy.axis_sway', _UNSET_INDEX, 'Joy axis for sway (left = +1); required', '',
+              -1, 64),
+    ParamSpec('joy.axis_yaw', _UNSET_INDEX, 'Joy axis for yaw (left = +1); required', '', -1,
               64),
-    ParamSpec('joy.button_manual', _M.button_manual, 'Button to manual (cross)', '', 0, 64),
-    ParamSpec('joy.deadzone', _M.deadzone, 'Stick dead zone', '', 0.0, 0.99),
-    ParamSpec('path.waypoints', [0.0], 'Guidance: x, y of one waypoint to go to, or x0, y0, '
-              'x1, y1, ... of a path to follow (odom); [0.0]: none', 'm', -1e6, 1e6),
-    ParamSpec('path.speed', 0.2, 'Reference speed along the path', 'm/s', 1e-3, 10.0),
-    ParamSpec('path.accel', 0.05, 'Acceleration limit when going to a single waypoint',
-              'm/s^2', 1e-4, 10.0),
-    ParamSpec('path.lookahead', 0.5, 'Line-of-sight lookahead distance', 'm', 1e-3, 100.0),
-    ParamSpec('path.acceptance_radius', 0.1, 'Waypoint acceptance radius', 'm', 1e-3, 100.0),
-    ParamSpec('path.heading', 'fixed', 'Heading along the path: fixed (keep the heading held '
-              'when guidance starts; the round hull moves alike in surge and sway) or course '
-              '(face the direction of travel)'),
+    ParamSpec('joy.button_automatic', _UNSET_INDEX, 'Button to automatic; required', '', -1,
+              64),
+    ParamSpec('joy.button_guidance', _UNSET_INDEX, 'Button to guidance; required', '', -1,
+              64),
+    ParamSpec('joy.button_manual', _UNSET_INDEX, 'Button to manual; required', '', -1, 64),
+    ParamSpec('joy.deadzone', 0.05, 'Stick dead zone', '', 0.0, 0.99),
 ]
+_JOY = ('axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
+        'button_manual')
+_PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', 'M': 'vessel.inertia',
+              'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
 
 
-def build(v: dict[str, Any]) -> dict[str, Any]:
-    for k in ('Kp', 'Ki', 'Kd', 'integral_limit', 'tau_max', 'vessel.M', 'vessel.D',
-              'vessel.Dn', 'manual_tau_max'):
-        if len(v[k]) != 3:
-            raise ValueError(f'{k}: expected 3 values (surge, sway, yaw), got {len(v[k])}')
-    control = DpControlSettings(
-        Kp=tuple(v['Kp']), Ki=tuple(v['Ki']), Kd=tuple(v['Kd']),
-        integral_limit=tuple(v['integral_limit']), tau_max=tuple(v['tau_max']),
-        M=tuple(v['vessel.M']), D=tuple(v['vessel.D']), Dn=tuple(v['vessel.Dn']),
-        gain_ramp_time=v['gain_ramp_time'], bias_feedforward=v['bias_feedforward'])
-    control.validate()
-    mapping = Ds4Mapping(v['joy.axis_surge'], v['joy.axis_sway'], v['joy.axis_yaw'],
-                         v['joy.button_automatic'], v['joy.button_guidance'],
-                         v['joy.button_manual'], v['joy.deadzone'])
-    mapping.validate()
-    if v['path.heading'] not in ('fixed', 'course'):  # checked with or without a path
-        raise ValueError(f'path.heading: expected fixed or course, got {v["path.heading"]!r}')
-    w = v['path.waypoints']
-    waypoints: list[tuple[float, float]] = []
-    if w != [0.0]:
-        if len(w) % 2 or len(w) < 2:
-            raise ValueError('path.waypoints: expected x, y of a waypoint or x0, y0, x1, y1, '
-                             '... of a path')
-        waypoints = list(zip(w[::2], w[1::2]))
-        if len(waypoints) > 1:  # a path: check it now (a single waypoint is checked on use)
-            LosPath(waypoints, v['path.speed'], v['path.lookahead'],
-                    v['path.acceptance_radius'], heading=v['path.heading'])
-    return {**v, 'control': control, 'mapping': mapping, 'waypoints': waypoints}
+@dataclass(frozen=True)
+class DpControlNodeSettings:
+    """Settings of ``DpControlNode`` (see ``SPECS``)."""
+
+    control: DpControlSettings              # gains, limits, model
+    mapping: JoyMapping                     # joystick axes and buttons
+    manual_tau_max: tuple[float, ...]       # force at full stick [N, N, N m]
+    estimate_max_age: float                 # [s]
+    joy_timeout: float                      # [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> DpControlNodeSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        vessel = vessel_from_params(v)
+        control = DpControlSettings(
+            Kp=required_vector(v, 'kp'), Ki=required_vector(v, 'ki'),
+            Kd=required_vector(v, 'kd'), integral_limit=required_vector(v, 'integral_limit'),
+            tau_max=required_vector(v, 'tau_max'), M=vessel.M, D=vessel.D, Dn=vessel.Dn,
+            gain_ramp_time=v['gain_ramp_time'], bias_feedforward=v['bias_feedforward'])
+        try:
+            control.validate()
+        except ValueError as err:
+            field = str(err).split(':')[0]
+            raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
+        for name in _JOY:
+            if v[f'joy.{name}'] == _UNSET_INDEX:
+                raise ValueError(f'joy.{name} is not set; the profile must give it')
+        mapping = JoyMapping(*(v[f'joy.{name}'] for name in _JOY), v['joy.deadzone'])
+        try:
+            mapping.validate()
+        except ValueError as err:
+            raise ValueError(f'joy: {err}') from err
+        return cls(control, mapping, required_vector(v, 'manual_tau_max'),
+                   v['estimate_max_age'], v['joy_timeout'])
+
+
+@dataclass(frozen=True)
+class _Estimate:
+    t_ns: int                # stamp
+    last_ns: int | None      # stamp of the estimate before it
+    eta: np.ndarray
+    nu: np.ndarray
+    stamp: Any               # the message's stamp, for tau
 
 
 class DpControlNode(EnbarrNode):
@@ -118,46 +152,52 @@ class DpControlNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         self.controller: DpController | None = None
         self.manager: ModeManager | None = None
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, build, self._apply)
-        self.guidance: HoldPose | LosPath | None = None
+        self.settings: DpControlNodeSettings
+        self.bind_settings(SPECS, DpControlNodeSettings.from_params, self._apply)
         self.tau = np.zeros(3)
         self.reference = None
         self.refusals = 0
+        self.stale_references = 0
+        self.path_available = False
         self._eta: np.ndarray | None = None
         self._bias = np.zeros(3)
         self._age = math.inf
         self._last_ns: int | None = None
         self._estimate_ns: int | None = None  # node clock when the last estimate arrived
+        self._estimates: deque[_Estimate] = deque(maxlen=_ESTIMATES_KEPT)
+        self._pending: tuple[int, Any] | None = None  # a reference waiting for its estimate
+        self._reference_ns: int | None = None  # node clock at mode entry or last reference
         self._tau_pub = self.create_topic_publisher(topics.FORCE_COMMAND)
-        self._ref_pub = self.create_topic_publisher(topics.GUIDANCE_REFERENCE)
         self._mode_pub = self.create_topic_publisher(topics.MODE)
         self.create_topic_subscription(topics.OBSERVER_AGE, self._on_age)
         self.create_topic_subscription(topics.OBSERVER_BIAS, self._on_bias)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
+        self.create_topic_subscription(topics.GUIDANCE_REFERENCE, self._on_reference)
+        self.create_topic_subscription(topics.GUIDANCE_PATH_AVAILABLE, self._on_path_available)
         self.create_topic_subscription(topics.JOY, self._on_joy)
         self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))
 
-    def _apply(self, v: dict[str, Any]) -> None:
+    def _apply(self, s: DpControlNodeSettings) -> None:
         if self.controller is None:
-            self.controller = DpController(v['control'])
-            self.manager = ModeManager(v['mapping'], v['manual_tau_max'], v['joy_timeout'])
+            self.controller = DpController(s.control)
+            self.manager = ModeManager(s.mapping, s.manual_tau_max, s.joy_timeout)
         else:
-            self.controller.settings = v['control']  # ramped by the controller
-            self.manager.mapping = v['mapping']
-            self.manager.tau_max = np.asarray(v['manual_tau_max'], dtype=float)
-            self.manager.joy_timeout = v['joy_timeout']
-        self.settings = v
+            self.controller.settings = s.control  # ramped by the controller
+            self.manager.mapping = s.mapping
+            self.manager.tau_max = np.asarray(s.manual_tau_max, dtype=float)
+            self.manager.joy_timeout = s.joy_timeout
+        self.settings = s
 
     @property
     def mode(self) -> Mode:
+        """The operator mode now."""
         return self.manager.mode
 
     def _fresh(self) -> bool:
-        """A pose was accepted recently, and the observer itself is still publishing."""
-        limit = self.settings['estimate_max_age']
+        """Tell whether a pose was accepted recently and the observer still publishes."""
+        limit = self.settings.estimate_max_age
         return (self._eta is not None and self._age <= limit and self._estimate_ns is not None
                 and self.get_clock().now().nanoseconds - self._estimate_ns <= limit * 1e9)
 
@@ -170,10 +210,13 @@ class DpControlNode(EnbarrNode):
     def _on_bias(self, msg: WrenchStamped) -> None:
         self._bias = convert.wrench_to_tau3(msg.wrench)
 
+    def _on_path_available(self, msg: Bool) -> None:
+        self.path_available = msg.data
+
     def _on_joy(self, msg: Joy) -> None:
         before = self.manager.rejected_samples
         transitions = self.manager.on_joy(list(msg.axes), list(msg.buttons), self._now_s(),
-                                          self._fresh(), bool(self.settings['waypoints']))
+                                          self._fresh(), self.path_available)
         if self.manager.rejected_samples > before:
             self.get_logger().warn('joystick sample refused (non-finite or out-of-range axes, '
                                    'or too few axes/buttons)', throttle_duration_sec=1.0)
@@ -183,8 +226,13 @@ class DpControlNode(EnbarrNode):
         if self.manager.mode is Mode.MANUAL:
             self._publish_tau(self.manager.tau_manual, msg.header.stamp)
 
+    def _reference_fresh(self) -> bool:
+        """Tell whether a reference was applied (or the mode entered) recently."""
+        return (self._reference_ns is not None and self.get_clock().now().nanoseconds
+                - self._reference_ns <= self.settings.estimate_max_age * 1e9)
+
     def _supervise(self) -> None:
-        t = self.manager.check(self._now_s(), self._fresh())
+        t = self.manager.check(self._now_s(), self._fresh(), self._reference_fresh())
         if t is not None:
             self._transition(t)
             self._publish_tau(self.manager.tau_manual, self.get_clock().now().to_msg())
@@ -194,44 +242,41 @@ class DpControlNode(EnbarrNode):
             self.refusals += 1
             self.get_logger().warn(f'{t.requested.value} mode refused: {t.reason}')
             return
-        if t.requested is Mode.AUTOMATIC:
-            self.guidance = HoldPose(self._eta)
-        elif t.requested is Mode.GUIDANCE:
-            s = self.settings
-            if len(s['waypoints']) == 1:  # go to the waypoint, heading held
-                self.guidance = GoToWaypoint(self._eta, s['waypoints'][0], s['path.speed'],
-                                             s['path.accel'],
-                                             arrival_radius=s['path.acceptance_radius'])
-            else:
-                self.guidance = LosPath(s['waypoints'], s['path.speed'], s['path.lookahead'],
-                                        s['path.acceptance_radius'], heading=s['path.heading'])
-        else:
-            self.guidance = None
+        self._pending = None
+        self._reference_ns = self.get_clock().now().nanoseconds  # the guidance node's grace
         if t.requested is not Mode.MANUAL:
             self.controller.reset(tau_now=self.tau)  # bumpless: continue from the force now
         self.get_logger().info(f'mode {t.previous.value} -> {t.requested.value} ({t.reason})')
         self._mode_pub.publish(String(data=t.requested.value))
 
     def _on_estimate(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        nu = convert.twist_to_nu3(msg.twist.twist)
         t = convert.stamp_to_ns(msg.header.stamp)
         last, self._last_ns = self._last_ns, t
-        self._eta = eta
+        self._eta = eta = convert.pose_to_eta(msg.pose.pose)
         self._estimate_ns = self.get_clock().now().nanoseconds
-        if self.manager.mode is Mode.MANUAL or self.guidance is None:
-            return  # manual force goes out with each joystick sample
-        if last is not None and t > last:
-            dt = (t - last) * 1e-9
-            self.reference = ref = self.guidance.reference(eta, dt)
-            self.tau = self.controller.step(eta, nu, self._bias, ref, dt).tau
-            out = Odometry()
-            out.header = msg.header
-            out.child_frame_id = topics.BODY_FRAME
-            convert.set_pose_eta(out.pose.pose, ref.eta_d)
-            convert.set_twist_nu3(out.twist.twist, ref.nu_d)
-            self._ref_pub.publish(out)
-            self._publish_tau(self.tau, msg.header.stamp)
+        self._estimates.append(_Estimate(t, last, eta, convert.twist_to_nu3(msg.twist.twist),
+                                         msg.header.stamp))
+        if self._pending is not None and self._pending[0] == t:
+            pending, self._pending = self._pending[1], None
+            self._on_reference(pending)
+
+    def _on_reference(self, msg: Odometry) -> None:
+        ref, made_for = msg_to_reference(msg)
+        if made_for is not self.manager.mode:  # made for another mode (or manual now)
+            self.stale_references += 1
+            return
+        t = convert.stamp_to_ns(msg.header.stamp)
+        estimate = next((e for e in reversed(self._estimates) if e.t_ns == t), None)
+        if estimate is None:  # its estimate has not arrived yet: wait for it
+            self._pending = (t, msg)
+            return
+        if estimate.last_ns is None or t <= estimate.last_ns:
+            return
+        self.reference = ref
+        self._reference_ns = self.get_clock().now().nanoseconds
+        self.tau = self.controller.step(estimate.eta, estimate.nu, self._bias, ref,
+                                        (t - estimate.last_ns) * 1e-9).tau
+        self._publish_tau(self.tau, estimate.stamp)
 
     def _publish_tau(self, tau: np.ndarray, stamp: Any) -> None:
         self.tau = tau
@@ -243,4 +288,5 @@ class DpControlNode(EnbarrNode):
 
     def _report(self) -> None:
         self.publish_diagnostics(0, self.manager.mode.value, {
-            'refusals': self.refusals, 'joy_rejected': self.manager.rejected_samples})
+            'refusals': self.refusals, 'joy_rejected': self.manager.rejected_samples,
+            'stale_references': self.stale_references})

@@ -1,15 +1,18 @@
-"""Operator modes of a DP vessel driven by a DualShock 4 (CS Saucer manual, section 3.2.5).
+"""Operator modes of a DP vessel driven by a game controller (``sensor_msgs/Joy``).
 
-The vessel starts in manual mode: the sticks command surge, sway and yaw force. Triangle asks
-for automatic mode (hold the pose where the vessel is), square for guidance (follow the
-configured path), and the manual button returns to manual. A request is refused, with a
-reason, when it is unsafe: automatic or guidance need a fresh pose estimate, guidance needs
-a path. Losing the joystick (no sample for ``joy_timeout``), or the pose estimate going stale
-while the vessel is automatic, falls back to manual with zero force.
+The vessel starts in manual mode: the sticks command surge, sway and yaw force. One button
+asks for automatic mode (hold the pose where the vessel is), another for guidance (follow the
+configured path), and a third returns to manual. A request is refused, with a reason, when it
+is unsafe: automatic or guidance need a fresh pose estimate, guidance needs a path. Losing the
+joystick (no sample for ``joy_timeout``), or the pose estimate going stale while the vessel is
+automatic, falls back to manual with zero force; so does the absence of guidance references
+outside manual (no guidance node, or one that cannot make them).
 
-Joystick conventions are those of ``sensor_msgs/Joy`` (ds4_driver with standard messages, the
-Linux joystick driver): sticks in -1..1, up and left positive, which matches REP-103 FLU:
-stick up = surge ahead, stick left = sway to port, right stick left = yaw counter-clockwise.
+Which axis and button does what is the vessel profile's (``JoyMapping``, parameters
+``joy.*``): a DualShock 4 through ds4_driver and a pad through ROS ``joy`` number their
+buttons differently. Joystick conventions are those of ``sensor_msgs/Joy``: sticks in -1..1,
+up and left positive, which matches REP-103 FLU: stick up = surge ahead, stick left = sway to
+port, right stick left = yaw counter-clockwise.
 """
 
 from __future__ import annotations
@@ -24,24 +27,27 @@ from numpy.typing import NDArray
 
 
 class Mode(enum.Enum):
+    """The operator mode; the value is what ``mode`` carries."""
+
     MANUAL = 'manual'
     AUTOMATIC = 'automatic'
     GUIDANCE = 'guidance'
 
 
 @dataclass(frozen=True)
-class Ds4Mapping:
+class JoyMapping:
     """Which ``Joy`` axis and button does what (indices of ``axes``/``buttons``)."""
 
-    axis_surge: int = 1        # left stick, up = +1
-    axis_sway: int = 0         # left stick, left = +1
-    axis_yaw: int = 3          # right stick, left = +1
-    button_automatic: int = 2  # triangle
-    button_guidance: int = 3   # square
-    button_manual: int = 0     # cross
+    axis_surge: int            # stick up = +1: surge ahead
+    axis_sway: int             # stick left = +1: sway to port
+    axis_yaw: int              # stick left = +1: yaw counter-clockwise
+    button_automatic: int      # to automatic: hold the pose
+    button_guidance: int       # to guidance: follow the path
+    button_manual: int         # back to manual
     deadzone: float = 0.05     # |axis| below this reads 0
 
     def validate(self) -> None:
+        """Raise ValueError naming the first bad field."""
         for name in ('axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic',
                      'button_guidance', 'button_manual'):
             if getattr(self, name) < 0:
@@ -66,8 +72,8 @@ class Transition:
 class ModeManager:
     """Turns joystick samples and estimator health into the operator mode and manual force."""
 
-    def __init__(self, mapping: Ds4Mapping = Ds4Mapping(),
-                 tau_max: Sequence[float] = (1.0, 1.0, 0.1), joy_timeout: float = 0.5) -> None:
+    def __init__(self, mapping: JoyMapping, tau_max: Sequence[float],
+                 joy_timeout: float = 0.5) -> None:
         mapping.validate()
         self.mapping = mapping
         self.tau_max = np.asarray(tau_max, dtype=float)
@@ -80,8 +86,11 @@ class ModeManager:
 
     def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float,
                estimate_fresh: bool, has_path: bool) -> list[Transition]:
-        """One ``Joy`` sample at time ``now`` [s]. Non-finite axes or missing indices
-        reject the whole sample (counted), as if it never arrived."""
+        """Handle one ``Joy`` sample at time ``now`` [s]; return the transitions it asked for.
+
+        Non-finite axes or missing indices reject the whole sample (counted), as if it never
+        arrived.
+        """
         m = self.mapping
         try:
             sticks = [axes[m.axis_surge], axes[m.axis_sway], axes[m.axis_yaw]]
@@ -108,6 +117,7 @@ class ModeManager:
         return [self.request(mode_of[b], estimate_fresh, has_path) for b in rising]
 
     def request(self, mode: Mode, estimate_fresh: bool, has_path: bool) -> Transition:
+        """Change to ``mode`` if that is safe; the transition says whether and why not."""
         previous = self.mode
         if mode is previous:
             return Transition(mode, previous, False, f'already {mode.value}')
@@ -118,8 +128,13 @@ class ModeManager:
         self.mode = mode
         return Transition(mode, previous, True, 'operator request')
 
-    def check(self, now: float, estimate_fresh: bool) -> Transition | None:
-        """Supervise: joystick loss or a stale estimate in automatic -> manual, zero force."""
+    def check(self, now: float, estimate_fresh: bool,
+              reference_fresh: bool = True) -> Transition | None:
+        """Supervise: fall back to manual with zero force when that is the safe thing.
+
+        That is on joystick loss, and outside manual on a stale estimate or when no guidance
+        reference arrives.
+        """
         if self._last_joy is not None and now - self._last_joy > self.joy_timeout:
             self.tau_manual = np.zeros(3)
             self._last_joy = None
@@ -129,4 +144,8 @@ class ModeManager:
             previous, self.mode = self.mode, Mode.MANUAL
             self.tau_manual = np.zeros(3)
             return Transition(Mode.MANUAL, previous, True, 'pose estimate stale')
+        if self.mode is not Mode.MANUAL and not reference_fresh:
+            previous, self.mode = self.mode, Mode.MANUAL
+            self.tau_manual = np.zeros(3)
+            return Transition(Mode.MANUAL, previous, True, 'no guidance reference')
         return None

@@ -10,7 +10,7 @@ measurement y = [x, y, psi] (motion capture, world ENU, psi CCW from east):
     M nu_hat_dot = -D nu_hat - D_n(nu_hat) nu_hat - C(nu_hat) nu_hat
                    + R(psi)^T b_hat + tau + R(psi)^T K3 y_tilde
 
-with D_n(nu) = diag(Dn) |nu| and, for a diagonal M (manual eq. 1.3 when M11 = M22),
+with D_n(nu) = diag(Dn) |nu| and, for a diagonal M (the rigid-body Coriolis for M11 = M22),
 C(nu) nu = [-M22 v r, M11 u r, (M22 - M11) u v]. R uses the measured heading when a pose
 arrives (the observer is then linear in the estimation error, the basis of its passivity
 proof) and psi_hat while dead reckoning.
@@ -19,8 +19,8 @@ Gains. For a slowly turning vessel and T_b -> inf the error per DOF obeys
 M s^3 + (D + M K1) s^2 + (D K1 + K3) s + K2 = 0, so :func:`place_observer_gains` picks K1, K2,
 K3 for chosen error poles. K1 and K3 must have equal x and y entries (then they commute with
 R(psi)). The quadratic damping adds dissipation to the error dynamics (D_n(nu) nu is monotone),
-but as extra damping D_eff = D + 2 Dn |nu| it also slows the bias poles while the vessel moves
-(see :func:`saucer_observer_settings`).
+but as extra damping D_eff = D + 2 Dn |nu| it also slows the bias poles while the vessel moves:
+choose the poles with that in mind (a vessel profile's comments say how its gains were placed).
 
 Measurement handling, in this order:
 
@@ -52,7 +52,6 @@ from enbarr_core.framework.kinematics import ssa
 
 Vector = NDArray[np.float64]
 
-_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -121,20 +120,6 @@ def place_observer_gains(M: ArrayLike, D: ArrayLike,
     return tuple(map(float, k1)), tuple(map(float, k2)), tuple(map(float, k3))
 
 
-def saucer_observer_settings() -> ObserverSettings:
-    """Defaults for the CS Saucer (manual section 1.4).
-
-    Surge/sway error poles 1.5, 1.0, 0.5 rad/s. Yaw: 1 +- 2.5j, 0.6 rad/s, a small K1 and a
-    large K3, because the quadratic yaw damping 7.095 |r| soon dwarfs D = 0.168 (M = 0.116):
-    linearized, D_eff = D + 2 Dn |r| is 1.6 at 0.1 rad/s, which would slow a real-pole design's
-    bias pole from 0.5 to ~0.04 rad/s; this one keeps it above 0.2 rad/s.
-    """
-    M, D, Dn = (9.51, 9.51, 0.116), (1.96, 1.96, 0.168), (7.095, 7.095, 7.095)
-    K1, K2, K3 = place_observer_gains(M, D, ((1.5, 1.0, 0.5), (1.5, 1.0, 0.5),
-                                             (1.0 + 2.5j, 1.0 - 2.5j, 0.6)))
-    return ObserverSettings(K1=K1, K2=K2, K3=K3, T_b=(1000.0,) * 3, M=M, D=D, Dn=Dn)
-
-
 @dataclass(frozen=True, eq=False)
 class ObserverEstimate:
     """One observer step. Arrays are fresh per call (``eq=False``)."""
@@ -166,6 +151,7 @@ class PassiveObserver:
 
     @property
     def settings(self) -> ObserverSettings:
+        """The settings in use."""
         return self._settings
 
     @settings.setter
@@ -187,6 +173,7 @@ class PassiveObserver:
 
     @property
     def initialized(self) -> bool:
+        """A first pose (or ``initialize``) has set the state."""
         return self._initialized
 
     def initialize(self, y: ArrayLike, nu_hat: ArrayLike | None = None,
@@ -224,7 +211,7 @@ class PassiveObserver:
         if y is not None:
             x = self._x
             dx, dy = y[0] - x[0], y[1] - x[1]
-            dpsi = (y[2] - x[2] + math.pi) % _TWO_PI - math.pi
+            dpsi = ssa(y[2] - x[2])
             if dx * dx + dy * dy <= self._max_dp2 and abs(dpsi) <= self._max_dpsi:
                 accepted = True
                 self._far_time, self._far_y = 0.0, None
@@ -252,15 +239,17 @@ class PassiveObserver:
     # -- internals -------------------------------------------------------------------------
 
     def _reinitialize(self, y: tuple[float, float, float]) -> None:
-        """eta_hat = y; nu_hat from the consistent far poses (a finite difference over the
-        window, ~0.02 m/s of noise over 0.5 s), as the dead-reckoned one is as stale as the
-        pose; b_hat kept."""
+        """Set eta_hat = y, nu_hat from the consistent far poses, keep b_hat.
+
+        nu_hat is a finite difference over the window (~0.02 m/s of noise over 0.5 s), as the
+        dead-reckoned one is as stale as the pose.
+        """
         first, span = self._far_first, self._far_time
         c, s = math.cos(y[2]), math.sin(y[2])
         vx, vy = (y[0] - first[0]) / span, (y[1] - first[1]) / span  # world velocity
-        r = ((y[2] - first[2] + math.pi) % _TWO_PI - math.pi) / span
+        r = (ssa(y[2] - first[2])) / span
         x = self._x
-        x[0:6] = [y[0], y[1], (y[2] + math.pi) % _TWO_PI - math.pi,
+        x[0:6] = [y[0], y[1], ssa(y[2]),
                   c * vx + s * vy, -s * vx + c * vy, r]   # nu = R^T v
         self._y_prev = y
         self._far_time, self._far_y, self._far_first = 0.0, None, None
@@ -288,7 +277,7 @@ class PassiveObserver:
         gx, gy, gn = -tb1 * bx, -tb2 * by, -tb3 * bn
         if y is not None:
             tx, ty = y[0] - px, y[1] - py
-            tp = (y[2] - psi + math.pi) % _TWO_PI - math.pi
+            tp = ssa(y[2] - psi)
             k11, k12, k13 = self._k1
             k21, k22, k23 = self._k2
             k31, k32, k33 = self._k3
@@ -315,7 +304,7 @@ class PassiveObserver:
         self._y_prev = y
         h = 0.5 * dt
         x = [xi + h * (a + b) for xi, a, b in zip(x, k1, k2)]
-        x[2] = (x[2] + math.pi) % _TWO_PI - math.pi
+        x[2] = ssa(x[2])
         self._x = x
 
     def _estimate(self, accepted: bool, rejected: bool, reinit: bool) -> ObserverEstimate:
@@ -339,4 +328,4 @@ def _close(a: tuple[float, float, float], b: tuple[float, float, float], max_dp2
            max_dpsi: float) -> bool:
     dx, dy = a[0] - b[0], a[1] - b[1]
     return (dx * dx + dy * dy <= max_dp2
-            and abs((a[2] - b[2] + math.pi) % _TWO_PI - math.pi) <= max_dpsi)
+            and abs(ssa(a[2] - b[2])) <= max_dpsi)

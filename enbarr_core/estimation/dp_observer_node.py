@@ -1,16 +1,22 @@
-"""DP observer node: ``mocap/pose`` + ``allocation/delivered`` -> ``observer/odometry``,
-``observer/bias`` and ``observer/measurement_age``.
+"""DP observer node: pose and delivered force in, estimate, bias and measurement age out.
 
-A nonlinear passive observer (``algorithms.dp_observer``, Fossen 2021 ch. 13) estimating pose,
+``mocap/pose`` + ``allocation/delivered`` -> ``observer/odometry``, ``observer/bias`` and
+``observer/measurement_age``.
+
+A nonlinear passive observer (``estimation.dp_observer``, Fossen 2021 ch. 13) estimating pose,
 velocity and a slowly varying bias. It steps on every pose (dt from the stamps) and, when
 poses stop, on its own timer at ``rate``, dead-reckoning with the model and the delivered
 force; ``observer/measurement_age`` tells how long it has been doing so. Poses that jump
-implausibly far from the estimate, or hold NaN/Inf, are rejected and counted. Gains are
-parameters (3-element diagonals) and change live, the state kept.
+implausibly far from the estimate, or hold NaN/Inf, are rejected and counted. The gains
+(``k1``, ``k2``, ``k3``: 3-element diagonals) and the vessel model (``vessel.*``) come from the
+profile and have no default (a node started without them refuses, naming the parameter);
+they and ``t_b`` change live, the state kept.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -20,23 +26,24 @@ from std_msgs.msg import Float64
 
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver, saucer_observer_settings
+from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.models.vessel3dof_params import (
+    required_vector, VESSEL_SPECS, vessel_from_params)
 
-_D = saucer_observer_settings()
 _XYN = '(x, y, psi)'
+_UNSET = [0.0]
 SPECS = [
-    ParamSpec('K1', list(_D.K1), f'Position injection gains {_XYN}', '1/s', 0.0, 1e4),
-    ParamSpec('K2', list(_D.K2), f'Bias injection gains {_XYN}', 'N/(m s), N m/(rad s)', 0.0,
-              1e5),
-    ParamSpec('K3', list(_D.K3), f'Velocity injection gains {_XYN}', 'N/m, N m/rad', 0.0, 1e5),
-    ParamSpec('T_b', list(_D.T_b), f'Bias time constants {_XYN}', 's', 1e-3, 1e9),
-    ParamSpec('vessel.M', list(_D.M), 'Inertia M (manual eq. 1.2)', 'kg, kg m^2', 1e-6, 1e6),
-    ParamSpec('vessel.D', list(_D.D), 'Linear damping D (manual eq. 1.4)', 'N s/m, N m s', 0.0,
-              1e6),
-    ParamSpec('vessel.Dn', list(_D.Dn), 'Nonlinear damping coefficients (manual eq. 1.5)',
-              'N s^2/m^2, N m s^2', 0.0, 1e6),
+    ParamSpec('k1', list(_UNSET), f'Position injection gains K1 {_XYN}; required', '1/s', 0.0,
+              1e4),
+    ParamSpec('k2', list(_UNSET), f'Bias injection gains K2 {_XYN}; required',
+              'N/(m s), N m/(rad s)', 0.0, 1e5),
+    ParamSpec('k3', list(_UNSET), f'Velocity injection gains K3 {_XYN}; required',
+              'N/m, N m/rad', 0.0, 1e5),
+    ParamSpec('t_b', [1000.0, 1000.0, 1000.0], f'Bias time constants T_b {_XYN}', 's', 1e-3,
+              1e9),
+    *VESSEL_SPECS,
     ParamSpec('stale_after', 2.0, 'Estimate is stale after dead-reckoning this long', 's',
               0.01, 60.0),
     ParamSpec('max_position_jump', 0.5, 'Reject poses this far from the estimate', 'm', 1e-3,
@@ -48,17 +55,32 @@ SPECS = [
 ]
 
 
-def build_settings(v: dict[str, Any]) -> ObserverSettings:
-    for k in ('K1', 'K2', 'K3', 'T_b', 'vessel.M', 'vessel.D', 'vessel.Dn'):
-        if len(v[k]) != 3:
-            raise ValueError(f'{k}: expected 3 values (x, y, psi), got {len(v[k])}')
-    s = ObserverSettings(
-        K1=tuple(v['K1']), K2=tuple(v['K2']), K3=tuple(v['K3']), T_b=tuple(v['T_b']),
-        M=tuple(v['vessel.M']), D=tuple(v['vessel.D']), Dn=tuple(v['vessel.Dn']),
-        stale_after=v['stale_after'], max_position_jump=v['max_position_jump'],
-        max_heading_jump=v['max_heading_jump'])
-    s.validate()
-    return s
+@dataclass(frozen=True)
+class DpObserverNodeSettings:
+    """Settings of ``DpObserverNode`` (see ``SPECS``)."""
+
+    observer: ObserverSettings  # gains, model and measurement checks
+    rate: float                 # dead-reckoning integration rate [Hz]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> DpObserverNodeSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        vessel = vessel_from_params(v)
+        s = ObserverSettings(
+            K1=required_vector(v, 'k1'), K2=required_vector(v, 'k2'),
+            K3=required_vector(v, 'k3'), T_b=required_vector(v, 't_b'),
+            M=vessel.M, D=vessel.D, Dn=vessel.Dn, stale_after=v['stale_after'],
+            max_position_jump=v['max_position_jump'], max_heading_jump=v['max_heading_jump'])
+        try:
+            s.validate()
+        except ValueError as err:
+            field = str(err).split(':')[0]
+            raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
+        return cls(observer=s, rate=v['rate'])
+
+
+_PARAMETER = {'K1': 'k1', 'K2': 'k2', 'K3': 'k3', 'T_b': 't_b', 'M': 'vessel.inertia',
+              'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
 
 
 class DpObserverNode(EnbarrNode):
@@ -67,12 +89,13 @@ class DpObserverNode(EnbarrNode):
     def __init__(self, node_name: str = 'observer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.observer: PassiveObserver | None = None
-        binding = self.bind_settings(SPECS, build_settings, self._apply)
+        self.settings: DpObserverNodeSettings
+        self.bind_settings(SPECS, DpObserverNodeSettings.from_params, self._apply)
         self.estimate = None
         self.rejected = 0
         self._tau = np.zeros(3)
         self._last_ns: int | None = None
-        self._period_ns = round(1e9 / binding.values()['rate'])
+        self._period_ns = round(1e9 / self.settings.rate)
         self._odom_pub = self.create_topic_publisher(topics.OBSERVER_ODOMETRY)
         self._bias_pub = self.create_topic_publisher(topics.OBSERVER_BIAS)
         self._age_pub = self.create_topic_publisher(topics.OBSERVER_AGE)
@@ -81,11 +104,12 @@ class DpObserverNode(EnbarrNode):
         self.create_timer(WATCHDOG_PERIOD, self._dead_reckon)
         self.create_timer(1.0, self._report)
 
-    def _apply(self, settings: ObserverSettings) -> None:
+    def _apply(self, settings: DpObserverNodeSettings) -> None:
+        self.settings = settings
         if self.observer is None:
-            self.observer = PassiveObserver(settings)
+            self.observer = PassiveObserver(settings.observer)
         else:
-            self.observer.settings = settings
+            self.observer.settings = settings.observer
 
     def _on_tau(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau3(msg.wrench)

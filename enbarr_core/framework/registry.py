@@ -35,6 +35,7 @@ BUILTIN: dict[str, str] = {
     'saucer_simulator': 'enbarr_core.simulation.saucer_simulator_node:SaucerSimulatorNode',
     'dp_observer': 'enbarr_core.estimation.dp_observer_node:DpObserverNode',
     'dp_control': 'enbarr_core.control.dp_control_node:DpControlNode',
+    'guidance': 'enbarr_core.guidance.guidance_node:GuidanceNode',
     'azimuth_allocation': 'enbarr_core.allocation.azimuth_allocation_node:AzimuthAllocationNode',
     'pwm_mapper': 'enbarr_core.allocation.pwm_mapper_node:PwmMapperNode',
     # plugins

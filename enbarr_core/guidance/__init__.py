@@ -1,0 +1,1 @@
+"""Guidance: the references a DP controller tracks (laws and the guidance node)."""

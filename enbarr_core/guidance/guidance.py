@@ -85,6 +85,7 @@ class HoldPose:
         self.eta = (x, y, float(ssa(psi)))
 
     def reference(self, eta_hat: ArrayLike, dt: float) -> Reference:
+        """Advance the clock by ``dt`` [s] and return the reference for ``eta_hat`` now."""
         _check_dt(dt)
         return _hold(*self.eta, finished=True)
 
@@ -156,6 +157,7 @@ class GoToWaypoint:
         self.finished = False
 
     def reference(self, eta_hat: ArrayLike, dt: float) -> Reference:
+        """Advance the clock by ``dt`` [s] and return the reference for ``eta_hat`` now."""
         _check_dt(dt)
         x, y, _ = _pose(eta_hat, 'eta_hat')
         self.t += dt
@@ -246,6 +248,7 @@ class LosPath:
         self.finished = False
 
     def reference(self, eta_hat: ArrayLike, dt: float) -> Reference:
+        """Advance the clock by ``dt`` [s] and return the reference for ``eta_hat`` now."""
         _check_dt(dt)
         x, y, psi = _pose(eta_hat, 'eta_hat')
         if self.fixed_heading is None and self.heading == 'fixed':

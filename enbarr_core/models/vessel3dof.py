@@ -1,7 +1,7 @@
-"""3-DOF surface-vessel model and azimuth-thruster actuators (CS Saucer manual 1.4).
+"""3-DOF surface-vessel model and azimuth-thruster actuators.
 
-The control design model of the NTNU CS Saucer (CS Saucer manual section 1.4, eqs. 1.2-1.6,
-after Fossen 2021), extended with an irrotational ocean current and a world-frame force bias:
+The control design model of a small surface vessel with a diagonal inertia (Fossen 2021),
+extended with an irrotational ocean current and a world-frame force bias:
 
     eta_dot = R(psi) nu
     M nu_r_dot + (C(nu_r) + D + D_n(nu_r)) nu_r = tau + R(psi)^T b
@@ -9,11 +9,12 @@ after Fossen 2021), extended with an irrotational ocean current and a world-fram
 
 with eta = [x, y, psi] (world ENU, psi CCW from east), nu = [u, v, r] (body FLU),
 tau = [X, Y, N], M = diag(m11, m22, m33), D = diag(d11, d22, d33), D_n(nu) = diag(dn |nu|) and
-C(nu) = [[0, -m11 r, 0], [m11 r, 0, 0], [0, 0, 0]] (CS Saucer manual eq. 1.3). For a constant
+C(nu) = [[0, -m11 r, 0], [m11 r, 0, 0], [0, 0, 0]] (for m11 = m22). For a constant
 current (V_x, V_y) in the world frame, nu_c_dot = [r nu_c2, -r nu_c1, 0]. Writing the rigid-body
 part in relative velocity is exact here because C does not depend on the linear velocities
 (Fossen 2021, ch. 10, irrotational ocean currents). With zero current and bias the model is
-exactly the manual's eta_dot = R(psi) nu, M nu_dot + (C + D + D(nu)) nu = tau (section 1.4).
+exactly eta_dot = R(psi) nu, M nu_dot + (C + D + D(nu)) nu = tau. A vessel's numbers live in
+its profile (``params/*_core.yaml``, parameters ``vessel.*``), never here.
 
 Reference: T. I. Fossen, Handbook of Marine Craft Hydrodynamics and Motion Control, 2nd ed.,
 Wiley 2021.
@@ -38,10 +39,6 @@ from enbarr_core.framework.errors import ConfigurationError
 
 Vector = NDArray[np.float64]
 Matrix = NDArray[np.float64]
-
-SERVO_LIMIT = math.radians(114.0)
-"""Azimuth servo travel [rad]: +/-114 deg (CS Saucer manual Table 1.1, Graupner Schottel)."""
-
 
 def _floats(name: str, value: Any, n: int) -> list[float]:
     """``value`` as a list of ``n`` finite Python floats, else ValueError naming ``name``."""
@@ -70,7 +67,7 @@ def _dt(dt: Any) -> float:
 
 @dataclass(frozen=True)
 class Vessel3DofParams:
-    """Diagonal 3-DOF model parameters (SI units), see ``CS_SAUCER`` for the manual's values."""
+    """Diagonal 3-DOF model parameters (SI units); a profile's ``vessel.*`` parameters."""
 
     M: tuple[float, float, float]   # diag of M = M_RB + M_A [kg, kg, kg m^2]
     D: tuple[float, float, float]   # diag of the linear damping D [N s/m, N s/m, N m s/rad]
@@ -109,14 +106,6 @@ class Vessel3DofParams:
         return params
 
 
-CS_SAUCER = Vessel3DofParams(
-    M=(9.51, 9.51, 0.116),    # CS Saucer manual eq. 1.2
-    D=(1.96, 1.96, 0.168),    # CS Saucer manual eq. 1.4
-    Dn=(7.095, 7.095, 7.095),  # CS Saucer manual eq. 1.5
-)
-"""The CS Saucer control design model (CS Saucer manual 1.4, after Ueland 2016)."""
-
-
 class Vessel3Dof:
     """eta_dot = R(psi) nu, M nu_r_dot + (C(nu_r) + D + D_n(nu_r)) nu_r = tau + R^T b; RK4."""
 
@@ -133,20 +122,20 @@ class Vessel3Dof:
 
     @property
     def M(self) -> Matrix:
-        """Inertia matrix M (3x3, read-only) [kg, kg m^2] (CS Saucer manual eq. 1.2)."""
+        """Inertia matrix M (3x3, read-only) [kg, kg m^2]."""
         return self._M
 
     def coriolis(self, nu: ArrayLike) -> Matrix:
-        """C(nu) = [[0, -m11 r, 0], [m11 r, 0, 0], [0, 0, 0]] (CS Saucer manual eq. 1.3).
+        """C(nu) = [[0, -m11 r, 0], [m11 r, 0, 0], [0, 0, 0]] (rigid-body Coriolis, m11 = m22).
 
-        The manual writes 9.51 r, i.e. m11; C(nu) is skew-symmetric, so nu^T C(nu) nu = 0.
+        C(nu) is skew-symmetric, so nu^T C(nu) nu = 0.
         """
         r = _floats('nu', nu, 3)[2]
         m11r = self._m[0] * r
         return np.array([[0.0, -m11r, 0.0], [m11r, 0.0, 0.0], [0.0, 0.0, 0.0]])
 
     def damping(self, nu: ArrayLike) -> Matrix:
-        """D + D_n(nu) = diag(D + Dn |nu|) (3x3) (CS Saucer manual eqs. 1.4, 1.5)."""
+        """D + D_n(nu) = diag(D + Dn |nu|) (3x3)."""
         a = np.abs(np.asarray(_floats('nu', nu, 3)))
         return np.diag(np.asarray(self._d) + np.asarray(self._dn) * a)
 
@@ -235,15 +224,16 @@ class AzimuthSpec:
 
     The angle a is the direction of positive thrust in the body frame, CCW from the surge axis:
     thrust T [N] pushes the hull with [T cos a, T sin a] at ``position``. The defaults are an
-    ideal actuator (instant thrust, unlimited slew) within the manual's +/-114 deg of travel.
+    ideal actuator (instant thrust, unlimited slew, a full turn of travel); a vessel's servo
+    travel, lag and slew rate come from its profile (``azimuths.<name>.*``).
     """
 
     name: str
     position: tuple[float, float]      # (x, y) [m], body FLU, from the body origin
     max_forward: float                 # largest positive thrust [N]
     max_reverse: float                 # largest negative thrust magnitude [N] (> 0)
-    angle_min: float = -SERVO_LIMIT    # [rad] (CS Saucer manual Table 1.1: -114 deg)
-    angle_max: float = SERVO_LIMIT     # [rad] (CS Saucer manual Table 1.1: +114 deg)
+    angle_min: float = -math.pi        # servo travel limit [rad]
+    angle_max: float = math.pi         # servo travel limit [rad]
     time_constant: float = 0.0         # first-order thrust lag [s]; 0 = instant
     max_angle_rate: float = math.inf   # servo slew rate [rad/s]
 

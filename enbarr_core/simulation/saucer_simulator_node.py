@@ -1,15 +1,19 @@
-"""Simulated CS Saucer: the 3-DOF model of the manual (section 1.4) with three azimuths.
+"""Simulated 3-DOF surface vessel with azimuth thrusters (``models.vessel3dof``).
 
-Each step of 1/``rate``: the azimuth actuators move toward the latest ``sim/azimuth_command``
-(first-order thrust, rate-limited servos; neutral when commands stop for ``command_timeout``,
-as the Arduino's outputs would), the vessel is integrated with their force under the
-scenario's current and force bias, and the truth goes out on ``sim/odometry`` (which the
-simulated motion capture measures). The current can vary slowly: a sinusoid of
+The vessel (``vessel.*``) and its azimuths (``azimuth_names``, ``azimuths.<name>.*``) come from
+the profile: the CS Saucer's manual model in ``saucer_core.yaml``, another vessel in its own
+profile. Each step of 1/``rate``: the azimuth actuators move toward the latest
+``sim/azimuth_command`` (first-order thrust, rate-limited servos; neutral when commands stop
+for ``command_timeout``, as the Arduino's outputs would), the vessel is integrated with their
+force under the scenario's current and force bias, and the truth goes out on ``sim/odometry``
+(which the simulated motion capture measures). The current can vary slowly: a sinusoid of
 ``current_amplitude`` and ``current_period`` on top of ``current``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 import threading
 from typing import Any
@@ -22,7 +26,7 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.models.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
 from enbarr_core.allocation.layout_params import declare_azimuths
-from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.models.vessel3dof_params import VESSEL_SPECS, vessel_from_params
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
 
@@ -30,12 +34,7 @@ MAX_CATCH_UP = 10
 
 SPECS = [
     ParamSpec('rate', 100.0, 'Integration rate', 'Hz', 1.0, 2000.0, read_only=True),
-    ParamSpec('vessel.M', [9.51, 9.51, 0.116], 'Inertia M (manual eq. 1.2)', 'kg, kg m^2',
-              1e-6, 1e6),
-    ParamSpec('vessel.D', [1.96, 1.96, 0.168], 'Linear damping D (manual eq. 1.4)',
-              'N s/m, N m s', 0.0, 1e6),
-    ParamSpec('vessel.Dn', [7.095, 7.095, 7.095], 'Nonlinear damping D_n(nu) = diag(Dn |nu|) '
-              '(manual eq. 1.5)', 'N s^2/m^2, N m s^2', 0.0, 1e6),
+    *VESSEL_SPECS,
     ParamSpec('current', [0.0, 0.0], 'Water current in odom (east, north)', 'm/s', -5.0, 5.0),
     ParamSpec('current_amplitude', [0.0, 0.0], 'Slow variation of the current (east, north)',
               'm/s', -5.0, 5.0),
@@ -49,6 +48,30 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SaucerSimulatorSettings:
+    """Settings of ``SaucerSimulatorNode`` (see ``SPECS``)."""
+
+    rate: float                              # [Hz]
+    vessel: Vessel3DofParams                 # model
+    current: tuple[float, float]             # world (east, north) [m/s]
+    current_amplitude: tuple[float, float]   # [m/s]
+    current_period: float                    # [s]
+    bias: tuple[float, float, float]         # world force bias [N, N, N m]
+    command_timeout: float                   # [s]
+    initial: tuple[float, float, float]      # start pose [m, m, rad]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SaucerSimulatorSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        for k, n in (('current', 2), ('current_amplitude', 2), ('bias', 3), ('initial', 3)):
+            if len(v[k]) != n:
+                raise ValueError(f'{k}: expected {n} values, got {len(v[k])}')
+        return cls(v['rate'], vessel_from_params(v), tuple(v['current']),  # type: ignore
+                   tuple(v['current_amplitude']), v['current_period'],  # type: ignore
+                   tuple(v['bias']), v['command_timeout'], tuple(v['initial']))  # type: ignore
+
+
 class SaucerSimulatorNode(EnbarrNode):
     """See the module docstring."""
 
@@ -58,15 +81,12 @@ class SaucerSimulatorNode(EnbarrNode):
         self.azimuths = declare_azimuths(self)
         self._index = {a.name: i for i, a in enumerate(self.azimuths)}
         self.actuators = AzimuthActuators(self.azimuths)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, self._build, self._apply)
+        self.settings: SaucerSimulatorSettings
+        self.bind_settings(SPECS, SaucerSimulatorSettings.from_params, self._apply)
         v = self.settings
-        if len(v['initial']) != 3:
-            raise ConfigurationError(f'node {node_name!r}: initial needs x, y, psi',
-                                     parameter='initial')
-        self.eta = np.array(v['initial'], dtype=float)
+        self.eta = np.array(v.initial, dtype=float)
         self.nu = np.zeros(3)
-        self.period_ns = round(1e9 / v['rate'])
+        self.period_ns = round(1e9 / v.rate)
         self.time_ns = 0
         self.steps = 0
         self.time_skips = 0
@@ -75,22 +95,16 @@ class SaucerSimulatorNode(EnbarrNode):
         self._cmd_ns: int | None = None
         self._odom_pub = self.create_topic_publisher(topics.SIM_ODOMETRY)
         self.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, self._on_command)
-        self.create_rate_loop(v['rate'], self.step)
+        self.create_rate_loop(v.rate, self.step)
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> dict[str, Any]:
-        Vessel3DofParams.from_mapping({k: v[f'vessel.{k}'] for k in ('M', 'D', 'Dn')})
-        for k, n in (('current', 2), ('current_amplitude', 2), ('bias', 3)):
-            if len(v[k]) != n:
-                raise ValueError(f'{k}: expected {n} values, got {len(v[k])}')
-        return v
-
-    def _apply(self, v: dict[str, Any]) -> None:
+    def _apply(self, v: SaucerSimulatorSettings) -> None:
         with self._lock:
-            self.model = Vessel3Dof(Vessel3DofParams.from_mapping(
-                {k: v[f'vessel.{k}'] for k in ('M', 'D', 'Dn')}))
+            self.model = Vessel3Dof(v.vessel)
             self.settings = v
-            self._timeout_ns = int(v['command_timeout'] * 1e9)
+            self._timeout_ns = int(v.command_timeout * 1e9)
+            self._current = np.array(v.current)
+            self._current_amplitude = np.array(v.current_amplitude)
+            self._bias = list(v.bias)
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort) or len(msg.name) != len(msg.position):
@@ -105,9 +119,9 @@ class SaucerSimulatorNode(EnbarrNode):
         self._cmd_ns = self.get_clock().now().nanoseconds
 
     def current_at(self, t_s: float) -> np.ndarray:
-        s = self.settings
-        phase = math.sin(2.0 * math.pi * t_s / s['current_period'])
-        return np.array(s['current']) + phase * np.array(s['current_amplitude'])
+        """Return the current (east, north) [m/s] at simulated time ``t_s`` [s]."""
+        phase = math.sin(2.0 * math.pi * t_s / self.settings.current_period)
+        return self._current + phase * self._current_amplitude
 
     def step(self) -> None:
         """Advance to the clock's present (as RovSimulatorNode.step) and publish the truth."""
@@ -121,7 +135,7 @@ class SaucerSimulatorNode(EnbarrNode):
         stale = self._cmd_ns is None or now - self._cmd_ns > self._timeout_ns
         thrust = np.zeros_like(self._cmd_thrust) if stale else self._cmd_thrust
         angle = self.actuators.angle if stale else self._cmd_angle
-        bias = self.settings['bias']
+        bias = self._bias
         start = now - round(n * dt * 1e9)
         with self._lock:
             for k in range(1, n + 1):

@@ -2,8 +2,8 @@
 
 ``--chain rov`` (default): simulator -> sim IMU -> attitude filter -> velocity control ->
 thruster converter -> sim thrusters (profile ``enbarr_sim``). ``--chain saucer``: simulator
--> sim motion capture -> DP observer -> DP control (automatic mode) -> azimuth allocation ->
-PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are composed exactly as
+-> sim motion capture -> DP observer -> guidance -> DP control (automatic mode) -> azimuth
+allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are composed as
 ``bringup`` composes them, in this process, at ``--rate`` for ``--seconds``; one JSON line:
 
 - ``rate_hz``: achieved chain rate (sensor samples whose command reached the actuator, /s);
@@ -34,6 +34,8 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Chain:
+    """A profile and the nodes of it that make one sensor -> actuator chain."""
+
     profile: str
     nodes: tuple[str, ...]
     sink: str  # the node holding the LatencyLog (last one that has the sensor stamp)
@@ -42,12 +44,13 @@ class Chain:
 CHAINS = {
     'rov': Chain('enbarr_sim', ('simulator', 'imu', 'filtering', 'control_loop',
                                 'thruster_converter', 'thruster_control'), 'thruster_control'),
-    'saucer': Chain('saucer_sim', ('simulator', 'mocap', 'observer', 'dp_control',
+    'saucer': Chain('saucer_sim', ('simulator', 'mocap', 'observer', 'guidance', 'dp_control',
                                    'allocation', 'pwm', 'arduino', 'joystick'), 'pwm'),
 }
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``enbarr bench`` options to ``p``."""
     p.add_argument('--chain', choices=sorted(CHAINS), default='rov',
                    help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
     p.add_argument('--rate', type=float, default=400.0, help='chain rate in Hz (default 400)')
@@ -56,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run ``enbarr bench`` and print its JSON line."""
     from enbarr_core.framework.errors import EnbarrError
     if not (args.rate > 0 and args.seconds > 0):
         raise EnbarrError('--rate and --seconds must be positive')
@@ -92,6 +96,7 @@ def _chain_profile(chain: Chain, rate: float) -> Any:
 
 
 def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
+    """Compose the chain, run it at ``rate`` for ``seconds`` and measure it."""
     from enbarr_core.bringup.orchestrator import composed
     from enbarr_core.bringup.profile import apply_environment
 
@@ -188,12 +193,22 @@ def run_pure_rov(rate: float, cycles: int = 2000) -> float:
 def run_pure_saucer(rate: float, cycles: int = 2000) -> float:
     """CPU seconds per cycle of the Saucer chain's algorithms in a plain loop."""
     from enbarr_core.allocation.azimuth import AzimuthAllocator, PwmCalibration
-    from enbarr_core.control.dp_control import DpController, saucer_dp_settings
-    from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
+    from enbarr_core.control import dp_control_node
+    from enbarr_core.control.dp_control import DpController
+    from enbarr_core.estimation import dp_observer_node
+    from enbarr_core.estimation.dp_observer import PassiveObserver
     from enbarr_core.guidance.guidance import HoldPose
-    from enbarr_core.models.vessel3dof import AzimuthActuators, AzimuthSpec, CS_SAUCER, Vessel3Dof
+    from enbarr_core.models.vessel3dof import AzimuthActuators, AzimuthSpec, Vessel3Dof
+    from enbarr_core.models.vessel3dof_params import vessel_from_params
 
-    common, _ = _common('saucer', rate)
+    common, prof = _common('saucer', rate)
+
+    def settings(node: str, module: Any, cls: Any) -> Any:
+        # What the node would run with: its declared defaults, the profile's values.
+        values = {s.name: s.default for s in module.SPECS}
+        given = {**common, **prof.node(node).parameters}
+        return cls.from_params({**values, **{k: v for k, v in given.items() if k in values}})
+
     specs = [AzimuthSpec(n, tuple(common[f'azimuths.{n}.position']),
                          common[f'azimuths.{n}.max_forward'],
                          common[f'azimuths.{n}.max_reverse'],
@@ -203,10 +218,12 @@ def run_pure_saucer(rate: float, cycles: int = 2000) -> float:
              for n in common['azimuth_names']]
     pwm = PwmCalibration.from_mapping({k.removeprefix('pwm.'): v for k, v in common.items()
                                        if k.startswith('pwm.')})
-    vessel, actuators = Vessel3Dof(CS_SAUCER), AzimuthActuators(specs)
+    vessel, actuators = Vessel3Dof(vessel_from_params(common)), AzimuthActuators(specs)
     allocator = AzimuthAllocator(specs)
-    observer, controller = PassiveObserver(saucer_observer_settings()), DpController(
-        saucer_dp_settings())
+    observer = PassiveObserver(settings('observer', dp_observer_node,
+                                        dp_observer_node.DpObserverNodeSettings).observer)
+    controller = DpController(settings('dp_control', dp_control_node,
+                                       dp_control_node.DpControlNodeSettings).control)
     guidance = HoldPose((0.0, 0.0, 0.0))
     rng = np.random.default_rng(1)
     dt = 1.0 / rate

@@ -1,5 +1,8 @@
-"""Figures and a picture of a recorded DP run (``enbarr scenario``): errors after settling,
-cross-track error, time to settle, thrust saturation time, from the bag alone."""
+"""Figures and a picture of a recorded DP run (``enbarr scenario``), from the bag alone.
+
+The figures: errors after settling, cross-track error, time to settle, thrust saturation
+time. The picture draws the hull outline from the profile's geometry (``hull_radius``).
+"""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ from enbarr_interfaces import convert
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
 
-HULL_RADIUS = 0.2  # drawn outline of the Saucer [m]
+GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to follow
 
 
 def _stamp(msg: Any) -> float:
@@ -50,9 +53,23 @@ def _segment_distance(p: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
 def _waypoints(profile: Any) -> np.ndarray:
     for n in profile.nodes:
         w = {**profile.parameters, **n.parameters}.get('path.waypoints')
-        if n.plugin == 'dp_control' and w and w != [0.0]:
+        if n.plugin in GUIDANCE_PLUGINS and w and w != [0.0]:
             return np.array(w, dtype=float).reshape(-1, 2)
     return np.zeros((0, 2))
+
+
+def hull_radius(profile: Any) -> float:
+    """Radius of the drawn hull outline [m], from the profile.
+
+    The profile's ``hull_radius`` if it gives one, else the circle through the farthest
+    azimuth (they sit on the rim of a round hull), else 0 (no outline).
+    """
+    p = profile.parameters
+    if 'hull_radius' in p:
+        return float(p['hull_radius'])
+    positions = [p[f'azimuths.{n}.position'] for n in p.get('azimuth_names', ())
+                 if f'azimuths.{n}.position' in p]
+    return max((math.hypot(x, y) for x, y in positions), default=0.0)
 
 
 def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
@@ -64,6 +81,7 @@ def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
 
 
 def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
+    """Compute the figures of a recorded run from its bag (see the module docstring)."""
     msgs = read_bag(bag)
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
@@ -156,6 +174,7 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
     grid = fig.add_gridspec(2, 2, width_ratios=(1.1, 1.0))
     ax = fig.add_subplot(grid[:, 0])
     wps = _waypoints(profile) if spec.kind == 'path' else np.zeros((0, 2))
+    radius = hull_radius(profile)
     if len(wps):
         ax.plot(wps[:, 0], wps[:, 1], 'k--', lw=1, label='path')
     ax.plot(eta[:, 0], eta[:, 1], lw=1.2, label='vessel (truth)')
@@ -164,8 +183,8 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
         ax.plot(ref[:, 0], ref[:, 1], lw=0.8, alpha=0.7, label='reference')
     step = max(1, len(t) // 12)
     for x, y, psi in eta[::step]:
-        ax.add_patch(plt.Circle((x, y), HULL_RADIUS, fill=False, lw=0.8, color='tab:gray'))
-        ax.plot([x, x + HULL_RADIUS * math.cos(psi)], [y, y + HULL_RADIUS * math.sin(psi)],
+        ax.add_patch(plt.Circle((x, y), radius, fill=False, lw=0.8, color='tab:gray'))
+        ax.plot([x, x + radius * math.cos(psi)], [y, y + radius * math.sin(psi)],
                 color='tab:red', lw=1)
     ax.set_aspect('equal', adjustable='datalim')
     ax.set_xlabel('east [m]')

@@ -34,23 +34,27 @@ T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stam
 
 @dataclass(frozen=True)
 class ScenarioSpec:
+    """The ``scenario`` section of a scenario profile."""
+
     duration: float
     kind: str
     settle_band: tuple[float, float]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``enbarr scenario`` options to ``p``."""
     p.add_argument('name', help='scenario name (params/scenarios/NAME.yaml) or path')
     p.add_argument('--output', metavar='DIR', help='where the bag and the PNG go (default: '
                    'runs/scenario-NAME-<time>)')
     p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                    help='override a node parameter; VALUE is YAML (repeatable)')
     p.add_argument('--duration', type=float, metavar='S',
-                   help='simulated seconds (default: the scenario\'s own)')
+                   help="simulated seconds (default: the scenario's own)")
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run ``enbarr scenario`` and print its metrics as one JSON line."""
     if args.duration is not None and not args.duration > 0:
         raise EnbarrError(f'--duration must be positive, got {args.duration}')
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
@@ -60,6 +64,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def scenario_spec(profile: Any) -> ScenarioSpec:
+    """Read and check the profile's ``scenario`` section."""
     raw = profile.scenario
     if not raw:
         raise ProfileError('not a scenario: it has no "scenario" section', path=profile.path)
@@ -77,7 +82,7 @@ def scenario_spec(profile: Any) -> ScenarioSpec:
 
 
 def resolve(name: str) -> str:
-    """A bare scenario name means ``scenarios/NAME`` among the installed profiles."""
+    """Find a scenario: a bare name means ``scenarios/NAME`` among the installed profiles."""
     from enbarr_core.bringup.profile import search_dirs
     if '/' in name or name.endswith('.yaml'):
         return name
@@ -91,6 +96,7 @@ def resolve(name: str) -> str:
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
         plot: bool = True, duration: float | None = None) -> dict[str, Any]:
+    """Run scenario ``name`` on simulated time, record it and return its metrics."""
     from rclpy.time import Time
 
     from enbarr_core.bringup.orchestrator import add_recorder, composed

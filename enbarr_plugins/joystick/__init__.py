@@ -1,0 +1,1 @@
+"""Joystick plugins: operator input as ``sensor_msgs/Joy``."""

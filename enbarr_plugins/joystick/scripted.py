@@ -1,16 +1,21 @@
-"""Scripted joystick: a DualShock 4 stand-in publishing ``sensor_msgs/Joy`` from a timed
-script, so a run without a person exercises every mode. Lines, times in seconds from start::
+"""Scripted joystick: a game-controller stand-in publishing ``sensor_msgs/Joy`` from a script.
+
+A run without a person exercises every mode this way. Lines, times in seconds from start::
 
     '0.0  sticks 0.5 0.0 0.0'   # surge, sway, yaw stick positions (-1..1), held
-    '5.0  press triangle'       # press and release a button (triangle, square, cross, circle)
+    '5.0  press triangle'       # press and release a button named in ``buttons``
     '20.0 stop'                 # stop publishing: the joystick is lost
 
-Axes and buttons are laid out as in ``Ds4Mapping`` (the ``joy_mapping`` parameters of the
-controller must agree).
+The layout is the profile's: ``joy.buttons`` names the button at each index (a DualShock 4
+through ds4_driver: cross, circle, triangle, square; a pad through ROS ``joy``: cross,
+circle, square, triangle) and ``joy.axis_surge``/``joy.axis_sway``/``joy.axis_yaw`` (shared
+with the controller, given once in the profile) say where the sticks go.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import math
 from typing import Any
 
@@ -20,11 +25,12 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 
-BUTTONS = {'cross': 0, 'circle': 1, 'triangle': 2, 'square': 3}
-N_AXES, N_BUTTONS = 8, 13  # ds4_driver standard messages
+N_AXES, N_BUTTONS = 8, 13  # at least this many, as ds4_driver's standard messages
 
 
-def parse_joy_script(lines: list[str]) -> list[tuple[float, str, Any]]:
+def parse_joy_script(lines: list[str],
+                     buttons: Mapping[str, int]) -> list[tuple[float, str, Any]]:
+    """Parse ``lines`` into timed events; ``buttons`` maps a button name to its index."""
     out: list[tuple[float, str, Any]] = []
     for i, line in enumerate(lines):
         parts = line.split()
@@ -46,13 +52,13 @@ def parse_joy_script(lines: list[str]) -> list[tuple[float, str, Any]]:
             if not all(-1.0 <= x <= 1.0 for x in sticks):
                 raise ValueError(f'{where}: stick positions are within -1..1')
             out.append((t, 'sticks', sticks))
-        elif kind == 'press' and len(parts) == 3 and parts[2] in BUTTONS:
-            out.append((t, 'press', BUTTONS[parts[2]]))
+        elif kind == 'press' and len(parts) == 3 and parts[2] in buttons:
+            out.append((t, 'press', buttons[parts[2]]))
         elif kind == 'stop' and len(parts) == 2:
             out.append((t, 'stop', None))
         else:
             raise ValueError(f'{where}: expected "sticks S W Y", "press '
-                             f'{"|".join(BUTTONS)}" or "stop"')
+                             f'{"|".join(buttons)}" or "stop"')
     return out
 
 
@@ -60,7 +66,49 @@ SPECS = [
     ParamSpec('script', [''], 'Timed joystick lines (see the module doc)', read_only=True,
               element=str),
     ParamSpec('rate', 20.0, 'Publication rate', 'Hz', 1.0, 1000.0, read_only=True),
+    ParamSpec('joy.buttons', [''], 'Name of the button at each index; required',
+              read_only=True, element=str),
+    ParamSpec('joy.axis_surge', -1, 'Axis of the surge stick (up = +1); required', '', -1, 64,
+              read_only=True),
+    ParamSpec('joy.axis_sway', -1, 'Axis of the sway stick (left = +1); required', '', -1, 64,
+              read_only=True),
+    ParamSpec('joy.axis_yaw', -1, 'Axis of the yaw stick (left = +1); required', '', -1, 64,
+              read_only=True),
 ]
+
+
+@dataclass(frozen=True)
+class ScriptedJoySettings:
+    """Settings of ``ScriptedJoyNode`` (see ``SPECS``)."""
+
+    script: tuple[tuple[float, str, Any], ...]  # (time [s], kind, value)
+    rate: float                                 # [Hz]
+    buttons: tuple[str, ...]                    # name of each button index
+    axes: tuple[int, int, int]                  # surge, sway, yaw axis indices
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> ScriptedJoySettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        names = list(v['joy.buttons'])
+        if names == ['']:
+            raise ValueError('joy.buttons is not set; the profile must give it (the name of '
+                             'each button index)')
+        if any(not n for n in names) or len(set(names)) != len(names):
+            raise ValueError(f'joy.buttons: expected distinct non-empty names, got {names}')
+        axes = []
+        for name in ('joy.axis_surge', 'joy.axis_sway', 'joy.axis_yaw'):
+            if v[name] < 0:
+                raise ValueError(f'{name} is not set; the profile must give it')
+            axes.append(v[name])
+        if len(set(axes)) != 3:
+            raise ValueError(f'joy.axis_surge, joy.axis_sway, joy.axis_yaw: expected 3 '
+                             f'different axes, got {axes}')
+        try:
+            script = parse_joy_script([x for x in v['script'] if x.strip()],
+                                      {n: i for i, n in enumerate(names)})
+        except ValueError as err:
+            raise ValueError(f'script: {err}') from err
+        return cls(tuple(script), v['rate'], tuple(names), tuple(axes))  # type: ignore
 
 
 class ScriptedJoyNode(EnbarrNode):
@@ -68,18 +116,25 @@ class ScriptedJoyNode(EnbarrNode):
 
     def __init__(self, node_name: str = 'joystick', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        v = self.bind_settings(SPECS, lambda v: (parse_joy_script(
-            [x for x in v['script'] if x.strip()]), v['rate']), lambda _: None).settings
-        self.script, rate = v
+        self.settings: ScriptedJoySettings
+        self.bind_settings(SPECS, ScriptedJoySettings.from_params, self._apply)
+        s = self.settings
+        self.script = list(s.script)
+        self._n_axes = max(N_AXES, max(s.axes) + 1)
+        self._n_buttons = max(N_BUTTONS, len(s.buttons))
         self._next = 0
         self._sticks = (0.0, 0.0, 0.0)
         self._press: int | None = None
         self._stopped = False
         self._start_ns: int | None = None
         self._pub = self.create_topic_publisher(topics.JOY)
-        self.create_timer(1.0 / rate, self._tick)
+        self.create_timer(1.0 / s.rate, self._tick)
+
+    def _apply(self, settings: ScriptedJoySettings) -> None:
+        self.settings = settings
 
     def start(self) -> None:
+        """Start the script's clock now."""
         super().start()
         self._start_ns = self.get_clock().now().nanoseconds
 
@@ -101,10 +156,11 @@ class ScriptedJoyNode(EnbarrNode):
                 return
         msg = Joy()
         convert.ns_to_stamp(now, msg.header.stamp)
-        axes = [0.0] * N_AXES
-        axes[1], axes[0], axes[3] = self._sticks  # surge, sway, yaw (Ds4Mapping defaults)
+        axes = [0.0] * self._n_axes
+        for i, value in zip(self.settings.axes, self._sticks):
+            axes[i] = value
         msg.axes = axes
-        buttons = [0] * N_BUTTONS
+        buttons = [0] * self._n_buttons
         if press is not None:
             buttons[press] = 1  # held for one sample: the next sample releases it
         msg.buttons = buttons

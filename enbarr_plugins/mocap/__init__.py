@@ -1,0 +1,1 @@
+"""Motion-capture plugins: the vessel's pose on ``mocap/pose``."""

@@ -1,12 +1,16 @@
-"""Simulated motion capture (the CS Saucer manual's Qualisys "GPS"): measures the simulated
-vessel's pose (``sim/odometry``) and publishes it on ``mocap/pose`` at ``rate``, with white
-Gaussian position and heading noise and dropouts: scheduled windows (``dropout_windows``,
-pairs of start and end times in seconds since the first sample) and random single-sample
-losses (``dropout_probability``), as markers hidden behind the lidar or a person do.
+"""Simulated motion capture (a Qualisys-like pose measurement).
+
+It measures the simulated vessel's pose (``sim/odometry``) and publishes it on ``mocap/pose``
+at ``rate``, with white Gaussian position and heading noise and dropouts: scheduled windows
+(``dropout_windows``, pairs of start and end times in seconds since the first sample) and
+random single-sample losses (``dropout_probability``), as markers hidden behind the lidar or a
+person do.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
@@ -30,15 +34,39 @@ SPECS = [
 ]
 
 
+@dataclass(frozen=True)
+class SimMocapSettings:
+    """Settings of ``SimMocapNode`` (see ``SPECS``)."""
+
+    rate: float                                      # [Hz]
+    position_noise: float                            # std [m]
+    heading_noise: float                             # std [rad]
+    dropout_windows: tuple[tuple[float, float], ...]  # (start, end) since the first sample [s]
+    dropout_probability: float
+    seed: int
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimMocapSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        w = list(v['dropout_windows'])
+        windows: tuple[tuple[float, float], ...] = ()
+        if w != [0.0]:
+            if len(w) % 2 or any(b <= a for a, b in zip(w[::2], w[1::2])):
+                raise ValueError('dropout_windows: expected pairs of start < end times')
+            windows = tuple(zip(w[::2], w[1::2]))
+        return cls(v['rate'], v['position_noise'], v['heading_noise'], windows,
+                   v['dropout_probability'], v['seed'])
+
+
 class SimMocapNode(SensorDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.settings: dict[str, Any] = {}
-        self.bind_settings(SPECS, self._build, self._apply)
-        self._rng = np.random.default_rng(self.settings['seed'])
-        self._period_ns = round(1e9 / self.settings['rate'])
+        self.settings: SimMocapSettings
+        self.bind_settings(SPECS, SimMocapSettings.from_params, self._apply)
+        self._rng = np.random.default_rng(self.settings.seed)
+        self._period_ns = round(1e9 / self.settings.rate)
         self._next_ns: int | None = None
         self._start_ns: int | None = None
         self.published = 0
@@ -47,20 +75,11 @@ class SimMocapNode(SensorDriver):
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
         self.connect()
 
-    @staticmethod
-    def _build(v: dict[str, Any]) -> dict[str, Any]:
-        w = v['dropout_windows']
-        if w != [0.0]:
-            if len(w) % 2 or any(b <= a for a, b in zip(w[::2], w[1::2])):
-                raise ValueError('dropout_windows: expected pairs of start < end times')
-        return v
-
     def status_values(self) -> dict[str, Any]:
+        """Return the driver's status, with the count of dropped samples."""
         return {**super().status_values(), 'dropped': self.dropped}
 
-    def _apply(self, v: dict[str, Any]) -> None:
-        w = v['dropout_windows']
-        self._windows = [] if w == [0.0] else list(zip(w[::2], w[1::2]))
+    def _apply(self, v: SimMocapSettings) -> None:
         self.settings = v
 
     def _on_truth(self, truth: Odometry) -> None:
@@ -72,14 +91,13 @@ class SimMocapNode(SensorDriver):
         self._next_ns += self._period_ns * max(1, (t - self._next_ns) // self._period_ns + 1)
         since = (t - self._start_ns) * 1e-9
         s = self.settings
-        if any(a <= since < b for a, b in self._windows) or (
-                s['dropout_probability'] > 0.0
-                and self._rng.random() < s['dropout_probability']):
+        if any(a <= since < b for a, b in s.dropout_windows) or (
+                s.dropout_probability > 0.0 and self._rng.random() < s.dropout_probability):
             self.dropped += 1
             return
         eta = convert.pose_to_eta(truth.pose.pose)
-        eta[:2] += self._rng.normal(0.0, s['position_noise'], 2)
-        eta[2] = ssa(eta[2] + self._rng.normal(0.0, s['heading_noise']))
+        eta[:2] += self._rng.normal(0.0, s.position_noise, 2)
+        eta[2] = ssa(eta[2] + self._rng.normal(0.0, s.heading_noise))
         msg = PoseStamped()
         msg.header.stamp = truth.header.stamp
         msg.header.frame_id = topics.WORLD_FRAME

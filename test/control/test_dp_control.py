@@ -15,15 +15,14 @@ import control
 import numpy as np
 import pytest
 from support import saucer_plant
-from support.saucer_plant import DT, NOISE, D, M, rot, wrap
+from support.saucer_plant import DT, NOISE, D, M, dp_settings, observer_settings, rot, wrap
 
 from enbarr_core.control.dp_control import (
     DpController,
     DpControlSettings,
     DpOutput,
-    saucer_dp_settings,
 )
-from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
+from enbarr_core.estimation.dp_observer import PassiveObserver
 from enbarr_core.guidance.guidance import HoldPose, Reference
 
 B_WORLD = np.array([0.4, -0.3, 0.03])                 # current-like world bias [N, N, N m]
@@ -39,7 +38,7 @@ def hold(eta) -> Reference:
 
 
 def settings(**changes) -> DpControlSettings:
-    return dataclasses.replace(saucer_dp_settings(), **changes)
+    return dataclasses.replace(dp_settings(), **changes)
 
 
 def run_truth(ctl, eta_d, seconds, x0, b=B_WORLD, dt=DT, quadratic=True):
@@ -82,7 +81,7 @@ def test_integral_removes_the_steady_error_of_a_current_like_bias():
 def station_keeping(seconds=120.0, seed=3, bias_feedforward=True):
     """Plant + noisy mocap + observer + controller holding the origin."""
     rng = np.random.default_rng(seed)
-    obs = PassiveObserver(saucer_observer_settings())
+    obs = PassiveObserver(observer_settings())
     ctl = DpController(settings(bias_feedforward=bias_feedforward))
     x = np.array([0.3, -0.2, 0.4, 0.0, 0.0, 0.0])
     eta_d = np.array([0.0, 0.0, 0.0])
@@ -435,9 +434,7 @@ def test_masked_integral_bleeds_off_after_bumpless_entry():
     tracked by velocity only (mask False) cannot integrate it back, so it must bleed off
     over gain_ramp_time instead of biasing the whole leg.
     """
-    from enbarr_core.control.dp_control import DpController, saucer_dp_settings
-    from enbarr_core.guidance.guidance import Reference
-    ctrl = DpController(saucer_dp_settings())
+    ctrl = DpController(dp_settings())
     ref = Reference(eta_d=np.zeros(3), nu_d=np.zeros(3), nu_d_dot=np.zeros(3),
                     position_mask=(False, False, True))
     ctrl.reset(tau_now=(1.0, -0.5, 0.0))

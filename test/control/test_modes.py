@@ -1,19 +1,28 @@
-"""Operator modes of the CS Saucer (``enbarr_core.control.modes``): the DualShock 4 rules,
-as pure functions of joystick samples, time and estimator health (no ROS).
+"""Operator modes (``enbarr_core.control.modes``) with the CS Saucer's DualShock 4 layout
+(from its profile): the mode rules as pure functions of joystick samples, time and estimator
+health (no ROS).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from enbarr_core.control.modes import Ds4Mapping, Mode, ModeManager, Transition
+from enbarr_core.bringup.profile import load_profile
+from enbarr_core.control.modes import JoyMapping, Mode, ModeManager, Transition
 
+_JOY = load_profile('saucer_core').parameters
+DS4 = JoyMapping(*(_JOY[f'joy.{k}'] for k in (
+    'axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
+    'button_manual')))
 TAU_MAX = (1.0, 2.0, 0.5)
 N_AXES, N_BUTTONS = 8, 13          # ds4_driver standard Joy
-TRIANGLE, SQUARE, CROSS = 2, 3, 0  # Ds4Mapping defaults
+TRIANGLE, SQUARE, CROSS = 2, 3, 0  # the DualShock 4 layout (ds4_driver)
+assert (DS4.button_automatic, DS4.button_guidance, DS4.button_manual) == (2, 3, 0)
+assert (DS4.axis_surge, DS4.axis_sway, DS4.axis_yaw) == (1, 0, 3)
 
 
 def sample(surge: float = 0.0, sway: float = 0.0, yaw: float = 0.0,
@@ -27,7 +36,7 @@ def sample(surge: float = 0.0, sway: float = 0.0, yaw: float = 0.0,
 
 
 def manager(joy_timeout: float = 0.5) -> ModeManager:
-    return ModeManager(Ds4Mapping(), TAU_MAX, joy_timeout)
+    return ModeManager(DS4, TAU_MAX, joy_timeout)
 
 
 def press(m: ModeManager, button: int, now: float, fresh: bool = True,
@@ -71,7 +80,7 @@ def test_deadzone():
     assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
     m.on_joy(*sample(surge=0.05, sway=-0.06, yaw=0.049), 0.1, True, False)
     assert m.tau_manual == pytest.approx([0.05, -0.12, 0.0], abs=1e-15)
-    wide = ModeManager(Ds4Mapping(deadzone=0.3), TAU_MAX)
+    wide = ModeManager(dataclasses.replace(DS4, deadzone=0.3), TAU_MAX)
     wide.on_joy(*sample(surge=0.29, sway=0.31), 0.0, True, False)
     assert wide.tau_manual == pytest.approx([0.0, 0.62, 0.0], abs=1e-15)
 
@@ -229,21 +238,34 @@ def test_stale_estimate_outside_manual_falls_back(mode_button, path):
     assert m.check(0.25, estimate_fresh=False) is None
 
 
+@pytest.mark.parametrize('mode_button, path', [(TRIANGLE, False), (SQUARE, True)])
+def test_no_guidance_reference_outside_manual_falls_back(mode_button, path):
+    m = manager()
+    m.on_joy(*sample(sway=0.6), 0.0, True, path)
+    press(m, mode_button, 0.05, path=path)
+    assert m.check(0.15, True, reference_fresh=True) is None
+    t = m.check(0.2, True, reference_fresh=False)
+    assert t is not None and t.accepted and t.requested is Mode.MANUAL
+    assert t.reason == 'no guidance reference'
+    assert m.mode is Mode.MANUAL and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert m.check(0.25, True, reference_fresh=False) is None  # in manual: nothing to do
+
+
 def test_mapping_validation():
-    Ds4Mapping().validate()
+    DS4.validate()
     with pytest.raises(ValueError, match='mode buttons must differ'):
-        Ds4Mapping(button_automatic=1, button_guidance=1).validate()
+        dataclasses.replace(DS4, button_automatic=1, button_guidance=1).validate()
     with pytest.raises(ValueError, match='mode buttons must differ'):
-        ModeManager(Ds4Mapping(button_manual=2))  # = triangle
+        ModeManager(dataclasses.replace(DS4, button_manual=2), TAU_MAX)  # = triangle
     with pytest.raises(ValueError, match='axis_yaw must be >= 0'):
-        Ds4Mapping(axis_yaw=-1).validate()
+        dataclasses.replace(DS4, axis_yaw=-1).validate()
     with pytest.raises(ValueError, match='button_guidance must be >= 0'):
-        ModeManager(Ds4Mapping(button_guidance=-3))
+        ModeManager(dataclasses.replace(DS4, button_guidance=-3), TAU_MAX)
     for deadzone in (-0.01, 1.0, 1.5):
         with pytest.raises(ValueError, match='deadzone'):
-            Ds4Mapping(deadzone=deadzone).validate()
+            dataclasses.replace(DS4, deadzone=deadzone).validate()
     # Another valid mapping is used as given.
-    m = ModeManager(Ds4Mapping(axis_surge=4, axis_sway=5, axis_yaw=6, button_automatic=7,
+    m = ModeManager(JoyMapping(axis_surge=4, axis_sway=5, axis_yaw=6, button_automatic=7,
                                button_guidance=8, button_manual=9, deadzone=0.0),
                     TAU_MAX)
     axes, buttons = [0.0] * N_AXES, [0] * N_BUTTONS
@@ -257,7 +279,7 @@ def test_mapping_validation():
 def test_manual_button_wins_when_pressed_with_another():
     """Cross together with triangle or square means manual: the safe request wins."""
     from enbarr_core.control.modes import Mode, ModeManager
-    mm = ModeManager()
+    mm = ModeManager(DS4, TAU_MAX)
     axes = [0.0] * 8
     mm.on_joy(axes, [0, 0, 1, 0] + [0] * 9, 0.0, True, True)   # triangle
     assert mm.mode is Mode.AUTOMATIC

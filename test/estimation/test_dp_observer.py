@@ -14,14 +14,13 @@ import math
 import numpy as np
 import pytest
 from support import saucer_plant
-from support.saucer_plant import DT, NOISE, rot, wrap
+from support.saucer_plant import DT, NOISE, observer_settings, rot, wrap
 
 from enbarr_core.estimation.dp_observer import (
     ObserverEstimate,
     ObserverSettings,
     PassiveObserver,
     place_observer_gains,
-    saucer_observer_settings,
 )
 
 B_WORLD = np.array([0.3, -0.2, 0.02])              # constant world force bias [N, N, N m]
@@ -66,7 +65,7 @@ def simulate(obs, seconds, x, t0=0.0, noise=True, rng=None, dropout=lambda t: Fa
 def converged_observer(seconds=90.0, seed=1, noise=True):
     rng = np.random.default_rng(seed)
     x = np.array([0.5, -0.3, 0.4, 0.0, 0.0, 0.0])
-    obs = PassiveObserver(saucer_observer_settings())
+    obs = PassiveObserver(observer_settings())
     obs.initialize(x[:3] + rng.normal(0.0, NOISE))
     x, t, log = simulate(obs, seconds, x, noise=noise, rng=rng)
     return obs, x, t, log, rng
@@ -100,7 +99,7 @@ def test_noise_free_error_converges_to_zero_exponentially():
     """T_b = inf (pure bias integrator): the whole error (pose, velocity, bias) decays
     exponentially to the O(dt^2) floor of the 50 Hz discretization.
     """
-    settings = dataclasses.replace(saucer_observer_settings(), T_b=(math.inf,) * 3)
+    settings = dataclasses.replace(observer_settings(), T_b=(math.inf,) * 3)
     obs = PassiveObserver(settings)
     x = np.array([0.5, -0.3, 0.4, 0.0, 0.0, 0.0])
     obs.initialize(x[:3] + [0.2, -0.15, 0.3])          # wrong pose, nu_hat = b_hat = 0
@@ -128,7 +127,7 @@ def test_noise_free_error_converges_to_zero_exponentially():
 
 
 def test_heading_error_wraps_through_pi():
-    obs = PassiveObserver(saucer_observer_settings())
+    obs = PassiveObserver(observer_settings())
     obs.initialize([0.0, 0.0, math.pi - 0.01])
     est = obs.step([0.0, 0.0, -math.pi + 0.01], np.zeros(3), DT)  # 0.02 rad away, not 6.26
     assert est.accepted and not est.rejected_jump
@@ -252,7 +251,7 @@ def observer_rhs(z, y, tau, s: ObserverSettings):
 
 def heun_vs_rk4(dt, noise, seconds=30.0):
     """Max |observer - fine RK4 of observer_rhs| per state over a run at step dt."""
-    s = saucer_observer_settings()
+    s = observer_settings()
     rng = np.random.default_rng(7)
     obs = PassiveObserver(s)
     x = np.array([0.0, 0.0, 0.2, 0.1, 0.0, 0.05])
@@ -305,7 +304,7 @@ def test_heun_discretization_matches_a_fine_rk4_reference():
 
 
 def test_first_measurement_initializes_and_none_before_it_is_stale():
-    obs = PassiveObserver(saucer_observer_settings())
+    obs = PassiveObserver(observer_settings())
     assert not obs.initialized
     est = obs.step(None, np.zeros(3), DT)
     assert est.stale and est.age == math.inf and not est.accepted
@@ -341,7 +340,7 @@ def test_settings_swap_keeps_the_state_and_validates_first():
     dict(y=[0.0, math.nan, 0.0]), dict(y=[0.0, 0.0]), dict(tau=[0.0, math.inf, 0.0]),
 ])
 def test_bad_inputs_raise(bad):
-    obs = PassiveObserver(saucer_observer_settings())
+    obs = PassiveObserver(observer_settings())
     obs.initialize([0.0, 0.0, 0.0])
     args = dict(y=[0.0, 0.0, 0.0], tau=[0.0, 0.0, 0.0], dt=DT) | bad
     with pytest.raises(ValueError):
@@ -361,7 +360,7 @@ def test_bad_inputs_raise(bad):
     ('max_heading_jump', math.nan),
 ])
 def test_validate_names_the_field(field, value):
-    bad = dataclasses.replace(saucer_observer_settings(), **{field: value})
+    bad = dataclasses.replace(observer_settings(), **{field: value})
     with pytest.raises(ValueError, match=field):
         bad.validate()
     with pytest.raises(ValueError, match=field):
@@ -377,7 +376,7 @@ def test_placed_gains_give_the_requested_error_poles():
         roots = np.roots([m[j], d[j] + m[j] * k1[j], d[j] * k1[j] + k3[j], k2[j]])
         np.testing.assert_allclose(np.sort_complex(roots), np.sort_complex(-poles[j]),
                                    rtol=1e-6)
-    s = saucer_observer_settings()
+    s = observer_settings()
     assert (s.K1, s.K2, s.K3) == place_observer_gains(
         s.M, s.D, [(1.5, 1.0, 0.5), (1.5, 1.0, 0.5), (1.0 + 2.5j, 1.0 - 2.5j, 0.6)])
     with pytest.raises(ValueError, match='too slow'):

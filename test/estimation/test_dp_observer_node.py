@@ -19,7 +19,7 @@ from enbarr_interfaces.links import LinkBus
 
 def test_dp_observer_rejects_jumps_and_dead_reckons(context, executor):
     node = add(executor, DpObserverNode(node_name='observer', context=context,
-                                        parameter_overrides=overrides()))
+                                        parameter_overrides=overrides(node='observer')))
     clock = SimClock(node)
     p = probe(context, executor, 'mocap')
     pose_pub = p.create_topic_publisher(topics.MOCAP_POSE)
@@ -76,3 +76,26 @@ def test_dp_observer_rejects_jumps_and_dead_reckons(context, executor):
     # A plausible pose again: accepted, the age is back to zero.
     pose(0.01, [1.01, 2.0, 0.5])
     assert ages[-1] == 0.0 and node.rejected == 2
+
+
+@pytest.mark.parametrize('missing', ['k1', 'vessel.linear_damping'])
+def test_dp_observer_needs_its_gains_and_vessel_from_the_profile(context, missing):
+    from rclpy.parameter import Parameter
+    from support.saucer import node_parameters
+
+    from enbarr_core.framework.errors import ConfigurationError
+    given = {k: v for k, v in node_parameters('observer').items() if k != missing}
+    with pytest.raises(ConfigurationError, match=f'{missing} is not set; the profile must '
+                       'give it'):
+        DpObserverNode(node_name='observer', context=context,
+                       parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
+
+
+def test_dp_observer_gain_names_are_lower_case(context, executor):
+    node = add(executor, DpObserverNode(node_name='observer', context=context,
+                                        parameter_overrides=overrides(node='observer')))
+    names = set(node._parameters)
+    assert {'k1', 'k2', 'k3', 't_b', 'vessel.inertia'} <= names
+    assert not {'K1', 'K2', 'K3', 'T_b', 'vessel.M'} & names
+    s = node.settings.observer
+    assert s.K1 == tuple(node.get_parameter('k1').value)

@@ -13,10 +13,10 @@ import math
 import numpy as np
 import pytest
 from support import saucer_plant
-from support.saucer_plant import DT, NOISE, rot, wrap
+from support.saucer_plant import DT, NOISE, dp_settings, observer_settings, rot, wrap
 
-from enbarr_core.control.dp_control import DpController, saucer_dp_settings
-from enbarr_core.estimation.dp_observer import PassiveObserver, saucer_observer_settings
+from enbarr_core.control.dp_control import DpController
+from enbarr_core.estimation.dp_observer import PassiveObserver
 from enbarr_core.guidance.guidance import (
     GoToWaypoint,
     HoldPose,
@@ -41,8 +41,8 @@ def closed_loop(guidance, seconds, x0, seed=5, stop_when_finished_for=None, warm
     11-13 eta_d, 14-16 nu_d, 17-19 tau.
     """
     rng = np.random.default_rng(seed)
-    obs = PassiveObserver(saucer_observer_settings())
-    ctl = DpController(saucer_dp_settings())
+    obs = PassiveObserver(observer_settings())
+    ctl = DpController(dp_settings())
     x = np.array(x0, dtype=float)
     tau = np.zeros(3)
     log = []

@@ -7,11 +7,10 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from support.saucer_plant import vessel_params
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.models.vessel3dof import (
-    CS_SAUCER,
-    SERVO_LIMIT,
     AzimuthActuators,
     AzimuthSpec,
     Vessel3Dof,
@@ -20,11 +19,13 @@ from enbarr_core.models.vessel3dof import (
 )
 
 # The manual's numbers typed again here (CS Saucer manual eqs. 1.2-1.5), not taken from the
-# module, so that a typo in CS_SAUCER fails the tests.
+# profile, so that a typo in saucer_core.yaml fails the tests.
 M_MAN = np.diag([9.51, 9.51, 0.116])
 D_MAN = np.diag([1.96, 1.96, 0.168])
 DN_MAN = 7.095
 
+SERVO_LIMIT = math.radians(114.0)  # +/-114 deg (manual Table 1.1)
+CS_SAUCER = vessel_params()  # from params/saucer_core.yaml
 RADIUS = 0.1375  # [m] Saucer azimuth radius of the Enbarr profile (not in the manual)
 
 
@@ -327,4 +328,4 @@ def test_azimuth_spec_validation():
     with pytest.raises(ConfigurationError, match='angle_min'):
         AzimuthSpec('a', (0, 0), 1.0, 1.0, angle_min=0.5, angle_max=0.1)
     s = AzimuthSpec('a', [0, 1], 2, 1)
-    assert s.position == (0.0, 1.0) and s.angle_max == math.radians(114.0)
+    assert s.position == (0.0, 1.0) and s.angle_max == math.pi  # no travel limit by default

@@ -74,3 +74,23 @@ def test_saucer_simulator_and_sim_mocap(context, executor):
     assert err[:, :2].std() == pytest.approx(0.002, rel=0.3)
     assert err[:, 2].std() == pytest.approx(0.005, rel=0.3)
     assert all(poses[s].header.frame_id == topics.WORLD_FRAME for s in poses)
+
+
+def test_simulator_needs_the_vessel_from_the_profile(context):
+    from support.saucer import COMMON
+
+    from enbarr_core.framework.errors import ConfigurationError
+    given = {k: v for k, v in COMMON.items() if k != 'vessel.inertia'}
+    with pytest.raises(ConfigurationError, match='vessel.inertia is not set; the profile '
+                       'must give it'):
+        SaucerSimulatorNode(node_name='simulator', context=context,
+                            parameter_overrides=[Parameter(k, value=v)
+                                                 for k, v in given.items()])
+
+
+def test_simulator_runs_the_profile_vessel(context, executor):
+    sim = add(executor, SaucerSimulatorNode(
+        node_name='simulator', context=context,
+        parameter_overrides=overrides({'vessel.inertia': [20.0, 21.0, 0.5]})))
+    assert sim.settings.vessel.M == (20.0, 21.0, 0.5)
+    np.testing.assert_array_equal(np.diag(sim.model.M), [20.0, 21.0, 0.5])

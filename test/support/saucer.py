@@ -18,6 +18,8 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.dp_control_node import DpControlNode
+from enbarr_core.control.modes import JoyMapping, Mode
+from enbarr_core.guidance.guidance_node import GuidanceNode
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 from support.nodes import add, probe, TIMEOUT
@@ -30,7 +32,18 @@ T0_NS = 1_000_000_000  # simulated clocks start at 1 s
 SERVO_LIMIT = math.radians(114.0)
 
 
-COMMON = dict(load_profile('saucer_sim').parameters)  # layout, pwm tables, vessel
+PROFILE = load_profile('saucer_sim')
+COMMON = dict(PROFILE.parameters)  # layout, pwm tables, vessel, joystick layout
+CORE = load_profile('saucer_core')  # the nodes' own parameters, without the sim's path
+
+
+def node_parameters(node: str, profile: Any = CORE) -> dict[str, Any]:
+    """What the profile gives node ``node``: the common parameters and its own."""
+    spec = next(n for n in profile.nodes if n.name == node)
+    return {**profile.parameters, **spec.parameters}
+
+
+VESSEL = {k: v for k, v in COMMON.items() if k.startswith('vessel.')}
 
 
 NAMES = list(COMMON['azimuth_names'])
@@ -51,12 +64,19 @@ DUTY_MIN, DUTY_MAX = 4.3, 9.4
 NEUTRAL_DUTY = 6.85  # middle of the 6.7 .. 7.0 % dead band; servo 0 rad at 6.85 %
 
 
-TRIANGLE, SQUARE, CROSS = 2, 3, 0
+MAPPING = JoyMapping(*(COMMON[f'joy.{k}'] for k in (
+    'axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
+    'button_manual')))
+TRIANGLE, SQUARE, CROSS = (MAPPING.button_automatic, MAPPING.button_guidance,
+                           MAPPING.button_manual)
 
 
-def overrides(extra: dict[str, Any] | None = None) -> list[Parameter]:
-    """The common saucer parameters (plus ``extra``) as parameter overrides."""
-    return [Parameter(k, value=v) for k, v in {**COMMON, **(extra or {})}.items()]
+def overrides(extra: dict[str, Any] | None = None, node: str | None = None) -> list[Parameter]:
+    """The common saucer parameters, node ``node``'s own from the profile (if given), plus
+    ``extra``, as parameter overrides.
+    """
+    base = node_parameters(node) if node else COMMON
+    return [Parameter(k, value=v) for k, v in {**base, **(extra or {})}.items()]
 
 
 class SimClock:
@@ -84,7 +104,8 @@ class SimClock:
 def joy_msg(surge: float = 0.0, sway: float = 0.0, yaw: float = 0.0,
             pressed: tuple[int, ...] = ()) -> Joy:
     axes = [0.0] * 8
-    axes[1], axes[0], axes[3] = surge, sway, yaw  # Ds4Mapping defaults
+    axes[MAPPING.axis_surge], axes[MAPPING.axis_sway], axes[MAPPING.axis_yaw] = \
+        surge, sway, yaw  # the profile's layout
     buttons = [0] * 13
     for b in pressed:
         buttons[b] = 1
@@ -132,17 +153,23 @@ def tau_of(positions: np.ndarray, thrust: Any, angle: Any) -> np.ndarray:
 
 
 class DpHarness:
-    """A DpControlNode on a simulated clock, its joystick (ROS), observer (links) and
-    outputs.
+    """A DpControlNode and a GuidanceNode on a simulated clock, their joystick (ROS),
+    observer (links) and outputs.
     """
 
     def __init__(self, context: Any, executor: Any, spin: Callable[..., bool],
-                 extra: dict[str, Any]) -> None:
+                 extra: dict[str, Any] | None = None,
+                 guidance_extra: dict[str, Any] | None = None) -> None:
         self.executor, self.spin = executor, spin
+        self.guidance = add(executor, GuidanceNode(
+            node_name='guidance', context=context,
+            parameter_overrides=overrides(guidance_extra, node='guidance')))
         self.node = node = add(executor, DpControlNode(
-            node_name='dp_control', context=context, parameter_overrides=overrides(extra)))
-        self.clock = SimClock(node)
+            node_name='dp_control', context=context,
+            parameter_overrides=overrides(extra, node='dp_control')))
+        self.clock = SimClock(node, self.guidance)
         p = probe(context, executor, 'operator')
+        self.probe = p
         self.joy_pub = p.create_publisher(Joy, topics.JOY.name, topics.JOY.qos)
         self.modes: list[str] = []
         p.create_subscription(String, topics.MODE.name, lambda m: self.modes.append(m.data),
@@ -166,6 +193,9 @@ class DpHarness:
 
         node.manager.on_joy = counting
         self.t_odom = T0_NS
+        assert spin(executor, lambda: self.joy_pub.get_subscription_count() > 0, TIMEOUT)
+        self.wait_mode('manual')
+        self.wait_path_available(bool(self.guidance.settings.waypoints))
 
     def _on_tau(self, msg: WrenchStamped) -> None:
         self.taus.append(convert.wrench_to_tau3(msg.wrench))
@@ -190,5 +220,12 @@ class DpHarness:
         self.odom_pub.publish(odometry_msg(self.t_odom, eta, nu))
 
     def wait_mode(self, mode: str) -> None:
-        assert self.spin(self.executor, lambda: self.modes and self.modes[-1] == mode,
+        """Until ``mode`` is published and the guidance node follows it."""
+        assert self.spin(self.executor, lambda: self.modes and self.modes[-1] == mode
+                         and self.guidance.mode is Mode(mode),
                          TIMEOUT), f'mode {mode} never published: {self.modes}'
+
+    def wait_path_available(self, available: bool) -> None:
+        """Until the controller has heard whether the guidance node has a path."""
+        assert self.spin(self.executor, lambda: self.node.path_available is available,
+                         TIMEOUT), f'path_available never became {available}'

@@ -40,3 +40,45 @@ def step(x, tau, b, dt=DT, quadratic=True):
     k3 = rhs(x + 0.5 * dt * k2, tau, b, quadratic)
     k4 = rhs(x + dt * k3, tau, b, quadratic)
     return x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+# -- the Saucer's observer and controller settings, from its profile --------------------------
+
+def profile_settings(node: str, specs, from_params, profile: str = 'saucer_core'):
+    """The settings node ``node`` of ``profile`` runs with: the declared defaults of
+    ``specs``, the profile's common parameters and the node's own, through ``from_params``.
+    """
+    from enbarr_core.bringup.profile import load_profile
+    p = load_profile(profile)
+    spec = next(n for n in p.nodes if n.name == node)
+    values = {s.name: s.default for s in specs}
+    given = {**p.parameters, **spec.parameters}
+    values.update({k: v for k, v in given.items() if k in values})
+    return from_params(values)
+
+
+def dp_settings():
+    """The CS Saucer's DpControlSettings (gains, limits, model) from saucer_core.yaml."""
+    from enbarr_core.control.dp_control_node import DpControlNodeSettings, SPECS
+    return profile_settings('dp_control', SPECS, DpControlNodeSettings.from_params).control
+
+
+def observer_settings():
+    """The CS Saucer's gains and model from saucer_core.yaml; the measurement checks are
+    ObserverSettings' own defaults (the algorithm tests' choice, not the node's)."""
+    import dataclasses
+    from enbarr_core.estimation.dp_observer import ObserverSettings
+    from enbarr_core.estimation.dp_observer_node import DpObserverNodeSettings, SPECS
+    s = profile_settings('observer', SPECS, DpObserverNodeSettings.from_params).observer
+    return ObserverSettings(**{f.name: getattr(s, f.name) for f in dataclasses.fields(s)
+                               if f.name in ('K1', 'K2', 'K3', 'T_b', 'M', 'D', 'Dn')})
+
+
+def vessel_params():
+    """The CS Saucer's Vessel3DofParams from saucer_core.yaml."""
+    from enbarr_core.simulation.saucer_simulator_node import SPECS, SaucerSimulatorSettings
+    from enbarr_core.bringup.profile import load_profile
+    p = load_profile('saucer_core')
+    values = {s.name: s.default for s in SPECS}
+    values.update({k: v for k, v in p.parameters.items() if k in values})
+    return SaucerSimulatorSettings.from_params(values).vessel

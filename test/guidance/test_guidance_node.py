@@ -1,0 +1,143 @@
+"""Node tests: guidance node (mode + estimate -> reference, tagged with its mode)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Odometry
+from rclpy.parameter import Parameter
+from std_msgs.msg import Bool, String
+from support.nodes import TIMEOUT, add, get_param, param_client, probe, set_param
+from support.saucer import T0_NS, odometry_msg, overrides
+
+from enbarr_core.control.modes import Mode
+from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.guidance.guidance import Reference
+from enbarr_core.guidance.guidance_node import GuidanceNode, msg_to_reference, reference_to_msg
+from enbarr_interfaces import convert, topics
+from enbarr_interfaces.links import LinkBus
+
+PATH = [0.0, 0.0, 2.0, 0.0, 2.0, 2.0]
+
+
+class Harness:
+    """A GuidanceNode, the mode (as the controller publishes it) and estimates in, references
+    out."""
+
+    def __init__(self, context: Any, executor: Any, spin: Any, **params: Any) -> None:
+        self.executor, self.spin = executor, spin
+        self.node = add(executor, GuidanceNode(node_name='guidance', context=context,
+                                               parameter_overrides=overrides(params)))
+        p = probe(context, executor, 'controller')
+        self.mode_pub = p.create_publisher(String, topics.MODE.name, topics.MODE.qos)
+        self.available: list[bool] = []
+        p.create_subscription(Bool, topics.GUIDANCE_PATH_AVAILABLE.name,
+                              lambda m: self.available.append(m.data),
+                              topics.GUIDANCE_PATH_AVAILABLE.qos)
+        self.odom_pub = p.create_topic_publisher(topics.OBSERVER_ODOMETRY)
+        self.refs: list[Odometry] = []
+        p.create_topic_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
+        LinkBus.of(context).connect()
+        self.t = T0_NS
+
+    def mode(self, mode: Mode) -> None:
+        self.mode_pub.publish(String(data=mode.value))
+        assert self.spin(self.executor, lambda: self.node.mode is mode, TIMEOUT)
+
+    def estimate(self, eta: Any, nu: Any = (0.0, 0.0, 0.0)) -> None:
+        self.t += 20_000_000
+        self.odom_pub.publish(odometry_msg(self.t, eta, nu))
+
+
+def test_path_available_is_announced_latched(context, executor, spin):
+    h = Harness(context, executor, spin)  # subscribes after the node published
+    assert spin(executor, lambda: h.available == [False], TIMEOUT)
+    assert not h.node.settings.waypoints
+    h.node.set_parameters([Parameter('path.waypoints', value=PATH)])
+    assert spin(executor, lambda: h.available == [False, True], TIMEOUT)
+
+
+def test_manual_publishes_nothing(context, executor, spin):
+    h = Harness(context, executor, spin)
+    h.estimate([0.1, 0.2, 0.3])
+    h.estimate([0.1, 0.2, 0.3])
+    assert not h.refs and h.node.mode is Mode.MANUAL
+
+
+def test_automatic_holds_the_pose_of_the_latest_estimate(context, executor, spin):
+    h = Harness(context, executor, spin)
+    eta0 = [0.3, -0.2, 0.4]
+    h.estimate(eta0)
+    h.mode(Mode.AUTOMATIC)
+    h.estimate([0.5, 0.0, 0.0])
+    assert len(h.refs) == 1
+    ref, made_for = msg_to_reference(h.refs[-1])
+    assert made_for is Mode.AUTOMATIC
+    assert convert.stamp_to_ns(h.refs[-1].header.stamp) == h.t  # for this estimate
+    assert ref.eta_d == pytest.approx(eta0, abs=1e-12)
+    assert ref.position_mask == (True, True, True)
+    h.mode(Mode.MANUAL)
+    h.estimate([0.5, 0.0, 0.0])
+    assert len(h.refs) == 1  # nothing in manual again
+
+
+def test_guidance_follows_the_path_with_line_of_sight(context, executor, spin):
+    h = Harness(context, executor, spin, **{'path.waypoints': PATH})
+    h.estimate([0.0, 0.5, 0.0])
+    h.mode(Mode.GUIDANCE)
+    h.estimate([0.0, 0.5, 0.0])  # 0.5 m left of the first leg
+    ref, made_for = msg_to_reference(h.refs[-1])
+    assert made_for is Mode.GUIDANCE
+    assert ref.position_mask == (False, False, True)  # velocity tracking, heading held
+    assert ref.eta_d[:2] == pytest.approx([0.0, 0.0], abs=1e-12)  # closest point on the path
+    assert math.hypot(*ref.nu_d[:2]) == pytest.approx(0.2)  # path.speed
+    assert ref.nu_d[1] < 0.0  # steering back right, towards the path
+
+
+def test_one_waypoint_is_gone_to(context, executor, spin):
+    h = Harness(context, executor, spin, **{'path.waypoints': [3.0, 1.5]})
+    h.estimate([0.0, 0.0, 0.0])
+    h.mode(Mode.GUIDANCE)
+    for _ in range(50):
+        h.estimate([0.0, 0.0, 0.0])
+    ref, _ = msg_to_reference(h.refs[-1])
+    assert ref.position_mask == (True, True, True)
+    assert 0.0 < ref.eta_d[0] < 3.0 and ref.eta_d[1] == pytest.approx(ref.eta_d[0] / 2.0)
+
+
+def test_reference_message_round_trip():
+    ref = Reference(np.array([1.0, 2.0, 0.3]), np.array([0.2, -0.1, 0.05]),
+                    np.array([0.01, -0.02, 0.003]), (False, False, True))
+    msg = reference_to_msg(ref, Mode.GUIDANCE, odometry_msg(T0_NS, (0, 0, 0)).header)
+    back, mode = msg_to_reference(msg)
+    assert mode is Mode.GUIDANCE
+    np.testing.assert_allclose(back.eta_d, ref.eta_d, atol=1e-12)
+    np.testing.assert_allclose(back.nu_d, ref.nu_d, atol=1e-12)
+    np.testing.assert_allclose(back.nu_d_dot, ref.nu_d_dot, atol=1e-12)
+    assert back.position_mask == (False, False, True)
+    untagged = Odometry()
+    assert msg_to_reference(untagged)[1] is None  # no tag: never applied
+
+
+def test_a_bad_path_is_refused_with_its_parameter(context):
+    with pytest.raises(ConfigurationError, match='path'):
+        GuidanceNode(node_name='guidance', context=context, parameter_overrides=overrides(
+            {'path.waypoints': [0.0, 0.0, 0.0, 0.0]}))  # zero-length segment
+    with pytest.raises(ConfigurationError, match='path.waypoints'):
+        GuidanceNode(node_name='guidance', context=context, parameter_overrides=overrides(
+            {'path.waypoints': [0.0, 0.0, 1.0]}))
+
+
+def test_path_heading_is_checked_and_set_live(context, executor, spin):
+    node = add(executor, GuidanceNode(node_name='guidance', context=context,
+                                      parameter_overrides=overrides()))
+    client = param_client(executor, spin, context, 'guidance')
+    result = set_param(executor, spin, client, 'path.heading', 'sideways')
+    assert not result.successful and 'path.heading' in result.reason
+    assert get_param(executor, spin, client, 'path.heading') == 'fixed'
+    result = set_param(executor, spin, client, 'path.heading', 'course')
+    assert result.successful, result.reason
+    assert node.settings.heading == 'course'
