@@ -20,6 +20,8 @@ from enbarr_core.bringup.profile import resolve_profile
 # where the bare name resolves (the source tree here, share/enbarr/params when installed)
 SIM = str(resolve_profile('enbarr_sim'))
 
+pytestmark = pytest.mark.e2e  # the command line, in processes
+
 
 def enbarr(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', *args], env=os.environ,

@@ -75,6 +75,7 @@ def test_not_a_terminal_is_a_clear_error(context):
             Parameter('device', value='/dev/null')])
 
 
+@pytest.mark.e2e  # the command line, in a process
 def test_teleop_profile_without_a_terminal_is_refused():
     proc = subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile',
                            'enbarr_teleop', '--check'], stdin=subprocess.DEVNULL,

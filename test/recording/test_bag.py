@@ -224,6 +224,7 @@ def _frozen_mid_segment(bag: Path) -> bool:
     return len(listed) >= 3 and seg.is_dir() and any(seg.glob('*.mcap'))
 
 
+@pytest.mark.e2e  # a process, killed
 def test_killed_writer_leaves_a_readable_bag(tmp_path: Path) -> None:
     bag = tmp_path / 'crash'
     proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=os.environ,
