@@ -34,6 +34,8 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Chain:
+    """A control chain to measure: its profile, the nodes it needs, and its actuator."""
+
     profile: str
     nodes: tuple[str, ...]
     sink: str  # the actuator plugin holding the LatencyLog
@@ -48,6 +50,7 @@ CHAINS = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``enbarr bench`` options to ``p``."""
     p.add_argument('--chain', choices=sorted(CHAINS), default='rov',
                    help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
     p.add_argument('--rate', type=float, default=400.0, help='chain rate in Hz (default 400)')
@@ -56,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Measure the chain and print one JSON line of figures."""
     from enbarr_core.framework.errors import EnbarrError
     if not (args.rate > 0 and args.seconds > 0):
         raise EnbarrError('--rate and --seconds must be positive')
@@ -92,6 +96,7 @@ def _chain_profile(chain: Chain, rate: float) -> Any:
 
 
 def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
+    """Run ``chain`` composed in this process at ``rate`` [Hz]; return its figures."""
     from enbarr_core.bringup.orchestrator import composed
     from enbarr_core.bringup.profile import apply_environment
 
