@@ -4,6 +4,7 @@ tree), and the ROS 2 workspace path (colcon build + ``ros2 run`` resolution).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
 import re
 import shutil
@@ -16,9 +17,9 @@ from pathlib import Path
 
 import pytest
 from support.bags import read_bag
+from support.cli import ENBARR
 
 ROOT = Path(__file__).resolve().parents[2]
-ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
 
 SPLIT_PROFILE = """
 include: [enbarr_sim]
@@ -125,9 +126,20 @@ def test_sigint_stops_every_group(tmp_path: Path) -> None:
     assert 'died' not in out.text  # a requested stop is not a crash
 
 
-@pytest.mark.skipif(shutil.which('colcon', path=os.path.dirname(sys.executable)) is None,
-                    reason='colcon is installed by requirements-test.txt')
-def test_colcon_build_and_ros2_run_resolution(tmp_path: Path) -> None:
+@dataclass(frozen=True)
+class Workspace:
+    """The package built by colcon into ``install``, and an environment that sees it."""
+
+    install: Path
+    env: dict[str, str]
+    cwd: Path
+
+
+@pytest.fixture(scope='module')
+def workspace(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+    if shutil.which('colcon', path=os.path.dirname(sys.executable)) is None:
+        pytest.skip('colcon is installed by requirements-test.txt')
+    tmp_path = tmp_path_factory.mktemp('colcon')
     colcon = os.path.join(os.path.dirname(sys.executable), 'colcon')
     build = subprocess.run(
         [colcon, '--log-base', str(tmp_path / 'log'), 'build', '--paths', str(ROOT),
@@ -139,19 +151,35 @@ def test_colcon_build_and_ros2_run_resolution(tmp_path: Path) -> None:
     env['AMENT_PREFIX_PATH'] = str(install)
     site = next(install.glob('lib/python3*/site-packages'))
     env['PYTHONPATH'] = str(site)
-    # Resolve the executable exactly as `ros2 run enbarr bringup` does.
+    return Workspace(install, env, tmp_path)
+
+
+def installed_bringup(ws: Workspace) -> Path:
+    """The executable ``ros2 run enbarr bringup`` runs, resolved exactly as it does."""
     prefix = subprocess.run(
         [sys.executable, '-c', 'from ament_index_python.packages import get_package_prefix;'
-         'print(get_package_prefix("enbarr"))'], env=env, capture_output=True, text=True,
+         'print(get_package_prefix("enbarr"))'], env=ws.env, capture_output=True, text=True,
         check=True).stdout.strip()
-    assert Path(prefix) == install
-    exe = Path(prefix) / 'lib' / 'enbarr' / 'bringup'
-    assert os.access(exe, os.X_OK)
-    run = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--duration', '2'], env=env,
-                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert Path(prefix) == ws.install
+    return Path(prefix) / 'lib' / 'enbarr' / 'bringup'
+
+
+def test_ros2_run_resolves_an_executable_bringup(workspace: Workspace) -> None:
+    assert os.access(installed_bringup(workspace), os.X_OK)
+
+
+def test_installed_bringup_runs_a_profile(workspace: Workspace) -> None:
+    run = subprocess.run([str(installed_bringup(workspace)), '--profile', 'enbarr_sim',
+                          '--duration', '2'], env=workspace.env, capture_output=True,
+                         text=True, timeout=120, cwd=workspace.cwd)
     assert run.returncode == 0, run.stderr[-3000:]
     assert 'enbarr_sim running' in run.stderr
+
+
+def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> None:
     # The installed copy ran, with the profile installed beside it.
-    check = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--check'], env=env,
-                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    assert str(install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml') in check.stdout
+    check = subprocess.run([str(installed_bringup(workspace)), '--profile', 'enbarr_sim',
+                            '--check'], env=workspace.env, capture_output=True, text=True,
+                           timeout=120, cwd=workspace.cwd)
+    assert (str(workspace.install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml')
+            in check.stdout)

@@ -18,6 +18,7 @@ import pytest
 
 from enbarr_core.framework import registry
 from enbarr_core.framework.errors import RegistryError
+from support.cli import enbarr, refused
 
 NODE_SOURCE = '''
 from enbarr_core.framework.node import EnbarrNode
@@ -123,7 +124,6 @@ def test_unknown_name_with_nothing_close_suggests_nothing() -> None:
 
 
 # -- third-party entry points, in a subprocess -------------------------------------------------
-CLI = [sys.executable, '-m', 'enbarr_core.bringup.cli']
 MINE = textwrap.dedent("""
     profile: mine
     nodes:
@@ -137,16 +137,7 @@ MINE = textwrap.dedent("""
 
 def cli(site: Path | None, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """``enbarr ARGS`` in a process that sees the distributions in ``site`` (None: none)."""
-    env = env_with(site) if site is not None else os.environ
-    return subprocess.run([*CLI, *args], env=env, cwd=cwd, capture_output=True, text=True,
-                          timeout=60)
-
-
-def refused(r: subprocess.CompletedProcess[str]) -> str:
-    """The stderr of a run refused with exit code 2 and no traceback."""
-    assert r.returncode == 2, (r.returncode, r.stderr)
-    assert 'Traceback' not in r.stderr
-    return r.stderr
+    return enbarr(*args, cwd=cwd, env=env_with(site) if site is not None else None)
 
 
 @pytest.fixture
