@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from support.bags import read_bag
@@ -62,7 +63,22 @@ class Output:
         raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
 
 
-def test_split_profile_survives_a_crashed_group(tmp_path: Path) -> None:
+@dataclass(frozen=True)
+class CrashRun:
+    """A split profile whose control group was SIGKILLed twice (restart limit 1)."""
+
+    pids: tuple[int, int]         # the control group's first and restarted process
+    after_first_kill: str         # bringup's output from the first kill on
+    after_second_kill: str        # ... from the second kill on
+    exit_code: int
+    leftover: bytes               # pgrep of the profile's processes after the end
+    outputs: list[tuple[int, Any]]  # (receive time ns, thruster_output) from the bag
+    kill_ns: int                  # wall time of the first kill
+
+
+@pytest.fixture(scope='module')
+def crash_run(tmp_path_factory: pytest.TempPathFactory) -> CrashRun:
+    tmp_path = tmp_path_factory.mktemp('crash')
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
@@ -76,32 +92,59 @@ def test_split_profile_survives_a_crashed_group(tmp_path: Path) -> None:
         out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
         kill_ns = time.time_ns()
         os.kill(pid, signal.SIGKILL)
-        mark = len(out.lines)
-        out.wait_for(r'group control died \(signal SIGKILL\); restart 1 of 1', 30, mark)
-        out.wait_for(r'thruster commands stopped: thrusters neutral', 30, mark)
-        pid2 = int(out.wait_for(r'group control started \(pid (\d+)\)', 30, mark).group(1))
-        assert pid2 != pid
-        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60, mark)  # driving again after restart
-        mark = len(out.lines)
+        first = len(out.lines)
+        pid2 = int(out.wait_for(r'group control started \(pid (\d+)\)', 30, first).group(1))
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60, first)  # driving again after restart
+        second = len(out.lines)
         os.kill(pid2, signal.SIGKILL)
-        out.wait_for(r'group control died \(signal SIGKILL\); restart limit 1 reached', 30,
-                     mark)
-        assert proc.wait(timeout=60) == 1
+        exit_code = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    # No group left behind.
-    assert not subprocess.run(['pgrep', '-f', f'--profile {profile}'],
+    time.sleep(0.5)  # the reader thread takes the last lines
+    leftover = subprocess.run(['pgrep', '-f', f'--profile {profile}'],
                               capture_output=True).stdout
-    outputs = [(t, m) for t, m in read_bag(bag)['/thruster_output']]
-    after_kill = [m for t, m in outputs if t > kill_ns]
-    assert any(not all(e == 0.0 for e in m.effort) for t, m in outputs if t < kill_ns)
+    return CrashRun((pid, pid2), ''.join(out.lines[first:]), ''.join(out.lines[second:]),
+                    exit_code, leftover, list(read_bag(bag)['/thruster_output']), kill_ns)
+
+
+def test_crashed_group_is_reported_and_restarted(crash_run: CrashRun) -> None:
+    assert re.search(r'group control died \(signal SIGKILL\); restart 1 of 1',
+                     crash_run.after_first_kill), crash_run.after_first_kill[-3000:]
+    assert crash_run.pids[1] != crash_run.pids[0]
+
+
+def test_thruster_plugin_reports_going_neutral(crash_run: CrashRun) -> None:
+    assert 'thruster commands stopped: thrusters neutral' in crash_run.after_first_kill
+
+
+def test_restart_limit_stops_bringup_with_exit_code_1(crash_run: CrashRun) -> None:
+    assert re.search(r'group control died \(signal SIGKILL\); restart limit 1 reached',
+                     crash_run.after_second_kill), crash_run.after_second_kill[-3000:]
+    assert crash_run.exit_code == 1
+
+
+def test_no_group_is_left_behind(crash_run: CrashRun) -> None:
+    assert not crash_run.leftover
+
+
+def test_thrusters_drove_before_the_kill(crash_run: CrashRun) -> None:
+    assert any(not all(e == 0.0 for e in m.effort)
+               for t, m in crash_run.outputs if t < crash_run.kill_ns)
+
+
+def test_thruster_plugin_goes_neutral_by_itself_after_the_kill(crash_run: CrashRun) -> None:
     # Within the watchdog timeout of the kill, the thruster plugin (another process) went
     # neutral by itself.
-    first_neutral = next(t for t, m in outputs if t > kill_ns and not any(m.effort))
-    assert first_neutral - kill_ns < 1.0e9
-    assert after_kill and not any(outputs[-1][1].effort)
+    first_neutral = next(t for t, m in crash_run.outputs
+                         if t > crash_run.kill_ns and not any(m.effort))
+    assert first_neutral - crash_run.kill_ns < 1.0e9
+
+
+def test_last_thruster_output_is_neutral(crash_run: CrashRun) -> None:
+    after_kill = [m for t, m in crash_run.outputs if t > crash_run.kill_ns]
+    assert after_kill and not any(crash_run.outputs[-1][1].effort)
 
 
 def test_sigint_stops_every_group(tmp_path: Path) -> None:
