@@ -1,5 +1,20 @@
-"""Shared test setup: keep ROS traffic on this machine, in a private domain, and give node
-tests a private rclpy context and a bounded spin helper.
+"""Shared test setup: test tiers, ROS traffic kept on this machine in a private domain, and a
+private rclpy context with a bounded spin helper for node tests.
+
+Test tiers (markers registered in ``setup.cfg``, run one with ``./dev test -m unit``):
+
+- ``unit``: pure Python, no rclpy context, no subprocess (seconds; the edit-test loop).
+- ``node``: nodes built on an in-process executor (the ``context``/``executor`` fixtures).
+- ``e2e``: whole profiles or the command line, run in processes as a user runs them.
+
+Every test gets exactly one tier, derived at collection (``pytest_collection_modifyitems``):
+a tier marker on the test (``pytestmark = pytest.mark.e2e`` in the module, or a decorator)
+wins; otherwise a test under ``test/e2e/`` is ``e2e``, a test that uses the ``context`` or
+``executor`` fixture is ``node``, and anything else is ``unit``. Collection fails (exit code
+4, naming the tests) when a test carries two tiers, or is marked ``unit`` but asks for an
+rclpy context. A ``unit`` test that starts a process or initializes rclpy fails at that call
+(``_unit_tier_guard``): mark it ``e2e`` (processes) or use the ``context`` fixture (node).
+``test/test_tiers.py`` checks these rules.
 """
 
 from __future__ import annotations
@@ -16,8 +31,66 @@ os.environ.pop('ROS_LOCALHOST_ONLY', None)
 sys.path.insert(0, os.path.dirname(__file__))  # shared test helpers: the support package
 
 import itertools  # noqa: E402
+from pathlib import Path  # noqa: E402
+import subprocess  # noqa: E402
 
 import pytest  # noqa: E402
+
+TIERS = ('unit', 'node', 'e2e')
+NODE_FIXTURES = frozenset({'context', 'executor'})
+E2E_DIR = Path('test', 'e2e')  # relative to the root directory (where setup.cfg is)
+
+
+def tier_of(item: pytest.Item) -> tuple[str | None, str | None]:
+    """The tier of ``item`` and ``None``, or ``None`` and why it has no single tier."""
+    marked = sorted({m.name for m in item.iter_markers() if m.name in TIERS})
+    uses_node = sorted(NODE_FIXTURES & set(getattr(item, 'fixturenames', ())))
+    if len(marked) > 1:
+        return None, f'two tiers ({", ".join(marked)}); a test has exactly one'
+    if marked == ['unit'] and uses_node:
+        return None, (f'marked unit but uses the {uses_node[0]!r} fixture (an rclpy context): '
+                      'that is the node tier')
+    if marked:
+        return marked[0], None
+    if (item.config.rootpath / E2E_DIR) in Path(item.path).parents:
+        return 'e2e', None
+    return ('node' if uses_node else 'unit'), None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Give every test its tier marker (see the module docstring); refuse two or none."""
+    problems = []
+    for item in items:
+        tier, why = tier_of(item)
+        if tier is None:
+            problems.append(f'{item.nodeid}: {why or "no tier"}')
+        elif item.get_closest_marker(tier) is None:
+            item.add_marker(tier)
+    if problems:
+        raise pytest.UsageError('test tiers (see test/conftest.py):\n  '
+                                + '\n  '.join(problems))
+
+
+class TierError(AssertionError):
+    """A unit-tier test did what only the node or e2e tier may do."""
+
+
+@pytest.fixture(autouse=True)
+def _unit_tier_guard(request: pytest.FixtureRequest,
+                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """In a unit test, starting a process or initializing rclpy raises ``TierError``."""
+    if request.node.get_closest_marker('unit') is None:
+        return
+
+    def refuse(what: str) -> Callable[..., None]:
+        def refused(*args: object, **kwargs: object) -> None:
+            raise TierError(f'a unit test {what}: mark it pytest.mark.e2e (processes) or use '
+                            'the context fixture (node tier); see test/conftest.py')
+        return refused
+
+    monkeypatch.setattr(subprocess, 'Popen', refuse('started a process'))
+    from rclpy.context import Context
+    monkeypatch.setattr(Context, 'init', refuse('initialized an rclpy context'))
 
 _domains = itertools.count(int(os.environ['ROS_DOMAIN_ID']))
 # Test runs side by side on one machine keep apart with ENBARR_TEST_DOMAINS=first-last.
@@ -52,6 +125,7 @@ def context() -> Iterator[object]:
 
 @pytest.fixture
 def executor(context: object) -> Iterator[object]:
+    """A ``SingleThreadedExecutor`` in ``context``; destroys its nodes after the test."""
     from rclpy.executors import SingleThreadedExecutor
     ex = SingleThreadedExecutor(context=context)
     try:
@@ -77,4 +151,5 @@ def spin_until(executor: object, condition: Callable[[], bool], timeout: float =
 
 @pytest.fixture
 def spin() -> Callable[..., bool]:
+    """``spin_until``, as a fixture."""
     return spin_until

@@ -1,0 +1,1 @@
+"""Bringup: vessel profiles, the orchestrator that runs their nodes, and the command line."""

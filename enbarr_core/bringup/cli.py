@@ -79,6 +79,7 @@ def _list(args: argparse.Namespace, argv: Sequence[str]) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """Build the ``enbarr`` argument parser and its subcommands."""
     parser = argparse.ArgumentParser(
         prog='enbarr', description='Enbarr: control stack for low-cost marine vehicles.',
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -110,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``enbarr ARGV``; a user's error is one line on stderr and exit code 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format='[%(levelname)s] [%(name)s]: %(message)s')
     args = build_parser().parse_args(argv)

@@ -29,6 +29,7 @@ import sys
 import time
 from typing import Any
 
+from rcl_interfaces.srv import ListParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -42,6 +43,7 @@ from enbarr_core.framework import registry
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.bringup.profile import GroupSpec, NodeSpec, Profile, RecordSpec
+from enbarr_core.recording.recorder import Recorder
 
 log = logging.getLogger('enbarr.bringup')
 RECORDER_NODE = 'recorder'
@@ -51,7 +53,10 @@ GRACE_SECONDS = 10.0
 
 
 def add_recorder(profile: Profile) -> Profile:
-    """The profile with a recorder node for its ``record`` section (own group if split)."""
+    """Return the profile with a recorder node for its ``record`` section.
+
+    The recorder runs in its own group when the profile is split into several.
+    """
     if profile.record is None or any(n.name == RECORDER_NODE for n in profile.nodes):
         return profile
     r: RecordSpec = profile.record
@@ -69,8 +74,11 @@ def add_recorder(profile: Profile) -> Profile:
 
 def build_nodes(profile: Profile, context: Context,
                 group: str | None = None) -> list[Node]:
-    """Construct the nodes of ``group`` (all when None) and check every profile parameter
-    is one a node declares. On error, destroys what it built and raises ``ProfileError``."""
+    """Construct the nodes of ``group`` (all when None); check their profile parameters.
+
+    Every parameter a profile sets must be one that its node declares. On error, destroys
+    what it built and raises ``ProfileError``.
+    """
     nodes: list[Node] = []
     try:
         for spec in profile.nodes:
@@ -120,8 +128,7 @@ def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) ->
         node = by_name.get(spec.name)
         if node is None:
             continue
-        declared = sorted(p for p in node._parameters  # what the node declared
-                          if p not in _RCLPY_PARAMETERS)
+        declared = sorted(p for p in declared_parameters(node) if p not in _RCLPY_PARAMETERS)
         for name in spec.parameters:
             if not node.has_parameter(name):
                 key = f'nodes.{spec.name}.parameters.{name}'
@@ -139,15 +146,24 @@ def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) ->
                                    path=profile.where(key), key=key)
 
 
+def declared_parameters(node: Node) -> list[str]:
+    """Name every parameter ``node`` declared, as ``ros2 param list`` does."""
+    return list(node.list_parameters([], ListParameters.Request.DEPTH_RECURSIVE).names)
+
+
 def shutdown_nodes(nodes: Sequence[Node]) -> None:
-    """The one exit path: stop sources, safe state, then destroy (recorders close last)."""
+    """Take nodes down: stop sources, safe state, then destroy (recorders last).
+
+    The one exit path of every run: recorders (``Recorder``) go after the other nodes so
+    that the bag holds their safe state.
+    """
     for n in nodes:
         if isinstance(n, EnbarrNode):
             _safely(n.stop, f'stopping {n.get_name()}')
     for n in nodes:
         if isinstance(n, EnbarrNode):
             _safely(n.safe_state, f'safe state of {n.get_name()}')
-    recorders = [n for n in nodes if hasattr(n, 'writer')]
+    recorders = [n for n in nodes if isinstance(n, Recorder)]
     for n in [*(n for n in nodes if n not in recorders), *recorders]:
         _safely(n.destroy_node, f'destroying {n.get_name()}')
 
@@ -160,8 +176,11 @@ def _safely(fn: Callable[[], Any], what: str) -> None:
 
 
 class _Stop:
-    """SIGINT/SIGTERM set a flag that the spin loop checks (rclpy's own handlers are off so
-    that the context still works while thrusters are put in their safe state)."""
+    """SIGINT/SIGTERM set a flag that the spin loop checks.
+
+    rclpy's own handlers are off so that the context still works while thrusters are put in
+    their safe state.
+    """
 
     def __init__(self) -> None:
         self.requested = False
@@ -202,6 +221,7 @@ class Composition:
     nodes: list[Node]
 
     def node(self, name: str) -> Node:
+        """Return the node called ``name``."""
         return next(n for n in self.nodes if n.get_name() == name)
 
     def start(self, *, skip: Sequence[Node] = ()) -> None:
@@ -214,9 +234,11 @@ class Composition:
 @contextmanager
 def composed(profile: Profile, group: str | None = None, *,
              check_only: bool = False) -> Iterator[Composition]:
-    """Build the nodes of ``group`` (all when None) in a fresh context and always take them
-    down on leaving: ``shutdown_nodes`` (safe state first), or, when nothing was started
-    (``check_only``), just destroy them. bringup, the benchmark and scenarios all use it."""
+    """Build the nodes of ``group`` (all when None) in a fresh context; always take them down.
+
+    On leaving: ``shutdown_nodes`` (safe state first), or, when nothing was started
+    (``check_only``), just destroy them. bringup, the benchmark and scenarios all use it.
+    """
     configure_process()
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -337,6 +359,6 @@ def _die_with_parent() -> None:
 
 
 def child_command(argv: Sequence[str]) -> Callable[[str], list[str]]:
-    """The command that runs one group: this bringup's arguments plus ``--group``."""
+    """Return the command that runs one group: this bringup's arguments plus ``--group``."""
     return lambda group: [sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', *argv,
                           '--group', group]

@@ -50,6 +50,8 @@ _TOPIC = re.compile(r'^[~/A-Za-z_][A-Za-z0-9_/~{}]*$')
 
 @dataclass(frozen=True)
 class NodeSpec:
+    """One node of a profile: which plugin, where, with what parameters, in which group."""
+
     name: str
     plugin: str
     namespace: str = ''
@@ -61,20 +63,26 @@ class NodeSpec:
 
 @dataclass(frozen=True)
 class GroupSpec:
+    """A process group of a profile and how its supervisor restarts it."""
+
     name: str
     restart_limit: int = 3
-    restart_delay: float = 1.0
+    restart_delay: float = 1.0  # [s]
 
 
 @dataclass(frozen=True)
 class RecordSpec:
+    """The profile's ``record`` section: where to write a bag, and which topics."""
+
     path: str
     topics: tuple[str, ...] = ()  # empty: every topic
-    segment_seconds: float = 1.0
+    segment_seconds: float = 1.0  # [s]
 
 
 @dataclass(frozen=True)
 class Profile:
+    """A loaded, validated vessel profile (its includes merged, ``--set`` applied)."""
+
     name: str
     path: str
     description: str
@@ -88,6 +96,7 @@ class Profile:
     scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
 
     def node(self, name: str) -> NodeSpec:
+        """Return the node called ``name``; ``ProfileError`` listing the nodes if none."""
         for n in self.nodes:
             if n.name == name:
                 return n
@@ -95,13 +104,15 @@ class Profile:
                            path=self.path)
 
     def node_names(self) -> list[str]:
+        """Name the nodes, in profile order."""
         return [n.name for n in self.nodes]
 
     def group_names(self) -> list[str]:
+        """Name the groups that have nodes, sorted."""
         return sorted({n.group for n in self.nodes})
 
     def where(self, key: str) -> str:
-        """The file that set ``key`` (a dotted key path), for error messages."""
+        """Return the file that set ``key`` (a dotted key path), for error messages."""
         return _origin(self.origins, key, self.path)
 
 
@@ -124,7 +135,7 @@ def search_dirs() -> list[Path]:
 
 
 def resolve_profile(ref: str, relative_to: Path | None = None) -> Path:
-    """A path (absolute, or relative to ``relative_to``/cwd) or a bare installed name."""
+    """Find a profile: a path (absolute, or relative to ``relative_to``/cwd) or a bare name."""
     candidates: list[Path] = []
     p = Path(ref).expanduser()
     if p.is_absolute():
@@ -466,7 +477,7 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
 
 
 def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
-    """The file that set ``key`` or the nearest enclosing key (the last one to set it)."""
+    """Return the file that set ``key`` or the nearest enclosing key (the last to set it)."""
     best = default
     for k, origin in origins.items():
         if key == k or key.startswith(k + '.'):
@@ -475,7 +486,7 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
 
 
 def with_record(profile: Profile, path: str, topics: Sequence[str] = ()) -> Profile:
-    """The profile with recording to ``path`` switched on (``--record``)."""
+    """Return the profile with recording to ``path`` switched on (``--record``)."""
     seg = profile.record.segment_seconds if profile.record else 1.0
     return replace(profile, record=RecordSpec(path=path, topics=tuple(topics) or (
         profile.record.topics if profile.record else ()), segment_seconds=seg))

@@ -1,0 +1,1 @@
+"""Control: velocity control (ROV), DP control (surface vessels), operator modes, command gate."""

@@ -1,0 +1,1 @@
+"""Estimation: the IMU attitude filter and the DP observer, each beside its node."""

@@ -1,0 +1,1 @@
+"""Recording: the rosbag2 (MCAP) bag format and the recorder node that writes it."""

@@ -73,11 +73,14 @@ class SegmentedBagWriter:
         self.closed = False
 
     def knows_type(self, msgtype: str) -> bool:
+        """Whether the Jazzy typestore has a definition of ``msgtype`` (``pkg/msg/Type``)."""
         return msgtype in self.typestore.types
 
     def write(self, topic: str, msgtype: str, timestamp_ns: int, data: bytes) -> bool:
-        """Queue one serialized message; False (and remembered) for a type without a
-        definition in the Jazzy typestore."""
+        """Queue one serialized message; False for a type the typestore lacks.
+
+        A type without a definition in the Jazzy typestore is remembered and skipped.
+        """
         if self.closed:
             raise RecorderError(f'{self.path}: bag is closed')
         if not self.knows_type(msgtype):
@@ -104,7 +107,7 @@ class SegmentedBagWriter:
         return True
 
     def _exact(self, msgtype: str, data: bytes) -> bytes:
-        """``data`` cut to its CDR length.
+        """Cut ``data`` to its CDR length.
 
         rclpy's ``serialize_message`` (rmw_fastrtps) returns a buffer of the *estimated* size
         for messages with string sequences (``JointState.name``, ``Parameter``), trailing
@@ -186,8 +189,11 @@ class SegmentedBagWriter:
 
 
 def read_bag(path: str | os.PathLike[str]) -> dict[str, list[tuple[int, Any]]]:
-    """Every message of a rosbag2 bag, deserialized: ``{topic: [(receive time ns, msg)]}``
-    in time order (rosbags' own message classes; field names as in the ROS types)."""
+    """Read every message of a rosbag2 bag, deserialized, in time order.
+
+    Returns ``{topic: [(receive time ns, msg)]}`` with rosbags' own message classes (field
+    names as in the ROS types).
+    """
     from rosbags.rosbag2 import Reader
     typestore = get_typestore(Stores.ROS2_JAZZY)
     out: dict[str, list[tuple[int, Any]]] = {}

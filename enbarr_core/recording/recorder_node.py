@@ -1,4 +1,4 @@
-"""Recorder: writes topics to a rosbag2 MCAP bag (``enbarr_core.recording.bag``), as ``rosbag record``.
+"""Recorder: writes topics to a rosbag2 MCAP bag (``recording.bag``), as ``ros2 bag record``.
 
 Fast topics of this process are taken from the link bus (no DDS traffic, the message objects
 themselves); every other topic seen in the ROS graph is subscribed raw (already serialized),
@@ -9,6 +9,8 @@ path. ``topics`` selects topics by name (empty: all). The bag is flushed every
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 import importlib
 import queue
 import threading
@@ -19,10 +21,11 @@ from rclpy.serialization import serialize_message
 
 from enbarr_interfaces.links import LinkPublisher
 
-from enbarr_core.recording.bag import SegmentedBagWriter
 from enbarr_core.framework.errors import ConfigurationError, RecorderError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.recording.recorder import Recorder
 
 SPECS = [
     ParamSpec('path', '', 'Bag directory to create (must not exist or be empty)',
@@ -32,6 +35,23 @@ SPECS = [
     ParamSpec('segment_seconds', 1.0, 'Flush period: a kill loses at most this much', 's',
               0.01, 3600.0, read_only=True),
 ]
+
+
+@dataclass(frozen=True)
+class RecorderSettings:
+    """Settings of ``RecorderNode`` (see ``SPECS``); all fixed for the node's life."""
+
+    path: str                   # bag directory; empty: not set
+    topics: frozenset[str]      # resolved topic names to record; empty: all
+    segment_seconds: float      # [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> RecorderSettings:
+        """Build from the declared parameters' values (empty topic names are dropped)."""
+        return cls(path=v['path'], topics=frozenset(t for t in v['topics'] if t),
+                   segment_seconds=v['segment_seconds'])
+
+
 _RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.BEST_EFFORT)
 _STOP = object()
@@ -43,19 +63,20 @@ def message_class(type_name: str) -> type:
     return getattr(importlib.import_module(f'{pkg}.msg'), name)
 
 
-class RecorderNode(EnbarrNode):
+class RecorderNode(EnbarrNode, Recorder):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'recorder', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        v = self.bind_settings(SPECS, lambda v: v, lambda _: None).settings
-        if not v['path']:
-            raise ConfigurationError(f'node {node_name!r}: parameter path is not set')
-        self.selected = {t for t in v['topics'] if t}
+        self.settings: RecorderSettings
+        self.bind_settings(SPECS, RecorderSettings.from_params, self._apply)
+        if not self.settings.path:
+            raise ConfigurationError(f'node {node_name!r}: parameter path is not set',
+                                     parameter='path')
         try:
-            self.writer = SegmentedBagWriter(v['path'], v['segment_seconds'])
+            self.writer = SegmentedBagWriter(self.settings.path, self.settings.segment_seconds)
         except RecorderError as err:
-            raise ConfigurationError(f'node {node_name!r}: {err}') from err
+            raise ConfigurationError(f'node {node_name!r}: {err}', parameter='path') from err
         self.written = 0
         self.dropped = 0
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
@@ -67,8 +88,12 @@ class RecorderNode(EnbarrNode):
         self.link_bus.add_tap(self._on_link_publisher)
         self.create_timer(1.0, self._discover)
 
+    def _apply(self, settings: RecorderSettings) -> None:
+        self.settings = settings
+
     def _wanted(self, name: str) -> bool:
-        return (not self.selected or name in self.selected) and name not in self._subscribed
+        selected = self.settings.topics
+        return (not selected or name in selected) and name not in self._subscribed
 
     def _on_link_publisher(self, pub: LinkPublisher) -> None:
         with self._lock:
@@ -82,6 +107,7 @@ class RecorderNode(EnbarrNode):
             (n, type_name, clock.now().nanoseconds, msg)))
 
     def start(self) -> None:
+        """Subscribe to what the graph has now (then every second)."""
         super().start()
         self._discover()
 
@@ -129,6 +155,7 @@ class RecorderNode(EnbarrNode):
             self._thread.join(10.0)
 
     def destroy_node(self) -> None:
+        """Stop taking link-bus messages, write what is queued, close the bag."""
         self.link_bus.remove_tap(self._on_link_publisher)
         self.close()
         super().destroy_node()

@@ -1,0 +1,1 @@
+"""Simulation: simulator nodes that run the vessel models in place of the water."""

@@ -1,0 +1,1 @@
+"""Tools: headless scenarios on simulated time, their metrics, and the benchmarks."""

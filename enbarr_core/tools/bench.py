@@ -34,7 +34,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Chain:
-    """A profile and the nodes of it that make one sensor -> actuator chain."""
+    """A control chain to measure: its profile, the nodes it needs, and its actuator."""
 
     profile: str
     nodes: tuple[str, ...]
@@ -59,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run ``enbarr bench`` and print its JSON line."""
+    """Measure the chain and print one JSON line of figures."""
     from enbarr_core.framework.errors import EnbarrError
     if not (args.rate > 0 and args.seconds > 0):
         raise EnbarrError('--rate and --seconds must be positive')
@@ -96,7 +96,7 @@ def _chain_profile(chain: Chain, rate: float) -> Any:
 
 
 def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
-    """Compose the chain, run it at ``rate`` for ``seconds`` and measure it."""
+    """Run ``chain`` composed in this process at ``rate`` [Hz]; return its figures."""
     from enbarr_core.bringup.orchestrator import composed
     from enbarr_core.bringup.profile import apply_environment
 

@@ -7,38 +7,23 @@ parameter names, values, types and the thruster geometry are all checked here.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
 import pytest
 
 from enbarr_core.bringup.profile import resolve_profile
+from support.cli import enbarr, refused
 
 # where the bare name resolves (the source tree here, share/enbarr/params when installed)
 SIM = str(resolve_profile('enbarr_sim'))
 
-
-def enbarr(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', *args], env=os.environ,
-                          cwd=cwd, capture_output=True, text=True, timeout=60)
+pytestmark = pytest.mark.e2e  # the command line, in processes
 
 
 def write(path: Path, text: str) -> str:
     path.write_text(textwrap.dedent(text).lstrip('\n'), encoding='utf-8')
     return str(path)
-
-
-def refused(result: subprocess.CompletedProcess[str]) -> str:
-    """The one error line of a run that must have been refused with exit code 2."""
-    assert result.returncode == 2, (result.returncode, result.stdout, result.stderr)
-    assert 'Traceback' not in result.stderr, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith('enbarr bringup: error: '), lines[0]
-    return lines[0]
 
 
 def test_check_enbarr_sim_ok(tmp_path: Path) -> None:
@@ -196,33 +181,60 @@ def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
     assert {'core', 'enbarr_sim'} <= set(installed)
 
 
-def test_list_nodes(tmp_path: Path) -> None:
-    r = enbarr('list', 'nodes', cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    names = [line.split()[0] for line in r.stdout.splitlines()]
+@pytest.fixture(scope='module')
+def listed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The output of ``enbarr list nodes`` and ``list profiles``, run once."""
+    cwd = tmp_path_factory.mktemp('list')
+    out = {}
+    for what in ('nodes', 'profiles'):
+        r = enbarr('list', what, cwd=cwd)
+        assert r.returncode == 0, r.stderr
+        out[what] = r.stdout
+    return out
+
+
+def test_list_nodes_names_every_builtin(listed: dict[str, str]) -> None:
+    names = [line.split()[0] for line in listed['nodes'].splitlines()]
     for name in ('attitude_filter', 'command_receiver', 'velocity_control',
                  'thruster_converter', 'rov_simulator', 'scripted_commands', 'recorder',
                  'sim_imu', 'sim_thrusters', 'sim_stepper', 'sim_gpio'):
         assert name in names
+
+
+def test_list_nodes_is_sorted(listed: dict[str, str]) -> None:
+    names = [line.split()[0] for line in listed['nodes'].splitlines()]
     assert names == sorted(names)
-    assert 'enbarr_plugins.imu.sim:SimImuNode  (builtin)' in r.stdout
 
 
-def test_list_profiles(tmp_path: Path) -> None:
-    r = enbarr('list', 'profiles', cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    rows = [line.split() for line in r.stdout.splitlines()]
+def test_list_nodes_shows_target_and_origin(listed: dict[str, str]) -> None:
+    assert 'enbarr_plugins.imu.sim:SimImuNode  (builtin)' in listed['nodes']
+
+
+def test_list_profiles_names_the_installed_files(listed: dict[str, str]) -> None:
+    rows = [line.split() for line in listed['profiles'].splitlines()]
     assert ['enbarr_sim', SIM] in rows
     assert ['core', str(Path(SIM).parent / 'core.yaml')] in rows
+
+
+def test_list_profiles_rows_are_existing_files(listed: dict[str, str]) -> None:
+    rows = [line.split() for line in listed['profiles'].splitlines()]
     assert all(Path(path).is_file() and path.endswith(f'/{name}.yaml') for name, path in rows)
 
 
-def test_bringup_help(tmp_path: Path) -> None:
-    r = enbarr('bringup', '--help', cwd=tmp_path)
+@pytest.fixture(scope='module')
+def bringup_help(tmp_path_factory: pytest.TempPathFactory) -> str:
+    r = enbarr('bringup', '--help', cwd=tmp_path_factory.mktemp('help'))
     assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def test_bringup_help_lists_the_options(bringup_help: str) -> None:
     for option in ('--profile', '--duration', '--record', '--set', '--check'):
-        assert option in r.stdout
-    assert '--group' not in r.stdout  # internal: the supervisor's children
+        assert option in bringup_help
+
+
+def test_bringup_help_hides_the_internal_group_option(bringup_help: str) -> None:
+    assert '--group' not in bringup_help  # internal: the supervisor's children
 
 
 def test_bringup_requires_profile(tmp_path: Path) -> None:

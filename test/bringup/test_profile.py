@@ -32,27 +32,36 @@ def load_error(ref: str, overrides: tuple[str, ...] = ()) -> ProfileError:
 
 
 # -- the shipped simulation profile -----------------------------------------------------------
-def test_enbarr_sim_loads_with_core_included() -> None:
-    prof = load_profile('enbarr_sim')  # bare name: found among the installed profiles
+@pytest.fixture(scope='module')
+def sim() -> profiles.Profile:
+    return load_profile('enbarr_sim')  # bare name: found among the installed profiles
 
-    assert prof.name == 'enbarr_sim'
-    assert prof.path == SIM
-    assert prof.files == (CORE, SIM)  # includes first, then the file itself
-    assert prof.node_names() == [
+
+def test_enbarr_sim_is_found_by_name_with_core_included(sim: profiles.Profile) -> None:
+    assert sim.name == 'enbarr_sim'
+    assert sim.path == SIM
+    assert sim.files == (CORE, SIM)  # includes first, then the file itself
+
+
+def test_enbarr_sim_nodes_and_plugins(sim: profiles.Profile) -> None:
+    assert sim.node_names() == [
         'command_receiver', 'filtering', 'control_loop', 'thruster_converter',
         'simulator', 'imu', 'thruster_control', 'manipulator', 'lights', 'surface']
-    plugins = {n.name: n.plugin for n in prof.nodes}
+    plugins = {n.name: n.plugin for n in sim.nodes}
     assert plugins == {
         'command_receiver': 'command_receiver', 'filtering': 'attitude_filter',
         'control_loop': 'velocity_control', 'thruster_converter': 'thruster_converter',
         'simulator': 'rov_simulator', 'imu': 'sim_imu', 'thruster_control': 'sim_thrusters',
         'manipulator': 'sim_stepper', 'lights': 'sim_gpio', 'surface': 'scripted_commands'}
-    # each node remembers which file named its plugin
-    assert prof.node('control_loop').origin == CORE
-    assert prof.node('imu').origin == SIM
 
-    # common parameters: nested mappings flattened to dotted ROS names
-    p = prof.parameters
+
+def test_each_node_remembers_the_file_that_named_its_plugin(sim: profiles.Profile) -> None:
+    assert sim.node('control_loop').origin == CORE
+    assert sim.node('imu').origin == SIM
+
+
+def test_common_parameters_are_flattened_to_dotted_names(sim: profiles.Profile) -> None:
+    p = sim.parameters
     assert p['thrusters.front_right.position'] == [0.156, -0.111, 0.0]
     assert p['thrusters.vert_rear_left.direction'] == [0.0, 0.0, 1.0]
     assert p['thrusters.rear_left.max_reverse'] == 40.2
@@ -60,26 +69,33 @@ def test_enbarr_sim_loads_with_core_included() -> None:
     assert p['vehicle.d_quad'] == [18.18, 21.66, 36.99, 1.55, 1.55, 1.55]
     assert p['thruster_names'][0] == 'front_right' and len(p['thruster_names']) == 8
     assert not any(isinstance(v, dict) for v in p.values())
-    # node parameters: also flattened, and those of core.yaml survive the include
-    sim = prof.node('simulator').parameters
-    assert sim['vehicle.r_g'] == [0.0, 0.0, -0.02]
-    assert sim['initial.position'] == [0.0, 0.0, -0.5]
-    assert sim['rate'] == 400.0
-    assert prof.node('command_receiver').parameters['timeout'] == 0.5
-    assert prof.node('lights').parameters == {'pin': 12}
-    assert len(prof.node('surface').parameters['script']) == 10
-
-    assert prof.environment == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
-    assert list(prof.groups) == ['main'] and prof.group_names() == ['main']
-    assert prof.record is None
 
 
-def test_apply_environment_and_with_record() -> None:
+def test_node_parameters_are_flattened_and_survive_the_include(sim: profiles.Profile) -> None:
+    simulator = sim.node('simulator').parameters
+    assert simulator['vehicle.r_g'] == [0.0, 0.0, -0.02]
+    assert simulator['initial.position'] == [0.0, 0.0, -0.5]
+    assert simulator['rate'] == 400.0
+    assert sim.node('command_receiver').parameters['timeout'] == 0.5
+    assert sim.node('lights').parameters == {'pin': 12}
+    assert len(sim.node('surface').parameters['script']) == 10
+
+
+def test_enbarr_sim_environment_groups_and_record(sim: profiles.Profile) -> None:
+    assert sim.environment == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    assert list(sim.groups) == ['main'] and sim.group_names() == ['main']
+    assert sim.record is None
+
+
+def test_apply_environment_overrides_only_the_profile_keys() -> None:
     prof = load_profile(SIM)
     env: dict[str, str] = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'OTHER': 'x'}
     profiles.apply_environment(prof, env)
     assert env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'OTHER': 'x'}
 
+
+def test_with_record_switches_recording_on_in_a_copy() -> None:
+    prof = load_profile(SIM)
     rec = profiles.with_record(prof, 'bags/x', ['/imu/data'])
     assert rec.record is not None
     assert (rec.record.path, rec.record.topics, rec.record.segment_seconds) == (
@@ -88,8 +104,12 @@ def test_apply_environment_and_with_record() -> None:
 
 
 # -- includes and overrides -------------------------------------------------------------------
-def test_include_overrides_parameter_swaps_plugin_and_disables_node(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.fixture
+def included(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+             ) -> tuple[str, str, profiles.Profile]:
+    """``child.yaml`` including ``base.yaml``: overrides a parameter, swaps a plugin and
+    disables a node. Returns (base path, child path, the loaded child).
+    """
     vessel = tmp_path / 'vessel'
     vessel.mkdir()
     base = write(vessel / 'base.yaml', """
@@ -119,32 +139,56 @@ def test_include_overrides_parameter_swaps_plugin_and_disables_node(
           lights: {enabled: false}
         """)
     monkeypatch.chdir(tmp_path)  # not the profile's directory: includes are file-relative
+    return base, child, load_profile(child)
 
-    prof = load_profile(child)
 
+def test_include_is_file_relative_and_comes_first(included) -> None:
+    base, child, prof = included
     assert prof.name == 'child'
     assert prof.files == (base, child)
+
+
+def test_disabled_node_is_dropped(included) -> None:
+    _, _, prof = included
     assert prof.node_names() == ['imu', 'control_loop']  # lights dropped
+
+
+def test_plugin_swap_keeps_the_node_parameters(included) -> None:
+    _, child, prof = included
     imu = prof.node('imu')
     assert imu.plugin == 'sim_stepper'  # swapped in one line ...
     assert imu.parameters == {'gyro_noise': 0.01, 'gyro_bias': [0.1, 0.2, 0.3]}  # ... rest kept
     assert imu.origin == child
+
+
+def test_node_parameters_merge_key_by_key(included) -> None:
+    base, _, prof = included
     control = prof.node('control_loop')
     assert control.parameters == {'level_gain': 3.0, 'max_gap': 0.5}
     assert control.origin == base
+
+
+def test_common_parameters_merge_key_by_key(included) -> None:
+    _, _, prof = included
     assert prof.parameters == {'vehicle.mass': 12.5, 'vehicle.inertia': [0.1, 0.1, 0.1]}
-    # origin tracking: who set what
+
+
+def test_where_names_the_file_that_set_each_key(included) -> None:
+    base, child, prof = included
     assert prof.where('nodes.control_loop.parameters.level_gain') == child
     assert prof.where('nodes.control_loop.parameters.max_gap') == base
     assert prof.where('nodes.imu.parameters.gyro_bias') == base
     assert prof.where('parameters.vehicle.mass') == child
     assert prof.where('parameters.vehicle.inertia') == base
 
-    # the base itself is unchanged by being included
+
+def test_included_profile_is_unchanged_by_being_included(included) -> None:
+    base, _, _ = included
     assert load_profile(base).node_names() == ['imu', 'control_loop', 'lights']
 
 
-def test_include_chain_of_installed_profiles(tmp_path: Path) -> None:
+@pytest.fixture
+def grandchild(tmp_path: Path) -> tuple[str, profiles.Profile]:
     """A vessel profile including the shipped simulation by its bare name, which itself
     includes core.yaml; the grandchild overrides a core parameter.
     """
@@ -155,10 +199,18 @@ def test_include_chain_of_installed_profiles(tmp_path: Path) -> None:
             parameters: {timeout: 0.25}
           surface: {enabled: false}
         """)
-    prof = load_profile(child)
+    return child, load_profile(child)
+
+
+def test_include_chain_of_installed_profiles(grandchild) -> None:
+    child, prof = grandchild
     assert prof.files == (CORE, SIM, child)
     assert prof.name == 'enbarr_sim'  # not overridden: the included name stays
     assert 'surface' not in prof.node_names() and len(prof.nodes) == 9
+
+
+def test_grandchild_overrides_a_core_parameter(grandchild) -> None:
+    child, prof = grandchild
     assert prof.node('command_receiver').parameters == {
         'max_linear': 1.0, 'max_angular': 1.0, 'timeout': 0.25, 'max_age': 0.5}
     assert prof.where('nodes.command_receiver.parameters.timeout') == child
@@ -166,17 +218,29 @@ def test_include_chain_of_installed_profiles(tmp_path: Path) -> None:
     assert prof.where('parameters.thrusters.front_right.position') == SIM
 
 
+SETS = ['control_loop.kp=[1,2,3,4,5,6]', 'imu.gyro_noise=0.5',
+        'control_loop.ki=[1, 2.5, 3, 4, 5, 6]', 'lights.pin=7']
+
+
 def test_set_override_applies() -> None:
-    prof = load_profile(SIM, ['control_loop.kp=[1,2,3,4,5,6]', 'imu.gyro_noise=0.5',
-                              'control_loop.ki=[1, 2.5, 3, 4, 5, 6]', 'lights.pin=7'])
-    control = prof.node('control_loop')
-    assert control.parameters['kp'] == [1, 2, 3, 4, 5, 6]
-    assert control.parameters['ki'] == [1.0, 2.5, 3.0, 4.0, 5.0, 6.0]  # mixed numbers: floats
-    assert all(isinstance(v, float) for v in control.parameters['ki'])
+    prof = load_profile(SIM, SETS)
+    assert prof.node('control_loop').parameters['kp'] == [1, 2, 3, 4, 5, 6]
     assert prof.node('imu').parameters == {'gyro_noise': 0.5}
     assert prof.node('lights').parameters == {'pin': 7}
-    assert prof.where('nodes.control_loop.parameters.kp') == '--set'
-    # the file on disk is untouched: a fresh load has no override
+
+
+def test_set_mixed_numbers_become_floats() -> None:
+    ki = load_profile(SIM, SETS).node('control_loop').parameters['ki']
+    assert ki == [1.0, 2.5, 3.0, 4.0, 5.0, 6.0]
+    assert all(isinstance(v, float) for v in ki)
+
+
+def test_set_origin_is_reported_as_set() -> None:
+    assert load_profile(SIM, SETS).where('nodes.control_loop.parameters.kp') == '--set'
+
+
+def test_set_leaves_the_file_untouched() -> None:
+    load_profile(SIM, SETS)
     assert 'kp' not in load_profile(SIM).node('control_loop').parameters
 
 
@@ -366,12 +430,20 @@ def test_bad_nested_parameter_from_included_file_names_that_file(tmp_path: Path)
     assert str(err).startswith(f'{base}: nodes.imu.parameters.gyro_bias: a list parameter')
     assert (err.path, err.key) == (base, 'nodes.imu.parameters.gyro_bias')
 
-    write(tmp_path / 'base.yaml', """
+
+def test_bad_nested_node_parameter_from_included_file_names_its_key(tmp_path: Path) -> None:
+    base = write(tmp_path / 'base.yaml', """
         nodes:
           sim:
             plugin: rov_simulator
             parameters:
               vehicle: {inertia: [], mass: 11.5}
+        """)
+    child = write(tmp_path / 'child.yaml', """
+        include: [base.yaml]
+        nodes:
+          imu:
+            parameters: {gyro_noise: 0.01}
         """)
     err = load_error(child)
     assert (err.path, err.key) == (base, 'nodes.sim.parameters.vehicle.inertia')
@@ -398,7 +470,7 @@ def test_bad_namespace(tmp_path: Path, namespace: str) -> None:
         f'{path}: nodes.imu.namespace: {namespace!r} is not a valid ROS namespace')
 
 
-def test_good_namespaces_and_remappings(tmp_path: Path) -> None:
+def test_good_namespace_remapping_and_group(tmp_path: Path) -> None:
     path = write(tmp_path / 'p.yaml', """
         nodes:
           imu:
@@ -409,11 +481,19 @@ def test_good_namespaces_and_remappings(tmp_path: Path) -> None:
         groups:
           sensors: {restart_limit: 5, restart_delay: 0.5}
         """)
-    prof = load_profile(path)
-    imu = prof.node('imu')
+    imu = load_profile(path).node('imu')
     assert (imu.namespace, imu.remappings, imu.group) == (
         '/rov1/sensors', (('imu/data_raw', 'imu0/data_raw'),), 'sensors')
-    g = prof.groups['sensors']
+
+
+def test_group_settings(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, group: sensors}
+        groups:
+          sensors: {restart_limit: 5, restart_delay: 0.5}
+        """)
+    g = load_profile(path).groups['sensors']
     assert (g.restart_limit, g.restart_delay) == (5, 0.5)
 
 
@@ -469,6 +549,8 @@ def test_record_section(tmp_path: Path) -> None:
     assert r is not None and (r.path, r.topics, r.segment_seconds) == (
         'bags/run', ('/imu/data',), 0.5)
 
+
+def test_record_segment_seconds_must_be_positive(tmp_path: Path) -> None:
     bad = write(tmp_path / 'q.yaml', """
         nodes:
           imu: {plugin: sim_imu}
@@ -522,5 +604,8 @@ def test_set_value_without_ros_type() -> None:
     err = load_error(SIM, ('control_loop.kp=[]',))
     assert str(err) == ('--set: control_loop.kp: an empty list has no ROS parameter type; '
                         'leave the parameter out to keep its default')
+
+
+def test_set_value_of_mixed_types() -> None:
     err = load_error(SIM, ('control_loop.kp=[1, a]',))
     assert 'a list parameter holds values of one type' in str(err)

@@ -4,6 +4,7 @@ tree), and the ROS 2 workspace path (colcon build + ``ros2 run`` resolution).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
 import re
 import shutil
@@ -13,12 +14,13 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from support.bags import read_bag
+from support.cli import ENBARR
 
 ROOT = Path(__file__).resolve().parents[2]
-ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
 
 SPLIT_PROFILE = """
 include: [enbarr_sim]
@@ -61,7 +63,22 @@ class Output:
         raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
 
 
-def test_split_profile_survives_a_crashed_group(tmp_path: Path) -> None:
+@dataclass(frozen=True)
+class CrashRun:
+    """A split profile whose control group was SIGKILLed twice (restart limit 1)."""
+
+    pids: tuple[int, int]         # the control group's first and restarted process
+    after_first_kill: str         # bringup's output from the first kill on
+    after_second_kill: str        # ... from the second kill on
+    exit_code: int
+    leftover: bytes               # pgrep of the profile's processes after the end
+    outputs: list[tuple[int, Any]]  # (receive time ns, thruster_output) from the bag
+    kill_ns: int                  # wall time of the first kill
+
+
+@pytest.fixture(scope='module')
+def crash_run(tmp_path_factory: pytest.TempPathFactory) -> CrashRun:
+    tmp_path = tmp_path_factory.mktemp('crash')
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
@@ -75,32 +92,59 @@ def test_split_profile_survives_a_crashed_group(tmp_path: Path) -> None:
         out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
         kill_ns = time.time_ns()
         os.kill(pid, signal.SIGKILL)
-        mark = len(out.lines)
-        out.wait_for(r'group control died \(signal SIGKILL\); restart 1 of 1', 30, mark)
-        out.wait_for(r'thruster commands stopped: thrusters neutral', 30, mark)
-        pid2 = int(out.wait_for(r'group control started \(pid (\d+)\)', 30, mark).group(1))
-        assert pid2 != pid
-        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60, mark)  # driving again after restart
-        mark = len(out.lines)
+        first = len(out.lines)
+        pid2 = int(out.wait_for(r'group control started \(pid (\d+)\)', 30, first).group(1))
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60, first)  # driving again after restart
+        second = len(out.lines)
         os.kill(pid2, signal.SIGKILL)
-        out.wait_for(r'group control died \(signal SIGKILL\); restart limit 1 reached', 30,
-                     mark)
-        assert proc.wait(timeout=60) == 1
+        exit_code = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    # No group left behind.
-    assert not subprocess.run(['pgrep', '-f', f'--profile {profile}'],
+    time.sleep(0.5)  # the reader thread takes the last lines
+    leftover = subprocess.run(['pgrep', '-f', f'--profile {profile}'],
                               capture_output=True).stdout
-    outputs = [(t, m) for t, m in read_bag(bag)['/thruster_output']]
-    after_kill = [m for t, m in outputs if t > kill_ns]
-    assert any(not all(e == 0.0 for e in m.effort) for t, m in outputs if t < kill_ns)
+    return CrashRun((pid, pid2), ''.join(out.lines[first:]), ''.join(out.lines[second:]),
+                    exit_code, leftover, list(read_bag(bag)['/thruster_output']), kill_ns)
+
+
+def test_crashed_group_is_reported_and_restarted(crash_run: CrashRun) -> None:
+    assert re.search(r'group control died \(signal SIGKILL\); restart 1 of 1',
+                     crash_run.after_first_kill), crash_run.after_first_kill[-3000:]
+    assert crash_run.pids[1] != crash_run.pids[0]
+
+
+def test_thruster_plugin_reports_going_neutral(crash_run: CrashRun) -> None:
+    assert 'thruster commands stopped: thrusters neutral' in crash_run.after_first_kill
+
+
+def test_restart_limit_stops_bringup_with_exit_code_1(crash_run: CrashRun) -> None:
+    assert re.search(r'group control died \(signal SIGKILL\); restart limit 1 reached',
+                     crash_run.after_second_kill), crash_run.after_second_kill[-3000:]
+    assert crash_run.exit_code == 1
+
+
+def test_no_group_is_left_behind(crash_run: CrashRun) -> None:
+    assert not crash_run.leftover
+
+
+def test_thrusters_drove_before_the_kill(crash_run: CrashRun) -> None:
+    assert any(not all(e == 0.0 for e in m.effort)
+               for t, m in crash_run.outputs if t < crash_run.kill_ns)
+
+
+def test_thruster_plugin_goes_neutral_by_itself_after_the_kill(crash_run: CrashRun) -> None:
     # Within the watchdog timeout of the kill, the thruster plugin (another process) went
     # neutral by itself.
-    first_neutral = next(t for t, m in outputs if t > kill_ns and not any(m.effort))
-    assert first_neutral - kill_ns < 1.0e9
-    assert after_kill and not any(outputs[-1][1].effort)
+    first_neutral = next(t for t, m in crash_run.outputs
+                         if t > crash_run.kill_ns and not any(m.effort))
+    assert first_neutral - crash_run.kill_ns < 1.0e9
+
+
+def test_last_thruster_output_is_neutral(crash_run: CrashRun) -> None:
+    after_kill = [m for t, m in crash_run.outputs if t > crash_run.kill_ns]
+    assert after_kill and not any(crash_run.outputs[-1][1].effort)
 
 
 def test_sigint_stops_every_group(tmp_path: Path) -> None:
@@ -125,9 +169,20 @@ def test_sigint_stops_every_group(tmp_path: Path) -> None:
     assert 'died' not in out.text  # a requested stop is not a crash
 
 
-@pytest.mark.skipif(shutil.which('colcon', path=os.path.dirname(sys.executable)) is None,
-                    reason='colcon is installed by requirements-test.txt')
-def test_colcon_build_and_ros2_run_resolution(tmp_path: Path) -> None:
+@dataclass(frozen=True)
+class Workspace:
+    """The package built by colcon into ``install``, and an environment that sees it."""
+
+    install: Path
+    env: dict[str, str]
+    cwd: Path
+
+
+@pytest.fixture(scope='module')
+def workspace(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+    if shutil.which('colcon', path=os.path.dirname(sys.executable)) is None:
+        pytest.skip('colcon is installed by requirements-test.txt')
+    tmp_path = tmp_path_factory.mktemp('colcon')
     colcon = os.path.join(os.path.dirname(sys.executable), 'colcon')
     build = subprocess.run(
         [colcon, '--log-base', str(tmp_path / 'log'), 'build', '--paths', str(ROOT),
@@ -139,19 +194,35 @@ def test_colcon_build_and_ros2_run_resolution(tmp_path: Path) -> None:
     env['AMENT_PREFIX_PATH'] = str(install)
     site = next(install.glob('lib/python3*/site-packages'))
     env['PYTHONPATH'] = str(site)
-    # Resolve the executable exactly as `ros2 run enbarr bringup` does.
+    return Workspace(install, env, tmp_path)
+
+
+def installed_bringup(ws: Workspace) -> Path:
+    """The executable ``ros2 run enbarr bringup`` runs, resolved exactly as it does."""
     prefix = subprocess.run(
         [sys.executable, '-c', 'from ament_index_python.packages import get_package_prefix;'
-         'print(get_package_prefix("enbarr"))'], env=env, capture_output=True, text=True,
+         'print(get_package_prefix("enbarr"))'], env=ws.env, capture_output=True, text=True,
         check=True).stdout.strip()
-    assert Path(prefix) == install
-    exe = Path(prefix) / 'lib' / 'enbarr' / 'bringup'
-    assert os.access(exe, os.X_OK)
-    run = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--duration', '2'], env=env,
-                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert Path(prefix) == ws.install
+    return Path(prefix) / 'lib' / 'enbarr' / 'bringup'
+
+
+def test_ros2_run_resolves_an_executable_bringup(workspace: Workspace) -> None:
+    assert os.access(installed_bringup(workspace), os.X_OK)
+
+
+def test_installed_bringup_runs_a_profile(workspace: Workspace) -> None:
+    run = subprocess.run([str(installed_bringup(workspace)), '--profile', 'enbarr_sim',
+                          '--duration', '2'], env=workspace.env, capture_output=True,
+                         text=True, timeout=120, cwd=workspace.cwd)
     assert run.returncode == 0, run.stderr[-3000:]
     assert 'enbarr_sim running' in run.stderr
+
+
+def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> None:
     # The installed copy ran, with the profile installed beside it.
-    check = subprocess.run([str(exe), '--profile', 'enbarr_sim', '--check'], env=env,
-                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    assert str(install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml') in check.stdout
+    check = subprocess.run([str(installed_bringup(workspace)), '--profile', 'enbarr_sim',
+                            '--check'], env=workspace.env, capture_output=True, text=True,
+                           timeout=120, cwd=workspace.cwd)
+    assert (str(workspace.install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml')
+            in check.stdout)

@@ -18,6 +18,7 @@ import pytest
 
 from enbarr_core.framework import registry
 from enbarr_core.framework.errors import RegistryError
+from support.cli import enbarr, refused
 
 NODE_SOURCE = '''
 from enbarr_core.framework.node import EnbarrNode
@@ -88,6 +89,9 @@ def test_resolve_builtin_returns_the_class() -> None:
     from enbarr_plugins.imu.sim import SimImuNode
     assert registry.resolve('sim_imu') is SimImuNode
     assert issubclass(registry.resolve('velocity_control'), EnbarrNode)
+
+
+def test_builtin_entry_names_its_target_and_origin() -> None:
     entry = registry.entries()['sim_imu']
     assert (entry.target, entry.origin) == ('enbarr_plugins.imu.sim:SimImuNode',
                                             'builtin')
@@ -97,17 +101,22 @@ def test_every_builtin_resolves() -> None:
     from enbarr_core.framework.node import EnbarrNode
     for name in registry.BUILTIN:
         assert issubclass(registry.resolve(name), EnbarrNode), name
+
+
+def test_names_are_sorted_and_include_every_builtin() -> None:
     assert set(registry.BUILTIN) <= set(registry.names())
     assert registry.names() == sorted(registry.names())
 
 
-def test_unknown_name_lists_known_names() -> None:
+def test_unknown_name_suggests_a_close_one_and_lists_known_names() -> None:
     with pytest.raises(RegistryError) as info:
         registry.resolve('sim_imuu')
     msg = str(info.value)
     assert msg.startswith("unknown node 'sim_imuu' (did you mean 'sim_imu'?); known nodes: ")
     assert msg.endswith(', '.join(registry.names()))
 
+
+def test_unknown_name_with_nothing_close_suggests_nothing() -> None:
     with pytest.raises(RegistryError) as info:
         registry.resolve('zzzzzz')
     assert 'did you mean' not in str(info.value)
@@ -115,76 +124,104 @@ def test_unknown_name_lists_known_names() -> None:
 
 
 # -- third-party entry points, in a subprocess -------------------------------------------------
-def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
+MINE = textwrap.dedent("""
+    profile: mine
+    nodes:
+      mine:
+        plugin: my_node
+        parameters: {gain: 2.5}
+      imu:
+        plugin: sim_imu
+    """)
+
+
+def cli(site: Path | None, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """``enbarr ARGS`` in a process that sees the distributions in ``site`` (None: none)."""
+    return enbarr(*args, cwd=cwd, env=env_with(site) if site is not None else None)
+
+
+@pytest.fixture
+def third_party(tmp_path: Path) -> tuple[Path, Path]:
+    """A site with the third-party ``my_node`` and a profile ``mine.yaml`` that uses it."""
     site = tmp_path / 'site'
     make_distribution(site, {'my_node': 'thirdparty_enbarr.mod:MyNode'})
+    prof = site / 'mine.yaml'
+    prof.write_text(MINE)
+    return site, prof
 
+
+@pytest.mark.e2e
+def test_third_party_plugin_via_entry_point_is_found(third_party: tuple[Path, Path]) -> None:
+    site, _ = third_party
     out = probe(site, 'my_node')
     assert 'my_node' in out['names'] and 'sim_imu' in out['names']
     assert out['origin'] == 'thirdparty_enbarr'
     assert out['resolved'] == 'thirdparty_enbarr.mod:MyNode'
     assert out['is_enbarr_node'] is True
 
-    prof = site / 'mine.yaml'
-    prof.write_text(textwrap.dedent("""
-        profile: mine
-        nodes:
-          mine:
-            plugin: my_node
-            parameters: {gain: 2.5}
-          imu:
-            plugin: sim_imu
-        """))
-    cli = [sys.executable, '-m', 'enbarr_core.bringup.cli']
-    r = subprocess.run([*cli, 'bringup', '--profile', str(prof), '--check'],
-                       env=env_with(site), cwd=tmp_path, capture_output=True, text=True,
-                       timeout=60)
+
+@pytest.mark.e2e
+def test_third_party_plugin_builds_in_a_profile(tmp_path: Path,
+                                                third_party: tuple[Path, Path]) -> None:
+    site, prof = third_party
+    r = cli(site, tmp_path, 'bringup', '--profile', str(prof), '--check')
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == f'{prof}: ok (2 nodes in 1 group(s))'
 
-    r = subprocess.run([*cli, 'list', 'nodes'], env=env_with(site), cwd=tmp_path,
-                       capture_output=True, text=True, timeout=60)
+
+@pytest.mark.e2e
+def test_list_nodes_names_the_third_party_origin(tmp_path: Path,
+                                                 third_party: tuple[Path, Path]) -> None:
+    site, _ = third_party
+    r = cli(site, tmp_path, 'list', 'nodes')
     assert r.returncode == 0, r.stderr
     assert 'thirdparty_enbarr.mod:MyNode  (thirdparty_enbarr)' in r.stdout
 
-    # and a parameter the third-party node does not declare is caught like any other
-    prof.write_text(prof.read_text().replace('gain: 2.5', 'gian: 2.5'))
-    r = subprocess.run([*cli, 'bringup', '--profile', str(prof), '--check'],
-                       env=env_with(site), cwd=tmp_path, capture_output=True, text=True,
-                       timeout=60)
-    assert r.returncode == 2
-    assert 'Traceback' not in r.stderr
-    assert ("node 'mine' (my_node) has no parameter 'gian' (did you mean 'gain'?)"
-            in r.stderr)
 
-    # without the distribution on the path the name is unknown
-    r = subprocess.run([*cli, 'bringup', '--profile', str(prof), '--check'],
-                       env=os.environ, cwd=tmp_path, capture_output=True, text=True,
-                       timeout=60)
-    assert r.returncode == 2
-    assert "nodes.mine.plugin: unknown node 'my_node'" in r.stderr
+@pytest.mark.e2e
+def test_parameter_a_third_party_node_lacks_is_caught(tmp_path: Path,
+                                                      third_party: tuple[Path, Path]) -> None:
+    site, prof = third_party
+    prof.write_text(MINE.replace('gain: 2.5', 'gian: 2.5'))
+    stderr = refused(cli(site, tmp_path, 'bringup', '--profile', str(prof), '--check'))
+    assert "node 'mine' (my_node) has no parameter 'gian' (did you mean 'gain'?)" in stderr
 
 
-def test_entry_point_colliding_with_builtin(tmp_path: Path) -> None:
+@pytest.mark.e2e
+def test_third_party_name_is_unknown_without_its_distribution(
+        tmp_path: Path, third_party: tuple[Path, Path]) -> None:
+    _, prof = third_party
+    stderr = refused(cli(None, tmp_path, 'bringup', '--profile', str(prof), '--check'))
+    assert "nodes.mine.plugin: unknown node 'my_node'" in stderr
+
+
+@pytest.fixture
+def hijack_site(tmp_path: Path) -> Path:
+    """A distribution that registers ``sim_imu`` for its own class."""
     site = tmp_path / 'site'
     make_distribution(site, {'sim_imu': 'thirdparty_enbarr.mod:MyNode'}, dist='imu_hijack')
-    out = probe(site, 'sim_imu')
+    return site
+
+
+@pytest.mark.e2e
+def test_entry_point_colliding_with_builtin(hijack_site: Path) -> None:
+    out = probe(hijack_site, 'sim_imu')
     assert 'names' not in out
     assert out['entries_error'] == (
         "node name 'sim_imu' from entry point 'thirdparty_enbarr.mod:MyNode' (imu_hijack) is "
         "already taken by 'enbarr_plugins.imu.sim:SimImuNode' (builtin)")
     assert 'resolved' not in out and out['resolve_error'] == out['entries_error']
 
-    # the CLI turns it into a one-line profile error
-    r = subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile',
-                        'enbarr_sim', '--check'], env=env_with(site), cwd=tmp_path,
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2
-    assert 'Traceback' not in r.stderr
-    assert r.stderr.startswith('enbarr bringup: error: ')
-    assert 'thirdparty_enbarr.mod:MyNode' in r.stderr and 'SimImuNode' in r.stderr
+
+@pytest.mark.e2e
+def test_collision_is_a_one_line_profile_error(tmp_path: Path, hijack_site: Path) -> None:
+    stderr = refused(cli(hijack_site, tmp_path, 'bringup', '--profile', 'enbarr_sim',
+                         '--check'))
+    assert stderr.startswith('enbarr bringup: error: ')
+    assert 'thirdparty_enbarr.mod:MyNode' in stderr and 'SimImuNode' in stderr
 
 
+@pytest.mark.e2e
 def test_entry_point_repeating_builtin_target_is_not_a_collision(tmp_path: Path) -> None:
     site = tmp_path / 'site'
     make_distribution(site, {'sim_imu': 'enbarr_plugins.imu.sim:SimImuNode'},
@@ -194,31 +231,41 @@ def test_entry_point_repeating_builtin_target_is_not_a_collision(tmp_path: Path)
     assert out['resolved'] == 'enbarr_plugins.imu.sim:SimImuNode'
 
 
-def test_entry_point_to_missing_module(tmp_path: Path) -> None:
+@pytest.fixture
+def broken_site(tmp_path: Path) -> Path:
+    """A distribution whose entry points name a missing module and a missing class."""
     site = tmp_path / 'site'
     make_distribution(site, {'ghost': 'no_such_module_xyz.nodes:GhostNode',
                              'phantom': 'thirdparty_enbarr.mod:NoSuchClass'},
                       dist='broken_dist')
-    out = probe(site, 'ghost')
+    return site
+
+
+@pytest.mark.e2e
+def test_entry_point_to_missing_module(broken_site: Path) -> None:
+    out = probe(broken_site, 'ghost')
     assert 'ghost' in out['names'] and 'phantom' in out['names']  # listing still works
     assert out['resolve_error'].startswith(
         "node 'ghost' (broken_dist) points at 'no_such_module_xyz.nodes:GhostNode', "
         'which cannot be loaded: ')
     assert 'no_such_module_xyz' in out['resolve_error'].split('loaded: ')[1]
 
-    out = probe(site, 'phantom')
+
+@pytest.mark.e2e
+def test_entry_point_to_missing_class(broken_site: Path) -> None:
+    out = probe(broken_site, 'phantom')
     assert out['resolve_error'].startswith(
         "node 'phantom' (broken_dist) points at 'thirdparty_enbarr.mod:NoSuchClass', "
         'which cannot be loaded: ')
     assert 'NoSuchClass' in out['resolve_error'].split('loaded: ')[1]
 
+
+@pytest.mark.e2e
+def test_profile_naming_a_broken_entry_point_fails_check(tmp_path: Path,
+                                                         broken_site: Path) -> None:
     # a profile naming it loads (the name is registered) but --check refuses to build it
-    prof = site / 'ghost.yaml'
+    prof = broken_site / 'ghost.yaml'
     prof.write_text('nodes:\n  g: {plugin: ghost}\n')
-    r = subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile',
-                        str(prof), '--check'], env=env_with(site), cwd=tmp_path,
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2
-    assert 'Traceback' not in r.stderr
-    assert r.stderr.startswith("enbarr bringup: error: node 'ghost' (broken_dist) points at "
-                               "'no_such_module_xyz.nodes:GhostNode'")
+    stderr = refused(cli(broken_site, tmp_path, 'bringup', '--profile', str(prof), '--check'))
+    assert stderr.startswith("enbarr bringup: error: node 'ghost' (broken_dist) points at "
+                             "'no_such_module_xyz.nodes:GhostNode'")

@@ -2,71 +2,130 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 import os
-import subprocess
-import sys
+from typing import Any
 
 import pytest
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.operator.keyboard import KeyboardTeleopNode, KeyState, apply_key
+from support.cli import enbarr, refused
+from support.nodes import add, probe
+
+STEPS = (0.05, 0.1, 0.5, 0.5)  # linear_step, angular_step, max_linear, max_angular
 
 
+def press(state: KeyState, keys: str) -> tuple[KeyState, Any]:
+    """The state after ``keys`` and the io request of the last one."""
+    io = None
+    for key in keys:
+        state, io = apply_key(state, key, *STEPS)
+    return state, io
+
+
+# -- the key rules (pure) ----------------------------------------------------------------------
 def test_keys_step_and_saturate():
     s = KeyState()
     for _ in range(20):
-        s, io = apply_key(s, 'w', 0.05, 0.1, 0.5, 0.5)
+        s, io = apply_key(s, 'w', *STEPS)
         assert io is None
     assert s.nu[0] == 0.5  # saturated at max_linear
-    s, _ = apply_key(s, 'e', 0.05, 0.1, 0.5, 0.5)
-    s, _ = apply_key(s, 'f', 0.05, 0.1, 0.5, 0.5)
+
+
+def test_heave_and_yaw_keys_step_their_axes():
+    s, _ = press(KeyState(), 'wwwwwwwwwwef')
     assert s.nu == (0.5, 0.0, -0.05, 0.0, 0.0, -0.1)
-    s, _ = apply_key(s, 'x', 0.05, 0.1, 0.5, 0.5)  # unknown: nothing
-    assert s.nu == (0.5, 0.0, -0.05, 0.0, 0.0, -0.1)
-    s, _ = apply_key(s, ' ', 0.05, 0.1, 0.5, 0.5)
+
+
+def test_unknown_key_changes_nothing():
+    s, _ = press(KeyState(), 'wwwwwwwwwwef')
+    after, io = apply_key(s, 'x', *STEPS)
+    assert after.nu == (0.5, 0.0, -0.05, 0.0, 0.0, -0.1) and io is None
+
+
+def test_space_stops():
+    s, _ = press(KeyState(), 'wwef ')
     assert s.nu == (0.0,) * 6
-    s, io = apply_key(s, 'l', 0.05, 0.1, 0.5, 0.5)
+
+
+def test_lights_key_toggles_and_requests():
+    s, io = press(KeyState(), 'l')
     assert s.lights and io == ('lights', True)
-    s, io = apply_key(s, 'l', 0.05, 0.1, 0.5, 0.5)
+    s, io = press(s, 'l')
     assert not s.lights and io == ('lights', False)
-    assert apply_key(s, 'n', 0.05, 0.1, 0.5, 0.5)[1] == ('manipulator', -1)
 
 
-def test_node_reads_a_terminal(context, executor, spin):
+def test_manipulator_keys_request_steps():
+    assert press(KeyState(), 'n')[1] == ('manipulator', -1)
+
+
+# -- the node on a pseudo-terminal -------------------------------------------------------------
+@dataclass
+class Terminal:
+    """The keyboard node reading a pseudo-terminal, and what a probe heard from it."""
+
+    node: KeyboardTeleopNode
+    master: int
+    twists: list[list[float]] = field(default_factory=list)
+    ios: list[tuple[str, object]] = field(default_factory=list)
+
+    def type(self, keys: bytes) -> None:
+        os.write(self.master, keys)
+
+
+@pytest.fixture
+def terminal(context, executor) -> Iterator[Terminal]:
     master, slave = os.openpty()
+    t: Terminal | None = None
     try:
-        node = KeyboardTeleopNode(node_name='keyboard', context=context, parameter_overrides=[
-            Parameter('device', value=os.ttyname(slave))])
-        executor.add_node(node)
-        probe = Node('probe', context=context)
-        executor.add_node(probe)
-        twists: list[list[float]] = []
-        ios: list[tuple[str, object]] = []
-        probe.create_subscription(TwistStamped, topics.SURFACE_TWIST.name,
-                                  lambda m: twists.append(list(convert.twist_to_nu(m.twist))),
-                                  topics.SURFACE_TWIST.qos)
-        probe.create_subscription(ParameterMsg, topics.SURFACE_IO.name, lambda m: ios.append(
+        node = add(executor, KeyboardTeleopNode(
+            node_name='keyboard', context=context,
+            parameter_overrides=[Parameter('device', value=os.ttyname(slave))]))
+        t = Terminal(node, master)
+        listener = probe(context, executor)
+        listener.create_subscription(
+            TwistStamped, topics.SURFACE_TWIST.name,
+            lambda m: t.twists.append(list(convert.twist_to_nu(m.twist))),
+            topics.SURFACE_TWIST.qos)
+        listener.create_subscription(ParameterMsg, topics.SURFACE_IO.name, lambda m: t.ios.append(
             (m.name, convert.parameter_value_to_python(m.value))), topics.SURFACE_IO.qos)
         node.start()
-        os.write(master, b'ww')
-        assert spin(executor, lambda: twists and twists[-1][0] == pytest.approx(0.1), 10.0)
-        os.write(master, b'lm')
-        assert spin(executor, lambda: ('gpio_12', True) in ios and ('manipulator', 50) in ios,
-                    10.0)
-        os.write(master, b' ')
-        assert spin(executor, lambda: twists[-1] == [0.0] * 6, 10.0)
-        os.close(master)  # the terminal goes away: the node stops sending
-        master = -1
-        assert spin(executor, lambda: node._stop.is_set(), 10.0)
+        yield t
     finally:
-        if master >= 0:
+        if t is None or t.master >= 0:
             os.close(master)
         os.close(slave)
+
+
+def test_node_sends_the_twist_of_the_keys(terminal, executor, spin):
+    terminal.type(b'ww')
+    assert spin(executor, lambda: terminal.twists
+                and terminal.twists[-1][0] == pytest.approx(0.1), 10.0)
+
+
+def test_node_sends_io_requests(terminal, executor, spin):
+    terminal.type(b'lm')
+    assert spin(executor, lambda: ('gpio_12', True) in terminal.ios
+                and ('manipulator', 50) in terminal.ios, 10.0)
+
+
+def test_node_space_stops(terminal, executor, spin):
+    terminal.type(b'ww')
+    assert spin(executor, lambda: terminal.twists and terminal.twists[-1][0] > 0.0, 10.0)
+    terminal.type(b' ')
+    assert spin(executor, lambda: terminal.twists[-1] == [0.0] * 6, 10.0)
+
+
+def test_node_stops_when_the_terminal_goes_away(terminal, executor, spin):
+    os.close(terminal.master)  # the terminal goes away: the node stops sending
+    terminal.master = -1
+    assert spin(executor, lambda: terminal.node._stop.is_set(), 10.0)
 
 
 def test_not_a_terminal_is_a_clear_error(context):
@@ -75,9 +134,7 @@ def test_not_a_terminal_is_a_clear_error(context):
             Parameter('device', value='/dev/null')])
 
 
+@pytest.mark.e2e  # the command line, in a process
 def test_teleop_profile_without_a_terminal_is_refused():
-    proc = subprocess.run([sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile',
-                           'enbarr_teleop', '--check'], stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
-    assert 'nodes.keyboard' in proc.stderr and 'is not a terminal' in proc.stderr
+    line = refused(enbarr('bringup', '--profile', 'enbarr_teleop', '--check', timeout=120))
+    assert 'nodes.keyboard' in line and 'is not a terminal' in line

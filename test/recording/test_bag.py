@@ -7,6 +7,7 @@ with three independent readers: ``rosbags`` (the whole bag through ``metadata.ya
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
 import signal
 import subprocess
@@ -84,35 +85,71 @@ def write_bag(bag: Path, batches: int = 3, per_batch: int = 5) -> list[tuple[str
     return written
 
 
-def test_segments_read_back_by_rosbags_mcap_and_rclpy(tmp_path: Path) -> None:
-    bag = tmp_path / 'run'
-    written = write_bag(bag)
+@dataclass(frozen=True)
+class Written:
+    """A bag of three flushed segments, what went into it, and its metadata."""
 
-    info = metadata(bag)
+    bag: Path
+    messages: list[tuple[str, int, Any]]  # (topic, receive time, message)
+    info: dict[str, Any]
+
+
+@pytest.fixture(scope='module')
+def written(tmp_path_factory: pytest.TempPathFactory) -> Written:
+    bag = tmp_path_factory.mktemp('bag') / 'run'
+    messages = write_bag(bag)
+    return Written(bag, messages, metadata(bag))
+
+
+def test_metadata_lists_one_mcap_file_per_segment(written: Written) -> None:
+    info = written.info
     assert info['relative_file_paths'] == ['run_0.mcap', 'run_1.mcap', 'run_2.mcap']
     assert info['storage_identifier'] == 'mcap'
-    assert info['message_count'] == len(written) == 60
+
+
+def test_metadata_counts_messages_per_file_and_topic(written: Written) -> None:
+    info = written.info
+    assert info['message_count'] == len(written.messages) == 60
     assert [f['message_count'] for f in info['files']] == [20, 20, 20]
     counts = {tm['topic_metadata']['name']: tm['message_count']
               for tm in info['topics_with_message_count']}
     assert counts == {'/imu/data': 15, '/joint_states': 15, '/parameter_events_like': 15,
                       '/control/wrench': 15}
-    assert info['starting_time']['nanoseconds_since_epoch'] == written[0][1]
-    assert info['duration']['nanoseconds'] == written[-1][1] - written[0][1]
-    assert sorted(p.name for p in bag.iterdir()) == [
-        'metadata.yaml', 'run_0.mcap', 'run_1.mcap', 'run_2.mcap']  # no segment dirs left
 
-    # rosbags: the whole bag, in time order, every message equal to what was written
+
+def test_metadata_start_and_duration(written: Written) -> None:
+    info, messages = written.info, written.messages
+    assert info['starting_time']['nanoseconds_since_epoch'] == messages[0][1]
+    assert info['duration']['nanoseconds'] == messages[-1][1] - messages[0][1]
+
+
+def test_no_segment_directories_are_left(written: Written) -> None:
+    assert sorted(p.name for p in written.bag.iterdir()) == [
+        'metadata.yaml', 'run_0.mcap', 'run_1.mcap', 'run_2.mcap']
+
+
+def rosbags_read(bag: Path) -> tuple[int, dict[str, str], list[tuple[str, int, str, Any]]]:
+    """rosbags' view of the whole bag: message count, topic types, messages in time order."""
     with Reader(bag) as reader:
-        assert reader.message_count == 60
         types = {c.topic: c.msgtype for c in reader.connections}
-        assert types == {'/imu/data': 'sensor_msgs/msg/Imu',
-                         '/joint_states': 'sensor_msgs/msg/JointState',
-                         '/parameter_events_like': 'rcl_interfaces/msg/Parameter',
-                         '/control/wrench': 'geometry_msgs/msg/WrenchStamped'}
         read = [(c.topic, t, c.msgtype, raw) for c, t, raw in reader.messages()]
-    assert [(topic, t) for topic, t, _, _ in read] == [(topic, t) for topic, t, _ in written]
-    for (topic, t, msgtype, raw), (_, _, original) in zip(read, written):
+        return reader.message_count, types, read
+
+
+def test_rosbags_reads_the_whole_bag_in_time_order(written: Written) -> None:
+    count, types, read = rosbags_read(written.bag)
+    assert count == 60
+    assert types == {'/imu/data': 'sensor_msgs/msg/Imu',
+                     '/joint_states': 'sensor_msgs/msg/JointState',
+                     '/parameter_events_like': 'rcl_interfaces/msg/Parameter',
+                     '/control/wrench': 'geometry_msgs/msg/WrenchStamped'}
+    assert [(topic, t) for topic, t, _, _ in read] == [
+        (topic, t) for topic, t, _ in written.messages]
+
+
+def test_payloads_decode_to_what_was_written(written: Written) -> None:
+    _, _, read = rosbags_read(written.bag)
+    for (topic, t, msgtype, raw), (_, _, original) in zip(read, written.messages):
         assert deserialize_message(bytes(raw), CLASSES[msgtype]) == original
         decoded = TYPESTORE.deserialize_cdr(raw, msgtype)  # exact size: must not raise
         if msgtype == 'sensor_msgs/msg/JointState':
@@ -127,11 +164,15 @@ def test_segments_read_back_by_rosbags_mcap_and_rclpy(tmp_path: Path) -> None:
         else:
             assert decoded.wrench.torque.z == original.wrench.torque.z
 
-    # mcap: each file on its own, complete (summary, statistics), decodable
+
+def mcap_read(written: Written) -> list[tuple[str, int, Any]]:
+    """Each file read on its own by the mcap reader: complete (summary, statistics) and
+    agreeing with the metadata; returns the decoded messages of all files in order.
+    """
     by_file = []
-    for name, finfo in zip(info['relative_file_paths'], info['files']):
+    for name, finfo in zip(written.info['relative_file_paths'], written.info['files']):
         assert finfo['path'] == name
-        with open(bag / name, 'rb') as f:
+        with open(written.bag / name, 'rb') as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
             summary = reader.get_summary()
             assert summary is not None and summary.statistics is not None
@@ -141,8 +182,17 @@ def test_segments_read_back_by_rosbags_mcap_and_rclpy(tmp_path: Path) -> None:
         assert len(msgs) == finfo['message_count']
         assert msgs[0][1] == finfo['starting_time']['nanoseconds_since_epoch']
         by_file += msgs
-    assert [(topic, t) for topic, t, _ in by_file] == [(topic, t) for topic, t, _ in written]
-    for (topic, _, dec), (_, _, original) in zip(by_file, written):
+    return by_file
+
+
+def test_mcap_reads_each_file_complete_and_in_order(written: Written) -> None:
+    by_file = mcap_read(written)
+    assert [(topic, t) for topic, t, _ in by_file] == [
+        (topic, t) for topic, t, _ in written.messages]
+
+
+def test_mcap_decodes_what_was_written(written: Written) -> None:
+    for (topic, _, dec), (_, _, original) in zip(mcap_read(written), written.messages):
         if topic == '/joint_states':
             assert list(dec.name) == list(original.name)
         elif topic == '/parameter_events_like':
@@ -153,40 +203,65 @@ def test_segments_read_back_by_rosbags_mcap_and_rclpy(tmp_path: Path) -> None:
             assert dec.angular_velocity.z == original.angular_velocity.z
 
 
-def test_joint_state_trailing_bytes_are_trimmed(tmp_path: Path) -> None:
-    msg = JointState(name=['a', 'bb', 'ccc'], position=[1.0, 2.0, 3.0])
-    data = serialize_message(msg)
+JOINTS = JointState(name=['a', 'bb', 'ccc'], position=[1.0, 2.0, 3.0])
+
+
+def test_rclpy_joint_state_buffer_has_trailing_bytes() -> None:
     # the premise: rclpy's buffer is longer than the CDR message and rosbags refuses it
     with pytest.raises(Exception, match='size mismatch'):
-        TYPESTORE.deserialize_cdr(data, 'sensor_msgs/msg/JointState')
+        TYPESTORE.deserialize_cdr(serialize_message(JOINTS), 'sensor_msgs/msg/JointState')
 
-    bag = tmp_path / 'js'
+
+def stored_payloads(bag: Path, data: bytes, exact: bytes) -> dict[str, bytes]:
+    """Write a JointState (``data``) and an Imu (``exact``); the payloads the bag keeps."""
     writer = SegmentedBagWriter(bag)
     assert writer.write('/joint_states', 'sensor_msgs/msg/JointState', T0, data)
-    exact = serialize_message(Imu())  # fixed size: passes unchanged
     assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + 1, exact)
     writer.close()
     with Reader(bag) as reader:
-        stored = {c.topic: bytes(raw) for c, _, raw in reader.messages()}
+        return {c.topic: bytes(raw) for c, _, raw in reader.messages()}
+
+
+def test_joint_state_trailing_bytes_are_trimmed(tmp_path: Path) -> None:
+    data = serialize_message(JOINTS)
+    stored = stored_payloads(tmp_path / 'js', data, serialize_message(Imu()))
     assert len(stored['/joint_states']) < len(data)
     assert data.startswith(stored['/joint_states'])
     decoded = TYPESTORE.deserialize_cdr(stored['/joint_states'], 'sensor_msgs/msg/JointState')
     assert list(decoded.name) == ['a', 'bb', 'ccc']
-    assert deserialize_message(stored['/joint_states'], JointState) == msg
+    assert deserialize_message(stored['/joint_states'], JointState) == JOINTS
+
+
+def test_fixed_size_payload_is_stored_unchanged(tmp_path: Path) -> None:
+    exact = serialize_message(Imu())  # fixed size: passes unchanged
+    stored = stored_payloads(tmp_path / 'js', serialize_message(JOINTS), exact)
     assert stored['/imu/data'] == exact
 
 
-def test_segments_roll_over_by_time(tmp_path: Path) -> None:
-    bag = tmp_path / 'timed'
+def write_timed_segments(bag: Path) -> SegmentedBagWriter:
+    """Three pairs of messages 60 ms apart into 50 ms segments; the writer, still open."""
     writer = SegmentedBagWriter(bag, segment_seconds=0.05)
     data = serialize_message(Imu())
     for i in range(3):
         assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
         assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
         time.sleep(0.06)
+    return writer
+
+
+def test_segments_roll_over_by_time(tmp_path: Path) -> None:
+    bag = tmp_path / 'timed'
+    writer = write_timed_segments(bag)
     writer.maybe_flush()  # idle: the third segment is old enough
     assert len(metadata(bag)['relative_file_paths']) == 3
     assert not any(p.name.startswith('.segment') for p in bag.iterdir())
+    writer.close()
+
+
+def test_close_after_time_segments_keeps_every_message(tmp_path: Path) -> None:
+    bag = tmp_path / 'timed'
+    writer = write_timed_segments(bag)
+    writer.maybe_flush()
     writer.close()
     assert metadata(bag)['message_count'] == 6
 
@@ -224,8 +299,10 @@ def _frozen_mid_segment(bag: Path) -> bool:
     return len(listed) >= 3 and seg.is_dir() and any(seg.glob('*.mcap'))
 
 
-def test_killed_writer_leaves_a_readable_bag(tmp_path: Path) -> None:
-    bag = tmp_path / 'crash'
+@pytest.fixture(scope='module')
+def killed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A bag whose writer process was SIGKILLed in the middle of its fourth segment or later."""
+    bag = tmp_path_factory.mktemp('killed') / 'crash'
     proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=os.environ,
                             stderr=subprocess.PIPE)
     try:
@@ -250,24 +327,36 @@ def test_killed_writer_leaves_a_readable_bag(tmp_path: Path) -> None:
         if proc.stderr:
             proc.stderr.close()
 
-    info = metadata(bag)
-    listed = info['relative_file_paths']
+    return bag
+
+
+@pytest.mark.e2e  # a process, killed
+def test_killed_writer_lists_only_finished_segments(killed: Path) -> None:
+    listed = metadata(killed)['relative_file_paths']
     assert len(listed) >= 3
     assert listed == [f'crash_{k}.mcap' for k in range(len(listed))]
-    leftover = [p.name for p in bag.iterdir() if p.name.startswith('.segment')]
+    leftover = [p.name for p in killed.iterdir() if p.name.startswith('.segment')]
     assert leftover == [f'.segment_{len(listed)}']  # the unfinished one, and not listed
     assert not any(name.startswith('.') for name in listed)
 
-    # every listed file is complete
-    for name, finfo in zip(listed, info['files']):
-        with open(bag / name, 'rb') as f:
+
+@pytest.mark.e2e  # a process, killed
+def test_killed_writer_leaves_every_listed_file_complete(killed: Path) -> None:
+    info = metadata(killed)
+    for name, finfo in zip(info['relative_file_paths'], info['files']):
+        with open(killed / name, 'rb') as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
             summary = reader.get_summary()
             assert summary is not None and summary.statistics is not None, name
             assert summary.statistics.message_count == finfo['message_count'] > 0
             assert sum(1 for _ in reader.iter_decoded_messages()) == finfo['message_count']
 
-    # the bag as a whole: counts as in metadata.yaml, no gap, time order
+
+@pytest.mark.e2e  # a process, killed
+def test_killed_writer_loses_nothing_up_to_the_last_flush(killed: Path) -> None:
+    """The bag as a whole: counts as in metadata.yaml, no gap, time order."""
+    info = metadata(killed)
+    bag = killed
     with Reader(bag) as reader:
         assert reader.message_count == info['message_count']
         msgs = [(c.topic, t, TYPESTORE.deserialize_cdr(raw, c.msgtype))
@@ -286,6 +375,8 @@ def test_killed_writer_leaves_a_readable_bag(tmp_path: Path) -> None:
     assert [list(m.name) for m in joints] == [[f'n{4 * k}'] for k in range(len(joints))]
 
 
+
+
 # -- refusals ----------------------------------------------------------------------------------
 def test_refuses_to_overwrite(tmp_path: Path) -> None:
     bag = tmp_path / 'old'
@@ -297,24 +388,34 @@ def test_refuses_to_overwrite(tmp_path: Path) -> None:
                                'overwritten')
     assert (bag / 'metadata.yaml').read_text() == 'precious'
 
+
+def test_refuses_a_file_as_the_bag(tmp_path: Path) -> None:
     a_file = tmp_path / 'file'
     a_file.write_text('x')
     with pytest.raises(RecorderError, match='exists and is not an empty directory'):
         SegmentedBagWriter(a_file)
 
+
+def test_an_empty_directory_is_fine(tmp_path: Path) -> None:
     empty = tmp_path / 'empty'
     empty.mkdir()
     SegmentedBagWriter(empty).close()  # an empty directory is fine
 
+
+def test_refuses_a_segment_period_of_zero(tmp_path: Path) -> None:
     with pytest.raises(RecorderError, match='segment_seconds must be > 0, got 0'):
         SegmentedBagWriter(tmp_path / 'new', segment_seconds=0)
+
+
+def test_knows_the_types_of_the_jazzy_typestore(tmp_path: Path) -> None:
+    writer = SegmentedBagWriter(tmp_path / 'unknown')
+    assert writer.knows_type('sensor_msgs/msg/Imu')
+    assert not writer.knows_type('my_msgs/msg/Nope')
 
 
 def test_unknown_type_is_skipped_and_remembered(tmp_path: Path) -> None:
     bag = tmp_path / 'unknown'
     writer = SegmentedBagWriter(bag)
-    assert writer.knows_type('sensor_msgs/msg/Imu')
-    assert not writer.knows_type('my_msgs/msg/Nope')
     assert writer.write('/x', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
     assert writer.write('/y', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
     assert writer.unknown_types == {'my_msgs/msg/Nope'}
@@ -338,13 +439,24 @@ def test_write_after_close(tmp_path: Path) -> None:
     assert metadata(bag)['message_count'] == 1
 
 
-def test_topic_changing_type_is_refused_within_and_across_segments(tmp_path: Path) -> None:
-    bag = tmp_path / 'typed'
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
-    imu, js = serialize_message(Imu()), serialize_message(JointState(name=['a']))
-    assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, imu)
+IMU, JS = serialize_message(Imu()), serialize_message(JointState(name=['a']))
+
+
+def test_topic_changing_type_is_refused_within_a_segment(tmp_path: Path) -> None:
+    writer = SegmentedBagWriter(tmp_path / 'typed', segment_seconds=3600.0)
+    assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, IMU)
     with pytest.raises(RecorderError, match='topic /a changed type from sensor_msgs/msg/Imu '
                                             'to sensor_msgs/msg/JointState'):
+        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, JS)  # same segment
+    writer.close()
+
+
+def test_topic_changing_type_is_refused_across_segments(tmp_path: Path) -> None:
+    bag = tmp_path / 'typed'
+    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    imu, js = IMU, JS
+    assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, imu)
+    with pytest.raises(RecorderError, match='changed type'):
         writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, js)  # same segment
     writer.flush()
     with pytest.raises(RecorderError, match='changed type'):
