@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import textwrap
 from pathlib import Path
 from typing import Any
 
 from support.bags import read_bag
+from support.cli import ENBARR
 
-ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
 
 
 def scenario(name: str, out: Path) -> dict[str, Any]:
