@@ -45,6 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.checks import check_gain_vectors, check_non_negative
 from enbarr_core.framework.kinematics import ssa
+from enbarr_core.framework.checks import floats
 
 if TYPE_CHECKING:
     from enbarr_core.guidance.guidance import Reference
@@ -240,11 +241,5 @@ class DpController:
 
 
 def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
-    try:
-        a, b, c = value  # type: ignore[misc]
-        a, b, c = float(a), float(b), float(c)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{what} must be 3 numbers, got {value!r}') from exc
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
-        raise ValueError(f'{what} must be finite, got {value!r}')
-    return a, b, c
+    """``value`` as 3 finite floats (``ValueError`` naming ``what``)."""
+    return floats(what, value, 3)  # type: ignore[return-value]

@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.kinematics import ssa
+from enbarr_core.framework.checks import floats
 
 Vector = NDArray[np.float64]
 
@@ -314,15 +315,8 @@ class PassiveObserver:
 
 
 def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
-    try:
-        a, b, c = value  # type: ignore[misc]
-        a, b, c = float(a), float(b), float(c)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{what} must be 3 numbers, got {value!r}') from exc
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
-        raise ValueError(f'{what} must be finite, got {value!r}')
-    return a, b, c
-
+    """``value`` as 3 finite floats (``ValueError`` naming ``what``)."""
+    return floats(what, value, 3)  # type: ignore[return-value]
 
 def _close(a: tuple[float, float, float], b: tuple[float, float, float], max_dp2: float,
            max_dpsi: float) -> bool:

@@ -36,22 +36,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.checks import floats
 
 Vector = NDArray[np.float64]
 Matrix = NDArray[np.float64]
 
 def _floats(name: str, value: Any, n: int) -> list[float]:
     """``value`` as a list of ``n`` finite Python floats, else ValueError naming ``name``."""
-    try:
-        out = [float(c) for c in (value.tolist() if isinstance(value, np.ndarray) else value)]
-    except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected {n} numbers, got {value!r}') from None
-    if len(out) != n:
-        raise ValueError(f'{name}: expected {n} numbers, got {len(out)}')
-    if not math.isfinite(math.fsum(out)):
-        raise ValueError(f'{name}: values must be finite, got {out}')
-    return out
-
+    return list(floats(name, value, n))
 
 def _dt(dt: Any) -> float:
     if not isinstance(dt, (int, float, np.floating, np.integer)) or isinstance(dt, bool):
