@@ -16,7 +16,8 @@ used when ``bias_feedforward`` is on.
 
 * position_mask: pose-error components (world x, y, psi) where the mask is False are ignored
   before the rotation: that DOF tracks nu_d only (LOS path following uses
-  [False, False, True]: surge/sway follow nu_d, heading follows psi_d).
+  [False, False, True]: surge/sway follow nu_d, heading follows psi_d). eta_d may be NaN
+  there (no position reference for that DOF, as ``guidance/reference`` carries it).
 * Integral: stored as its contribution I [N, N m] (a new Ki never steps the output). Each step
   I += Ki e dt in the body frame, but between steps it is kept rotated into the world frame
   (z = R(psi) I), so a world-fixed disturbance (current, wind) stays compensated while the
@@ -156,10 +157,10 @@ class DpController:
         x, y, psi = _triple(eta_hat, 'eta_hat')
         u, v, r = _triple(nu_hat, 'nu_hat')
         bx, by, bn = _triple(b_hat, 'b_hat')
-        xd, yd, psid = _triple(ref.eta_d, 'ref.eta_d')
+        mx, my, mpsi = ref.position_mask
+        xd, yd, psid = _triple(ref.eta_d, 'ref.eta_d', ref.position_mask)
         ud, vd, rd = _triple(ref.nu_d, 'ref.nu_d')
         ad, bd, cd = _triple(ref.nu_d_dot, 'ref.nu_d_dot')
-        mx, my, mpsi = ref.position_mask
 
         if self._ramp_T > 0.0:  # linear blend of every numeric setting
             self._ramp_t += dt
@@ -239,12 +240,15 @@ class DpController:
                         np.array(saturated), np.array(err))
 
 
-def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
+def _triple(value: ArrayLike, what: str,
+            used: tuple[bool, bool, bool] = (True, True, True)) -> tuple[float, float, float]:
+    """Three floats, finite where ``used`` (an unused one, say NaN, is returned as 0.0)."""
     try:
         a, b, c = value  # type: ignore[misc]
         a, b, c = float(a), float(b), float(c)
     except (TypeError, ValueError) as exc:
         raise ValueError(f'{what} must be 3 numbers, got {value!r}') from exc
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+    if not all(math.isfinite(x) for x, u in zip((a, b, c), used) if u):
         raise ValueError(f'{what} must be finite, got {value!r}')
+    a, b, c = (x if u else 0.0 for x, u in zip((a, b, c), used))
     return a, b, c
