@@ -117,7 +117,7 @@ DIAGNOSTICS = TopicSpec(
     '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
     'Counters and states of nodes (rejected commands, failsafe, timeouts).')
 
-# -- surface vessels (CS Saucer): motion capture, observer, DP control, azimuths, PWM -------
+# -- 3-DOF surface vessels: motion capture, observer, guidance, DP control, azimuths, PWM --
 MOCAP_POSE = TopicSpec(
     'mocap/pose', PoseStamped, SENSOR_QOS, 'm, quaternion', WORLD_FRAME,
     'Pose of base_link from motion capture (the manual\'s Qualisys "GPS").', fast=True)
