@@ -208,7 +208,7 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
                  label='position error [m]')
         if len(wps) > 1:  # no position reference along the path: the distance to it instead
             ax2.plot(t[valid] - t0, _segment_distance(eta[valid, :2], wps), lw=0.8,
-                     label='distance to the path [m]')
+                     color='tab:green', label='distance to the path [m]')
         ax2b = ax2.twinx()
         ax2b.plot(t[valid] - t0, np.degrees(ssa(eta[valid, 2] - ref[idx[valid], 2])),
                   color='tab:orange', lw=0.8, label='heading error [deg]')
