@@ -95,6 +95,30 @@ def set_pose_eta(pose: Any, eta: Any) -> None:
     yaw_to_quaternion(float(eta[2]), pose.orientation)
 
 
+def transform_to_eta(tf: Any) -> NDArray[np.float64]:
+    """``geometry_msgs/Transform`` -> eta = [x, y, psi]; NaN stays NaN.
+
+    psi is NaN when any quaternion component is not finite (see ``set_transform_eta``).
+    """
+    q = tf.rotation
+    finite = all(math.isfinite(c) for c in (q.x, q.y, q.z, q.w))
+    return np.array((tf.translation.x, tf.translation.y,
+                     quaternion_to_yaw(q) if finite else math.nan))
+
+
+def set_transform_eta(tf: Any, eta: Any) -> None:
+    """Set a ``Transform`` from eta = [x, y, psi] (planar); a NaN component stays NaN.
+
+    A NaN psi makes all four quaternion components NaN.
+    """
+    tf.translation.x, tf.translation.y, tf.translation.z = float(eta[0]), float(eta[1]), 0.0
+    if math.isnan(float(eta[2])):
+        q = tf.rotation
+        q.x = q.y = q.z = q.w = math.nan
+    else:
+        yaw_to_quaternion(float(eta[2]), tf.rotation)
+
+
 def twist_to_nu3(t: Twist) -> NDArray[np.float64]:
     """``geometry_msgs/Twist`` -> nu = [u, v, r] of a 3-DOF vessel."""
     return np.array((t.linear.x, t.linear.y, t.angular.z))

@@ -24,6 +24,7 @@ from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import Imu, JointState, Joy, MagneticField
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 #: Commands and events: nothing may be lost, a short queue.
 COMMAND_QOS = QoSProfile(
@@ -116,7 +117,7 @@ DIAGNOSTICS = TopicSpec(
     '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
     'Counters and states of nodes (rejected commands, failsafe, timeouts).')
 
-# -- surface vessels (CS Saucer): motion capture, observer, DP control, azimuths, PWM -------
+# -- 3-DOF surface vessels: motion capture, observer, guidance, DP control, azimuths, PWM --
 MOCAP_POSE = TopicSpec(
     'mocap/pose', PoseStamped, SENSOR_QOS, 'm, quaternion', WORLD_FRAME,
     'Pose of base_link from motion capture (the manual\'s Qualisys "GPS").', fast=True)
@@ -138,12 +139,13 @@ MODE = TopicSpec(
     'mode', String, LATCHED_QOS, '', '',
     'Operator mode: manual, automatic or guidance (latched), from the controller.')
 GUIDANCE_REFERENCE = TopicSpec(
-    'guidance/reference', Odometry, SENSOR_QOS, 'm, rad; m/s, rad/s', WORLD_FRAME,
-    'Guidance reference for the estimate of the same stamp: pose eta_d in odom, body velocity '
-    'nu_d. The covariances carry what Odometry has no field for: pose.covariance[0, 7, 35] '
-    '(x, y, yaw) = 0 where that pose component is fed back, -1 where it is not; '
-    'twist.covariance[0:3] = nu_d_dot (m/s^2, rad/s^2); twist.covariance[3] = the mode it was '
-    'made for (1 automatic, 2 guidance). See enbarr_core.guidance.guidance_node.', fast=True)
+    'guidance/reference', MultiDOFJointTrajectory, SENSOR_QOS,
+    'm, rad; m/s, rad/s; m/s^2, rad/s^2', WORLD_FRAME,
+    'Guidance reference for the estimate of the same stamp: one point of joint base_link with '
+    'transforms[0] = eta_d (x, y, yaw quaternion; odom), velocities[0] = nu_d and '
+    'accelerations[0] = nu_d_dot (body frame). A pose component that is not fed back (line '
+    'of sight tracks surge/sway velocity only) is NaN. See '
+    'enbarr_core.guidance.guidance_node.reference_to_msg.', fast=True)
 GUIDANCE_PATH_AVAILABLE = TopicSpec(
     'guidance/path_available', Bool, LATCHED_QOS, '', '',
     'Whether the guidance node has a path or waypoint to follow (the controller refuses '

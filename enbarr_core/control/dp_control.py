@@ -16,7 +16,8 @@ used when ``bias_feedforward`` is on.
 
 * position_mask: pose-error components (world x, y, psi) where the mask is False are ignored
   before the rotation: that DOF tracks nu_d only (LOS path following uses
-  [False, False, True]: surge/sway follow nu_d, heading follows psi_d).
+  [False, False, True]: surge/sway follow nu_d, heading follows psi_d). eta_d may be NaN
+  there (no position reference for that DOF, as ``guidance/reference`` carries it).
 * Integral: stored as its contribution I [N, N m] (a new Ki never steps the output). Each step
   I += Ki e dt in the body frame, but between steps it is kept rotated into the world frame
   (z = R(psi) I), so a world-fixed disturbance (current, wind) stays compensated while the
@@ -157,10 +158,10 @@ class DpController:
         x, y, psi = _triple(eta_hat, 'eta_hat')
         u, v, r = _triple(nu_hat, 'nu_hat')
         bx, by, bn = _triple(b_hat, 'b_hat')
-        xd, yd, psid = _triple(ref.eta_d, 'ref.eta_d')
+        mx, my, mpsi = ref.position_mask
+        xd, yd, psid = _triple(ref.eta_d, 'ref.eta_d', ref.position_mask)
         ud, vd, rd = _triple(ref.nu_d, 'ref.nu_d')
         ad, bd, cd = _triple(ref.nu_d_dot, 'ref.nu_d_dot')
-        mx, my, mpsi = ref.position_mask
 
         if self._ramp_T > 0.0:  # linear blend of every numeric setting
             self._ramp_t += dt
@@ -240,6 +241,11 @@ class DpController:
                         np.array(saturated), np.array(err))
 
 
-def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
-    """``value`` as 3 finite floats (``ValueError`` naming ``what``)."""
-    return floats(what, value, 3)  # type: ignore[return-value]
+def _triple(value: ArrayLike, what: str,
+            used: tuple[bool, bool, bool] = (True, True, True)) -> tuple[float, float, float]:
+    """Three floats, finite where ``used`` (an unused one, say NaN, is returned as 0.0)."""
+    xyz = floats(what, value, 3, finite=False)
+    for i, (x, u) in enumerate(zip(xyz, used)):
+        if u and not math.isfinite(x):
+            raise ValueError(f'{what}[{i}]: must be finite, got {x}')
+    return tuple(x if u else 0.0 for x, u in zip(xyz, used))  # type: ignore[return-value]

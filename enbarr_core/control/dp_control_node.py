@@ -22,12 +22,18 @@ Losing the joystick, the observer dead-reckoning longer than ``estimate_max_age`
 automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
 or one that cannot make a reference), returns to manual with zero force.
 
-Ordering: the mode reaches the guidance node through the executor while estimates and
-references travel over the in-process link bus, so a reference made for the previous mode can
-still arrive after a change. References are tagged with the mode they were made for, and one
-for another mode than the controller's is dropped (counted in ``stale_references``). A
-reference is applied with the estimate of the same stamp (kept for a few samples, whichever
-of the two arrives first), with dt from the estimate before it; tau is stamped with it.
+Ordering: this node owns the modes and switches at once; the guidance node learns the new
+mode through the executor while estimates and references travel over the in-process link bus,
+so for one or two samples after a change a reference of the previous law can still arrive.
+It is applied as it is, with no mode check: outside manual the previous law was hold (the
+pose where the vessel was) or the path being followed, and either is continuous with what
+was being tracked, so the first samples of the new mode track a reference the vessel is
+already on, and the new law takes over on the next estimate. Entry stays bumpless (the
+integral is reset to the force of the moment at the switch). In manual a reference is
+ignored. A reference is applied with the estimate of the same stamp (kept for a few samples,
+whichever of the two arrives first), with dt from the estimate before it; tau is stamped with
+it. A malformed reference (not one point of ``base_link``) is counted in ``bad_references``
+and dropped.
 
 Gains (3-element diagonals and scalars) and the vessel model come from the profile (they have
 no default: a node started without them refuses, naming the parameter), are validated
@@ -47,6 +53,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, Float64, String
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from enbarr_interfaces import convert, topics
 
@@ -157,7 +164,7 @@ class DpControlNode(EnbarrNode):
         self.tau = np.zeros(3)
         self.reference = None
         self.refusals = 0
-        self.stale_references = 0
+        self.bad_references = 0
         self.path_available = False
         self._eta: np.ndarray | None = None
         self._bias = np.zeros(3)
@@ -260,10 +267,14 @@ class DpControlNode(EnbarrNode):
             pending, self._pending = self._pending[1], None
             self._on_reference(pending)
 
-    def _on_reference(self, msg: Odometry) -> None:
-        ref, made_for = msg_to_reference(msg)
-        if made_for is not self.manager.mode:  # made for another mode (or manual now)
-            self.stale_references += 1
+    def _on_reference(self, msg: MultiDOFJointTrajectory) -> None:
+        if self.manager.mode is Mode.MANUAL:  # the operator has the force
+            return
+        try:
+            ref = msg_to_reference(msg)
+        except ValueError as err:
+            self.bad_references += 1
+            self.get_logger().error(str(err), throttle_duration_sec=1.0)
             return
         t = convert.stamp_to_ns(msg.header.stamp)
         estimate = next((e for e in reversed(self._estimates) if e.t_ns == t), None)
@@ -289,4 +300,4 @@ class DpControlNode(EnbarrNode):
     def _report(self) -> None:
         self.publish_diagnostics(0, self.manager.mode.value, {
             'refusals': self.refusals, 'joy_rejected': self.manager.rejected_samples,
-            'stale_references': self.stale_references})
+            'bad_references': self.bad_references})

@@ -197,6 +197,11 @@ class EnbarrNode(Node):
             loop.start()
         return loop
 
+    @property
+    def rate_loops(self) -> tuple[RateLoop, ...]:
+        """The rate loops of this node, in creation order (read only: a copy of the list)."""
+        return tuple(self._loops)
+
     def start(self) -> None:
         """Start the node's sources. Called by bringup after every node exists and is wired."""
         self._started = True

@@ -32,7 +32,8 @@ BUILTIN: dict[str, str] = {
     'rov_simulator': 'enbarr_core.simulation.rov_simulator_node:RovSimulatorNode',
     'scripted_commands': 'enbarr_plugins.operator.scripted_commands:ScriptedCommandsNode',
     'recorder': 'enbarr_core.recording.recorder_node:RecorderNode',
-    'saucer_simulator': 'enbarr_core.simulation.saucer_simulator_node:SaucerSimulatorNode',
+    'vessel3dof_simulator':
+        'enbarr_core.simulation.vessel3dof_simulator_node:Vessel3DofSimulatorNode',
     'dp_observer': 'enbarr_core.estimation.dp_observer_node:DpObserverNode',
     'dp_control': 'enbarr_core.control.dp_control_node:DpControlNode',
     'guidance': 'enbarr_core.guidance.guidance_node:GuidanceNode',

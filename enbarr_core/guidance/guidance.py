@@ -39,7 +39,10 @@ class Reference:
     eta_d: Vector        # (3,) desired pose [x, y, psi] world ENU [m, m, rad]
     nu_d: Vector         # (3,) desired body velocity [u, v, r] [m/s, m/s, rad/s]
     nu_d_dot: Vector     # (3,) desired body acceleration [m/s^2, m/s^2, rad/s^2]
-    position_mask: tuple[bool, bool, bool] = _ALL  # pose-error components (x, y, psi) used
+    # Pose-error components (x, y, psi) fed back. Where False, eta_d is no reference: NaN as
+    # read from ``guidance/reference``; LosPath puts the closest point on the path there, for
+    # tests and logs only (the message carries NaN, the controller never reads it).
+    position_mask: tuple[bool, bool, bool] = _ALL
     cross_track: float | None = None   # signed distance from the path, + left of it [m]
     along_track: float | None = None   # distance along the active segment [m]
     segment: int | None = None         # active segment index k (p_k -> p_k+1)

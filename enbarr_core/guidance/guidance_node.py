@@ -6,10 +6,9 @@ automatic it holds the pose of the latest estimate (:class:`HoldPose`); entering
 goes to the waypoint when ``path.waypoints`` holds one (:class:`GoToWaypoint`), else follows
 the path with line of sight (:class:`LosPath`); in manual it publishes nothing. On every
 estimate outside manual it publishes the reference for that estimate on
-``guidance/reference``, stamped with the estimate's stamp and tagged with the mode it was
-made for (see ``reference_to_msg``), so that the controller never tracks a reference made for
-another mode. It announces on ``guidance/path_available`` (latched) whether it has a path,
-which the controller needs to refuse guidance without one.
+``guidance/reference`` (a one-point ``MultiDOFJointTrajectory``, see ``reference_to_msg``),
+stamped with the estimate's stamp. It announces on ``guidance/path_available`` (latched)
+whether it has a path, which the controller needs to refuse guidance without one.
 
 Another guidance law (say, one that avoids collisions) replaces this node with one
 ``plugin:`` line of the profile, as long as it speaks the same three topics.
@@ -19,11 +18,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+import math
 from typing import Any
 
+from geometry_msgs.msg import Transform, Twist
 from nav_msgs.msg import Odometry
 import numpy as np
 from std_msgs.msg import Bool, String
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from enbarr_interfaces import convert, topics
 
@@ -44,52 +46,51 @@ SPECS = [
               'when guidance starts) or course (face the direction of travel)'),
 ]
 
-#: The mode tags of a reference (``twist.covariance[MODE_INDEX]``).
-MODE_CODE = {Mode.AUTOMATIC: 1.0, Mode.GUIDANCE: 2.0}
-_MODE_OF_CODE = {code: mode for mode, code in MODE_CODE.items()}
-_MASK_INDEX = (0, 7, 35)    # pose.covariance diagonal: x, y, yaw
-_ACCEL_INDEX = (0, 1, 2)    # twist.covariance: nu_d_dot (u, v, r)
-MODE_INDEX = 3              # twist.covariance: the mode the reference was made for
+#: The one joint of a reference trajectory: the vessel's body.
+REFERENCE_JOINT = topics.BODY_FRAME
 
 
-def reference_to_msg(ref: Reference, mode: Mode, header: Any) -> Odometry:
-    """Build the ``guidance/reference`` message of ``ref`` for ``mode`` and ``header``.
+def reference_to_msg(ref: Reference, header: Any) -> MultiDOFJointTrajectory:
+    """Build the ``guidance/reference`` message of ``ref`` for the estimate of ``header``.
 
-    ``header`` is the header of the estimate the reference was made for.
-
-    Odometry has no field for the desired acceleration, the feedback mask or the mode, and the
-    interfaces stay standard types, so the (otherwise meaningless) covariances carry them:
-    pose.covariance diagonal x, y, yaw [0, 7, 35] = 0 where that pose component is fed back,
-    -1 where it is not (the DOF tracks nu_d only); twist.covariance[0:3] = nu_d_dot
-    [m/s^2, m/s^2, rad/s^2]; twist.covariance[3] = the mode (1 automatic, 2 guidance).
+    One point of joint ``base_link``, stamped with the estimate's stamp, in ``odom``:
+    ``transforms[0]`` = eta_d (x, y [m], yaw quaternion), ``velocities[0]`` = nu_d (body frame
+    [m/s, rad/s], as Odometry's twist), ``accelerations[0]`` = nu_d_dot [m/s^2, rad/s^2]. A
+    pose component that is not fed back (``position_mask`` False) is NaN in the transform
+    (all four quaternion components for yaw): there is no position reference for that DOF.
     """
-    out = Odometry()
-    out.header = header
-    out.child_frame_id = topics.BODY_FRAME
-    convert.set_pose_eta(out.pose.pose, ref.eta_d)
-    convert.set_twist_nu3(out.twist.twist, ref.nu_d)
-    pose_cov = np.zeros(36)
-    for i, used in zip(_MASK_INDEX, ref.position_mask):
-        pose_cov[i] = 0.0 if used else -1.0
-    twist_cov = np.zeros(36)
-    twist_cov[list(_ACCEL_INDEX)] = ref.nu_d_dot
-    twist_cov[MODE_INDEX] = MODE_CODE[mode]
-    out.pose.covariance = pose_cov
-    out.twist.covariance = twist_cov
+    pose, velocity, acceleration = Transform(), Twist(), Twist()
+    convert.set_transform_eta(pose, [float(v) if used else math.nan
+                                     for v, used in zip(ref.eta_d, ref.position_mask)])
+    convert.set_twist_nu3(velocity, ref.nu_d)
+    convert.set_twist_nu3(acceleration, ref.nu_d_dot)
+    point = MultiDOFJointTrajectoryPoint(transforms=[pose], velocities=[velocity],
+                                         accelerations=[acceleration])
+    out = MultiDOFJointTrajectory(joint_names=[REFERENCE_JOINT], points=[point])
+    out.header.stamp = header.stamp
+    out.header.frame_id = topics.WORLD_FRAME
     return out
 
 
-def msg_to_reference(msg: Odometry) -> tuple[Reference, Mode | None]:
-    """Read a ``guidance/reference`` message: the reference and the mode it was made for.
+def msg_to_reference(msg: MultiDOFJointTrajectory) -> Reference:
+    """Read a ``guidance/reference`` message (see ``reference_to_msg``).
 
-    The mode is ``None`` when the tag is missing or unknown.
+    A NaN pose component is a DOF that is not fed back (mask False, eta_d NaN there).
+    ValueError when the message is not one point of ``base_link`` with one transform, one
+    velocity and one acceleration.
     """
-    pose_cov, twist_cov = msg.pose.covariance, msg.twist.covariance
-    mask = tuple(bool(pose_cov[i] == 0.0) for i in _MASK_INDEX)
-    ref = Reference(convert.pose_to_eta(msg.pose.pose), convert.twist_to_nu3(msg.twist.twist),
-                    np.array([twist_cov[i] for i in _ACCEL_INDEX], dtype=float),
-                    mask)  # type: ignore[arg-type]
-    return ref, _MODE_OF_CODE.get(float(twist_cov[MODE_INDEX]))
+    if list(msg.joint_names) != [REFERENCE_JOINT] or len(msg.points) != 1:
+        raise ValueError(f'guidance/reference: expected one point of joint {REFERENCE_JOINT!r}, '
+                         f'got joints {list(msg.joint_names)} and {len(msg.points)} points')
+    point = msg.points[0]
+    if not (len(point.transforms) == len(point.velocities) == len(point.accelerations) == 1):
+        raise ValueError('guidance/reference: expected one transform, velocity and '
+                         'acceleration in the point')
+    eta_d = convert.transform_to_eta(point.transforms[0])
+    mask = tuple(not math.isnan(v) for v in eta_d)
+    return Reference(eta_d, convert.twist_to_nu3(point.velocities[0]),
+                     convert.twist_to_nu3(point.accelerations[0]),
+                     mask)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -192,7 +193,7 @@ class GuidanceNode(EnbarrNode):
         if self.law is None or last is None or t <= last:
             return
         self.reference = ref = self.law.reference(eta, (t - last) * 1e-9)
-        self._ref_pub.publish(reference_to_msg(ref, self.mode, msg.header))
+        self._ref_pub.publish(reference_to_msg(ref, msg.header))
 
     def _report(self) -> None:
         ref = self.reference

@@ -124,7 +124,7 @@ def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
     return {
         'rate_hz': round(cycles / wall, 1),
         'cycles': cycles,
-        'late_ticks': sim._loops[0].overruns,
+        'late_ticks': sim.rate_loops[0].overruns,
         'time_skips': sim.time_skips,
         'latency_ms_p50': round(float(np.percentile(lat_ms, 50)), 3),
         'latency_ms_p99': round(float(np.percentile(lat_ms, 99)), 3),

@@ -32,6 +32,15 @@ def _series(msgs: list[tuple[int, Any]]) -> tuple[np.ndarray, np.ndarray]:
     return t, eta
 
 
+def _references(msgs: list[tuple[int, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """(t [s], eta_d (n, 3)) of ``guidance/reference`` messages; NaN where not fed back."""
+    if not msgs:
+        return np.zeros(0), np.zeros((0, 3))
+    t = np.array([_stamp(m) for _, m in msgs])
+    eta_d = np.array([convert.transform_to_eta(m.points[0].transforms[0]) for _, m in msgs])
+    return t, eta_d
+
+
 def _modes(msgs: list[tuple[int, Any]]) -> list[tuple[float, str]]:
     return [(t * 1e-9, m.data) for t, m in msgs]
 
@@ -96,8 +105,7 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     ts = sorted(asked)
     sample = float(np.median(np.diff(ts))) if len(ts) > 1 else period
     out['thrust_saturation_s'] = round(sum(sat) * sample, 2)
-    ref_t, ref = _series(msgs.get('/guidance/reference', [])) if msgs.get(
-        '/guidance/reference') else (np.zeros(0), np.zeros((0, 3)))
+    ref_t, ref = _references(msgs.get('/guidance/reference', []))
     if spec.kind == 'station_keeping':
         start = _first(modes, 'automatic')
         if start is None or not len(ref_t):
@@ -178,8 +186,8 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
     if len(wps):
         ax.plot(wps[:, 0], wps[:, 1], 'k--', lw=1, label='path')
     ax.plot(eta[:, 0], eta[:, 1], lw=1.2, label='vessel (truth)')
-    if msgs.get('/guidance/reference'):
-        _, ref = _series(msgs['/guidance/reference'])
+    ref_t, ref = _references(msgs.get('/guidance/reference', []))
+    if len(ref_t):  # NaN (line of sight: no position reference) leaves gaps
         ax.plot(ref[:, 0], ref[:, 1], lw=0.8, alpha=0.7, label='reference')
     step = max(1, len(t) // 12)
     for x, y, psi in eta[::step]:
@@ -193,12 +201,14 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
     ax.legend(loc='best', fontsize=8)
     ax.grid(True, alpha=0.3)
     ax2 = fig.add_subplot(grid[0, 1])
-    if msgs.get('/guidance/reference'):
-        ref_t, ref = _series(msgs['/guidance/reference'])
+    if len(ref_t):
         idx = np.clip(np.searchsorted(ref_t, t, side='right') - 1, 0, len(ref_t) - 1)
         valid = t >= ref_t[0]
         ax2.plot(t[valid] - t0, np.linalg.norm(eta[valid, :2] - ref[idx[valid], :2], axis=1),
                  label='position error [m]')
+        if len(wps) > 1:  # no position reference along the path: the distance to it instead
+            ax2.plot(t[valid] - t0, _segment_distance(eta[valid, :2], wps), lw=0.8,
+                     color='tab:green', label='distance to the path [m]')
         ax2b = ax2.twinx()
         ax2b.plot(t[valid] - t0, np.degrees(ssa(eta[valid, 2] - ref[idx[valid], 2])),
                   color='tab:orange', lw=0.8, label='heading error [deg]')

@@ -1,1 +1,1 @@
-"""Arduino PWM boards: ``sim`` is the simulated board of the CS Saucer."""
+"""Arduino PWM boards driving azimuth ESCs and servos: ``sim`` is a simulated one."""

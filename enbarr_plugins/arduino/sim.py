@@ -1,4 +1,4 @@
-"""Simulated Arduino PWM board with the Saucer's ESCs and servos.
+"""Simulated Arduino PWM board driving a vessel's azimuth ESCs and servos (from the profile).
 
 Reads ``pwm/duty_cycle`` (``std_msgs/Float64MultiArray``: one duty [%] per channel,
 ``<azimuth>/motor, <azimuth>/servo`` for each azimuth in ``azimuth_names`` order, labelled

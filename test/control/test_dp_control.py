@@ -332,6 +332,20 @@ def test_position_mask_false_removes_the_pose_error():
     assert full.saturated[:2].all()             # 5 m of error saturates X and Y
 
 
+def test_nan_is_no_position_reference_where_the_mask_is_false():
+    """As ``guidance/reference`` carries it: NaN where a pose component is not fed back."""
+    eta, nu_hat, nu_d = np.array([5.0, -3.0, 0.4]), np.array([0.15, 0.02, 0.01]), np.zeros(3)
+    closest = Reference(np.array([0.0, 0.0, 0.5]), nu_d, np.zeros(3), (False, False, True))
+    nan = dataclasses.replace(closest, eta_d=np.array([np.nan, np.nan, 0.5]))
+    a = DpController(settings()).step(eta, nu_hat, np.zeros(3), closest, DT)
+    b = DpController(settings()).step(eta, nu_hat, np.zeros(3), nan, DT)
+    np.testing.assert_array_equal(b.tau, a.tau)
+    assert np.isfinite(b.tau).all()
+    fed_back = dataclasses.replace(nan, position_mask=(True, False, True))
+    with pytest.raises(ValueError, match=r'^ref\.eta_d\[0\]: must be finite'):
+        DpController(settings()).step(eta, nu_hat, np.zeros(3), fed_back, DT)
+
+
 def test_feed_forward_terms():
     s = settings(bias_feedforward=True)
     ctl = DpController(s)

@@ -1,4 +1,4 @@
-"""Node tests: guidance node (mode + estimate -> reference, tagged with its mode)."""
+"""Node tests: guidance node (mode + estimate -> reference for that estimate)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from nav_msgs.msg import Odometry
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 from support.nodes import TIMEOUT, add, get_param, param_client, probe, set_param
@@ -15,8 +15,7 @@ from support.saucer import T0_NS, odometry_msg, overrides
 
 from enbarr_core.control.modes import Mode
 from enbarr_core.framework.errors import ConfigurationError
-from enbarr_core.guidance.guidance import Reference
-from enbarr_core.guidance.guidance_node import GuidanceNode, msg_to_reference, reference_to_msg
+from enbarr_core.guidance.guidance_node import GuidanceNode, msg_to_reference
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 
@@ -38,7 +37,7 @@ class Harness:
                               lambda m: self.available.append(m.data),
                               topics.GUIDANCE_PATH_AVAILABLE.qos)
         self.odom_pub = p.create_topic_publisher(topics.OBSERVER_ODOMETRY)
-        self.refs: list[Odometry] = []
+        self.refs: list[MultiDOFJointTrajectory] = []
         p.create_topic_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
         LinkBus.of(context).connect()
         self.t = T0_NS
@@ -74,8 +73,7 @@ def test_automatic_holds_the_pose_of_the_latest_estimate(context, executor, spin
     h.mode(Mode.AUTOMATIC)
     h.estimate([0.5, 0.0, 0.0])
     assert len(h.refs) == 1
-    ref, made_for = msg_to_reference(h.refs[-1])
-    assert made_for is Mode.AUTOMATIC
+    ref = msg_to_reference(h.refs[-1])
     assert convert.stamp_to_ns(h.refs[-1].header.stamp) == h.t  # for this estimate
     assert ref.eta_d == pytest.approx(eta0, abs=1e-12)
     assert ref.position_mask == (True, True, True)
@@ -89,10 +87,12 @@ def test_guidance_follows_the_path_with_line_of_sight(context, executor, spin):
     h.estimate([0.0, 0.5, 0.0])
     h.mode(Mode.GUIDANCE)
     h.estimate([0.0, 0.5, 0.0])  # 0.5 m left of the first leg
-    ref, made_for = msg_to_reference(h.refs[-1])
-    assert made_for is Mode.GUIDANCE
+    ref = msg_to_reference(h.refs[-1])
     assert ref.position_mask == (False, False, True)  # velocity tracking, heading held
-    assert ref.eta_d[:2] == pytest.approx([0.0, 0.0], abs=1e-12)  # closest point on the path
+    assert np.isnan(ref.eta_d[:2]).all()  # no position reference on the topic
+    assert ref.eta_d[2] == pytest.approx(0.0, abs=1e-12)
+    # The law's own reference keeps the closest point on the path (tests and logs only).
+    assert h.node.reference.eta_d[:2] == pytest.approx([0.0, 0.0], abs=1e-12)
     assert math.hypot(*ref.nu_d[:2]) == pytest.approx(0.2)  # path.speed
     assert ref.nu_d[1] < 0.0  # steering back right, towards the path
 
@@ -103,23 +103,9 @@ def test_one_waypoint_is_gone_to(context, executor, spin):
     h.mode(Mode.GUIDANCE)
     for _ in range(50):
         h.estimate([0.0, 0.0, 0.0])
-    ref, _ = msg_to_reference(h.refs[-1])
+    ref = msg_to_reference(h.refs[-1])
     assert ref.position_mask == (True, True, True)
     assert 0.0 < ref.eta_d[0] < 3.0 and ref.eta_d[1] == pytest.approx(ref.eta_d[0] / 2.0)
-
-
-def test_reference_message_round_trip():
-    ref = Reference(np.array([1.0, 2.0, 0.3]), np.array([0.2, -0.1, 0.05]),
-                    np.array([0.01, -0.02, 0.003]), (False, False, True))
-    msg = reference_to_msg(ref, Mode.GUIDANCE, odometry_msg(T0_NS, (0, 0, 0)).header)
-    back, mode = msg_to_reference(msg)
-    assert mode is Mode.GUIDANCE
-    np.testing.assert_allclose(back.eta_d, ref.eta_d, atol=1e-12)
-    np.testing.assert_allclose(back.nu_d, ref.nu_d, atol=1e-12)
-    np.testing.assert_allclose(back.nu_d_dot, ref.nu_d_dot, atol=1e-12)
-    assert back.position_mask == (False, False, True)
-    untagged = Odometry()
-    assert msg_to_reference(untagged)[1] is None  # no tag: never applied
 
 
 def test_a_bad_path_is_refused_with_its_parameter(context):

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from geometry_msgs.msg import WrenchStamped
@@ -27,9 +28,13 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Header
 
 from enbarr_core.framework.errors import RecorderError
+from enbarr_core.guidance.guidance import Reference
+from enbarr_core.guidance.guidance_node import msg_to_reference, reference_to_msg
 from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_interfaces import convert, topics
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T0 = 1_700_000_000_000_000_000  # ns
@@ -483,3 +488,31 @@ def test_malformed_payload_is_a_recorder_error(tmp_path: Path) -> None:
     assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
     writer.close()
     assert metadata(bag)['message_count'] == 1
+
+
+def test_a_guidance_reference_reads_back_with_rosbags_and_mcap(tmp_path: Path) -> None:
+    """``guidance/reference`` (MultiDOFJointTrajectory, NaN where not fed back) in a bag."""
+    ref = Reference(np.array([1.0, 2.0, 0.3]), np.array([0.2, -0.1, 0.05]),
+                    np.array([0.01, -0.02, 0.003]), (False, False, True))
+    header = Header(stamp=convert.ns_to_stamp(T0), frame_id=topics.WORLD_FRAME)
+    original = reference_to_msg(ref, header)
+    name, msgtype = f'/{topics.GUIDANCE_REFERENCE.name}', topics.GUIDANCE_REFERENCE.type_name
+    assert msgtype == 'trajectory_msgs/msg/MultiDOFJointTrajectory'
+    writer = SegmentedBagWriter(tmp_path / 'bag')
+    assert writer.write(name, msgtype, T0, serialize_message(original))
+    writer.close()
+    with Reader(tmp_path / 'bag') as reader:
+        [(conn, _, raw)] = list(reader.messages())
+        assert conn.msgtype == msgtype
+        decoded = TYPESTORE.deserialize_cdr(raw, msgtype)
+    [mcap_file] = (tmp_path / 'bag').glob('*.mcap')
+    with open(mcap_file, 'rb') as f:
+        [(_, _, _, mcap_decoded)] = list(
+            make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    for msg in (decoded, mcap_decoded):
+        back = msg_to_reference(msg)  # duck-typed: reads either reader's classes
+        assert back.position_mask == (False, False, True)
+        np.testing.assert_allclose(back.eta_d, [np.nan, np.nan, 0.3], atol=1e-12)
+        np.testing.assert_allclose(back.nu_d, ref.nu_d, atol=1e-12)
+        np.testing.assert_allclose(back.nu_d_dot, ref.nu_d_dot, atol=1e-12)
+        assert convert.stamp_to_ns(msg.header.stamp) == T0

@@ -43,7 +43,7 @@ class Run:
             p.create_topic_subscription(
                 spec, lambda m, d=into: d.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
         LinkBus.of(context).connect()
-        self.started = sim._loops[0].running
+        self.started = sim.rate_loops[0].running
         deadline = time.monotonic() + TIMEOUT
         while sim.samples < 400 and time.monotonic() < deadline:
             sim.step()

@@ -14,6 +14,7 @@ from rclpy.parameter import Parameter
 from rclpy.time import Time
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64, Float64MultiArray, String
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
@@ -179,7 +180,7 @@ class DpHarness:
         self.bias_pub = p.create_topic_publisher(topics.OBSERVER_BIAS)
         self.taus: list[np.ndarray] = []
         self.tau_stamps: list[int] = []
-        self.refs: list[Odometry] = []
+        self.refs: list[MultiDOFJointTrajectory] = []
         p.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
         p.create_topic_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
         LinkBus.of(context).connect()

@@ -76,9 +76,10 @@ def observer_settings():
 
 def vessel_params():
     """The CS Saucer's Vessel3DofParams from saucer_core.yaml."""
-    from enbarr_core.simulation.saucer_simulator_node import SPECS, SaucerSimulatorSettings
+    from enbarr_core.simulation.vessel3dof_simulator_node import (
+        SPECS, Vessel3DofSimulatorSettings)
     from enbarr_core.bringup.profile import load_profile
     p = load_profile('saucer_core')
     values = {s.name: s.default for s in SPECS}
     values.update({k: v for k, v in p.parameters.items() if k in values})
-    return SaucerSimulatorSettings.from_params(values).vessel
+    return Vessel3DofSimulatorSettings.from_params(values).vessel

@@ -49,8 +49,8 @@ SPECS = [
 
 
 @dataclass(frozen=True)
-class SaucerSimulatorSettings:
-    """Settings of ``SaucerSimulatorNode`` (see ``SPECS``)."""
+class Vessel3DofSimulatorSettings:
+    """Settings of ``Vessel3DofSimulatorNode`` (see ``SPECS``)."""
 
     rate: float                              # [Hz]
     vessel: Vessel3DofParams                 # model
@@ -62,7 +62,7 @@ class SaucerSimulatorSettings:
     initial: tuple[float, float, float]      # start pose [m, m, rad]
 
     @classmethod
-    def from_params(cls, v: Mapping[str, Any]) -> SaucerSimulatorSettings:
+    def from_params(cls, v: Mapping[str, Any]) -> Vessel3DofSimulatorSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
         for k, n in (('current', 2), ('current_amplitude', 2), ('bias', 3), ('initial', 3)):
             if len(v[k]) != n:
@@ -72,7 +72,7 @@ class SaucerSimulatorSettings:
                    tuple(v['bias']), v['command_timeout'], tuple(v['initial']))  # type: ignore
 
 
-class SaucerSimulatorNode(EnbarrNode):
+class Vessel3DofSimulatorNode(EnbarrNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'simulator', **kwargs: Any) -> None:
@@ -81,8 +81,8 @@ class SaucerSimulatorNode(EnbarrNode):
         self.azimuths = declare_azimuths(self)
         self._index = {a.name: i for i, a in enumerate(self.azimuths)}
         self.actuators = AzimuthActuators(self.azimuths)
-        self.settings: SaucerSimulatorSettings
-        self.bind_settings(SPECS, SaucerSimulatorSettings.from_params, self._apply)
+        self.settings: Vessel3DofSimulatorSettings
+        self.bind_settings(SPECS, Vessel3DofSimulatorSettings.from_params, self._apply)
         v = self.settings
         self.eta = np.array(v.initial, dtype=float)
         self.nu = np.zeros(3)
@@ -97,7 +97,7 @@ class SaucerSimulatorNode(EnbarrNode):
         self.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, self._on_command)
         self.create_rate_loop(v.rate, self.step)
 
-    def _apply(self, v: SaucerSimulatorSettings) -> None:
+    def _apply(self, v: Vessel3DofSimulatorSettings) -> None:
         with self._lock:
             self.model = Vessel3Dof(v.vessel)
             self.settings = v

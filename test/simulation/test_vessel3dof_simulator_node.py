@@ -10,14 +10,14 @@ from rclpy.parameter import Parameter
 from support.nodes import add, probe
 from support.saucer import SimClock, azimuth_msg, overrides
 
-from enbarr_core.simulation.saucer_simulator_node import SaucerSimulatorNode
+from enbarr_core.simulation.vessel3dof_simulator_node import Vessel3DofSimulatorNode
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins.mocap.sim import SimMocapNode
 
 
-def test_saucer_simulator_and_sim_mocap(context, executor):
-    sim = add(executor, SaucerSimulatorNode(
+def test_vessel3dof_simulator_and_sim_mocap(context, executor):
+    sim = add(executor, Vessel3DofSimulatorNode(
         node_name='simulator', context=context,
         parameter_overrides=overrides({'rate': 100.0})))
     mocap = add(executor, SimMocapNode(
@@ -34,7 +34,7 @@ def test_saucer_simulator_and_sim_mocap(context, executor):
     p.create_topic_subscription(
         topics.MOCAP_POSE, lambda m: poses.__setitem__(convert.stamp_to_ns(m.header.stamp), m))
     LinkBus.of(context).connect()
-    assert not sim._loops[0].running  # never started: stepped by hand
+    assert not sim.rate_loops[0].running  # never started: stepped by hand
 
     forward = azimuth_msg([1.0, 1.0, 1.0], [0.0, 0.0, 0.0])
     steps = 150  # 1.5 s
@@ -83,13 +83,13 @@ def test_simulator_needs_the_vessel_from_the_profile(context):
     given = {k: v for k, v in COMMON.items() if k != 'vessel.inertia'}
     with pytest.raises(ConfigurationError, match='vessel.inertia is not set; the profile '
                        'must give it'):
-        SaucerSimulatorNode(node_name='simulator', context=context,
+        Vessel3DofSimulatorNode(node_name='simulator', context=context,
                             parameter_overrides=[Parameter(k, value=v)
                                                  for k, v in given.items()])
 
 
 def test_simulator_runs_the_profile_vessel(context, executor):
-    sim = add(executor, SaucerSimulatorNode(
+    sim = add(executor, Vessel3DofSimulatorNode(
         node_name='simulator', context=context,
         parameter_overrides=overrides({'vessel.inertia': [20.0, 21.0, 0.5]})))
     assert sim.settings.vessel.M == (20.0, 21.0, 0.5)
