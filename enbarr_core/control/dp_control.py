@@ -244,6 +244,8 @@ class DpController:
 def _triple(value: ArrayLike, what: str,
             used: tuple[bool, bool, bool] = (True, True, True)) -> tuple[float, float, float]:
     """Three floats, finite where ``used`` (an unused one, say NaN, is returned as 0.0)."""
+    if used[0] and used[1] and used[2]:
+        return floats(what, value, 3)  # type: ignore[return-value]
     xyz = floats(what, value, 3, finite=False)
     for i, (x, u) in enumerate(zip(xyz, used)):
         if u and not math.isfinite(x):

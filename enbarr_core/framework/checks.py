@@ -53,14 +53,26 @@ def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,
     ``n`` is the required length, or the allowed lengths (``(3, 9)``), or None for any;
     ``finite`` refuses NaN and +/-inf. Booleans are not numbers here.
     """
+    lengths = (n,) if isinstance(n, int) else tuple(n) if n is not None else None
+    # Fast path for what models and controllers pass every step (float arrays, tuples and
+    # lists of floats); anything else, or anything that fails a check, takes the careful path
+    # below, which names the fault (a sum of finite values may overflow: it re-checks).
+    out: tuple[float, ...] | None = None
+    kind = type(value)
+    if kind is np.ndarray and value.ndim == 1 and value.dtype.kind == 'f':
+        out = tuple(value.tolist())
+    elif (kind is tuple or kind is list) and all(type(v) is float for v in value):
+        out = tuple(value)
+    if (out is not None and (lengths is None or len(out) in lengths)
+            and (not finite or math.isfinite(sum(out)))):
+        return out
     if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
         raise ValueError(f'{name}: expected a list of numbers, got {value!r}')
     items = list(value)
-    lengths = (n,) if isinstance(n, int) else tuple(n) if n is not None else None
     if lengths is not None and len(items) not in lengths:
         want = ' or '.join(str(k) for k in lengths)
         raise ValueError(f'{name}: expected {want} values, got {len(items)}')
-    out = []
+    numbers = []
     for i, item in enumerate(items):
         if isinstance(item, bool):
             raise ValueError(f'{name}[{i}]: expected a number, got {item!r}')
@@ -70,8 +82,8 @@ def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,
             raise ValueError(f'{name}[{i}]: expected a number, got {item!r}') from None
         if finite and not math.isfinite(number):
             raise ValueError(f'{name}[{i}]: must be finite, got {number}')
-        out.append(number)
-    return tuple(out)
+        numbers.append(number)
+    return tuple(numbers)
 
 
 def vector(name: str, value: Any, n: int | Sequence[int], *,
