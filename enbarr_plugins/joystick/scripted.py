@@ -7,16 +7,16 @@ A run without a person exercises every mode this way. Lines, times in seconds fr
     '20.0 stop'                 # stop publishing: the joystick is lost
 
 The layout is the profile's: ``joy.buttons`` names the button at each index (a DualShock 4
-through ds4_driver: cross, circle, triangle, square; a pad through ROS ``joy``: cross,
-circle, square, triangle) and ``joy.axis_surge``/``joy.axis_sway``/``joy.axis_yaw`` (shared
-with the controller, given once in the profile) say where the sticks go.
+in the kernel's joydev order: cross, circle, triangle, square; a pad through the ROS ``joy``
+game-controller layout: cross, circle, square, triangle) and ``joy.axis_surge``,
+``joy.axis_sway`` and ``joy.axis_yaw`` (shared with the controller, given once in the
+profile) say where the sticks go.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-import math
 from typing import Any
 
 from sensor_msgs.msg import Joy
@@ -24,42 +24,27 @@ from sensor_msgs.msg import Joy
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
+from enbarr_plugins.operator.script import no_arguments, numbers, parse_script, Step
 
 N_AXES, N_BUTTONS = 8, 13  # at least this many, as ds4_driver's standard messages
 
 
-def parse_joy_script(lines: list[str],
-                     buttons: Mapping[str, int]) -> list[tuple[float, str, Any]]:
-    """Parse ``lines`` into timed events; ``buttons`` maps a button name to its index."""
-    out: list[tuple[float, str, Any]] = []
-    for i, line in enumerate(lines):
-        parts = line.split()
-        if not parts:
-            continue
-        where = f'script[{i}] {line!r}'
-        try:
-            t = float(parts[0])
-        except ValueError:
-            raise ValueError(f'{where}: expected a time in seconds first') from None
-        if not math.isfinite(t) or t < 0.0 or (out and t < out[-1][0]):
-            raise ValueError(f'{where}: times must be finite, >= 0 and not decrease')
-        kind = parts[1] if len(parts) > 1 else ''
-        if kind == 'sticks' and len(parts) == 5:
-            try:
-                sticks = tuple(float(x) for x in parts[2:])
-            except ValueError:
-                raise ValueError(f'{where}: sticks takes 3 numbers') from None
-            if not all(-1.0 <= x <= 1.0 for x in sticks):
-                raise ValueError(f'{where}: stick positions are within -1..1')
-            out.append((t, 'sticks', sticks))
-        elif kind == 'press' and len(parts) == 3 and parts[2] in buttons:
-            out.append((t, 'press', buttons[parts[2]]))
-        elif kind == 'stop' and len(parts) == 2:
-            out.append((t, 'stop', None))
-        else:
-            raise ValueError(f'{where}: expected "sticks S W Y", "press '
-                             f'{"|".join(buttons)}" or "stop"')
-    return out
+def parse_joy_script(lines: Sequence[str], buttons: Mapping[str, int]) -> tuple[Step, ...]:
+    """Parse ``lines`` into timed steps; ``buttons`` maps a button name to its index.
+
+    Verbs: ``sticks S W Y`` (three positions within -1..1), ``press NAME`` (the button's
+    index) and ``stop``; errors name the line (``operator.script.parse_script``).
+    """
+    def press(args: Sequence[str]) -> int:
+        if len(args) != 1 or args[0] not in buttons:
+            raise ValueError(f'takes one button name of {"|".join(buttons)}')
+        return buttons[args[0]]
+
+    return parse_script(lines, {
+        'sticks': lambda args: numbers(args, 3, '(surge, sway, yaw)', -1.0, 1.0),
+        'press': press,
+        'stop': no_arguments,
+    })
 
 
 SPECS = [
@@ -81,7 +66,7 @@ SPECS = [
 class ScriptedJoySettings:
     """Settings of ``ScriptedJoyNode`` (see ``SPECS``)."""
 
-    script: tuple[tuple[float, str, Any], ...]  # (time [s], kind, value)
+    script: tuple[Step, ...]                    # timed sticks/press/stop steps
     rate: float                                 # [Hz]
     buttons: tuple[str, ...]                    # name of each button index
     axes: tuple[int, int, int]                  # surge, sway, yaw axis indices
@@ -108,7 +93,7 @@ class ScriptedJoySettings:
                                       {n: i for i, n in enumerate(names)})
         except ValueError as err:
             raise ValueError(f'script: {err}') from err
-        return cls(tuple(script), v['rate'], tuple(names), tuple(axes))  # type: ignore
+        return cls(script, v['rate'], tuple(names), tuple(axes))  # type: ignore
 
 
 class ScriptedJoyNode(EnbarrNode):
@@ -144,13 +129,13 @@ class ScriptedJoyNode(EnbarrNode):
         now = self.get_clock().now().nanoseconds
         elapsed = (now - self._start_ns) * 1e-9
         press = None
-        while self._next < len(self.script) and self.script[self._next][0] <= elapsed:
-            _, kind, value = self.script[self._next]
+        while self._next < len(self.script) and self.script[self._next].time <= elapsed:
+            step = self.script[self._next]
             self._next += 1
-            if kind == 'sticks':
-                self._sticks = value
-            elif kind == 'press':
-                press = value
+            if step.verb == 'sticks':
+                self._sticks = step.value
+            elif step.verb == 'press':
+                press = step.value
             else:
                 self._stopped = True
                 return

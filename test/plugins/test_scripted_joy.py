@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from typing import Any
 
 import pytest
@@ -12,7 +14,7 @@ from support.saucer import SimClock
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_interfaces import topics
-from enbarr_plugins.joystick.scripted import ScriptedJoyNode
+from enbarr_plugins.joystick.scripted import parse_joy_script, ScriptedJoyNode
 
 ROS_JOY = ['cross', 'circle', 'square', 'triangle']  # ROS joy game-controller layout
 
@@ -53,3 +55,26 @@ def test_a_button_the_layout_lacks_is_refused(context):
     with pytest.raises(ConfigurationError, match='script'):
         joystick(context, **{'script': ['1.0 press options'], 'joy.buttons': ROS_JOY,
                              'joy.axis_surge': 1, 'joy.axis_sway': 0, 'joy.axis_yaw': 3})
+
+
+BUTTONS = {'cross': 0, 'circle': 1, 'triangle': 2, 'square': 3}
+
+
+def test_joy_script_parses_into_typed_steps():
+    steps = parse_joy_script(['0.0 sticks 0.5 0.0 -1.0', '', '2.0 press square', '3.5 stop'],
+                             BUTTONS)
+    assert [(s.time, s.verb, s.value, s.line) for s in steps] == [
+        (0.0, 'sticks', (0.5, 0.0, -1.0), 0), (2.0, 'press', 3, 2), (3.5, 'stop', None, 3)]
+
+
+@pytest.mark.parametrize('line, reason', [
+    ('1.0 sticks 0.5 0.0', 'sticks takes 3'),
+    ('1.0 sticks 0.5 0.0 1.5', 'within -1.0..1.0'),
+    ('1.0 press start', 'press takes one button name of cross|circle|triangle|square'),
+    ('1.0 stop now', 'stop takes no arguments'),
+    ('1.0 wave', 'expected "sticks", "press", "stop"'),
+])
+def test_joy_script_errors_name_the_line_and_the_fault(line, reason):
+    with pytest.raises(ValueError, match=re.escape(f"script[1] '{line}'") + '.*'
+                       + re.escape(reason)):
+        parse_joy_script(['0.0 stop', line], BUTTONS)
