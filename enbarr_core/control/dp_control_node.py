@@ -58,7 +58,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.dp_control import DpControlSettings, DpController
-from enbarr_core.control.modes import JoyMapping, Mode, ModeManager, Transition
+from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
+from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.guidance.guidance_node import msg_to_reference

@@ -9,29 +9,23 @@ automatic, falls back to manual with zero force; so does the absence of guidance
 outside manual (no guidance node, or one that cannot make them).
 
 Which axis and button does what is the vessel profile's (``JoyMapping``, parameters
-``joy.*``): a DualShock 4 through ds4_driver and a pad through ROS ``joy`` number their
-buttons differently. Joystick conventions are those of ``sensor_msgs/Joy``: sticks in -1..1,
-up and left positive, which matches REP-103 FLU: stick up = surge ahead, stick left = sway to
-port, right stick left = yaw counter-clockwise.
+``joy.*``): joystick drivers number their buttons differently. The modes themselves are
+``enbarr_interfaces.modes.Mode``, the vocabulary of the ``mode`` topic. Joystick conventions
+are those of ``sensor_msgs/Joy``: sticks in -1..1, up and left positive, which matches
+REP-103 FLU: stick up = surge ahead, stick left = sway to port, right stick left = yaw
+counter-clockwise.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-import enum
 import math
 from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-
-class Mode(enum.Enum):
-    """The operator mode; the value is what ``mode`` carries."""
-
-    MANUAL = 'manual'
-    AUTOMATIC = 'automatic'
-    GUIDANCE = 'guidance'
+from enbarr_interfaces.modes import Mode
 
 
 @dataclass(frozen=True)

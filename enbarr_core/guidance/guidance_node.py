@@ -29,7 +29,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.control.modes import Mode
+from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference

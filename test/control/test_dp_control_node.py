@@ -15,7 +15,7 @@ from support.saucer import (
     CROSS, DpHarness, SQUARE, TRIANGLE, joy_msg, node_parameters, odometry_msg, overrides)
 
 from enbarr_core.control.dp_control_node import DpControlNode
-from enbarr_core.control.modes import Mode
+from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.guidance.guidance import HoldPose
 from enbarr_core.guidance.guidance_node import msg_to_reference, reference_to_msg

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from enbarr_core.bringup.profile import load_profile
-from enbarr_core.control.modes import JoyMapping, Mode, ModeManager, Transition
+from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
+from enbarr_interfaces.modes import Mode
 
 _JOY = load_profile('saucer_core').parameters
 DS4 = JoyMapping(*(_JOY[f'joy.{k}'] for k in (
@@ -278,7 +279,7 @@ def test_mapping_validation():
 
 def test_manual_button_wins_when_pressed_with_another():
     """Cross together with triangle or square means manual: the safe request wins."""
-    from enbarr_core.control.modes import Mode, ModeManager
+    from enbarr_core.control.modes import ModeManager
     mm = ModeManager(DS4, TAU_MAX)
     axes = [0.0] * 8
     mm.on_joy(axes, [0, 0, 1, 0] + [0] * 9, 0.0, True, True)   # triangle

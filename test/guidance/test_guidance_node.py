@@ -13,7 +13,7 @@ from std_msgs.msg import Bool, String
 from support.nodes import TIMEOUT, add, get_param, param_client, probe, set_param
 from support.saucer import T0_NS, odometry_msg, overrides
 
-from enbarr_core.control.modes import Mode
+from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.guidance.guidance_node import GuidanceNode, msg_to_reference
 from enbarr_interfaces import convert, topics

@@ -19,7 +19,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.dp_control_node import DpControlNode
-from enbarr_core.control.modes import JoyMapping, Mode
+from enbarr_core.control.modes import JoyMapping
+from enbarr_interfaces.modes import Mode
 from enbarr_core.guidance.guidance_node import GuidanceNode
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
