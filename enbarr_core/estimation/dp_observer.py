@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.kinematics import ssa
-from enbarr_core.framework.checks import floats
+from enbarr_core.framework.checks import check_gain_vectors, floats
 
 Vector = NDArray[np.float64]
 
@@ -72,21 +72,11 @@ class ObserverSettings:
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
-        for name in ('K1', 'K2', 'K3', 'T_b', 'M', 'D', 'Dn'):
+        check_gain_vectors(self, ('K1', 'K2', 'K3', 'T_b', 'M', 'D', 'Dn'), 3, 'x y psi',
+                           may_be_infinite=('T_b',), positive=('T_b', 'M'))
+        for name in ('K1', 'K3'):
             raw = getattr(self, name)
-            try:
-                value = np.asarray(raw, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'{name}: must be 3 numbers, got {raw!r}') from exc
-            if value.shape != (3,):
-                raise ValueError(f'{name}: must have 3 entries [x y psi], got {raw!r}')
-            if np.isnan(value).any() or (name != 'T_b' and not np.isfinite(value).all()):
-                raise ValueError(f'{name}: must be finite, got {raw!r}')
-            if name in ('T_b', 'M') and (value <= 0.0).any():
-                raise ValueError(f'{name}: must be positive, got {raw!r}')
-            if (value < 0.0).any():
-                raise ValueError(f'{name}: must be non-negative, got {raw!r}')
-            if name in ('K1', 'K3') and value[0] != value[1]:
+            if float(raw[0]) != float(raw[1]):
                 raise ValueError(f'{name}: x and y entries must be equal (R(psi) K = K R(psi)),'
                                  f' got {raw!r}')
         for name in ('stale_after', 'max_position_jump', 'max_heading_jump'):
