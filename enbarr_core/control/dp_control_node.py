@@ -64,42 +64,39 @@ from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.guidance.guidance_node import msg_to_reference
 from enbarr_core.models.vessel3dof_params import (
-    required_vector, VESSEL_SPECS, vessel_from_params)
+    vector3, VESSEL_SPECS, vessel_from_params)
 
 _XYN = '(surge, sway, yaw)'
-_UNSET = [0.0]
-_UNSET_INDEX = -1
 _ESTIMATES_KEPT = 8  # estimates kept to pair with their reference
 SPECS = [
-    ParamSpec('kp', list(_UNSET), f'Proportional gains {_XYN}; required', 'N/m, N m/rad', 0.0,
-              1e4),
-    ParamSpec('ki', list(_UNSET), f'Integral gains {_XYN}; required', 'N/(m s), N m/(rad s)',
-              0.0, 1e4),
-    ParamSpec('kd', list(_UNSET), f'Derivative gains {_XYN}; required', 'N s/m, N m s/rad', 0.0,
-              1e4),
-    ParamSpec('integral_limit', list(_UNSET), f'Integral clamp {_XYN}; required', 'N, N m',
-              0.0, 1e4),
-    ParamSpec('tau_max', list(_UNSET), f'Force limits {_XYN}; required', 'N, N m', 0.0, 1e4),
+    ParamSpec('kp', [0.0, 0.0, 0.0], f'Proportional gains {_XYN}', 'N/m, N m/rad', 0.0,
+              1e4, required=True),
+    ParamSpec('ki', [0.0, 0.0, 0.0], f'Integral gains {_XYN}', 'N/(m s), N m/(rad s)',
+              0.0, 1e4, required=True),
+    ParamSpec('kd', [0.0, 0.0, 0.0], f'Derivative gains {_XYN}', 'N s/m, N m s/rad', 0.0,
+              1e4, required=True),
+    ParamSpec('integral_limit', [0.0, 0.0, 0.0], f'Integral clamp {_XYN}', 'N, N m',
+              0.0, 1e4, required=True),
+    ParamSpec('tau_max', [0.0, 0.0, 0.0], f'Force limits {_XYN}', 'N, N m', 0.0, 1e4,
+              required=True),
     ParamSpec('gain_ramp_time', 1.0, 'Time a gain change takes to act fully', 's', 0.0, 60.0),
     ParamSpec('bias_feedforward', True, "Cancel the observer's bias estimate"),
     *VESSEL_SPECS,
-    ParamSpec('manual_tau_max', list(_UNSET), f'Force at full stick {_XYN}; required',
-              'N, N m', 0.0, 1e4),
+    ParamSpec('manual_tau_max', [0.0, 0.0, 0.0], f'Force at full stick {_XYN}',
+              'N, N m', 0.0, 1e4, required=True),
     ParamSpec('estimate_max_age', 1.5, 'Automatic needs a pose accepted within this time', 's',
               0.01, 60.0),
     ParamSpec('joy_timeout', 0.5, 'No joystick sample for this long: manual, zero force', 's',
               0.01, 60.0),
-    ParamSpec('joy.axis_surge', _UNSET_INDEX, 'Joy axis for surge (up = +1); required', '',
-              -1, 64),
-    ParamSpec('joy.axis_sway', _UNSET_INDEX, 'Joy axis for sway (left = +1); required', '',
-              -1, 64),
-    ParamSpec('joy.axis_yaw', _UNSET_INDEX, 'Joy axis for yaw (left = +1); required', '', -1,
-              64),
-    ParamSpec('joy.button_automatic', _UNSET_INDEX, 'Button to automatic; required', '', -1,
-              64),
-    ParamSpec('joy.button_guidance', _UNSET_INDEX, 'Button to guidance; required', '', -1,
-              64),
-    ParamSpec('joy.button_manual', _UNSET_INDEX, 'Button to manual; required', '', -1, 64),
+    ParamSpec('joy.axis_surge', 0, 'Joy axis for surge (up = +1)', '', 0, 64, required=True),
+    ParamSpec('joy.axis_sway', 0, 'Joy axis for sway (left = +1)', '', 0, 64, required=True),
+    ParamSpec('joy.axis_yaw', 0, 'Joy axis for yaw (left = +1)', '', 0,
+              64, required=True),
+    ParamSpec('joy.button_automatic', 0, 'Button to automatic', '', 0,
+              64, required=True),
+    ParamSpec('joy.button_guidance', 0, 'Button to guidance', '', 0,
+              64, required=True),
+    ParamSpec('joy.button_manual', 0, 'Button to manual', '', 0, 64, required=True),
     ParamSpec('joy.deadzone', 0.05, 'Stick dead zone', '', 0.0, 0.99),
 ]
 _JOY = ('axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
@@ -123,24 +120,21 @@ class DpControlNodeSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
         vessel = vessel_from_params(v)
         control = DpControlSettings(
-            Kp=required_vector(v, 'kp'), Ki=required_vector(v, 'ki'),
-            Kd=required_vector(v, 'kd'), integral_limit=required_vector(v, 'integral_limit'),
-            tau_max=required_vector(v, 'tau_max'), M=vessel.M, D=vessel.D, Dn=vessel.Dn,
+            Kp=vector3(v, 'kp'), Ki=vector3(v, 'ki'),
+            Kd=vector3(v, 'kd'), integral_limit=vector3(v, 'integral_limit'),
+            tau_max=vector3(v, 'tau_max'), M=vessel.M, D=vessel.D, Dn=vessel.Dn,
             gain_ramp_time=v['gain_ramp_time'], bias_feedforward=v['bias_feedforward'])
         try:
             control.validate()
         except ValueError as err:
             field = str(err).split(':')[0]
             raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
-        for name in _JOY:
-            if v[f'joy.{name}'] == _UNSET_INDEX:
-                raise ValueError(f'joy.{name} is not set; the profile must give it')
         mapping = JoyMapping(*(v[f'joy.{name}'] for name in _JOY), v['joy.deadzone'])
         try:
             mapping.validate()
         except ValueError as err:
             raise ValueError(f'joy: {err}') from err
-        return cls(control, mapping, required_vector(v, 'manual_tau_max'),
+        return cls(control, mapping, vector3(v, 'manual_tau_max'),
                    v['estimate_max_age'], v['joy_timeout'])
 
 

@@ -30,17 +30,16 @@ from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.models.vessel3dof_params import (
-    required_vector, VESSEL_SPECS, vessel_from_params)
+    vector3, VESSEL_SPECS, vessel_from_params)
 
 _XYN = '(x, y, psi)'
-_UNSET = [0.0]
 SPECS = [
-    ParamSpec('k1', list(_UNSET), f'Position injection gains K1 {_XYN}; required', '1/s', 0.0,
-              1e4),
-    ParamSpec('k2', list(_UNSET), f'Bias injection gains K2 {_XYN}; required',
-              'N/(m s), N m/(rad s)', 0.0, 1e5),
-    ParamSpec('k3', list(_UNSET), f'Velocity injection gains K3 {_XYN}; required',
-              'N/m, N m/rad', 0.0, 1e5),
+    ParamSpec('k1', [0.0, 0.0, 0.0], f'Position injection gains K1 {_XYN}', '1/s', 0.0,
+              1e4, required=True),
+    ParamSpec('k2', [0.0, 0.0, 0.0], f'Bias injection gains K2 {_XYN}',
+              'N/(m s), N m/(rad s)', 0.0, 1e5, required=True),
+    ParamSpec('k3', [0.0, 0.0, 0.0], f'Velocity injection gains K3 {_XYN}',
+              'N/m, N m/rad', 0.0, 1e5, required=True),
     ParamSpec('t_b', [1000.0, 1000.0, 1000.0], f'Bias time constants T_b {_XYN}', 's', 1e-3,
               1e9),
     *VESSEL_SPECS,
@@ -67,8 +66,8 @@ class DpObserverNodeSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
         vessel = vessel_from_params(v)
         s = ObserverSettings(
-            K1=required_vector(v, 'k1'), K2=required_vector(v, 'k2'),
-            K3=required_vector(v, 'k3'), T_b=required_vector(v, 't_b'),
+            K1=vector3(v, 'k1'), K2=vector3(v, 'k2'),
+            K3=vector3(v, 'k3'), T_b=vector3(v, 't_b'),
             M=vessel.M, D=vessel.D, Dn=vessel.Dn, stale_after=v['stale_after'],
             max_position_jump=v['max_position_jump'], max_heading_jump=v['max_heading_jump'])
         try:

@@ -51,14 +51,14 @@ SPECS = [
     ParamSpec('script', [''], 'Timed joystick lines (see the module doc)', read_only=True,
               element=str),
     ParamSpec('rate', 20.0, 'Publication rate', 'Hz', 1.0, 1000.0, read_only=True),
-    ParamSpec('joy.buttons', [''], 'Name of the button at each index; required',
-              read_only=True, element=str),
-    ParamSpec('joy.axis_surge', -1, 'Axis of the surge stick (up = +1); required', '', -1, 64,
-              read_only=True),
-    ParamSpec('joy.axis_sway', -1, 'Axis of the sway stick (left = +1); required', '', -1, 64,
-              read_only=True),
-    ParamSpec('joy.axis_yaw', -1, 'Axis of the yaw stick (left = +1); required', '', -1, 64,
-              read_only=True),
+    ParamSpec('joy.buttons', [''], 'Name of the button at each index', read_only=True,
+              element=str, required=True),
+    ParamSpec('joy.axis_surge', 0, 'Axis of the surge stick (up = +1)', '', 0, 64,
+              read_only=True, required=True),
+    ParamSpec('joy.axis_sway', 0, 'Axis of the sway stick (left = +1)', '', 0, 64,
+              read_only=True, required=True),
+    ParamSpec('joy.axis_yaw', 0, 'Axis of the yaw stick (left = +1)', '', 0, 64,
+              read_only=True, required=True),
 ]
 
 
@@ -75,16 +75,9 @@ class ScriptedJoySettings:
     def from_params(cls, v: Mapping[str, Any]) -> ScriptedJoySettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
         names = list(v['joy.buttons'])
-        if names == ['']:
-            raise ValueError('joy.buttons is not set; the profile must give it (the name of '
-                             'each button index)')
         if any(not n for n in names) or len(set(names)) != len(names):
             raise ValueError(f'joy.buttons: expected distinct non-empty names, got {names}')
-        axes = []
-        for name in ('joy.axis_surge', 'joy.axis_sway', 'joy.axis_yaw'):
-            if v[name] < 0:
-                raise ValueError(f'{name} is not set; the profile must give it')
-            axes.append(v[name])
+        axes = [v[name] for name in ('joy.axis_surge', 'joy.axis_sway', 'joy.axis_yaw')]
         if len(set(axes)) != 3:
             raise ValueError(f'joy.axis_surge, joy.axis_sway, joy.axis_yaw: expected 3 '
                              f'different axes, got {axes}')

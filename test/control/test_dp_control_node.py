@@ -224,8 +224,9 @@ def test_a_reference_before_its_estimate_waits_for_it(context, executor, spin):
 @pytest.mark.parametrize('missing', ['vessel.inertia', 'kp', 'tau_max', 'joy.button_manual'])
 def test_vessel_data_and_gains_are_required(context, missing):
     given = {k: v for k, v in node_parameters('dp_control').items() if k != missing}
-    with pytest.raises(ConfigurationError, match=f'{missing} is not set; the profile must '
-                       'give it') as info:
+    with pytest.raises(ConfigurationError,
+                       match=f"parameter '{missing}' is not set; the profile must give it"
+                       ) as info:
         DpControlNode(node_name='dp_control', context=context,
                       parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
     assert 'Traceback' not in str(info.value)

@@ -85,8 +85,8 @@ def test_dp_observer_needs_its_gains_and_vessel_from_the_profile(context, missin
 
     from enbarr_core.framework.errors import ConfigurationError
     given = {k: v for k, v in node_parameters('observer').items() if k != missing}
-    with pytest.raises(ConfigurationError, match=f'{missing} is not set; the profile must '
-                       'give it'):
+    with pytest.raises(ConfigurationError,
+                       match=f"parameter '{missing}' is not set; the profile must give it"):
         DpObserverNode(node_name='observer', context=context,
                        parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
 

@@ -47,7 +47,7 @@ def test_the_layout_is_required(context, missing):
     params = {'joy.buttons': ROS_JOY, 'joy.axis_surge': 1, 'joy.axis_sway': 0,
               'joy.axis_yaw': 3}
     params.pop(missing)
-    with pytest.raises(ConfigurationError, match=f'{missing} is not set'):
+    with pytest.raises(ConfigurationError, match=f"parameter '{missing}' is not set"):
         joystick(context, **params)
 
 

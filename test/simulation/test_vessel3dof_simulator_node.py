@@ -81,8 +81,8 @@ def test_simulator_needs_the_vessel_from_the_profile(context):
 
     from enbarr_core.framework.errors import ConfigurationError
     given = {k: v for k, v in COMMON.items() if k != 'vessel.inertia'}
-    with pytest.raises(ConfigurationError, match='vessel.inertia is not set; the profile '
-                       'must give it'):
+    with pytest.raises(ConfigurationError,
+                       match="parameter 'vessel.inertia' is not set; the profile must give it"):
         Vessel3DofSimulatorNode(node_name='simulator', context=context,
                             parameter_overrides=[Parameter(k, value=v)
                                                  for k, v in given.items()])
