@@ -29,7 +29,7 @@ calibration are read only: geometry is fixed while the vehicle runs.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 from typing import Any, Generic, TypeVar
 
@@ -42,22 +42,6 @@ from enbarr_core.framework.params import ParamSpec, SettingsBinding
 from enbarr_core.models.vessel3dof import AzimuthSpec
 
 T = TypeVar('T')
-
-
-@dataclass(frozen=True)
-class Field:
-    """One parameter every member of a layout has (``<section>.<name>.<key>``).
-
-    ``default`` only gives the type (no value is ever taken from it: the profile must give
-    every field); ``low``/``high`` bound the value, or each element of a list.
-    """
-
-    key: str
-    default: Any
-    description: str
-    units: str = ''
-    low: float | None = None
-    high: float | None = None
 
 
 @dataclass(frozen=True)
@@ -77,7 +61,7 @@ class Layout(Generic[T]):
     names_param: str
     section: str
     kind: str
-    fields: tuple[Field, ...]
+    fields: tuple[ParamSpec, ...]  # per-member templates: name = the key
     build: Callable[[str, Mapping[str, Any]], T]
 
     def names(self, node: Node) -> tuple[str, ...]:
@@ -97,9 +81,8 @@ class Layout(Generic[T]):
 
     def specs(self, node: Node, names: Sequence[str]) -> list[ParamSpec]:
         """Return the per-member parameters of ``names`` (required: vessel data)."""
-        specs = [ParamSpec(f'{self.section}.{n}.{f.key}', f.default,
-                           f'{f.description} of {self.kind} {n}', f.units, f.low, f.high,
-                           read_only=True, required=True)
+        specs = [replace(f, name=f'{self.section}.{n}.{f.name}',
+                         description=f'{f.description} of {self.kind} {n}')
                  for n in names for f in self.fields]
         return specs
 
@@ -108,7 +91,7 @@ class Layout(Generic[T]):
         out = []
         for n in names:
             try:
-                out.append(self.build(n, {f.key: v[f'{self.section}.{n}.{f.key}']
+                out.append(self.build(n, {f.name: v[f'{self.section}.{n}.{f.name}']
                                           for f in self.fields}))
             except ConfigurationError as err:  # the member names itself
                 raise ValueError(str(err)) from err
@@ -121,12 +104,19 @@ class Layout(Generic[T]):
                                lambda v: self.from_params(names, v), lambda _: None).settings
 
 
+def _field(key: str, default: Any, description: str, units: str, low: float,
+           high: float) -> ParamSpec:
+    """Make a per-member parameter template: vessel data, so required and read only."""
+    return ParamSpec(key, default, description, units, low, high, read_only=True,
+                     required=True)
+
+
 THRUSTER_FIELDS = (
-    Field('position', [0.0, 0.0, 0.0], 'Position in base_link', 'm', -100.0, 100.0),
-    Field('direction', [0.0, 0.0, 0.0], 'Thrust direction for a positive command '
+    _field('position', [0.0, 0.0, 0.0], 'Position in base_link', 'm', -100.0, 100.0),
+    _field('direction', [0.0, 0.0, 0.0], 'Thrust direction for a positive command '
           '(base_link; normalized on use)', '', -1e3, 1e3),
-    Field('max_forward', 0.0, 'Thrust at command +1', 'N', 1e-6, 1e6),
-    Field('max_reverse', 0.0, 'Thrust magnitude at command -1', 'N', 1e-6, 1e6),
+    _field('max_forward', 0.0, 'Thrust at command +1', 'N', 1e-6, 1e6),
+    _field('max_reverse', 0.0, 'Thrust magnitude at command -1', 'N', 1e-6, 1e6),
 )
 
 
@@ -143,13 +133,13 @@ def declare_thrusters(node: Node) -> tuple[Thruster, ...]:
 
 
 AZIMUTH_FIELDS = (
-    Field('position', [0.0, 0.0], '(x, y) in base_link', 'm', -100.0, 100.0),
-    Field('max_forward', 0.0, 'Largest forward thrust', 'N', 1e-6, 1e5),
-    Field('max_reverse', 0.0, 'Largest reverse thrust magnitude', 'N', 1e-6, 1e5),
-    Field('angle_min', 0.0, 'Servo travel limit (lower)', 'rad', -math.pi, math.pi),
-    Field('angle_max', 0.0, 'Servo travel limit (upper)', 'rad', -math.pi, math.pi),
-    Field('time_constant', 0.0, 'First-order thrust response', 's', 0.0, 10.0),
-    Field('max_angle_rate', 0.0, 'Servo slew rate', 'rad/s', 1e-3, 1e3),
+    _field('position', [0.0, 0.0], '(x, y) in base_link', 'm', -100.0, 100.0),
+    _field('max_forward', 0.0, 'Largest forward thrust', 'N', 1e-6, 1e5),
+    _field('max_reverse', 0.0, 'Largest reverse thrust magnitude', 'N', 1e-6, 1e5),
+    _field('angle_min', 0.0, 'Servo travel limit (lower)', 'rad', -math.pi, math.pi),
+    _field('angle_max', 0.0, 'Servo travel limit (upper)', 'rad', -math.pi, math.pi),
+    _field('time_constant', 0.0, 'First-order thrust response', 's', 0.0, 10.0),
+    _field('max_angle_rate', 0.0, 'Servo slew rate', 'rad/s', 1e-3, 1e3),
 )
 
 
