@@ -234,13 +234,13 @@ def test_consistent_offset_after_long_dropout_reinitializes():
 def kirchhoff_coriolis(nu, M):
     """C(nu) nu of the planar body from Kirchhoff's equations in vector form, not from the
     observer's matrix: with the body's linear velocity v = (u, v, 0), angular velocity
-    w = (0, 0, r), and the momenta p = (m11 u, m22 v, 0), l = (0, 0, m33 r) (the gradients
-    of T = 1/2 nu' M nu), the force is w x p and the moment v x p + w x l; surge, sway, yaw.
+    w = (0, 0, r), and the momenta p = (m11 u, m22 v, 0), h = (0, 0, m33 r) (the gradients
+    of T = 1/2 nu' M nu), the force is w x p and the moment v x p + w x h; surge, sway, yaw.
     """
     u, v, r = nu
     lin, ang = np.array([u, v, 0.0]), np.array([0.0, 0.0, r])
-    p, l = np.array([M[0] * u, M[1] * v, 0.0]), np.array([0.0, 0.0, M[2] * r])
-    force, moment = np.cross(ang, p), np.cross(lin, p) + np.cross(ang, l)
+    p, h = np.array([M[0] * u, M[1] * v, 0.0]), np.array([0.0, 0.0, M[2] * r])
+    force, moment = np.cross(ang, p), np.cross(lin, p) + np.cross(ang, h)
     return np.array([force[0], force[1], moment[2]])
 
 
