@@ -182,10 +182,16 @@ class SegmentedBagWriter:
                 {'topic_metadata': self._topic_meta[name], 'message_count': n}
                 for name, n in sorted(self._closed_counts.items())],
         }
+        # Written beside it and moved over it: a reader (or a kill) sees the old file or the
+        # new one, never a part; a failed write leaves the old one.
         tmp = self.path / 'metadata.yaml.tmp'
-        tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
-                                      default_flow_style=False, sort_keys=False))
-        os.replace(tmp, self.path / 'metadata.yaml')
+        try:
+            tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
+                                          default_flow_style=False, sort_keys=False))
+            os.replace(tmp, self.path / 'metadata.yaml')
+        except OSError as err:
+            raise RecorderError(f'{self.path}: cannot write metadata.yaml: {err.strerror}; '
+                                'the previous version is kept') from err
 
 
 def read_bag(path: str | os.PathLike[str]) -> dict[str, list[tuple[int, Any]]]:

@@ -102,7 +102,10 @@ class SimThrustersNode(ActuatorDriver):
         target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
         tc = self.settings.time_constant
         last, self._last_apply_ns = self._last_apply_ns, now_ns
-        if tc > 0.0 and last is not None and not self.neutral:
+        # The lag is skipped only from rest (thrust cut by write_neutral, or never set): a
+        # command of 0 is not a cut, the motor spins down and the next command goes on from
+        # the thrust of that moment.
+        if tc > 0.0 and last is not None and np.any(self.thrust):
             # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
             alpha = 1.0 - math.exp(-(now_ns - last) * 1e-9 / tc)
             self.thrust = self.thrust + alpha * (target - self.thrust)
@@ -128,6 +131,7 @@ class SimThrustersNode(ActuatorDriver):
     def write_neutral(self) -> None:
         """Command every thruster to neutral now (motor thrust cut, not ramped)."""
         self.neutral = True
+        self.thrust = np.zeros(len(self.names))  # cut: the lag starts again from rest
         self._output(np.zeros(len(self.names)), time.monotonic_ns())
 
     def status_values(self) -> dict[str, Any]:

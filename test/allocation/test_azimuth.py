@@ -98,13 +98,61 @@ def random_directions(rng: np.random.Generator, count: int) -> np.ndarray:
     return v
 
 
-def unsaturated_ratio(alloc: AzimuthAllocator, tau: np.ndarray) -> float:
+def least_norm_forces(tau: np.ndarray) -> np.ndarray:
+    """(3, 2) force pairs (f_x, f_y) of least sum |f_i|^2 delivering tau, derived by hand.
+
+    Force pair i at (x_i, y_i) contributes [f_x, f_y, x_i f_y - y_i f_x], so
+    B_ext = [[1, 0, ...], [0, 1, ...], [-y_i, x_i, ...]] and the least-norm solution is
+    f = B_ext^T (B_ext B_ext^T)^-1 tau. Three azimuths evenly spaced on radius r have
+    sum x_i = sum y_i = 0 and sum (x_i^2 + y_i^2) = 3 r^2: B_ext B_ext^T = diag(3, 3, 3 r^2),
+    so f_i = (X / 3 - y_i N / (3 r^2), Y / 3 + x_i N / (3 r^2)). No package code involved.
+    """
+    X, Y, N = tau
+    k = N / (3.0 * RADIUS ** 2)
+    return np.column_stack([X / 3.0 - POS[:, 1] * k, Y / 3.0 + POS[:, 0] * k])
+
+
+def unsaturated_ratio(tau: np.ndarray) -> float:
     """Max |T_i| / limit_i of the least-norm solution (before any scaling)."""
-    f = (alloc.B_pinv @ tau).reshape(-1, 2)
+    f = least_norm_forces(tau)
     m = np.hypot(f[:, 0], f[:, 1])
     # The representation chosen without a previous angle is positive thrust when possible.
     phi = np.arctan2(f[:, 1], f[:, 0])
     return float(np.max(m / np.where(np.abs(phi) <= A_LIM, F_FWD, F_REV)))
+
+
+def test_pure_yaw_and_pure_surge_by_hand():
+    """Hand numbers. Yaw N = 0.1 N m: each azimuth pushes N / (3 r) = 0.2424 N tangentially,
+    towards its position angle + 90 deg: 180 deg for the one at 90 deg (outside +-114 deg, so
+    reversed: angle 0, thrust -0.2424), -60 deg and +60 deg for the others. Surge X = 0.9 N:
+    0.3 N each at 0 deg."""
+    alloc = AzimuthAllocator(saucer_specs())
+    t = 0.1 / (3.0 * RADIUS)
+    res = alloc.allocate([0.0, 0.0, 0.1])
+    np.testing.assert_allclose(res.thrust, [-t, t, t], rtol=1e-12)
+    np.testing.assert_allclose(res.angle, np.radians([0.0, -60.0, 60.0]), atol=1e-12)
+    assert res.feasible and res.scale == 1.0
+    res = alloc.allocate([0.9, 0.0, 0.0])
+    np.testing.assert_allclose(res.thrust, [0.3, 0.3, 0.3], rtol=1e-12)
+    np.testing.assert_allclose(res.angle, 0.0, atol=1e-12)
+    # Yaw beyond the reverse limit of the first azimuth (1.0 N): N = 3 r 1.25 needs 1.25 N
+    # reversed there, so everything is scaled by 1 / 1.25.
+    res = alloc.allocate([0.0, 0.0, 3.0 * RADIUS * 1.25])
+    assert not res.feasible and res.scale == pytest.approx(0.8, rel=1e-12)
+    np.testing.assert_allclose(res.thrust, [-1.0, 1.0, 1.0], rtol=1e-12)
+
+
+def test_least_norm_forces_match_the_allocator():
+    """Per azimuth, |T| and the force direction are those of the hand-derived least-norm
+    solution (attainable tau)."""
+    alloc = AzimuthAllocator(saucer_specs())
+    rng = np.random.default_rng(5)
+    for direction in random_directions(rng, 30):
+        tau = direction * 0.7 / unsaturated_ratio(direction)
+        res = alloc.allocate(tau)
+        f = least_norm_forces(tau)
+        np.testing.assert_allclose(res.thrust * np.cos(res.angle), f[:, 0], atol=1e-12)
+        np.testing.assert_allclose(res.thrust * np.sin(res.angle), f[:, 1], atol=1e-12)
 
 
 def tau_by_hand(specs, thrust, angle) -> list[float]:
@@ -129,7 +177,7 @@ def test_attainable_tau_matches_slsqp_with_least_thrust():
     rng = np.random.default_rng(20240612)
     gaps = []
     for direction in random_directions(rng, 20):
-        tau = direction * rng.uniform(0.1, 0.8) / unsaturated_ratio(alloc, direction)
+        tau = direction * rng.uniform(0.1, 0.8) / unsaturated_ratio(direction)
         res = alloc.allocate(tau)
         assert res.feasible and res.scale == 1.0
         np.testing.assert_allclose(res.tau_delivered, tau, atol=1e-12)
@@ -156,7 +204,11 @@ def test_weighted_least_norm_matches_kkt():
     """Min sum w_i (f_xi^2 + f_yi^2) s.t. B_ext f = tau, from its KKT equations."""
     weights = [1.0, 4.0, 0.5]
     alloc = AzimuthAllocator(saucer_specs(), weights=weights)
-    B = extended_allocation_matrix(POS)
+    # B_ext written out here: columns [1, 0, -y_i] and [0, 1, x_i] per azimuth.
+    B = np.zeros((3, 6))
+    B[0, 0::2], B[1, 1::2] = 1.0, 1.0
+    B[2, 0::2], B[2, 1::2] = -POS[:, 1], POS[:, 0]
+    np.testing.assert_array_equal(extended_allocation_matrix(POS), B)
     W = np.diag(np.repeat(weights, 2))
     kkt = np.block([[W, B.T], [B, np.zeros((3, 3))]])
     rng = np.random.default_rng(9)
@@ -189,7 +241,7 @@ def test_unattainable_tau_is_scaled_along_its_direction():
     rng = np.random.default_rng(77)
     for direction in random_directions(rng, 25):
         excess = rng.uniform(1.5, 10.0)
-        tau = direction * excess / unsaturated_ratio(alloc, direction)
+        tau = direction * excess / unsaturated_ratio(direction)
         res = alloc.allocate(tau)
         assert not res.feasible and 0.0 < res.scale < 1.0
         assert res.scale == pytest.approx(1.0 / excess, rel=1e-9)

@@ -13,6 +13,7 @@ from enbarr_core.control.velocity_control import (
     ControlOutput,
     VelocityController,
     VelocityControlSettings,
+    VelocityReference,
 )
 
 DT = 0.01  # [s]
@@ -425,3 +426,157 @@ def test_reset_and_output_type():
     ctrl.reset()
     again = ctrl.step(six(1.0), six(0.0), DT)
     np.testing.assert_array_equal(again.tau, out.tau)
+
+
+# --- VelocityReference: the reference model in front of the loop ---------------------------
+#
+# nu_ref_dot = sat((goal - nu_ref) / max(T, dt), a_max), nu_ref += nu_ref_dot dt per DOF.
+# The expected values below are written from that recursion and its closed forms, not from
+# the class.
+
+T_REF = (0.5, 0.4, 0.8, 0.3, 0.3, 0.6)      # time constants [s]
+A_MAX = (0.5, 0.4, 0.3, 2.0, 2.0, 1.0)      # acceleration limits [m/s^2, rad/s^2]
+
+
+def test_reference_small_step_is_the_first_order_closed_form():
+    """Below the acceleration limit the response to a step is exactly (1 - dt/T)^k away from
+    the goal (the forward-Euler recursion), and within the Euler error of 1 - exp(-t/T)."""
+    ref = VelocityReference(T_REF, six(100.0))          # limit far above goal / T
+    goal = np.array([0.2, -0.1, 0.05, 0.3, -0.2, 0.1])
+    T = np.array(T_REF)
+    for k in range(1, 301):
+        nu_ref, nu_ref_dot = ref.step(goal, DT)
+        expected = goal * (1.0 - (1.0 - DT / T) ** k)
+        # Budget: float64 rounding of k additions, |goal| 1e-16 per step -> 1e-13.
+        np.testing.assert_allclose(nu_ref, expected, rtol=0.0, atol=1e-13)
+        # The rate is what moved the reference in this step: (goal - nu_ref_before) / T.
+        np.testing.assert_allclose(
+            nu_ref_dot, goal * (1.0 - DT / T) ** (k - 1) / T, rtol=0.0, atol=1e-12)
+    # 63 % at one time constant, as the continuous first-order lag 1 - exp(-t/T). With
+    # h = dt / T and n = T / dt, ln(1 - h) lies in [-h - h^2/2 - h^3/(3(1 - h)), -h], so the
+    # Euler response exceeds 1 - exp(-1) by between 0 and exp(-1) (1 - exp(-h/2 - h^2/(3(1-h)))):
+    # that bound is the budget (0.0037 for T = 0.5 s).
+    ref = VelocityReference(T_REF, six(100.0))
+    for j, tc in enumerate(T_REF):
+        ref.reset()
+        n = round(tc / DT)
+        for _ in range(n):
+            nu_ref, _ = ref.step(goal, DT)
+        h = DT / tc
+        lead = nu_ref[j] / goal[j] - (1.0 - math.exp(-1.0))
+        budget = math.exp(-1.0) * (1.0 - math.exp(-h / 2 - h * h / (3 * (1 - h))))
+        assert -1e-12 <= lead <= budget, (j, lead, budget)
+
+
+def test_reference_large_step_ramps_at_the_acceleration_limit_then_converges():
+    """A step too big for the limit: a ramp of slope a_max until (goal - nu_ref) / T falls
+    below a_max, then the first-order tail; never past the goal, rate never above a_max."""
+    ref = VelocityReference(T_REF, A_MAX)
+    goal = np.array([1.0, -1.0, 0.6, 3.0, -3.0, 1.5])
+    a = np.array(A_MAX)
+    T = np.array(T_REF)
+    prev = err_prev = np.zeros(6)
+    ramp_steps = np.floor((np.abs(goal) - a * T) / (a * DT)).astype(int)  # still limited
+    for k in range(1, 1001):
+        nu_ref, nu_ref_dot = ref.step(goal, DT)
+        assert np.all(np.abs(nu_ref_dot) <= a + 1e-12)
+        assert np.all(np.abs(nu_ref - prev) <= a * DT + 1e-12)      # no jump, ever
+        assert np.all(np.sign(goal) * (goal - nu_ref) >= -1e-12)    # never beyond the goal
+        ramping = k <= ramp_steps
+        # During the ramp: exactly a_max k dt in the goal's direction.
+        np.testing.assert_allclose(nu_ref[ramping], (np.sign(goal) * a * DT * k)[ramping],
+                                   rtol=0.0, atol=1e-12)
+        # After it (one transition step later): the error shrinks by exactly 1 - dt/T a step.
+        tail = k > ramp_steps + 1
+        err = goal - nu_ref
+        np.testing.assert_allclose(err[tail], (err_prev * (1.0 - DT / T))[tail],
+                                   rtol=1e-9, atol=1e-15)
+        prev, err_prev = nu_ref.copy(), err
+    # The ramp really was limited (the test would pass vacuously otherwise): it lasts
+    # (|goal| - a T) / a, the closed form of the limited phase, here 0.9 to 2.1 s.
+    assert np.all(ramp_steps >= 90)
+
+
+def test_reference_without_the_limit_would_jump():
+    """The same large step with a_max effectively off moves goal dt / T in the first step:
+    far more than a_max dt. So the limit above is what keeps the ramp (a guard of the test)."""
+    goal = np.array([1.0, -1.0, 0.6, 3.0, -3.0, 1.5])
+    free = VelocityReference(T_REF, six(1e9))
+    first, _ = free.step(goal, DT)
+    limited = VelocityReference(T_REF, A_MAX)
+    first_limited, _ = limited.step(goal, DT)
+    np.testing.assert_allclose(first, goal * DT / np.array(T_REF), rtol=1e-12)
+    np.testing.assert_allclose(np.abs(first_limited), np.array(A_MAX) * DT, rtol=1e-12)
+    assert np.all(np.abs(first) > 2.0 * np.abs(first_limited))
+
+
+def test_reference_step_in_each_direction_is_symmetric():
+    up, down = VelocityReference(T_REF, A_MAX), VelocityReference(T_REF, A_MAX)
+    goal = np.array([0.8, 0.5, -0.4, 1.0, -2.0, 0.7])
+    for _ in range(200):
+        a, _ = up.step(goal, DT)
+        b, _ = down.step(-goal, DT)
+        np.testing.assert_allclose(a, -b, rtol=0.0, atol=1e-15)
+
+
+def test_reference_dt_longer_than_t_lands_on_the_goal_without_overshoot():
+    """dt > T: the rate is (goal - nu_ref) / dt, so one step lands exactly on the goal."""
+    ref = VelocityReference(six(0.05), six(1e3))
+    goal = np.array([0.3, -0.2, 0.1, 0.4, -0.5, 0.6])
+    nu_ref, nu_ref_dot = ref.step(goal, 0.2)
+    np.testing.assert_allclose(nu_ref, goal, rtol=1e-15)
+    np.testing.assert_allclose(nu_ref_dot, goal / 0.2, rtol=1e-15)
+    again, rate = ref.step(goal, 0.2)
+    np.testing.assert_allclose(again, goal, rtol=1e-15)
+    np.testing.assert_array_equal(rate, 0.0)
+
+
+def test_reference_reset_is_bumpless():
+    """reset(nu) starts the reference at the vehicle's velocity with zero rate: holding that
+    goal moves nothing, and a new goal is approached from nu at no more than a_max dt per
+    step (no jump back to zero). reset() without an argument starts at rest."""
+    ref = VelocityReference(T_REF, A_MAX)
+    for _ in range(50):
+        ref.step(six(1.0), DT)
+    nu = np.array([0.2, -0.1, 0.05, 0.3, 0.0, -0.4])
+    ref.reset(nu)
+    np.testing.assert_array_equal(ref.nu_ref, nu)
+    np.testing.assert_array_equal(ref.nu_ref_dot, 0.0)
+    held, rate = ref.step(nu, DT)
+    np.testing.assert_array_equal(held, nu)
+    np.testing.assert_array_equal(rate, 0.0)
+    goal = nu + np.array([1.0, 1.0, -1.0, 2.0, 3.0, -2.0])
+    nxt, rate = ref.step(goal, DT)
+    np.testing.assert_allclose(nxt - nu, np.sign(goal - nu) * np.array(A_MAX) * DT, rtol=1e-12)
+    nu[0] = 5.0                                         # reset copied nu: no aliasing
+    assert ref.nu_ref[0] != 5.0
+    ref.reset()
+    np.testing.assert_array_equal(ref.nu_ref, 0.0)
+    np.testing.assert_array_equal(ref.nu_ref_dot, 0.0)
+
+
+@pytest.mark.parametrize('time_constant, max_accel, name', [
+    (six(0.0), A_MAX, 'time_constant'),
+    ((0.5, 0.5, -0.1, 0.5, 0.5, 0.5), A_MAX, 'time_constant'),
+    (six(math.nan), A_MAX, 'time_constant'),
+    (T_REF, six(0.0), 'max_accel'),
+    (T_REF, (1.0, 1.0, 1.0, 1.0, 1.0, -1.0), 'max_accel'),
+    (T_REF, six(math.nan), 'max_accel'),
+    ((0.5,) * 5, A_MAX, 'time_constant'),
+    (T_REF, (1.0,) * 7, 'max_accel'),
+])
+def test_reference_rejects_bad_parameters_by_name(time_constant, max_accel, name):
+    with pytest.raises(ValueError, match=name):
+        VelocityReference(time_constant, max_accel)
+
+
+def test_reference_step_rejects_bad_dt_and_goal_shape():
+    ref = VelocityReference(T_REF, A_MAX)
+    for dt in (0.0, -0.01, math.nan, math.inf):
+        with pytest.raises(ValueError, match='dt'):
+            ref.step(six(0.0), dt)
+    with pytest.raises(ValueError, match='nu_goal'):
+        ref.step(np.zeros(5), DT)
+    with pytest.raises(ValueError, match='nu'):
+        ref.reset(np.zeros(4))
+    np.testing.assert_array_equal(ref.nu_ref, 0.0)      # refused calls changed nothing

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,7 @@ from support.rov import layout_overrides, sim_parameters
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
+from enbarr_plugins.thrusters import sim as sim_module
 from enbarr_plugins.thrusters.sim import SimThrustersNode
 
 NAMES = sim_parameters()['thruster_names']
@@ -128,3 +130,113 @@ def test_time_constant_ramps_thrust(context, executor):
 def test_needs_thruster_names(context):
     with pytest.raises(ConfigurationError, match='thruster_names'):
         SimThrustersNode(node_name='thruster_control', context=context)
+
+
+# -- the motor lag against its closed form ---------------------------------------------------
+
+TC = 0.2                     # motor time constant of these tests [s]
+F_FWD, F_REV = 51.5, 40.2    # the sim profile's max_forward / max_reverse [N]
+
+
+class LagRig:
+    """Thrusters with a ``TC`` lag whose monotonic clock is the test's: ``at(t)`` commands."""
+
+    def __init__(self, context: Any, executor: Any, monkeypatch: Any) -> None:
+        self.now_ns = 1_000_000_000
+        monkeypatch.setattr(sim_module, 'time', SimpleNamespace(
+            monotonic_ns=lambda: self.now_ns))
+        self.node = add(executor, SimThrustersNode(
+            node_name='thruster_control', context=context, parameter_overrides=layout_overrides(
+                time_constant=TC, command_timeout=10.0)))
+        self.names = self.node.names
+        p = probe(context, executor, 'controller')
+        self.pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
+        self.thrusts: list[JointState] = []
+        p.create_topic_subscription(topics.SIM_THRUST, self.thrusts.append)
+        LinkBus.of(context).connect()
+
+    def at(self, t_s: float, effort: float) -> np.ndarray:
+        """Command every thruster to ``effort`` at monotonic time 1 s + ``t_s``."""
+        self.now_ns = 1_000_000_000 + round(t_s * 1e9)
+        self.pub.publish(JointState(name=self.names, effort=[effort] * len(self.names)))
+        published = np.array(self.thrusts[-1].effort)
+        np.testing.assert_array_equal(published, self.node.thrust)  # what the simulator gets
+        return published
+
+
+@pytest.fixture
+def lag(context, executor, monkeypatch) -> LagRig:
+    return LagRig(context, executor, monkeypatch)
+
+
+def first_order(f0: float, target: float, t: float) -> float:
+    """Thrust of a first-order motor t [s] after its command became ``target``."""
+    return target + (f0 - target) * math.exp(-t / TC)
+
+
+@pytest.mark.parametrize('before, after', [(0.2, 1.0), (1.0, 0.2), (0.6, -1.0), (-1.0, 0.5),
+                                           (-0.3, -0.9)])
+def test_lag_step_follows_the_first_order_closed_form(lag, before, after):
+    """A step between two commands: f(t) = f* + (f0 - f*) exp(-t / T), 63 % at t = T, from
+    either side and through zero. The lag treats each command as held since the previous
+    one (``f += (f* - f)(1 - exp(-dt / T))``), so t counts from the last command before the
+    step. Budget: float64 rounding of a few hundred updates, 1e-9 N.
+    """
+    f0 = before * (F_FWD if before >= 0 else F_REV)
+    target = after * (F_FWD if after >= 0 else F_REV)
+    lag.at(0.0, before)                                 # from neutral: the thrust is set
+    assert lag.node.thrust == pytest.approx([f0] * len(lag.names), abs=1e-12)
+    t_step, dt = 0.5, 0.01
+    lag.at(t_step, before)                              # held: no change
+    assert lag.node.thrust == pytest.approx([f0] * len(lag.names), abs=1e-12)
+    prev = f0
+    for k in range(1, 201):                             # 2 s = 10 T
+        t = k * dt
+        f = lag.at(t_step + t, after)
+        assert f == pytest.approx([first_order(f0, target, t)] * len(lag.names), abs=1e-9)
+        # Toward the target, never beyond it, and strictly closer each command.
+        assert np.all(np.sign(target - f0) * (target - f) >= -1e-12)
+        assert np.all(np.abs(target - f) < abs(target - prev))
+        prev = f[0]
+        if k == round(TC / dt):
+            frac = (f - f0) / (target - f0)
+            assert frac == pytest.approx([1.0 - math.exp(-1.0)] * len(lag.names), abs=1e-9)
+
+
+def test_lag_does_not_depend_on_the_command_spacing(lag):
+    """Irregular command intervals land on the same curve (the update is exact for a held
+    command, not a fixed-step approximation)."""
+    rng = np.random.default_rng(3)
+    lag.at(0.0, -0.4)
+    lag.at(0.1, -0.4)
+    f0 = -0.4 * F_REV
+    t = 0.0
+    while t < 1.0:
+        t += round(float(rng.uniform(0.001, 0.05)), 6)   # whole microseconds: exact in ns
+        f = lag.at(0.1 + t, 0.8)
+        assert f == pytest.approx([first_order(f0, 0.8 * F_FWD, t)] * len(lag.names), abs=1e-9)
+
+
+def test_a_zero_command_spins_down_with_the_lag_and_the_next_command_continues(lag):
+    """Commanding 0 is not a cut: the motor spins down with the lag, and a command after it
+    continues from the thrust of that moment (a reversal through 0 has no jump)."""
+    lag.at(0.0, 1.0)
+    lag.at(0.05, 1.0)
+    f = lag.at(0.06, 0.0)
+    f_zero = first_order(F_FWD, 0.0, 0.01)
+    assert f == pytest.approx([f_zero] * len(lag.names), abs=1e-9)
+    f = lag.at(0.07, -0.5)
+    assert f == pytest.approx([first_order(f_zero, -0.5 * F_REV, 0.01)] * len(lag.names),
+                              abs=1e-9)
+    assert np.all(f > 0.0)       # still pushing forward 10 ms into the reversal
+
+
+def test_safe_state_cuts_the_thrust_and_the_next_command_starts_from_its_target(lag):
+    """safe_state (watchdog, every exit path) cuts the thrust at once, not ramped; from that
+    rest the next command sets its thrust (documented: no lag on the first command)."""
+    lag.at(0.0, 1.0)
+    lag.at(0.05, 1.0)
+    lag.now_ns += 10_000_000
+    lag.node.safe_state()
+    assert lag.node.thrust == pytest.approx([0.0] * len(lag.names), abs=0.0)
+    assert lag.at(0.07, -0.5) == pytest.approx([-0.5 * F_REV] * len(lag.names), abs=1e-12)

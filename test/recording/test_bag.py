@@ -516,3 +516,91 @@ def test_a_guidance_reference_reads_back_with_rosbags_and_mcap(tmp_path: Path) -
         np.testing.assert_allclose(back.nu_d, ref.nu_d, atol=1e-12)
         np.testing.assert_allclose(back.nu_d_dot, ref.nu_d_dot, atol=1e-12)
         assert convert.stamp_to_ns(msg.header.stamp) == T0
+
+
+# -- metadata.yaml is replaced atomically -----------------------------------------------------
+#
+# The writer is single-threaded, so "a reader never sees a partial file" is checked without
+# races by stepping into its file writes: every write into the bag's directory is done in two
+# halves, and between them the test reads ``metadata.yaml`` as a reader would. A writer that
+# wrote the file in place would show the reader half a file there.
+
+def one_segment(writer: SegmentedBagWriter, i: int) -> None:
+    for j, (topic, msgtype, msg) in enumerate(make_messages(i, T0 + i * 10_000_000)):
+        assert writer.write(topic, msgtype, T0 + i * 10_000_000 + j, serialize_message(msg))
+    writer.flush()
+
+
+class HalfWrites:
+    """Path.write_text into ``bag`` split in two; ``check`` runs between the halves."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, bag: Path, check: Any) -> None:
+        self.bag, self.check, self.calls = bag, check, 0
+        original = Path.write_text
+
+        def write_text(path: Path, data: str, *args: Any, **kwargs: Any) -> int:
+            if path.parent != self.bag:
+                return original(path, data, *args, **kwargs)
+            self.calls += 1
+            original(path, data[:len(data) // 2], *args, **kwargs)
+            self.check(path)
+            return original(path, data, *args, **kwargs)
+
+        monkeypatch.setattr(Path, 'write_text', write_text)
+
+
+def test_a_reader_never_sees_a_partial_metadata_file(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    bag = tmp_path / 'atomic'
+    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    seen: list[list[str] | None] = []
+    committed: list[str] = []   # the files listed by the last complete metadata.yaml
+
+    def reader(_: Path) -> None:
+        target = bag / 'metadata.yaml'
+        if not target.exists():
+            seen.append(None)
+            assert not committed, 'metadata.yaml vanished while being rewritten'
+            return
+        listed = yaml.safe_load(target.read_text())['rosbag2_bagfile_information'][
+            'relative_file_paths']
+        assert listed == committed          # the previous version, whole
+        seen.append(listed)
+
+    halves = HalfWrites(monkeypatch, bag, reader)
+    inodes = []
+    for i in range(3):
+        one_segment(writer, i)
+        committed = [f'atomic_{k}.mcap' for k in range(i + 1)]
+        assert metadata(bag)['relative_file_paths'] == committed
+        inodes.append((bag / 'metadata.yaml').stat().st_ino)
+    writer.close()
+    assert halves.calls == 3 and seen == [None, ['atomic_0.mcap'],
+                                         ['atomic_0.mcap', 'atomic_1.mcap']]
+    # Each version is a new file moved over the old one, created while the old one still
+    # existed, so its inode differs from the previous version's (an in-place rewrite keeps it).
+    assert inodes[0] != inodes[1] and inodes[1] != inodes[2]
+    assert sorted(p.name for p in bag.iterdir()) == [
+        'atomic_0.mcap', 'atomic_1.mcap', 'atomic_2.mcap', 'metadata.yaml']
+
+
+def test_a_failed_metadata_write_leaves_the_previous_version(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The disk fills up half way through writing the new metadata: the flush fails with a
+    RecorderError naming the file, and the bag still reads as it was before that flush."""
+    bag = tmp_path / 'full'
+    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    one_segment(writer, 0)
+    one_segment(writer, 1)
+    before = (bag / 'metadata.yaml').read_bytes()
+
+    def disk_full(_: Path) -> None:
+        raise OSError(28, 'No space left on device')
+
+    HalfWrites(monkeypatch, bag, disk_full)
+    with pytest.raises(RecorderError, match=r'metadata\.yaml.*No space left'):
+        one_segment(writer, 2)
+    assert (bag / 'metadata.yaml').read_bytes() == before
+    with Reader(bag) as reader:
+        assert reader.message_count == 8
+        assert len(list(reader.messages())) == 8

@@ -8,13 +8,17 @@ from typing import Any
 
 import numpy as np
 import pytest
+from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, MagneticField
 from support.nodes import TIMEOUT, add, probe
 from support.rov import G, overrides, sim_parameters
+from support.saucer import SimClock
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.kinematics import quat_to_euler
+from enbarr_core.models.rigid_body import RigidBodyState
 from enbarr_core.simulation.rov_simulator_node import RovSimulatorNode
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
@@ -119,3 +123,110 @@ def test_sim_imu_bias_needs_three_values(context):
     with pytest.raises(ConfigurationError, match=r'gyro_bias: expected 3 values, got 2'):
         SimImuNode(context=context, parameter_overrides=[
             Parameter('gyro_bias', value=[0.0, 0.1])])
+
+
+# -- away from rest: the published odometry against closed forms -----------------------------
+#
+# The simulator is stepped on a simulated clock (1/rate per step) from a moving start, with no
+# thrust, and sim/odometry is compared with solutions written here from the equations of
+# motion, with scipy's Rotation for the attitude (independent of the package's kinematics).
+# Budget of every comparison: RK4 at dt = 2.5 ms on motions no faster than 1 rad/s and time
+# constants of 4 s has a global error of order (1 rad/s dt)^4 t ~ 1e-10; 1e-8 is that with
+# room for float64 rounding of 800 steps.
+
+RATE = 400.0
+TOL = 1e-8
+
+
+class Coast:
+    """The simulator started at ``p0``, ``rpy0`` with body velocity ``nu0``, coasting 2 s."""
+
+    def __init__(self, context: Any, executor: Any, vehicle: dict[str, Any], p0: list[float],
+                 rpy0: list[float], nu0: list[float], seconds: float = 2.0) -> None:
+        params = {**sim_parameters('simulator'), 'rate': RATE, 'odometry_rate': 50.0,
+                  'initial.position': p0, 'initial.rpy': rpy0,
+                  **{f'vehicle.{k}': v for k, v in vehicle.items()}}
+        self.sim = sim = add(executor, RovSimulatorNode(
+            node_name='simulator', context=context, parameter_overrides=overrides(params)))
+        sim.state = RigidBodyState(sim.state.p, sim.state.q, np.array(nu0, dtype=float))
+        clock = SimClock(sim)
+        self.t0_ns = clock.ns
+        p = probe(context, executor, 'listener')
+        self.odom: list[Odometry] = []
+        p.create_topic_subscription(topics.SIM_ODOMETRY, self.odom.append)
+        LinkBus.of(context).connect()
+        for _ in range(round(seconds * RATE)):
+            clock.advance(1.0 / RATE)
+            sim.step()
+        assert sim.steps == round(seconds * RATE) and len(self.odom) == round(seconds * 50.0)
+
+    def samples(self):
+        """(t [s since start], position, rotation, body linear velocity, body rate) per msg."""
+        for m in self.odom:
+            assert m.header.frame_id == topics.WORLD_FRAME
+            assert m.child_frame_id == topics.BODY_FRAME
+            yield ((convert.stamp_to_ns(m.header.stamp) - self.t0_ns) * 1e-9,
+                   convert.vector3_to_array(m.pose.pose.position),
+                   Rotation.from_quat(convert.quaternion_to_array(m.pose.pose.orientation)),
+                   convert.vector3_to_array(m.twist.twist.linear),
+                   convert.vector3_to_array(m.twist.twist.angular))
+
+
+MASS, G_SIM = 11.5, 9.81
+BALANCED = {'r_g': [0.0, 0.0, 0.0], 'r_b': [0.0, 0.0, 0.0], 'buoyancy': MASS * G_SIM}
+
+
+def test_isotropic_vehicle_coasts_in_a_straight_line_while_it_tumbles(context, executor):
+    """Equal total inertia on every linear axis and on every rotational axis, linear damping,
+    CG = CB = CO, neutral: in the world frame the linear velocity decays along a fixed line,
+    w(t) = R0 v0 exp(-t / tau_v), whatever the rotation (the Coriolis term omega x v only
+    turns the body-frame velocity); the body rate decays about a fixed axis,
+    omega(t) = omega0 exp(-t / tau_w), so R(t) = R0 Rot(omega0 / |omega0|, theta(t)).
+    Heading starts at 3.0 rad and turns through +-pi."""
+    m_v, d_v = MASS + 5.5, 4.0          # total inertia [kg], damping [N s/m] on x, y, z
+    m_w, d_w = 0.16 + 0.12, 0.07        # [kg m^2], [N m s/rad] about x, y, z
+    p0, rpy0 = [1.0, -2.0, -1.5], [0.1, -0.2, 3.0]
+    v0, w0 = np.array([0.4, -0.2, 0.1]), np.array([0.3, -0.4, 0.9])
+    run = Coast(context, executor, {
+        **BALANCED, 'inertia': [0.16] * 3, 'added_mass': [5.5] * 3 + [0.12] * 3,
+        'd_lin': [d_v] * 3 + [d_w] * 3, 'd_quad': [0.0] * 6}, p0, rpy0, [*v0, *w0])
+    tau_v, tau_w = m_v / d_v, m_w / d_w
+    R0 = Rotation.from_euler('ZYX', rpy0[::-1])
+    world_v0 = R0.apply(v0)
+    turned = 0.0
+    for t, p, rot, v_body, w_body in run.samples():
+        w_world = world_v0 * math.exp(-t / tau_v)
+        np.testing.assert_allclose(p, np.array(p0) + world_v0 * tau_v * (1 - math.exp(-t / tau_v)),
+                                   rtol=0.0, atol=TOL)
+        theta = np.linalg.norm(w0) * tau_w * (1.0 - math.exp(-t / tau_w))
+        expected = R0 * Rotation.from_rotvec(w0 / np.linalg.norm(w0) * theta)
+        assert (expected.inv() * rot).magnitude() < TOL
+        np.testing.assert_allclose(v_body, expected.inv().apply(w_world), rtol=0.0, atol=TOL)
+        np.testing.assert_allclose(w_body, w0 * math.exp(-t / tau_w), rtol=0.0, atol=TOL)
+        turned = theta
+    assert turned > 1.5                   # it really turned (and the heading crossed pi)
+
+
+@pytest.mark.parametrize('u0', [0.8, -0.6])
+def test_profile_vehicle_surge_coast_follows_the_quadratic_damping_solution(context, executor,
+                                                                            u0):
+    """The profile's vehicle (CG moved to the CO, neutral), coasting in pure surge, ahead and
+    astern, at heading -2.8 rad: m u_dot = -d u - q u |u| has
+    |u(t)| = a |u0| e / (a + b |u0| (1 - e)), e = exp(-a t), a = d / m, b = q / m, and the
+    distance travelled ln(1 + b |u0| (1 - e) / a) / b, along the heading in the world (ENU:
+    yaw measured from east, counter-clockwise)."""
+    m = MASS + 5.5                        # mass + added mass in surge (profile)
+    a, b = 4.03 / m, 18.18 / m            # profile d_lin[0], d_quad[0]
+    psi0, speed, sign = -2.8, abs(u0), math.copysign(1.0, u0)
+    p0 = [3.0, 4.0, -2.0]
+    run = Coast(context, executor, BALANCED, p0, [0.0, 0.0, psi0], [u0, 0, 0, 0, 0, 0])
+    heading = np.array([math.cos(psi0), math.sin(psi0), 0.0])
+    for t, p, rot, v_body, w_body in run.samples():
+        e = math.exp(-a * t)
+        u = sign * a * speed * e / (a + b * speed * (1.0 - e))
+        s = sign * math.log(1.0 + b * speed * (1.0 - e) / a) / b
+        np.testing.assert_allclose(v_body, [u, 0.0, 0.0], rtol=0.0, atol=TOL)
+        np.testing.assert_allclose(w_body, 0.0, rtol=0.0, atol=TOL)
+        np.testing.assert_allclose(p, np.array(p0) + s * heading, rtol=0.0, atol=TOL)
+        assert rot.as_euler('ZYX')[0] == pytest.approx(psi0, abs=TOL)
+    assert abs(u) < 0.6 * speed           # it really slowed down (2 s, quadratic drag)

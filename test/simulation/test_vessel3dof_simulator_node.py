@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped
@@ -94,3 +96,115 @@ def test_simulator_runs_the_profile_vessel(context, executor):
         parameter_overrides=overrides({'vessel.inertia': [20.0, 21.0, 0.5]})))
     assert sim.settings.vessel.M == (20.0, 21.0, 0.5)
     np.testing.assert_array_equal(np.diag(sim.model.M), [20.0, 21.0, 0.5])
+
+
+# -- away from rest: sim/odometry against closed forms ---------------------------------------
+#
+# No commands (the azimuths stay at zero thrust), no current, no bias; the vessel starts at a
+# pose and velocity and coasts. Budget: RK4 at dt = 10 ms on motions no faster than 1 rad/s
+# and time constants above 0.6 s: global error of order (1 rad/s dt)^4 t ~ 1e-8 over 3 s,
+# so 1e-7 [m, m/s, rad].
+
+TOL = 1e-7
+M_MANUAL = (9.51, 9.51, 0.116)        # CS Saucer manual eq. 1.2 (profile vessel.inertia)
+D_MANUAL = (1.96, 1.96, 0.168)        # manual eq. 1.4 (profile vessel.linear_damping)
+DN_MANUAL = 7.095                     # manual eq. 1.5 (profile vessel.nonlinear_damping)
+
+
+def coast(context, executor, initial, nu0, extra=None, seconds=3.0):
+    """(t [s], eta, nu) of every sim/odometry while coasting from ``initial``, ``nu0``."""
+    sim = add(executor, Vessel3DofSimulatorNode(
+        node_name='simulator', context=context,
+        parameter_overrides=overrides({'rate': 100.0, 'initial': list(initial),
+                                       **(extra or {})})))
+    sim.nu = np.array(nu0, dtype=float)
+    clock = SimClock(sim)
+    t0 = clock.ns
+    p = probe(context, executor, 'listener')
+    out: list[Odometry] = []
+    p.create_topic_subscription(topics.SIM_ODOMETRY, out.append)
+    LinkBus.of(context).connect()
+    for _ in range(round(seconds * 100)):
+        clock.advance(0.01)
+        sim.step()
+    assert len(out) == round(seconds * 100)
+    for m in out:
+        assert m.header.frame_id == topics.WORLD_FRAME and m.child_frame_id == topics.BODY_FRAME
+        yield ((convert.stamp_to_ns(m.header.stamp) - t0) * 1e-9,
+               convert.pose_to_eta(m.pose.pose),
+               np.array([m.twist.twist.linear.x, m.twist.twist.linear.y,
+                         m.twist.twist.angular.z]))
+
+
+def wrapped(a: float) -> float:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def test_spinning_vessel_coasts_in_a_straight_line(context, executor):
+    """The manual's M and D are equal in surge and sway, so with the quadratic term off the
+    world-frame velocity obeys M w_dot = -D w whatever the yaw rate (the Coriolis term only
+    rotates the body-frame velocity): a straight line, w(t) = R(psi0) [u0, v0] exp(-t d / m).
+    Yaw: psi(t) = psi0 + r0 (m33 / d33) (1 - exp(-t d33 / m33)), through +-pi. The published
+    twist is the body-frame velocity R(psi(t))^T w(t)."""
+    m, d, m3, d3 = M_MANUAL[0], D_MANUAL[0], M_MANUAL[2], D_MANUAL[2]
+    x0, y0, psi0 = 1.5, -0.5, 2.9
+    u0, v0, r0 = 0.3, -0.15, 0.8
+    w0 = np.array([math.cos(psi0) * u0 - math.sin(psi0) * v0,
+                   math.sin(psi0) * u0 + math.cos(psi0) * v0])
+    crossed = False
+    for t, eta, nu in coast(context, executor, (x0, y0, psi0), (u0, v0, r0),
+                            {'vessel.nonlinear_damping': [0.0, 0.0, 0.0]}):
+        e, tau_r = math.exp(-t * d / m), m3 / d3
+        w = w0 * e
+        psi = psi0 + r0 * tau_r * (1.0 - math.exp(-t / tau_r))
+        np.testing.assert_allclose(eta[:2], [x0, y0] + w0 * (m / d) * (1.0 - e),
+                                   rtol=0.0, atol=TOL)
+        assert abs(wrapped(eta[2] - psi)) < TOL
+        assert -np.pi <= eta[2] <= np.pi
+        c, s = math.cos(psi), math.sin(psi)
+        np.testing.assert_allclose(nu, [c * w[0] + s * w[1], -s * w[0] + c * w[1],
+                                        r0 * math.exp(-t / tau_r)], rtol=0.0, atol=TOL)
+        crossed = crossed or psi > np.pi
+    assert crossed
+
+
+@pytest.mark.parametrize('r0', [0.3, -0.25])
+def test_pure_turn_follows_the_quadratic_damping_solution(context, executor, r0):
+    """The manual's model with D_n: a pure yaw spin m33 r_dot = -d33 r - dn r |r| has
+    |r(t)| = a |r0| e / (a + b |r0| (1 - e)), e = exp(-a t), a = d33 / m33, b = dn / m33, and
+    the heading turns by ln(1 + b |r0| (1 - e) / a) / b; the position does not move.
+
+    Yaw is stiff (b = 61 1/rad: the quadratic term dominates), so the budget is RK4's own:
+    per step (lambda dt)^5 / 120 of r with lambda = a + 2 b |r0| the fastest linearised rate,
+    summed over the decay, |r0| (lambda dt)^4 / 120; ten times that for r, and times the
+    3 s run for the heading it integrates.
+    """
+    a, b = D_MANUAL[2] / M_MANUAL[2], DN_MANUAL / M_MANUAL[2]
+    sign, spin = math.copysign(1.0, r0), abs(r0)
+    tol_r = spin * ((a + 2.0 * b * spin) * 0.01) ** 4 / 12.0
+    psi0 = sign * (math.pi - 0.02)        # turning through +-pi
+    for t, eta, nu in coast(context, executor, (0.2, 0.3, psi0), (0.0, 0.0, r0)):
+        e = math.exp(-a * t)
+        r = sign * a * spin * e / (a + b * spin * (1.0 - e))
+        turned = sign * math.log(1.0 + b * spin * (1.0 - e) / a) / b
+        np.testing.assert_allclose(nu[:2], 0.0, rtol=0.0, atol=TOL)
+        assert abs(nu[2] - r) < tol_r, (t, nu[2] - r, tol_r)
+        np.testing.assert_allclose(eta[:2], [0.2, 0.3], rtol=0.0, atol=TOL)
+        assert abs(wrapped(eta[2] - (psi0 + turned))) < 3.0 * tol_r
+    # It turned through +-pi (the published heading wrapped); the linear damping alone would
+    # have turned it |r0| m33 / d33 (1 - exp(-3 a)) = 0.69 |r0|, the quadratic term much less.
+    assert 0.03 < abs(turned) < 0.3 * spin and abs(eta[2]) < math.pi - 0.01
+
+
+def test_surge_coast_with_the_manual_damping_moves_along_the_heading(context, executor):
+    """Pure surge at heading 2.0 rad with D and D_n of the manual: the quadratic-damping
+    solution of the previous test in surge, along (cos psi, sin psi) in the world (ENU)."""
+    a, b = D_MANUAL[0] / M_MANUAL[0], DN_MANUAL / M_MANUAL[0]
+    psi0, u0 = 2.0, 0.5
+    for t, eta, nu in coast(context, executor, (1.0, 2.0, psi0), (u0, 0.0, 0.0)):
+        e = math.exp(-a * t)
+        u = a * u0 * e / (a + b * u0 * (1.0 - e))
+        s = math.log(1.0 + b * u0 * (1.0 - e) / a) / b
+        np.testing.assert_allclose(nu, [u, 0.0, 0.0], rtol=0.0, atol=TOL)
+        np.testing.assert_allclose(eta, [1.0 + s * math.cos(psi0), 2.0 + s * math.sin(psi0),
+                                         psi0], rtol=0.0, atol=TOL)
