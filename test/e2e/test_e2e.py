@@ -92,13 +92,7 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
          '--set', f'simulator.initial.rpy=[0.0, 0.0, {INITIAL_YAW}]'],
         capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    msgs = read_bag(bag)
-    t0 = stamp(msgs['/surface_command/twist'][0][1])  # the script's t = 0
-    return {'bag': bag, 'msgs': msgs, 't0': t0, 'log': proc.stderr + proc.stdout}
-
-
-def _window(run: dict[str, Any], topic: str, start: float, end: float) -> list[Any]:
-    return [m for _, m in run['msgs'][topic] if start <= stamp(m) - run['t0'] < end]
+    return {'bag': bag, 'msgs': read_bag(bag), 'log': proc.stderr + proc.stdout}
 
 
 # -- velocity tracking and its error budget --------------------------------------------------
@@ -109,15 +103,15 @@ def _window(run: dict[str, Any], topic: str, start: float, end: float) -> list[A
 # R  the reference model's residual: nu_ref approaches a step of size d in the goal at the
 #    acceleration limit a while |goal - nu_ref| > a T, then as exp(-t / T) (T: its time
 #    constant): R(t) = a T exp(-(t - t1) / T) after t1 = (|d| - a T) / a (closed form, not the
-#    discrete filter). t counts from the scripted change minus PIPELINE_DELAY.
+#    discrete filter). t counts from the change (see below) minus PIPELINE_DELAY.
 # L  the thruster lag: a first-order motor lag T_m delivers a change dF of force an impulse
 #    T_m dF late; on the inertia M of the DOF that is a velocity error T_m |dF| / M. dF is the
 #    change of the steady feed-forward d_lin g + d_quad |g| g between successive goals g;
 #    errors of all earlier changes add up (their decay through damping is not credited).
-# K  coupling the decoupled feed-forward cannot see: angular-rate errors (bounded by
-#    ANGULAR_TOL, for at most COUPLING_TIME while the angular loops settle) act on the largest
-#    commanded linear momentum M_i |g_i| through C(nu) nu: K = ANGULAR_TOL COUPLING_TIME
-#    max_i(M_i |g_i|) / M_j.
+# K  coupling the feed-forward cannot see (its C(nu_d) nu_d uses the goal, not the rates the
+#    vehicle really has): angular-rate errors (bounded by ANGULAR_TOL, for at most
+#    COUPLING_TIME while the angular loops settle) act on the largest commanded linear
+#    momentum M_i |g_i| through C(nu) nu: K = ANGULAR_TOL COUPLING_TIME max_i(M_i |g_i|) / M_j.
 # Angular rates: ANGULAR_TOL, the largest coupling moment on the angular loops (the CG
 #    |z_g| = 2 cm below the CO under the reference's linear acceleration limit,
 #    m |z_g| a_max = 0.115 N m) held by the gyro PI to moment / k_p, plus R.
@@ -125,16 +119,19 @@ def _window(run: dict[str, Any], topic: str, start: float, end: float) -> list[A
 # integration error of the 400 Hz simulation and control (O(1e-4)) is inside these margins.
 #
 # Time is the vehicle's: a real-time simulator that falls behind a loaded machine integrates
-# at most MAX_CATCH_UP steps per tick and skips the rest (rov_simulator_node), so wall-clock
-# stamps overstate how long the vehicle had to get there (a run beside two CPU hogs lost 4.5 s
-# of 21). Every time below is the simulated time, rebuilt from the recorded /sim/imu stamps
-# (each tick integrates min(gap, MAX_CATCH_UP / rate)), and each change counts from when the
-# receiver passed it on (its /trajectory_request), not from the script's nominal time.
+# at most MAX_CATCH_UP steps per tick and skips the rest (rov_simulator_node: 0.25 s; at
+# 25 ms a run beside two CPU hogs lost 4.5 s of 21), so wall-clock stamps can overstate how
+# long the vehicle had to get there. Every time below is the simulated time, rebuilt from
+# the recorded /sim/imu stamps (each tick integrates min(gap, MAX_CATCH_UP / rate)), and each
+# change counts from when the receiver passed it on (its /trajectory_request), not from the
+# script's nominal time (the surface's first tick can come late on a loaded machine).
 SETTLE = 1.5          # [s] after each change
 COUPLING_TIME = 1.0   # [s]
 SIM_RATE = PROFILE.node('simulator').parameters['rate']
 CATCH_UP = rov_simulator_node.MAX_CATCH_UP / SIM_RATE  # [s] the most one tick integrates
-PIPELINE_DELAY = CATCH_UP  # a new goal acts at the controller's next sample, <= one tick
+# From the receiver's goal to a force on the vehicle: controller, allocation, thrusters and the
+# simulator's next tick, a few ticks of 2.5 ms; 0.1 s allows 40.
+PIPELINE_DELAY = 0.1  # [s]
 
 
 def _vehicle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -164,7 +161,9 @@ def _reference_residual(step: float, t: float, a: float, tau: float) -> float:
 
 
 def _bound(twists: list[tuple[float, tuple[float, ...]]], t: float) -> np.ndarray:
-    """The budget above for every DOF at script time ``t`` (goals in force before ``t``)."""
+    """The budget above for every DOF at simulated time ``t`` (``twists``: (time, goal) of
+    each change, on the same time line).
+    """
     goals = [np.zeros(6), *(np.array(g) for s, g in twists if s <= t)]
     times = [0.0, *(s for s, _ in twists if s <= t)]
     f = [D_LIN * g + D_QUAD * np.abs(g) * g for g in goals]
