@@ -4,6 +4,13 @@ A surface velocity command is accepted only when it is finite, within the config
 and fresh (its stamp no older than ``max_age`` and not from the future). The goal falls to
 zero when no command was accepted for ``timeout`` seconds: a lost tether or a crashed
 operator station stops the vehicle instead of leaving it driving.
+
+Boundaries (times are integer nanoseconds of one clock; the settings' seconds are rounded to
+whole nanoseconds once): every limit is inclusive. A component of exactly ``max_linear`` /
+``max_angular`` is accepted, a stamp exactly ``max_age`` old or exactly ``max_future`` ahead
+is accepted, and the goal is held up to and including ``timeout`` after the last accepted
+command; it is zero from ``timeout`` + 1 ns on. A node that publishes the goal every period
+P therefore publishes zero at most ``timeout`` + P after the last accepted command.
 """
 
 from __future__ import annotations
@@ -46,15 +53,32 @@ class GateSettings:
             raise ValueError(f'timeout must be > 0, got {self.timeout}')
 
 
+def _ns(seconds: float) -> int:
+    return round(seconds * 1e9)
+
+
 class CommandGate:
     """Holds the current velocity goal; times in integer nanoseconds of one clock."""
 
     def __init__(self, settings: GateSettings = GateSettings()) -> None:
-        settings.validate()
         self.settings = settings
         self.goal: NDArray[np.float64] = np.zeros(6)
         self.last_accept_ns: int | None = None
         self.counts = {v: 0 for v in Verdict}
+
+    @property
+    def settings(self) -> GateSettings:
+        """Return the limits in use."""
+        return self._settings
+
+    @settings.setter
+    def settings(self, settings: GateSettings) -> None:
+        """Swap the limits (validated first); the goal and the last acceptance are kept."""
+        settings.validate()
+        self._settings = settings
+        self._timeout_ns = _ns(settings.timeout)
+        self._max_age_ns = _ns(settings.max_age)
+        self._max_future_ns = _ns(settings.max_future)
 
     def check(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int) -> Verdict:
         """Judge ``nu`` stamped ``stamp_ns`` at ``now_ns`` without taking it."""
@@ -63,9 +87,9 @@ class CommandGate:
             return Verdict.NON_FINITE
         if np.any(np.abs(nu[:3]) > s.max_linear) or np.any(np.abs(nu[3:]) > s.max_angular):
             return Verdict.OUT_OF_RANGE
-        if now_ns - stamp_ns > s.max_age * 1e9:
+        if now_ns - stamp_ns > self._max_age_ns:
             return Verdict.STALE
-        if stamp_ns - now_ns > s.max_future * 1e9:
+        if stamp_ns - now_ns > self._max_future_ns:
             return Verdict.FUTURE
         return Verdict.ACCEPTED
 
@@ -80,8 +104,10 @@ class CommandGate:
 
     def failsafe(self, now_ns: int) -> bool:
         """Return True when no command was accepted within ``timeout`` (the goal is then zero)."""
-        return (self.last_accept_ns is None
-                or now_ns - self.last_accept_ns > self.settings.timeout * 1e9)
+        # A clock that went back before the last acceptance (a restarted simulation, a bag
+        # played again) says nothing about the command's age: fail safe too.
+        return (self.last_accept_ns is None or now_ns < self.last_accept_ns
+                or now_ns - self.last_accept_ns > self._timeout_ns)
 
     def current_goal(self, now_ns: int) -> NDArray[np.float64]:
         """Return the velocity goal now: the last accepted command, zero in failsafe."""

@@ -3,9 +3,17 @@
 Per DOF j (decoupled, diagonal model; Fossen 2021, ch. 12 for the feed-forward + PID
 structure), with e = nu_r - nu:
 
-    tau_ff = M nu_d_dot + D_lin nu_d + D_quad |nu_d| nu_d   (holds nu_d of  M nu_dot + D(nu) nu)
+    tau_ff = M nu_d_dot + D_lin nu_d + D_quad |nu_d| nu_d [+ C(nu_d) nu_d]
+             (holds nu_d of  M nu_dot + C(nu) nu + D(nu) nu = tau)
     I_k    = I_k-1 + k_i e_k dt                             (stored as the contribution [N, N m])
     tau    = sat(tau_ff + k_p e + I - k_d y_dot_f)          (D on measurement: no setpoint kick)
+
+C(nu_d) nu_d is the Coriolis-centripetal force of the diagonal M = M_RB + M_A (Fossen 2021,
+Thm 3.2 and ch. 6), added when ``coriolis`` is on: with h = M nu_d it is
+[w x h_lin; w x h_ang + v x h_lin] (v, w: linear and angular parts of nu_d). It matters
+wherever the unmeasured linear DOFs run on the feed-forward alone: in a turn at surge speed u
+and yaw rate r the sway force M_u u r holds the vehicle on its circle, without it the vehicle
+slides out of the turn (sway) and loses surge.
 
 ``y_dot_f`` is the measured velocity differentiated through the first-order filter
 1 / (T_f s + 1) (backward Euler). Roll/pitch leveling adds the rate setpoints
@@ -50,6 +58,7 @@ class VelocityControlSettings:
     d_quad: tuple[float, ...]          # quadratic damping [N/(m/s)^2, N m/(rad/s)^2]
     inertia: tuple[float, ...]         # diagonal of M = M_RB + M_A [kg, kg m^2]
     level_gain: float = 0.0            # roll/pitch leveling gain k_lvl [1/s]
+    coriolis: bool = False             # add C(nu_d) nu_d of the diagonal M to the feed-forward
     derivative_filter: float = 0.02    # time constant T_f of the derivative filter [s]
 
     def validate(self) -> None:
@@ -57,6 +66,8 @@ class VelocityControlSettings:
         check_gain_vectors(self, _VECTOR_FIELDS, 6, 'X Y Z K M N',
                            may_be_infinite=_MAY_BE_INFINITE, positive=('tau_max',))
         check_non_negative(self, ('level_gain', 'derivative_filter'))
+        if not isinstance(self.coriolis, bool):
+            raise ValueError(f'coriolis: must be true or false, got {self.coriolis!r}')
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +82,22 @@ class ControlOutput:
 
 def _all_finite(v: Vector) -> bool:
     return bool(np.isfinite(v).all())
+
+
+def coriolis_force(inertia: Vector, nu: Vector) -> Vector:
+    """C(nu) nu [N, N m] of a diagonal inertia ``M = diag(inertia)`` at body velocity ``nu``.
+
+    With h = M nu: [w x h_lin; w x h_ang + v x h_lin] (Fossen 2021, Thm 3.2; v = nu[:3],
+    w = nu[3:]). Written out: six products are cheaper than numpy's cross at 400 Hz.
+    """
+    u, v, w, p, q, r = nu.tolist()
+    hu, hv, hw, hp, hq, hr = (inertia * nu).tolist()
+    return np.array([q * hw - r * hv,
+                     r * hu - p * hw,
+                     p * hv - q * hu,
+                     q * hr - r * hq + v * hw - w * hv,
+                     r * hp - p * hr + w * hu - u * hw,
+                     p * hq - q * hp + u * hv - v * hu])
 
 
 class VelocityController:
@@ -105,6 +132,7 @@ class VelocityController:
         self._inertia = np.array(settings.inertia, dtype=float)
         self._k_lvl = float(settings.level_gain)
         self._t_f = float(settings.derivative_filter)
+        self._coriolis = settings.coriolis
         np.clip(self._integral, -self._i_lim, self._i_lim, out=self._integral)
 
     def reset(self) -> None:
@@ -144,8 +172,10 @@ class VelocityController:
         if not (math.isfinite(roll) and math.isfinite(pitch)):
             raise ValueError(f'roll and pitch must be finite, got {roll!r}, {pitch!r}')
 
-        # tau_ff = M nu_d_dot + D_lin nu_d + D_quad |nu_d| nu_d
+        # tau_ff = M nu_d_dot + D_lin nu_d + D_quad |nu_d| nu_d [+ C(nu_d) nu_d]
         tau_ff = (self._d_lin + self._d_quad * np.abs(nu_d)) * nu_d
+        if self._coriolis:
+            tau_ff += coriolis_force(self._inertia, nu_d)
         if nu_d_dot is not None:
             nu_d_dot = vector('nu_d_dot', nu_d_dot, 6)
             if not _all_finite(nu_d_dot):

@@ -11,6 +11,7 @@ from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
 from support.nodes import TIMEOUT, add, probe
 from support.rov import io_msg, stamp_ns, twist
 
@@ -164,3 +165,100 @@ def test_the_failsafe_never_emits_io(rig):
     assert rig.until(lambda: len(rig.goals) >= n + 3)  # failsafe active, goals keep coming
     assert not np.any(rig.goals[-1])
     assert len(rig.ios) == 1
+
+
+# -- failsafe latency on a controlled clock ------------------------------------------------------
+
+class ClockedSurface:
+    """The receiver on ROS time (``use_sim_time``) driven by ``/clock`` from the test.
+
+    Its goal timer and its gate then see only the time the test publishes: the failsafe's
+    latency is measured in that time, whatever the machine's load.
+    """
+
+    TIMEOUT_NS = 200_000_000  # the receiver's timeout [ns]
+    PERIOD_NS = 100_000_000   # 1 / rate: the profile's 10 Hz
+
+    def __init__(self, context: Any, executor: Any, spin: Any) -> None:
+        self.executor, self.spin = executor, spin
+        self.node = add(executor, CommandReceiverNode(
+            node_name='command_receiver', context=context, parameter_overrides=[
+                Parameter('use_sim_time', value=True),
+                Parameter('timeout', value=self.TIMEOUT_NS * 1e-9),
+                Parameter('rate', value=1e9 / self.PERIOD_NS)]))
+        self.probe = surface = probe(context, executor, 'surface')
+        self.clock_pub = surface.create_publisher(Clock, '/clock', 10)
+        self.twist_pub = surface.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
+                                                  topics.SURFACE_TWIST.qos)
+        self.goals: list[tuple[int, np.ndarray]] = []  # (stamp [ns], goal)
+        surface.create_topic_subscription(
+            topics.TRAJECTORY_REQUEST,
+            lambda m: self.goals.append((convert.stamp_to_ns(m.header.stamp),
+                                         convert.twist_to_nu(m.twist))))
+        LinkBus.of(context).connect()
+        assert spin(executor, lambda: self.twist_pub.get_subscription_count() > 0
+                    and self.clock_pub.get_subscription_count() > 0, TIMEOUT)
+        self.ns = 0
+
+    def set_time(self, ns: int) -> None:
+        """Publish ``ns`` on /clock, wait until the receiver's clock reads it, then run what
+        fell due (its goal timer) before returning.
+        """
+        self.ns = ns
+        msg = Clock()
+        convert.ns_to_stamp(ns, msg.clock)
+        self.clock_pub.publish(msg)
+        assert self.spin(self.executor, lambda: stamp_ns(self.node) == ns, TIMEOUT), \
+            f'the receiver never read /clock = {ns}'
+        for _ in range(5):  # a due timer is ready now; 5 rounds drain it and the report
+            self.executor.spin_once(timeout_sec=0.0)
+
+    def send(self, nu: list[float]) -> None:
+        accepted = self.node.gate.counts[Verdict.ACCEPTED]
+        msg = TwistStamped()
+        convert.ns_to_stamp(self.ns, msg.header.stamp)  # stamped now, on the test's clock
+        msg.header.frame_id = topics.BODY_FRAME
+        convert.set_twist(msg.twist, nu)
+        self.twist_pub.publish(msg)
+        assert self.spin(self.executor,
+                         lambda: self.node.gate.counts[Verdict.ACCEPTED] == accepted + 1, TIMEOUT)
+
+    def timer_stamps(self, start_ns: int) -> list[int]:
+        return [t for t, _ in self.goals if t >= start_ns]
+
+
+def test_failsafe_latency_on_a_controlled_clock(context, executor, spin):
+    """Goal held until ``timeout`` after the last accepted command, zero within one period.
+
+    Bound: the gate holds through ``timeout`` (inclusive) and the goal timer publishes every
+    ``P``; so the goal published 5 ms before the deadline is the command, and the first one
+    after the deadline, at most ``P`` later, is zero. Time moves in 5 ms steps of /clock.
+    """
+    rig = ClockedSurface(context, executor, spin)
+    step, t0 = 5_000_000, 1_000 * 1_000_000_000
+    rig.set_time(t0)
+    for k in range(1, 41):  # 200 ms without a command: the timer shows its phase
+        rig.set_time(t0 + k * step)
+    ticks = rig.timer_stamps(t0 + step)
+    assert len(ticks) == 2 and ticks[1] - ticks[0] == rig.PERIOD_NS, ticks  # on ROS time
+    assert all(not np.any(g) for _, g in rig.goals)  # zero before any command
+
+    # Accept a command 5 ms after a tick: ticks then fall 5 ms before timeout and 95 ms after.
+    t_accept = ticks[-1] + 3 * rig.PERIOD_NS + step
+    deadline = t_accept + rig.TIMEOUT_NS
+    while rig.ns < t_accept:
+        rig.set_time(rig.ns + step)
+    n = len(rig.goals)
+    rig.send(WANTED)
+    while rig.ns < deadline + 2 * rig.PERIOD_NS:
+        rig.set_time(rig.ns + step)
+    after = rig.goals[n:]
+    held = [(t, g) for t, g in after if t <= deadline]
+    late = [(t, g) for t, g in after if t > deadline]
+    assert held[0][0] == t_accept and np.allclose(held[0][1], WANTED)  # passed on at once
+    assert [t - t_accept for t, _ in held[1:]] == [
+        rig.PERIOD_NS - step, rig.TIMEOUT_NS - step]
+    assert all(np.allclose(g, WANTED) for _, g in held), held
+    assert late and late[0][0] - deadline <= rig.PERIOD_NS, (late[0][0] - deadline)
+    assert all(not np.any(g) for _, g in late), late
+    assert rig.node._failsafe
