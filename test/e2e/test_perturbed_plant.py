@@ -195,10 +195,11 @@ ROV_WINDOW = (4.0, 7.0)    # s after the goal
 # Budget of the surge prediction [m/s]. The reference reaches the goal within 2 s (0.5 m/s^2,
 # then T = 0.4 s); the plant's surge lag (m + X_udot) / (d_lin + 2 d_quad u) is ~1 s in both
 # plants, and the inertia feed-forward's 30 % error leaves < 0.05 m/s at 2 s: e^-2 x 0.05 =
-# 0.007 at 4 s, less later. The yaw-rate loop turns the hull at up to 0.07 rad/s (the
-# attitude filter's rate lags the truth, see the report) with sway up to 0.07 m/s: the
-# Coriolis and added-mass force on surge, r (m v + Y_vdot v_r), is below 0.15 N against a
-# damping slope above 15 N/(m/s): 0.010. Motor lag and allocation are exact at steady thrust.
+# 0.007 at 4 s, less later. The hull turns slowly while it drives (up to 0.07 rad/s: the
+# yaw-rate loop regulates the attitude filter's rate, which differs from the truth by that
+# much in these runs) and slips sideways up to 0.07 m/s: the Coriolis and added-mass force
+# on surge, r (m v + Y_vdot v_r), stays below 0.15 N against a damping slope above
+# 15 N/(m/s): 0.010. Motor lag and allocation are exact at steady thrust.
 SURGE_TOL = 0.012
 
 
