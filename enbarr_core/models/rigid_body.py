@@ -3,10 +3,19 @@
     M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau + tau_ext
 
 with M = M_RB + M_A, C(nu) = C_RB(nu) + C_A(nu), D(nu) = D_lin + diag(d_quad |nu|) and the
-restoring vector g(eta) of weight and buoyancy. The origin CO of the body frame (FLU) is the
-point all forces, moments and velocities refer to. World frame: ENU (z up), so weight acts
-along world -z and buoyancy along world +z. The attitude is a unit quaternion ``[x, y, z, w]``
-rotating body vectors into the world frame; eta = (p, q), nu = [u, v, w, p, q, r].
+restoring vector g(eta) of weight and buoyancy. In a constant, irrotational current v_c (world
+frame) the hydrodynamic terms act on the velocity relative to the water (Fossen 2021, eq. 10.1):
+
+    M_RB nu_dot + C_RB(nu) nu + M_A nu_r_dot + C_A(nu_r) nu_r + D(nu_r) nu_r + g(eta) = tau
+    nu_r = nu - nu_c,  nu_c = [R^T v_c; 0],  nu_c_dot = [-omega x R^T v_c; 0]
+
+so M nu_dot = tau - C_RB(nu) nu - C_A(nu_r) nu_r - D(nu_r) nu_r - g(eta) + M_A nu_c_dot. This
+holds for any parametrization of C_RB; with v_c = 0 it is the equation above.
+
+The origin CO of the body frame (FLU) is the point all forces, moments and velocities refer
+to. World frame: ENU (z up), so weight acts along world -z and buoyancy along world +z. The
+attitude is a unit quaternion ``[x, y, z, w]`` rotating body vectors into the world frame;
+eta = (p, q), nu = [u, v, w, p, q, r].
 
 Reference: T. I. Fossen, Handbook of Marine Craft Hydrodynamics and Motion Control, 2nd ed.,
 Wiley 2021 (chapter 3 rigid-body kinetics, chapter 4 restoring forces, chapter 6 added mass).
@@ -231,6 +240,8 @@ class RigidBodyModel:
         # Fast-path constants as Python floats.
         self._M_rows = tuple(tuple(row) for row in M.tolist())
         self._M_inv_rows = tuple(tuple(row) for row in M_inv.tolist())
+        self._M_RB_rows = tuple(tuple(row) for row in M_RB.tolist())
+        self._ma = tuple(float(a) for a in params.added_mass)
         self._dl = tuple(self._d_lin.tolist())
         self._dq = tuple(self._d_quad.tolist())
         self._net_up = self._B - self._W  # net vertical force B - W [N]
@@ -281,23 +292,30 @@ class RigidBodyModel:
             (f_g + f_b, np.cross(self._r_g, f_g) + np.cross(self._r_b, f_b)))
 
     def nu_dot(self, q: ArrayLike, nu: ArrayLike, tau: ArrayLike,
-               tau_ext: ArrayLike | None = None) -> Vector:
+               tau_ext: ArrayLike | None = None,
+               current: ArrayLike | None = None) -> Vector:
         """Body acceleration nu_dot (6,) [m/s^2, rad/s^2] at attitude ``q`` and velocity ``nu``.
 
-        nu_dot = M^-1 (tau + tau_ext - C(nu) nu - D(nu) nu - g(eta)); ``tau`` [N, N m].
+        nu_dot = M^-1 (tau + tau_ext - C(nu) nu - D(nu) nu - g(eta)); ``tau`` [N, N m]. With a
+        ``current`` v_c (3,) [m/s] in the world frame, the relative-velocity form of the module
+        docstring.
         """
         qv = vector('q', q, 4)
         nuv = vector('nu', nu, 6)
         tau_l = self._total_tau(tau, tau_ext)
+        vc = self._current(current)
         x = [0.0, 0.0, 0.0, *qv.tolist(), *nuv.tolist()]
-        return np.array(self._f(x, tau_l)[7:])
+        return np.array(self._f(x, tau_l, vc)[7:])
 
     def step(self, state: RigidBodyState, tau: ArrayLike, dt: float,
-             tau_ext: ArrayLike | None = None) -> RigidBodyState:
+             tau_ext: ArrayLike | None = None,
+             current: ArrayLike | None = None) -> RigidBodyState:
         """Advance ``state`` by ``dt`` [s] with ``tau`` (and ``tau_ext``) [N, N m] held constant.
 
         Classic RK4 on (p, q, nu) with p_dot = R(q) nu_1, q_dot = 1/2 q (x) [omega, 0]; q is
-        renormalized after the step.
+        renormalized after the step. ``current``: the water's velocity (3,) [m/s] in the world
+        frame (ENU), constant; None or zero is still water. ``nu`` stays the velocity over
+        ground.
         """
         if not isinstance(dt, (int, float, np.floating, np.integer)) or isinstance(dt, bool):
             raise ValueError(f'dt: expected a number of seconds, got {dt!r}')
@@ -305,13 +323,14 @@ class RigidBodyModel:
         if not (h > 0.0 and math.isfinite(h)):
             raise ValueError(f'dt: must be finite and > 0 s, got {dt!r}')
         tau_l = self._total_tau(tau, tau_ext)
+        vc = self._current(current)
         x0 = state.p.tolist() + state.q.tolist() + state.nu.tolist()
         f = self._f
         h2 = 0.5 * h
-        k1 = f(x0, tau_l)
-        k2 = f([x + h2 * k for x, k in zip(x0, k1)], tau_l)
-        k3 = f([x + h2 * k for x, k in zip(x0, k2)], tau_l)
-        k4 = f([x + h * k for x, k in zip(x0, k3)], tau_l)
+        k1 = f(x0, tau_l, vc)
+        k2 = f([x + h2 * k for x, k in zip(x0, k1)], tau_l, vc)
+        k3 = f([x + h2 * k for x, k in zip(x0, k2)], tau_l, vc)
+        k4 = f([x + h * k for x, k in zip(x0, k3)], tau_l, vc)
         h6 = h / 6.0
         x1 = [x + h6 * (a + 2.0 * (b + c) + d) for x, a, b, c, d in zip(x0, k1, k2, k3, k4)]
         return RigidBodyState(p=np.array(x1[0:3]), q=quat_normalize(x1[3:7]),
@@ -346,7 +365,16 @@ class RigidBodyModel:
             raise ValueError(f'tau: values must be finite, got {out}')
         return out
 
-    def _f(self, x: list[float], tau: list[float]) -> list[float]:
+    @staticmethod
+    def _current(current: ArrayLike | None) -> tuple[float, float, float] | None:
+        """Return the current as 3 floats, or None for still water (None or all zero)."""
+        if current is None:
+            return None
+        vc = vector('current', current, 3, finite=True).tolist()
+        return None if not any(vc) else (vc[0], vc[1], vc[2])
+
+    def _f(self, x: list[float], tau: list[float],
+           vc: tuple[float, float, float] | None = None) -> list[float]:
         """Time derivative of x = [p(3), q(4), nu(6)] as a list of 13 floats."""
         _, _, _, qx, qy, qz, qw, u, v, w, wx, wy, wz = x
         # R(q) of a possibly non-unit q: the RK4 stage quaternions drift off the unit sphere by
@@ -365,26 +393,78 @@ class RigidBodyModel:
         qdy = 0.5 * (qw * wy - qx * wz + qz * wx)
         qdz = 0.5 * (qw * wz + qx * wy - qy * wx)
         qdw = -0.5 * (qx * wx + qy * wy + qz * wz)
-        # C(nu) nu = [omega x a; v x a + omega x b] with [a; b] = M nu (Fossen 2021, Thm 3.2)
-        a0, a1, a2, b0, b1, b2 = [m0 * u + m1 * v + m2 * w + m3 * wx + m4 * wy + m5 * wz
-                                  for m0, m1, m2, m3, m4, m5 in self._M_rows]
         dl, dq = self._dl, self._dq
         n_up = self._net_up
         hx, hy, hz = self._h
-        # rhs = tau - C nu - D nu - g, with -g = [(B - W) k; (B r_b - W r_g) x k], k = R^T e_z
-        rhs = (
-            tau[0] - (wy * a2 - wz * a1) - (dl[0] + dq[0] * abs(u)) * u + n_up * r20,
-            tau[1] - (wz * a0 - wx * a2) - (dl[1] + dq[1] * abs(v)) * v + n_up * r21,
-            tau[2] - (wx * a1 - wy * a0) - (dl[2] + dq[2] * abs(w)) * w + n_up * r22,
-            tau[3] - (v * a2 - w * a1 + wy * b2 - wz * b1) - (dl[3] + dq[3] * abs(wx)) * wx
-            + (hy * r22 - hz * r21),
-            tau[4] - (w * a0 - u * a2 + wz * b0 - wx * b2) - (dl[4] + dq[4] * abs(wy)) * wy
-            + (hz * r20 - hx * r22),
-            tau[5] - (u * a1 - v * a0 + wx * b1 - wy * b0) - (dl[5] + dq[5] * abs(wz)) * wz
-            + (hx * r21 - hy * r20),
-        )
+        if vc is None:
+            # C(nu) nu = [omega x a; v x a + omega x b], [a; b] = M nu (Fossen 2021, Thm 3.2)
+            a0, a1, a2, b0, b1, b2 = [m0 * u + m1 * v + m2 * w + m3 * wx + m4 * wy + m5 * wz
+                                      for m0, m1, m2, m3, m4, m5 in self._M_rows]
+            # rhs = tau - C nu - D nu - g, -g = [(B - W) k; (B r_b - W r_g) x k], k = R^T e_z
+            rhs = (
+                tau[0] - (wy * a2 - wz * a1) - (dl[0] + dq[0] * abs(u)) * u + n_up * r20,
+                tau[1] - (wz * a0 - wx * a2) - (dl[1] + dq[1] * abs(v)) * v + n_up * r21,
+                tau[2] - (wx * a1 - wy * a0) - (dl[2] + dq[2] * abs(w)) * w + n_up * r22,
+                tau[3] - (v * a2 - w * a1 + wy * b2 - wz * b1)
+                - (dl[3] + dq[3] * abs(wx)) * wx + (hy * r22 - hz * r21),
+                tau[4] - (w * a0 - u * a2 + wz * b0 - wx * b2)
+                - (dl[4] + dq[4] * abs(wy)) * wy + (hz * r20 - hx * r22),
+                tau[5] - (u * a1 - v * a0 + wx * b1 - wy * b0)
+                - (dl[5] + dq[5] * abs(wz)) * wz + (hx * r21 - hy * r20),
+            )
+        else:
+            rhs = self._rhs_in_current(x, tau, vc, (xx, yy, zz, xy, xz, yz, xw, yw, zw))
         r0, r1, r2, r3, r4, r5 = rhs
         out = [pdx, pdy, pdz, qdx, qdy, qdz, qdw]
         out.extend([m0 * r0 + m1 * r1 + m2 * r2 + m3 * r3 + m4 * r4 + m5 * r5
                     for m0, m1, m2, m3, m4, m5 in self._M_inv_rows])
         return out
+
+    def _rhs_in_current(self, x: list[float], tau: list[float],
+                        vc: tuple[float, float, float],
+                        r: tuple[float, ...]) -> tuple[float, ...]:
+        """Return tau - C_RB(nu) nu - C_A(nu_r) nu_r - D(nu_r) nu_r - g + M_A nu_c_dot (6 floats).
+
+        ``r`` holds the products of ``_f`` that make up R(q). The rigid body moves with nu,
+        the water's reaction (added mass, damping) with nu_r (Fossen 2021, eq. 10.1).
+        """
+        _, _, _, _, _, _, _, u, v, w, wx, wy, wz = x
+        xx, yy, zz, xy, xz, yz, xw, yw, zw = r
+        ex, ey, ez = vc
+        # nu_c = R^T v_c (the current in the body frame); R's rows as in _f
+        uc = (1.0 - yy - zz) * ex + (xy + zw) * ey + (xz - yw) * ez
+        vcb = (xy - zw) * ex + (1.0 - xx - zz) * ey + (yz + xw) * ez
+        wc = (xz + yw) * ex + (yz - xw) * ey + (1.0 - xx - yy) * ez
+        ur, vr, wr = u - uc, v - vcb, w - wc
+        r20, r21, r22 = xz - yw, yz + xw, 1.0 - xx - yy
+        # C_RB(nu) nu = [omega x a; v x a + omega x b], [a; b] = M_RB nu
+        a0, a1, a2, b0, b1, b2 = [m0 * u + m1 * v + m2 * w + m3 * wx + m4 * wy + m5 * wz
+                                  for m0, m1, m2, m3, m4, m5 in self._M_RB_rows]
+        # C_A(nu_r) nu_r = [omega x a'; v_r x a' + omega x b'], [a'; b'] = M_A nu_r (diagonal)
+        ma = self._ma
+        c0, c1, c2 = ma[0] * ur, ma[1] * vr, ma[2] * wr
+        d0, d1, d2 = ma[3] * wx, ma[4] * wy, ma[5] * wz
+        # M_A nu_c_dot, nu_c_dot = [-omega x nu_c; 0]
+        n0 = -ma[0] * (wy * wc - wz * vcb)
+        n1 = -ma[1] * (wz * uc - wx * wc)
+        n2 = -ma[2] * (wx * vcb - wy * uc)
+        dl, dq = self._dl, self._dq
+        n_up = self._net_up
+        hx, hy, hz = self._h
+        return (
+            tau[0] - (wy * a2 - wz * a1) - (wy * c2 - wz * c1)
+            - (dl[0] + dq[0] * abs(ur)) * ur + n_up * r20 + n0,
+            tau[1] - (wz * a0 - wx * a2) - (wz * c0 - wx * c2)
+            - (dl[1] + dq[1] * abs(vr)) * vr + n_up * r21 + n1,
+            tau[2] - (wx * a1 - wy * a0) - (wx * c1 - wy * c0)
+            - (dl[2] + dq[2] * abs(wr)) * wr + n_up * r22 + n2,
+            tau[3] - (v * a2 - w * a1 + wy * b2 - wz * b1)
+            - (vr * c2 - wr * c1 + wy * d2 - wz * d1)
+            - (dl[3] + dq[3] * abs(wx)) * wx + (hy * r22 - hz * r21),
+            tau[4] - (w * a0 - u * a2 + wz * b0 - wx * b2)
+            - (wr * c0 - ur * c2 + wz * d0 - wx * d2)
+            - (dl[4] + dq[4] * abs(wy)) * wy + (hz * r20 - hx * r22),
+            tau[5] - (u * a1 - v * a0 + wx * b1 - wy * b0)
+            - (ur * c1 - vr * c0 + wx * d1 - wy * d0)
+            - (dl[5] + dq[5] * abs(wz)) * wz + (hx * r21 - hy * r20),
+        )

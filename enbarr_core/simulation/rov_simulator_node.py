@@ -1,10 +1,15 @@
 """Simulated 6-DOF ROV: the vehicle the simulated IMU measures and the thrusters push.
 
 Integrates ``RigidBodyModel`` (Fossen 2021) at ``rate`` on its own loop thread. Each step:
-tau = B f from the latest ``sim/thrust`` (zero when it is older than ``thrust_timeout``, as
-an ESC whose signal stops), one model step, then the truth at the IMU on ``sim/imu`` (which
-drives the whole IMU -> thruster chain synchronously through the link bus) and, decimated,
-``sim/odometry``.
+tau = B f from the latest ``sim/thrust`` (zero when it is older than ``thrust_timeout`` on the
+node's clock, as an ESC whose signal stops), one model step in the water ``current`` (a
+constant velocity in the world frame; the damping and added mass act on the velocity relative
+to it), then the truth at the IMU on ``sim/imu`` (which drives the whole IMU -> thruster
+chain synchronously through the link bus) and, decimated, ``sim/odometry`` (velocity over
+ground, as a DVL locked on the bottom measures it).
+
+The thrust's age is measured on the node's ROS clock, the clock the simulated time of
+``enbarr scenario`` overrides, so a scenario run does not depend on the machine's speed.
 """
 
 from __future__ import annotations
@@ -13,7 +18,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 import threading
-import time
 from typing import Any
 
 from nav_msgs.msg import Odometry
@@ -60,6 +64,8 @@ SPECS = [
               'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
     ParamSpec('status_period', 2.0, 'Period of the status line in the log (0: none)', 's',
               0.0, 3600.0, read_only=True),
+    ParamSpec('current', [0.0, 0.0, 0.0], 'Water current in odom (east, north, up): constant, '
+              'damping and added mass act on the velocity relative to it', 'm/s', -5.0, 5.0),
     ParamSpec('initial.position', [0.0, 0.0, -1.0], 'Start position in odom (ENU)', 'm', -1e6,
               1e6),
     ParamSpec('initial.rpy', [0.0, 0.0, 0.0], 'Start roll, pitch, yaw', 'rad', -math.pi,
@@ -78,6 +84,7 @@ class RovSimulatorSettings:
     thrust_timeout: float        # thrust older than this counts as zero [s]
     vehicle: RigidBodyParams     # the simulated vehicle (Fossen 2021)
     status_period: float         # period of the log status line, 0: none [s]
+    current: tuple[float, ...]   # water velocity in odom (ENU) [m/s]
     initial_position: tuple[float, ...]  # start position in odom (ENU) [m]
     initial_rpy: tuple[float, ...]       # start roll, pitch, yaw [rad]
 
@@ -92,6 +99,7 @@ class RovSimulatorSettings:
             rate=v['rate'], odometry_rate=v['odometry_rate'],
             thrust_timeout=v['thrust_timeout'], vehicle=vehicle,
             status_period=v['status_period'],
+            current=floats('current', v['current'], 3),
             initial_position=floats('initial.position', v['initial.position'], 3),
             initial_rpy=floats('initial.rpy', v['initial.rpy'], 3))
 
@@ -113,7 +121,7 @@ class RovSimulatorNode(EnbarrNode):
                                     quat_from_euler(*v.initial_rpy), np.zeros(6))
         self.time_ns = 0
         self._thrust = np.zeros(len(self.thrusters))
-        self._thrust_ns = 0  # monotonic stamp of the last sim/thrust
+        self._thrust_ns: int | None = None  # clock time of the last sim/thrust [ns]
         self.steps = 0        # model steps
         self.samples = 0      # truth samples published (fewer than steps when late)
         self.time_skips = 0
@@ -121,6 +129,7 @@ class RovSimulatorNode(EnbarrNode):
         self._odom_pub = self.create_topic_publisher(topics.SIM_ODOMETRY)
         self.create_topic_subscription(topics.SIM_THRUST, self._on_thrust)
         self._dt_ns = round(1e9 / v.rate)
+        self.period_ns = self._dt_ns  # one model step [ns] (what enbarr scenario steps by)
         self._odom_every = max(1, round(v.rate / v.odometry_rate))
         self.create_rate_loop(v.rate, self.step)
         if v.status_period > 0.0:
@@ -130,6 +139,7 @@ class RovSimulatorNode(EnbarrNode):
         with self._lock:
             self.settings = settings
             self._model = RigidBodyModel(settings.vehicle)
+            self._current = settings.current if any(settings.current) else None
             self._thrust_timeout_ns = int(settings.thrust_timeout * 1e9)
 
     def _on_thrust(self, msg: JointState) -> None:
@@ -139,12 +149,13 @@ class RovSimulatorNode(EnbarrNode):
             if i is not None and np.isfinite(f):
                 thrust[i] = f
         self._thrust = thrust
-        self._thrust_ns = time.monotonic_ns()
+        self._thrust_ns = self.get_clock().now().nanoseconds
 
     @property
     def tau(self) -> np.ndarray:
         """Generalized force of the thrusters now [N, N m] (zero when their signal is stale)."""
-        if time.monotonic_ns() - self._thrust_ns > self._thrust_timeout_ns:
+        last = self._thrust_ns
+        if last is None or self.get_clock().now().nanoseconds - last > self._thrust_timeout_ns:
             return np.zeros(6)
         return self._B @ self._thrust
 
@@ -164,11 +175,11 @@ class RovSimulatorNode(EnbarrNode):
         self.time_skips += skipped
         tau = self.tau
         with self._lock:
-            model = self._model
+            model, current = self._model, self._current
             state = self.state
             for _ in range(n):
-                state = model.step(state, tau, dt)
-            nu_dot = model.nu_dot(state.q, state.nu, tau)
+                state = model.step(state, tau, dt, current=current)
+            nu_dot = model.nu_dot(state.q, state.nu, tau, current=current)
             self.state = state
         self.time_ns = now
         self.steps += n
