@@ -58,7 +58,7 @@ class VelocityControlSettings:
     d_quad: tuple[float, ...]          # quadratic damping [N/(m/s)^2, N m/(rad/s)^2]
     inertia: tuple[float, ...]         # diagonal of M = M_RB + M_A [kg, kg m^2]
     level_gain: float = 0.0            # roll/pitch leveling gain k_lvl [1/s]
-    coriolis: bool = False             # add C(nu_d) nu_d of the diagonal M to the feed-forward
+    coriolis: bool = True              # add C(nu_d) nu_d of the diagonal M to the feed-forward
     derivative_filter: float = 0.02    # time constant T_f of the derivative filter [s]
 
     def validate(self) -> None:
@@ -245,8 +245,11 @@ class VelocityReference:
     def __init__(self, time_constant: ArrayLike, max_accel: ArrayLike) -> None:
         self.time_constant = vector('time_constant', time_constant, 6)
         self.max_accel = vector('max_accel', max_accel, 6)
-        if not (np.all(self.time_constant > 0.0) and np.all(self.max_accel > 0.0)):
-            raise ValueError('time_constant and max_accel must be > 0')
+        # An infinite time constant would never move; an infinite max_accel is no limit.
+        if not np.all(np.isfinite(self.time_constant) & (self.time_constant > 0.0)):
+            raise ValueError(f'time_constant must be finite and > 0, got {self.time_constant}')
+        if not np.all(self.max_accel > 0.0):
+            raise ValueError(f'max_accel must be > 0, got {self.max_accel}')
         self.nu_ref = np.zeros(6)
         self.nu_ref_dot = np.zeros(6)
 
@@ -260,6 +263,8 @@ class VelocityReference:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'dt must be finite and > 0, got {dt!r}')
         goal = vector('nu_goal', nu_goal, 6)
+        if not _all_finite(goal):  # one NaN would poison the reference for good
+            raise ValueError(f'nu_goal must be finite, got {goal}')
         # Never step past the goal: the rate is also limited to (goal - ref) / dt.
         rate = (goal - self.nu_ref) / np.maximum(self.time_constant, dt)
         self.nu_ref_dot = np.clip(rate, -self.max_accel, self.max_accel)

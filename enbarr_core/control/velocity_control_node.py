@@ -99,8 +99,7 @@ class VelocityControlNodeSettings:
             d_lin=floats('vehicle.d_lin', v['vehicle.d_lin'], 6),
             d_quad=floats('vehicle.d_quad', v['vehicle.d_quad'], 6),
             inertia=tuple(a + b for a, b in zip(rigid, added)), level_gain=v['level_gain'],
-            derivative_filter=v['derivative_filter'],
-            coriolis=True)  # an ROV turns while it moves: C(nu_d) nu_d is in its feed-forward
+            derivative_filter=v['derivative_filter'])
         controller.validate()
         return cls(controller=controller,
                    reference_time_constant=floats(

@@ -94,7 +94,8 @@ def test_feed_forward_alone_with_exact_model_gives_exact_steady_state():
     d_quad = np.array([20.0, 30.0, 35.0, 1.0, 1.2, 0.8])
     ctrl = VelocityController(settings(
         kp=six(0.0), ki=six(0.0), kd=six(0.0),
-        d_lin=tuple(D), d_quad=tuple(d_quad), inertia=tuple(M)))
+        d_lin=tuple(D), d_quad=tuple(d_quad), inertia=tuple(M),
+        coriolis=False))  # the plant is six decoupled DOFs: no C(nu) nu to feed forward
     nu_d = np.array([0.8, -0.4, 0.3, 0.2, -0.3, 0.5])
     v, dt = np.zeros(6), 0.05
     for _ in range(int(60.0 / dt)):
@@ -107,7 +108,8 @@ def test_feed_forward_alone_with_exact_model_gives_exact_steady_state():
 
 def test_acceleration_feed_forward_tracks_a_ramp():
     accel = np.array([0.05, -0.04, 0.03, 0.02, -0.02, 0.03])
-    exact = settings(kp=six(0.0), ki=six(0.0), d_lin=tuple(D), inertia=tuple(M))
+    exact = settings(kp=six(0.0), ki=six(0.0), d_lin=tuple(D), inertia=tuple(M),
+                     coriolis=False)  # decoupled plant: no C(nu) nu
     no_inertia = dataclasses.replace(exact, inertia=six(0.0))
     errors = []
     for s in (exact, no_inertia):
@@ -580,3 +582,34 @@ def test_reference_step_rejects_bad_dt_and_goal_shape():
     with pytest.raises(ValueError, match='nu'):
         ref.reset(np.zeros(4))
     np.testing.assert_array_equal(ref.nu_ref, 0.0)      # refused calls changed nothing
+
+
+def test_reference_refuses_a_non_finite_goal_and_an_infinite_time_constant():
+    ref = VelocityReference(T_REF, A_MAX)
+    ref.step(six(0.2), DT)
+    before = ref.nu_ref.copy()
+    for bad in (math.nan, math.inf):
+        with pytest.raises(ValueError, match='nu_goal'):
+            ref.step((0.1, bad, 0.0, 0.0, 0.0, 0.0), DT)
+    np.testing.assert_array_equal(ref.nu_ref, before)   # not poisoned: the next step is sane
+    assert np.all(np.isfinite(ref.step(six(0.2), DT)[0]))
+    with pytest.raises(ValueError, match='time_constant'):
+        VelocityReference((0.5, 0.5, math.inf, 0.5, 0.5, 0.5), A_MAX)
+    VelocityReference(T_REF, six(math.inf))             # no acceleration limit is allowed
+
+
+def test_coriolis_feed_forward_is_fossens_c_of_the_diagonal_inertia():
+    """Against rigid_body.coriolis_matrix (the simulator's own C(nu), Fossen Thm 3.2)."""
+    from enbarr_core.control.velocity_control import coriolis_force
+    from enbarr_core.models.rigid_body import coriolis_matrix
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        inertia = rng.uniform(0.1, 20.0, 6)
+        nu = rng.uniform(-1.0, 1.0, 6)
+        np.testing.assert_allclose(coriolis_force(inertia, nu),
+                                   coriolis_matrix(np.diag(inertia), nu) @ nu, atol=1e-12)
+    # Hand numbers: a turn at u = 0.3 m/s, r = 0.3 rad/s needs sway force M_u u r to hold the
+    # circle (Y = r h_u) and a yaw moment (M_v - M_u) u v = 0 when v = 0.
+    f = coriolis_force(np.array([17.0, 24.2, 26.07, 0.28, 0.28, 0.28]),
+                       np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.3]))
+    np.testing.assert_allclose(f, [0.0, 17.0 * 0.3 * 0.3, 0.0, 0.0, 0.0, 0.0], atol=1e-12)
