@@ -72,8 +72,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``enbarr scenario`` and print its metrics as one JSON line."""
-    if args.duration is not None and not args.duration > 0:
-        raise EnbarrError(f'--duration must be positive, got {args.duration}')
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
                  duration=args.duration)
     print(json.dumps(result))
@@ -131,6 +129,17 @@ def _number(value: Any, profile: Any, key: str, expected: str) -> float:
     return float(value)
 
 
+def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
+    """``spec`` run for ``duration`` [s] (``--duration``); it must outlast the settle time."""
+    if not duration > 0:
+        raise EnbarrError(f'--duration must be positive, got {duration}')
+    if spec.settle_time is not None and not duration > spec.settle_time:
+        raise EnbarrError(f'--duration {duration} s leaves no evaluation window: the '
+                          f"scenario's settle_time is {spec.settle_time} s after automatic "
+                          'began')
+    return replace(spec, duration=duration)
+
+
 def resolve(name: str) -> str:
     """Find a scenario: a bare name means ``scenarios/NAME`` among the installed profiles."""
     from enbarr_core.bringup.profile import search_dirs
@@ -155,7 +164,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     profile = load_profile(resolve(name), overrides)
     spec = scenario_spec(profile)
     if duration is not None:
-        spec = replace(spec, duration=duration)
+        spec = with_duration(spec, duration)
     out = Path(output or f'runs/scenario-{profile.name}-{time.strftime("%Y%m%d-%H%M%S")}')
     if out.exists() and any(out.iterdir()):
         raise EnbarrError(f'{out}: exists and is not empty')

@@ -20,9 +20,9 @@ import pytest
 from support import synthetic
 
 from enbarr_core.bringup.profile import load_profile
-from enbarr_core.framework.errors import ProfileError
+from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.tools.metrics import compute_metrics
-from enbarr_core.tools.scenario import resolve, ScenarioSpec, scenario_spec
+from enbarr_core.tools.scenario import resolve, ScenarioSpec, scenario_spec, with_duration
 
 MM = 0.5e-4     # the metrics round metres to 4 decimals
 MDEG = 0.5e-3   # and degrees to 3
@@ -380,3 +380,12 @@ def test_shipped_scenarios_state_their_settle_time(name: str) -> None:
     spec = scenario_spec(load_profile(resolve(name)))
     if spec.kind == 'station_keeping':
         assert spec.settle_time is not None and spec.settle_time + 10.0 <= spec.duration
+
+
+def test_duration_override_must_outlast_the_settle_time() -> None:
+    spec = ScenarioSpec(90.0, 'station_keeping', (0.05, 2.0), 20.0)
+    assert with_duration(spec, 30.0).duration == 30.0
+    with pytest.raises(EnbarrError, match=r"--duration 20.0 s leaves no evaluation window: "
+                       r"the scenario's settle_time is 20.0 s"):
+        with_duration(spec, 20.0)
+    assert with_duration(PATH, 5.0).duration == 5.0  # a path has no settle time
