@@ -1,7 +1,55 @@
 """Figures and a picture of a recorded DP run (``enbarr scenario``), from the bag alone.
 
-The figures: errors after settling, cross-track error, time to settle, thrust saturation
-time. The picture draws the hull outline from the profile's geometry (``hull_radius``).
+Every error is the simulator's truth (``sim/odometry``) against the guidance reference in
+force at that instant (the latest ``guidance/reference`` stamped at or before the sample;
+samples before the first reference are compared with the first one). Averages are over the
+odometry samples, which come at the simulator's fixed rate. Times are in seconds from the
+instant the mode began (the ``/mode`` message's record time).
+
+**Station keeping** (``kind: station_keeping``). The automatic period runs from the first
+``automatic`` mode to the next mode change (or the end of the run). ``settle_time`` is
+stated by the scenario (``scenario.settle_time``), not found in the data, so the figures
+can fail:
+
+- ``position_error_rms_m``, ``position_error_max_m``, ``heading_error_rms_deg``,
+  ``heading_error_max_deg``: over the FIXED evaluation window from ``settle_time`` after
+  automatic began to the end of the automatic period (``window_s``: its start and end,
+  from the start of the run). An empty window is an ``error``.
+- ``time_to_settle_s``: the first time after which the position error stays within
+  ``settle_band[0]`` [m] and the heading error within ``settle_band[1]`` [deg] to the end
+  of the automatic period (0 if it never left the band; ``None`` if the last sample is
+  outside). ``settled``: it is not ``None``; ``settled_in_time``: it is at most
+  ``settle_time``.
+- ``overall_position_error_rms_m``, ``overall_position_error_max_m``,
+  ``overall_heading_error_rms_deg``, ``overall_heading_error_max_deg``: over the WHOLE
+  automatic period, transient included.
+- ``dropout_position_error_max_m`` (when the profile's ``sim_mocap`` node has
+  ``dropout_windows``): the largest position error while the motion capture was lost and
+  the second after, within the automatic period.
+
+**Path** (``kind: path``). The guidance period runs from the first ``guidance`` mode to the
+next mode change (or the end of the run). The path is the guidance node's
+``path.waypoints``; with one waypoint, the line from where the vessel was when guidance
+began.
+
+- ``all_waypoints_visited``: the vessel came within ``VISIT_RADIUS`` of every waypoint, IN
+  ORDER (each after the one before).
+- ``path_time_s``: when it first came within ``ARRIVAL_RADIUS`` of the last waypoint after
+  visiting the one before it (``None`` if it did not).
+- ``cross_track_rms_m``: distance to the ACTIVE leg, the legs taken in order (leg k until
+  the vessel is nearer leg k+1: no skipping ahead, no going back, so a vessel that drives
+  the path the wrong way is far from it), RMS from the start of guidance to the arrival
+  (to the end of the guidance period if it never arrives), so that the holding after the
+  arrival does not dilute it; ``cross_track_max_m``: the largest over the whole guidance
+  period.
+- ``final_position_error_m``: distance from the last waypoint at the end of the guidance
+  period.
+
+Both kinds: ``modes`` (time from the start of the run, mode) and ``thrust_saturation_s``,
+the time the allocation delivered less than the controller asked. A run that never reached
+the mode it is judged in gets an ``error`` and no figures.
+
+The picture draws the hull outline from the profile's geometry (``hull_radius``).
 """
 
 from __future__ import annotations
@@ -18,6 +66,10 @@ from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
 
 GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to follow
+VISIT_RADIUS = 0.25    # a waypoint counts as visited this close [m]
+ARRIVAL_RADIUS = 0.1   # arrived at the last waypoint this close [m]
+DROPOUT_AFTER = 1.0    # the dropout error is judged up to this long after a window [s]
+STAMP_TOL = 1e-6       # times closer than this are equal: stamps are integer ns read as float s
 
 
 def _stamp(msg: Any) -> float:
@@ -45,18 +97,63 @@ def _modes(msgs: list[tuple[int, Any]]) -> list[tuple[float, str]]:
     return [(t * 1e-9, m.data) for t, m in msgs]
 
 
-def _first(modes: list[tuple[float, str]], mode: str) -> float | None:
-    return next((t for t, m in modes if m == mode), None)
+def _period(modes: list[tuple[float, str]], mode: str) -> tuple[float, float] | None:
+    """[start, end) [s] of the first period in ``mode``: to the next change, or +inf."""
+    start = next((t for t, m in modes if m == mode), None)
+    if start is None:
+        return None
+    end = next((t for t, m in modes if t > start and m != mode), math.inf)
+    return start, end
 
 
-def _segment_distance(p: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
-    """Distance of each point of ``p`` (n, 2) to the polyline ``waypoints`` (k, 2)."""
-    best = np.full(len(p), np.inf)
-    for a, b in zip(waypoints[:-1], waypoints[1:]):
-        ab = b - a
-        s = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(p - (a + s[:, None] * ab), axis=1))
-    return best
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each point of ``p`` (n, 2) to the segment from ``a`` to ``b``."""
+    ab = b - a
+    s = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
+
+
+def _active_leg(p: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+    """Index of the leg being followed at each point of ``p`` (n, 2).
+
+    Legs are taken in order: leg k (waypoint k to k+1) stays active until the vessel is
+    nearer leg k+1 than leg k (round a corner, or past the end of leg k); no leg is skipped
+    and none is gone back to. The last leg stays active.
+    """
+    legs = np.zeros(len(p), dtype=int)
+    k, last = 0, len(waypoints) - 2
+    for i, q in enumerate(p[:, None, :]):
+        while k < last and (_segment_distance(q, waypoints[k + 1], waypoints[k + 2])[0]
+                            < _segment_distance(q, waypoints[k], waypoints[k + 1])[0]):
+            k += 1
+        legs[i] = k
+    return legs
+
+
+def _cross_track(p: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+    """Distance of each point of ``p`` (n, 2) to the leg active there (``_active_leg``)."""
+    legs = _active_leg(p, waypoints)
+    d = np.zeros(len(p))
+    for k in range(len(waypoints) - 1):
+        on = legs == k
+        d[on] = _segment_distance(p[on], waypoints[k], waypoints[k + 1])
+    return d
+
+
+def _visits(p: np.ndarray, waypoints: np.ndarray) -> list[int]:
+    """Sample index of the visit of each waypoint, in order (each after the one before).
+
+    Shorter than ``waypoints`` when one was not visited (and so none after it).
+    """
+    out: list[int] = []
+    i = 0
+    for w in waypoints:
+        near = np.nonzero(np.linalg.norm(p[i:] - w, axis=1) < VISIT_RADIUS)[0]
+        if not len(near):
+            break
+        i += int(near[0])
+        out.append(i)
+    return out
 
 
 def _waypoints(profile: Any) -> np.ndarray:
@@ -89,6 +186,10 @@ def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
     return []
 
 
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x ** 2)))
+
+
 def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     """Compute the figures of a recorded run from its bag (see the module docstring)."""
     msgs = read_bag(bag)
@@ -107,62 +208,99 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     out['thrust_saturation_s'] = round(sum(sat) * sample, 2)
     ref_t, ref = _references(msgs.get('/guidance/reference', []))
     if spec.kind == 'station_keeping':
-        start = _first(modes, 'automatic')
-        if start is None or not len(ref_t):
-            out['error'] = 'never in automatic mode'
-            return out
-        sel = t >= start
-        idx = np.clip(np.searchsorted(ref_t, t[sel], side='right') - 1, 0, len(ref_t) - 1)
-        pos_err = np.linalg.norm(eta[sel, :2] - ref[idx, :2], axis=1)
-        head_err = np.degrees(np.abs(ssa(eta[sel, 2] - ref[idx, 2])))
-        band_m, band_deg = spec.settle_band
-        outside = np.nonzero((pos_err > band_m) | (head_err > band_deg))[0]
-        settled_i = 0 if not len(outside) else outside[-1] + 1
-        if settled_i >= len(pos_err):
-            out.update({'settled': False, 'time_to_settle_s': None})
-            return out
-        pe, he = pos_err[settled_i:], head_err[settled_i:]
-        windows = _dropout_windows(profile)
-        if windows:  # error while the motion capture was lost and the second after it
-            ts = t[sel] - t0
-            during = np.zeros(len(ts), dtype=bool)
-            for a, b in windows:
-                during |= (ts >= a) & (ts < b + 1.0)
-            if during.any():
-                out['dropout_position_error_max_m'] = round(float(pos_err[during].max()), 4)
-        out.update({
-            'settled': True,
-            'time_to_settle_s': round(float(t[sel][settled_i] - start), 2),
-            'position_error_rms_m': round(float(np.sqrt(np.mean(pe ** 2))), 4),
-            'position_error_max_m': round(float(pe.max()), 4),
-            'heading_error_rms_deg': round(float(np.sqrt(np.mean(he ** 2))), 3),
-            'heading_error_max_deg': round(float(he.max()), 3),
-        })
+        out.update(_station_keeping(t, eta, ref_t, ref, modes, spec, profile))
     else:
-        start = _first(modes, 'guidance')
-        wps = _waypoints(profile)
-        if start is None or len(wps) < 1:
-            out['error'] = 'never in guidance mode, or no path'
-            return out
-        end = next((tm for tm, m in modes if tm > start and m != 'guidance'), t[-1])
-        sel = (t >= start) & (t <= end)
-        if len(wps) == 1:  # go to a waypoint: the path is the line from where guidance began
-            wps = np.vstack((eta[sel][0, :2], wps))
-        d = _segment_distance(eta[sel, :2], wps)
-        p = eta[sel, :2]
-        visited = all(np.min(np.linalg.norm(p - w, axis=1)) < 0.25 for w in wps)
-        # Arrival: first time within 0.1 m of the last waypoint after passing the one before.
-        before = np.nonzero(np.linalg.norm(p - wps[-2], axis=1) < 0.25)[0]
-        after = before[0] if len(before) else len(p)
-        reached = after + np.nonzero(np.linalg.norm(p[after:] - wps[-1], axis=1) < 0.1)[0]
-        out.update({
-            'cross_track_rms_m': round(float(np.sqrt(np.mean(d ** 2))), 4),
-            'cross_track_max_m': round(float(d.max()), 4),
-            'all_waypoints_visited': bool(visited),
-            'path_time_s': round(float(t[sel][reached[0]] - start), 2) if (
-                visited and len(reached)) else None,
-        })
+        out.update(_path(t, eta, modes, profile))
     return out
+
+
+def _station_keeping(t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray, ref: np.ndarray,
+                     modes: list[tuple[float, str]], spec: Any,
+                     profile: Any) -> dict[str, Any]:
+    """Compute the station-keeping figures (see the module docstring)."""
+    t0 = t[0]
+    auto = _period(modes, 'automatic')
+    if auto is None or not len(ref_t):
+        return {'error': 'never in automatic mode'}
+    start, end = auto
+    sel = (t >= start - STAMP_TOL) & (t < end - STAMP_TOL)
+    if not sel.any():
+        return {'error': 'no odometry in the automatic period'}
+    ta = t[sel]
+    idx = np.clip(np.searchsorted(ref_t, ta, side='right') - 1, 0, len(ref_t) - 1)
+    pos_err = np.linalg.norm(eta[sel, :2] - ref[idx, :2], axis=1)
+    head_err = np.degrees(np.abs(ssa(eta[sel, 2] - ref[idx, 2])))
+    out: dict[str, Any] = {
+        'automatic_s': round(float((end if math.isfinite(end) else ta[-1]) - start), 2),
+        'settle_time_s': spec.settle_time,
+        'overall_position_error_rms_m': round(_rms(pos_err), 4),
+        'overall_position_error_max_m': round(float(pos_err.max()), 4),
+        'overall_heading_error_rms_deg': round(_rms(head_err), 3),
+        'overall_heading_error_max_deg': round(float(head_err.max()), 3),
+    }
+    band_m, band_deg = spec.settle_band
+    outside = np.nonzero((pos_err > band_m) | (head_err > band_deg))[0]
+    if not len(outside):
+        settle: float | None = 0.0
+    elif outside[-1] + 1 < len(ta):
+        settle = round(float(ta[outside[-1] + 1] - start), 2)
+    else:
+        settle = None
+    out.update({'time_to_settle_s': settle, 'settled': settle is not None,
+                'settled_in_time': settle is not None and settle <= spec.settle_time})
+    windows = _dropout_windows(profile)
+    if windows:  # error while the motion capture was lost and the second after it
+        during = np.zeros(len(ta), dtype=bool)
+        for a, b in windows:
+            during |= (ta - t0 >= a - STAMP_TOL) & (ta - t0 < b + DROPOUT_AFTER - STAMP_TOL)
+        if during.any():
+            out['dropout_position_error_max_m'] = round(float(pos_err[during].max()), 4)
+    window = ta - start >= spec.settle_time - STAMP_TOL
+    if not window.any():
+        out['error'] = (f'the evaluation window is empty: automatic lasted '
+                        f'{ta[-1] - start:.2f} s, settle_time is {spec.settle_time} s')
+        return out
+    pe, he = pos_err[window], head_err[window]
+    out.update({
+        'window_s': [round(float(ta[window][0] - t0), 2), round(float(ta[window][-1] - t0), 2)],
+        'position_error_rms_m': round(_rms(pe), 4),
+        'position_error_max_m': round(float(pe.max()), 4),
+        'heading_error_rms_deg': round(_rms(he), 3),
+        'heading_error_max_deg': round(float(he.max()), 3),
+    })
+    return out
+
+
+def _path(t: np.ndarray, eta: np.ndarray, modes: list[tuple[float, str]],
+          profile: Any) -> dict[str, Any]:
+    """Compute the path figures (see the module docstring)."""
+    guided = _period(modes, 'guidance')
+    wps = _waypoints(profile)
+    if guided is None or len(wps) < 1:
+        return {'error': 'never in guidance mode, or no path'}
+    start, end = guided
+    sel = (t >= start - STAMP_TOL) & (t < end - STAMP_TOL)
+    if not sel.any():
+        return {'error': 'no odometry in the guidance period'}
+    ta, p = t[sel], eta[sel, :2]
+    if len(wps) == 1:  # go to a waypoint: the path is the line from where guidance began
+        wps = np.vstack((p[0], wps))
+    d = _cross_track(p, wps)
+    visits = _visits(p, wps)
+    visited = len(visits) == len(wps)
+    # Arrival: within ARRIVAL_RADIUS of the last waypoint, after visiting the one before it.
+    after = visits[len(wps) - 2] if len(visits) >= len(wps) - 1 else len(p)
+    reached = after + np.nonzero(np.linalg.norm(p[after:] - wps[-1], axis=1)
+                                 < ARRIVAL_RADIUS)[0]
+    arrived = len(reached) > 0
+    followed = d[:reached[0] + 1] if arrived else d
+    return {
+        'cross_track_rms_m': round(_rms(followed), 4),
+        'cross_track_max_m': round(float(d.max()), 4),
+        'all_waypoints_visited': bool(visited),
+        'path_time_s': round(float(ta[reached[0]] - start), 2) if arrived else None,
+        'final_position_error_m': round(float(np.linalg.norm(p[-1] - wps[-1])), 4),
+    }
 
 
 def _norm(w: Any) -> float:
@@ -207,8 +345,8 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
         ax2.plot(t[valid] - t0, np.linalg.norm(eta[valid, :2] - ref[idx[valid], :2], axis=1),
                  label='position error [m]')
         if len(wps) > 1:  # no position reference along the path: the distance to it instead
-            ax2.plot(t[valid] - t0, _segment_distance(eta[valid, :2], wps), lw=0.8,
-                     color='tab:green', label='distance to the path [m]')
+            ax2.plot(t[valid] - t0, _cross_track(eta[valid, :2], wps), lw=0.8,
+                     color='tab:green', label='distance to the active leg [m]')
         ax2b = ax2.twinx()
         ax2b.plot(t[valid] - t0, np.degrees(ssa(eta[valid, 2] - ref[idx[valid], 2])),
                   color='tab:orange', lw=0.8, label='heading error [deg]')

@@ -5,7 +5,9 @@ A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenari
     scenario:
       duration: 60.0          # simulated seconds
       kind: station_keeping   # or: path
-      settle_band: [0.1, 5.0] # m, deg: settled once the error stays inside
+      settle_time: 20.0       # s after automatic began: the evaluation window starts here
+                              # (station_keeping only, required there)
+      settle_band: [0.05, 2.0] # m, deg: settled once the errors stay inside (default)
 
 The nodes are built exactly as ``bringup`` builds them, in one process, but time is
 simulated: every node's ROS clock is set to the simulated time, and the runner steps the
@@ -14,8 +16,10 @@ and callbacks became due. Nothing waits for the wall clock, so a scenario runs a
 machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
 
 The run is recorded (rosbag2/MCAP) into the output directory; the metrics are computed from
-that bag and printed as one JSON line; a PNG shows the path in the NE plane with the vessel
-outline, the errors and the thrust over time.
+that bag (their definitions: :mod:`enbarr_core.tools.metrics`) and printed as one JSON line
+with ``scenario``, ``simulated_s``, ``wall_s``, ``real_time_factor``, ``cpu_s``, ``bag`` and
+``plot``; a PNG shows the path in the NE plane with the vessel outline, the errors and the
+thrust over time.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, replace
 import json
+import math
 from pathlib import Path
 import time
 from typing import Any
@@ -30,15 +35,17 @@ from typing import Any
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
+SCENARIO_KEYS = ('duration', 'kind', 'settle_time', 'settle_band')
 
 
 @dataclass(frozen=True)
 class ScenarioSpec:
     """The ``scenario`` section of a scenario profile."""
 
-    duration: float
-    kind: str
-    settle_band: tuple[float, float]
+    duration: float                   # simulated seconds
+    kind: str                         # station_keeping or path
+    settle_band: tuple[float, float]  # [m, deg]
+    settle_time: float | None = None  # [s] after automatic began (station_keeping only)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -51,12 +58,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', type=float, metavar='S',
                    help="simulated seconds (default: the scenario's own)")
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
+    p.epilog = (
+        'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
+        'modes, thrust_saturation_s; station keeping: position/heading error RMS and max '
+        "over the fixed window from the scenario's settle_time after automatic began "
+        '(window_s), time_to_settle_s (errors inside settle_band from then on), settled, '
+        'settled_in_time, the same errors over the whole automatic period (overall_*) and '
+        'dropout_position_error_max_m (with motion-capture dropouts); '
+        'path: cross_track_rms_m (active leg, to the arrival), cross_track_max_m, '
+        'all_waypoints_visited (in order), path_time_s, final_position_error_m; then '
+        'scenario, simulated_s, wall_s, real_time_factor, cpu_s, bag, plot.')
 
 
 def main(args: argparse.Namespace) -> int:
     """Run ``enbarr scenario`` and print its metrics as one JSON line."""
-    if args.duration is not None and not args.duration > 0:
-        raise EnbarrError(f'--duration must be positive, got {args.duration}')
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
                  duration=args.duration)
     print(json.dumps(result))
@@ -68,17 +83,61 @@ def scenario_spec(profile: Any) -> ScenarioSpec:
     raw = profile.scenario
     if not raw:
         raise ProfileError('not a scenario: it has no "scenario" section', path=profile.path)
-    try:
-        duration = float(raw['duration'])
-        kind = str(raw.get('kind', 'station_keeping'))
-        band = tuple(float(x) for x in raw.get('settle_band', (0.05, 2.0)))
-    except (KeyError, TypeError, ValueError) as err:
-        raise ProfileError(f'expected duration (s), kind and settle_band [m, deg]: {err}',
-                           path=profile.path, key='scenario') from err
-    if not duration > 0 or kind not in ('station_keeping', 'path') or len(band) != 2:
-        raise ProfileError('duration must be > 0, kind station_keeping or path, settle_band '
-                           'two numbers', path=profile.path, key='scenario')
-    return ScenarioSpec(duration, kind, band)  # type: ignore[arg-type]
+    unknown = sorted(set(raw) - set(SCENARIO_KEYS))
+    if unknown:
+        raise ProfileError(f'unknown key {unknown[0]!r}; expected: {", ".join(SCENARIO_KEYS)}',
+                           path=profile.path, key='scenario')
+    duration = _number(raw.get('duration'), profile, 'duration', 'simulated seconds > 0')
+    if not duration > 0:
+        raise ProfileError(f'must be > 0 (simulated seconds), got {duration}',
+                           path=profile.path, key='scenario.duration')
+    kind = raw.get('kind', 'station_keeping')
+    if kind not in ('station_keeping', 'path'):
+        raise ProfileError(f'must be station_keeping or path, got {kind!r}',
+                           path=profile.path, key='scenario.kind')
+    band = raw.get('settle_band', (0.05, 2.0))
+    if not isinstance(band, (list, tuple)) or len(band) != 2:
+        raise ProfileError(f'expected two numbers [m, deg], got {band!r}',
+                           path=profile.path, key='scenario.settle_band')
+    band_m = _number(band[0], profile, 'settle_band', 'two numbers > 0 [m, deg]')
+    band_deg = _number(band[1], profile, 'settle_band', 'two numbers > 0 [m, deg]')
+    if not (band_m > 0 and band_deg > 0):
+        raise ProfileError(f'expected two numbers > 0 [m, deg], got {list(band)}',
+                           path=profile.path, key='scenario.settle_band')
+    settle_time = None
+    if kind == 'station_keeping':
+        if 'settle_time' not in raw:
+            raise ProfileError('required for a station_keeping scenario: the seconds after '
+                               'automatic mode begins when the evaluation window starts',
+                               path=profile.path, key='scenario.settle_time')
+        settle_time = _number(raw['settle_time'], profile, 'settle_time', 'seconds >= 0')
+        if not 0.0 <= settle_time < duration:
+            raise ProfileError(f'must be >= 0 and below the duration ({duration} s), got '
+                               f'{settle_time}', path=profile.path, key='scenario.settle_time')
+    elif 'settle_time' in raw:
+        raise ProfileError('only for a station_keeping scenario', path=profile.path,
+                           key='scenario.settle_time')
+    return ScenarioSpec(duration, kind, (band_m, band_deg), settle_time)
+
+
+def _number(value: Any, profile: Any, key: str, expected: str) -> float:
+    """``value`` as a finite float, or a ProfileError naming ``scenario.key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value):
+        raise ProfileError(f'expected {expected}, got {value!r}', path=profile.path,
+                           key=f'scenario.{key}')
+    return float(value)
+
+
+def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
+    """``spec`` run for ``duration`` [s] (``--duration``); it must outlast the settle time."""
+    if not duration > 0:
+        raise EnbarrError(f'--duration must be positive, got {duration}')
+    if spec.settle_time is not None and not duration > spec.settle_time:
+        raise EnbarrError(f'--duration {duration} s leaves no evaluation window: the '
+                          f"scenario's settle_time is {spec.settle_time} s after automatic "
+                          'began')
+    return replace(spec, duration=duration)
 
 
 def resolve(name: str) -> str:
@@ -105,7 +164,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     profile = load_profile(resolve(name), overrides)
     spec = scenario_spec(profile)
     if duration is not None:
-        spec = replace(spec, duration=duration)
+        spec = with_duration(spec, duration)
     out = Path(output or f'runs/scenario-{profile.name}-{time.strftime("%Y%m%d-%H%M%S")}')
     if out.exists() and any(out.iterdir()):
         raise EnbarrError(f'{out}: exists and is not empty')

@@ -27,11 +27,20 @@ def scenario(name: str, out: Path) -> dict[str, Any]:
 
 
 def test_station_keeping_under_current(tmp_path: Path) -> None:
-    """0.05 m/s current and mocap noise: within 0.05 m RMS and 2 deg after settling."""
+    """0.05 m/s current, a wind the controller's model does not predict (0.5 N east, -0.4 N
+    north, 0.08 N m) and mocap noise. Targets (issue 7): inside the 0.05 m / 2 deg band
+    within the scenario's stated settle time (20 s after automatic began) and from then on,
+    0.05 m RMS and 2 deg RMS over the fixed window from there to the end. The pose loop alone
+    would sit ~0.07 m and ~3 deg off (params/scenarios/station_keeping.yaml): without the
+    integral and the bias feed-forward this test fails.
+    """
     r = scenario('station_keeping', tmp_path / 'out')
-    assert r['modes'][0][1] == 'automatic' and r['settled']
+    assert 'error' not in r, r['error']
+    assert [m for _, m in r['modes']] == ['automatic']
+    assert r['settled_in_time'], (r['time_to_settle_s'], r['settle_time_s'])
     assert r['position_error_rms_m'] < 0.05
     assert r['heading_error_rms_deg'] < 2.0
+    assert r['position_error_max_m'] <= 0.05 and r['heading_error_max_deg'] <= 2.0  # the band
     assert r['thrust_saturation_s'] == 0.0
 
 
@@ -39,15 +48,17 @@ def test_box_path_cross_track(tmp_path: Path) -> None:
     """Four-waypoint box at 0.2 m/s with line-of-sight guidance: cross-track RMS < 0.1 m."""
     r = scenario('box_path', tmp_path / 'out')
     assert r['modes'] == [[1.01, 'guidance']]
-    assert r['all_waypoints_visited']
-    assert r['cross_track_rms_m'] < 0.1
+    assert r['all_waypoints_visited']             # in order
+    assert r['cross_track_rms_m'] < 0.1           # to the active leg, up to the arrival
     assert 35.0 < r['path_time_s'] < 55.0  # 8 m at 0.2 m/s is 40 s
+    assert r['final_position_error_m'] < 0.1      # holding the last waypoint at the end
 
 
 def test_manual_to_automatic_mid_run(tmp_path: Path) -> None:
     r = scenario('manual_to_auto', tmp_path / 'out')
     assert [m for _, m in r['modes']] == ['automatic']
-    assert r['settled'] and r['time_to_settle_s'] < 30.0
+    assert r['settled_in_time'], (r['time_to_settle_s'], r['settle_time_s'])  # 20 s stated
+    assert r['position_error_rms_m'] < 0.05 and r['heading_error_rms_deg'] < 2.0
     # Bumpless: the commanded force does not jump when the mode changes.
     msgs = read_bag(tmp_path / 'out' / 'bag')
     switch_ns = next(t for t, m in msgs['/mode'] if m.data == 'automatic')
@@ -60,10 +71,18 @@ def test_manual_to_automatic_mid_run(tmp_path: Path) -> None:
 
 
 def test_mocap_dropout_is_ridden_through(tmp_path: Path) -> None:
+    """One second without poses at 40 s, under the station_keeping scenario's current and
+    unmodelled wind: the vessel stays in automatic and inside the 0.05 m / 2 deg band from the
+    stated settle time (20 s) on, through the dropout and the second after it; 0.05 m RMS over
+    the window. Without the integral and the bias feed-forward this test fails.
+    """
     r = scenario('mocap_dropout', tmp_path / 'out')
+    assert 'error' not in r, r['error']
     assert [m for _, m in r['modes']] == ['automatic']  # never fell back to manual
+    assert r['settled_in_time'], (r['time_to_settle_s'], r['settle_time_s'])
     assert r['dropout_position_error_max_m'] < 0.05
     assert r['position_error_rms_m'] < 0.05
+    assert r['heading_error_rms_deg'] < 2.0
     msgs = read_bag(tmp_path / 'out' / 'bag')
     ages = [m.data for _, m in msgs['/observer/measurement_age']]
     assert max(ages) > 0.9  # it did dead-reckon for about a second
@@ -118,6 +137,7 @@ def test_go_to_waypoint(tmp_path: Path) -> None:
     assert r['modes'] == [[1.01, 'guidance']]
     assert r['all_waypoints_visited'] and r['path_time_s'] is not None
     assert r['cross_track_rms_m'] < 0.05
+    assert r['final_position_error_m'] < 0.05
     msgs = read_bag(tmp_path / 'out' / 'bag')
     last = msgs['/sim/odometry'][-1][1].pose.pose.position
     assert abs(last.x - 3.0) < 0.05 and abs(last.y - 1.5) < 0.05
@@ -134,7 +154,7 @@ def test_a_second_vessel_is_a_profile_only(tmp_path: Path) -> None:
     # Triangle is button 3 in the skiff's layout (square in the DualShock 4's, which would be
     # refused for want of a path): automatic at 3 s means its joystick map was used.
     assert r['modes'] == [[3.01, 'automatic']]
-    assert r['settled'] and r['time_to_settle_s'] < 20.0
+    assert r['settled_in_time'], (r['time_to_settle_s'], r['settle_time_s'])  # 15 s stated
     assert r['position_error_rms_m'] < 0.05 and r['position_error_max_m'] < 0.1
     assert r['heading_error_rms_deg'] < 2.0
     assert r['thrust_saturation_s'] == 0.0
