@@ -209,7 +209,7 @@ def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
     ref_t, ref = _references(msgs.get('/guidance/reference', []))
     if spec.kind == 'station_keeping':
         out.update(_station_keeping(t, eta, ref_t, ref, modes, spec, profile))
-    else:
+    elif spec.kind == 'path':
         out.update(_path(t, eta, modes, profile))
     return out
 

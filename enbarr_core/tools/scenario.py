@@ -4,7 +4,7 @@ A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenari
 
     scenario:
       duration: 60.0          # simulated seconds
-      kind: station_keeping   # or: path
+      kind: station_keeping   # or: path, or run (only the common figures; a test judges it)
       settle_time: 20.0       # s after automatic began: the evaluation window starts here
                               # (station_keeping only, required there)
       settle_band: [0.05, 2.0] # m, deg: settled once the errors stay inside (default)
@@ -36,6 +36,7 @@ from enbarr_core.framework.errors import EnbarrError, ProfileError
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
 SCENARIO_KEYS = ('duration', 'kind', 'settle_time', 'settle_band')
+SCENARIO_KINDS = ('station_keeping', 'path', 'run')  # run: modes and saturation only
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ class ScenarioSpec:
     """The ``scenario`` section of a scenario profile."""
 
     duration: float                   # simulated seconds
-    kind: str                         # station_keeping or path
+    kind: str                         # station_keeping, path or run
     settle_band: tuple[float, float]  # [m, deg]
     settle_time: float | None = None  # [s] after automatic began (station_keeping only)
 
@@ -60,7 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
     p.epilog = (
         'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
-        'modes, thrust_saturation_s; station keeping: position/heading error RMS and max '
+        'modes, thrust_saturation_s (every kind; a run scenario has only these); '
+        'station keeping: position/heading error RMS and max '
         "over the fixed window from the scenario's settle_time after automatic began "
         '(window_s), time_to_settle_s (errors inside settle_band from then on), settled, '
         'settled_in_time, the same errors over the whole automatic period (overall_*) and '
@@ -92,8 +94,8 @@ def scenario_spec(profile: Any) -> ScenarioSpec:
         raise ProfileError(f'must be > 0 (simulated seconds), got {duration}',
                            path=profile.path, key='scenario.duration')
     kind = raw.get('kind', 'station_keeping')
-    if kind not in ('station_keeping', 'path'):
-        raise ProfileError(f'must be station_keeping or path, got {kind!r}',
+    if kind not in SCENARIO_KINDS:
+        raise ProfileError(f'must be one of {", ".join(SCENARIO_KINDS)}, got {kind!r}',
                            path=profile.path, key='scenario.kind')
     band = raw.get('settle_band', (0.05, 2.0))
     if not isinstance(band, (list, tuple)) or len(band) != 2:

@@ -363,15 +363,25 @@ def test_settle_time_is_read() -> None:
      'scenario.settle_band: expected two numbers > 0 [m, deg]'),
     ({'duration': 0.0, 'settle_time': 5.0}, 'scenario.duration: must be > 0'),
     ({'settle_time': 5.0}, 'scenario.duration: expected simulated seconds > 0, got None'),
-    ({'duration': 60.0, 'kind': 'orbit'}, 'scenario.kind: must be station_keeping or path'),
+    ({'duration': 60.0, 'kind': 'orbit'},
+     "scenario.kind: must be one of station_keeping, path, run, got 'orbit'"),
+    ({'duration': 60.0, 'kind': 'run', 'settle_time': 5.0},
+     'scenario.settle_time: only for a station_keeping scenario'),
     ({'duration': 60.0, 'settle_tme': 5.0}, "scenario: unknown key 'settle_tme'"),
 ])
 def test_bad_scenario_sections_name_the_file_and_field(scenario, message) -> None:
     assert message in spec_error(**scenario)
 
 
-@pytest.mark.parametrize('name', ['station_keeping', 'mocap_dropout', 'manual_to_auto',
-                                  'skiff_station_keeping', 'box_path', 'waypoint'])
+SHIPPED = sorted(p.stem for p in (Path(__file__).parents[2] / 'params' / 'scenarios').glob(
+    '*.yaml'))
+
+
+def test_every_shipped_scenario_is_checked_here() -> None:
+    assert {'station_keeping', 'box_path', 'perturbed_rov_heavy'} <= set(SHIPPED)
+
+
+@pytest.mark.parametrize('name', SHIPPED)
 def test_shipped_scenarios_state_their_settle_time(name: str) -> None:
     """Every shipped scenario passes the checks; a station-keeping one leaves a window of at
     least 10 s (1000 samples at 100 Hz) after its settle time, an RMS of the holding rather
@@ -389,3 +399,11 @@ def test_duration_override_must_outlast_the_settle_time() -> None:
                        r"the scenario's settle_time is 20.0 s"):
         with_duration(spec, 20.0)
     assert with_duration(PATH, 5.0).duration == 5.0  # a path has no settle time
+
+
+def test_a_run_scenario_has_only_the_common_figures(tmp_path: Path) -> None:
+    """kind: run (a test judges the bag): modes and saturation, no window, no error."""
+    t = grid(20.0)
+    r = run(tmp_path, t, offset(t, 0.5), ScenarioSpec(20.0, 'run', (0.05, 2.0)), modes=())
+    assert set(r) == {'modes', 'thrust_saturation_s'}
+    assert r['modes'] == [] and r['thrust_saturation_s'] == 0.0
