@@ -96,12 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
     from enbarr_core.tools.bench import add_arguments
     add_arguments(p)
     p.set_defaults(func=_bench)
+    from enbarr_core.tools.scenario import add_arguments as scenario_arguments
+    from enbarr_core.tools.scenario import known_scenarios
     p = sub.add_parser('scenario', help='run a simulated scenario headless (prints JSON)',
                        description='Run a named simulated scenario faster than real time, '
                        'record it, print its metrics as one JSON line and write a PNG plot. '
-                       'Scenarios: station_keeping, box_path, manual_to_auto, mocap_dropout, '
-                       'waypoint (params/scenarios/).')
-    from enbarr_core.tools.scenario import add_arguments as scenario_arguments
+                       f'Scenarios (params/scenarios/): {", ".join(known_scenarios())}.')
     scenario_arguments(p)
     p.set_defaults(func=_scenario)
     p = sub.add_parser('list', help='list known nodes or installed profiles')

@@ -142,6 +142,12 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
     return replace(spec, duration=duration)
 
 
+def known_scenarios() -> list[str]:
+    """Names of the scenarios in the profile search path (``scenarios/*.yaml``), sorted."""
+    from enbarr_core.bringup.profile import search_dirs
+    return sorted({f.stem for d in search_dirs() for f in (d / 'scenarios').glob('*.yaml')})
+
+
 def resolve(name: str) -> str:
     """Find a scenario: a bare name means ``scenarios/NAME`` among the installed profiles."""
     from enbarr_core.bringup.profile import search_dirs
@@ -151,8 +157,7 @@ def resolve(name: str) -> str:
         candidate = d / 'scenarios' / f'{name}.yaml'
         if candidate.is_file():
             return str(candidate)
-    known = sorted({f.stem for d in search_dirs() for f in (d / 'scenarios').glob('*.yaml')})
-    raise ProfileError(f'no scenario {name!r}; scenarios: {", ".join(known)}')
+    raise ProfileError(f'no scenario {name!r}; scenarios: {", ".join(known_scenarios())}')
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),

@@ -237,6 +237,16 @@ def test_bringup_help_hides_the_internal_group_option(bringup_help: str) -> None
     assert '--group' not in bringup_help  # internal: the supervisor's children
 
 
+def test_scenario_help_lists_every_shipped_scenario(tmp_path: Path) -> None:
+    r = enbarr('scenario', '--help', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    text = ' '.join(r.stdout.split())  # argparse wraps the description
+    shipped = sorted(p.stem for p in (Path(__file__).parents[2] / 'params' / 'scenarios')
+                     .glob('*.yaml'))
+    assert 'skiff_station_keeping' in shipped
+    assert f'Scenarios (params/scenarios/): {", ".join(shipped)}.' in text
+
+
 def test_bringup_requires_profile(tmp_path: Path) -> None:
     r = enbarr('bringup', '--check', cwd=tmp_path)
     assert r.returncode == 2
