@@ -6,6 +6,13 @@ thruster's limits and a first-order motor lag, and hands the thrust to the simul
 goes neutral when commands stop for ``command_timeout`` (a crashed controller or a dropped
 link) and on ``safe_state`` (every bringup exit path). Commands outside -1..1 are clipped and
 counted; a command with NaN/Inf or an unknown thruster name is refused and counted.
+
+Two clocks, on purpose. The motor lag is part of the simulated plant: it runs on the node's
+ROS clock, like the simulator that integrates the thrust (with ``use_sim_time``, and in
+``enbarr scenario``, that is the simulated clock, so a transient does not depend on how fast
+the machine runs). The command watchdog stands for the ESC's own firmware and stays on the
+monotonic wall clock (``framework.driver.CommandWatchdog``): a real ESC goes neutral when its
+signal stops for that long in real time, whatever a simulated clock says.
 """
 
 from __future__ import annotations
@@ -13,7 +20,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -88,16 +94,16 @@ class SimThrustersNode(ActuatorDriver):
         if np.any(np.abs(cmd) > 1.0):
             self.clipped += 1
             np.clip(cmd, -1.0, 1.0, out=cmd)
-        now = time.monotonic_ns()
-        stamp_ns = self.get_clock().now().nanoseconds
+        now_ns = self.get_clock().now().nanoseconds
         with self.commanding():
-            self._output(cmd, now, stamp_ns)
-        self.latency.add(stamp_ns - convert.stamp_to_ns(msg.header.stamp))
+            self._output(cmd, now_ns)
+        self.latency.add(now_ns - convert.stamp_to_ns(msg.header.stamp))
 
-    def _output(self, cmd: np.ndarray, now_ns: int, stamp_ns: int | None = None) -> None:
-        """Apply ``cmd`` (normalized) at monotonic ``now_ns``; the caller holds the lock.
+    def _output(self, cmd: np.ndarray, now_ns: int) -> None:
+        """Apply ``cmd`` (normalized) at ``now_ns`` on the node's clock; caller holds the lock.
 
-        Outputs are stamped with the node clock's ``stamp_ns`` (read now when not given).
+        The lag advances by the clock time since the previous output (none if the clock went
+        back: a restarted simulation), and the outputs are stamped ``now_ns``.
         """
         target = np.where(cmd >= 0.0, cmd * self._fwd, cmd * self._rev)
         tc = self.settings.time_constant
@@ -107,14 +113,13 @@ class SimThrustersNode(ActuatorDriver):
         # the thrust of that moment.
         if tc > 0.0 and last is not None and np.any(self.thrust):
             # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
-            alpha = 1.0 - math.exp(-(now_ns - last) * 1e-9 / tc)
+            alpha = 1.0 - math.exp(-max(now_ns - last, 0) * 1e-9 / tc)
             self.thrust = self.thrust + alpha * (target - self.thrust)
         else:
             self.thrust = target
         self.command = cmd
         self.neutral = not np.any(cmd)
-        stamp = convert.ns_to_stamp(
-            self.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns)
+        stamp = convert.ns_to_stamp(now_ns)
         out = JointState(name=self.names, effort=cmd.tolist())
         out.header.stamp = stamp
         out.header.frame_id = topics.BODY_FRAME
@@ -132,7 +137,7 @@ class SimThrustersNode(ActuatorDriver):
         """Command every thruster to neutral now (motor thrust cut, not ramped)."""
         self.neutral = True
         self.thrust = np.zeros(len(self.names))  # cut: the lag starts again from rest
-        self._output(np.zeros(len(self.names)), time.monotonic_ns())
+        self._output(np.zeros(len(self.names)), self.get_clock().now().nanoseconds)
 
     def status_values(self) -> dict[str, Any]:
         """Return the driver counters plus refused and clipped commands."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
+import time
 from typing import Any
 
 import numpy as np
@@ -11,11 +11,11 @@ import pytest
 from sensor_msgs.msg import JointState
 from support.nodes import TIMEOUT, add, probe
 from support.rov import layout_overrides, sim_parameters
+from support.saucer import SimClock
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
-from enbarr_plugins.thrusters import sim as sim_module
 from enbarr_plugins.thrusters.sim import SimThrustersNode
 
 NAMES = sim_parameters()['thruster_names']
@@ -139,15 +139,15 @@ F_FWD, F_REV = 51.5, 40.2    # the sim profile's max_forward / max_reverse [N]
 
 
 class LagRig:
-    """Thrusters with a ``TC`` lag whose monotonic clock is the test's: ``at(t)`` commands."""
+    """Thrusters with a ``TC`` lag on simulated ROS time that only the test moves (what
+    ``enbarr scenario`` does): ``at(t)`` sets the clock and commands. The wall clock runs on
+    unseen; the motor lag must not read it."""
 
-    def __init__(self, context: Any, executor: Any, monkeypatch: Any) -> None:
-        self.now_ns = 1_000_000_000
-        monkeypatch.setattr(sim_module, 'time', SimpleNamespace(
-            monotonic_ns=lambda: self.now_ns))
+    def __init__(self, context: Any, executor: Any) -> None:
         self.node = add(executor, SimThrustersNode(
             node_name='thruster_control', context=context, parameter_overrides=layout_overrides(
                 time_constant=TC, command_timeout=10.0)))
+        self.clock = SimClock(self.node, t0_ns=1_000_000_000)
         self.names = self.node.names
         p = probe(context, executor, 'controller')
         self.pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
@@ -155,18 +155,28 @@ class LagRig:
         p.create_topic_subscription(topics.SIM_THRUST, self.thrusts.append)
         LinkBus.of(context).connect()
 
+    @property
+    def now_ns(self) -> int:
+        return self.clock.ns
+
+    @now_ns.setter
+    def now_ns(self, ns: int) -> None:
+        self.clock.set(ns)
+
     def at(self, t_s: float, effort: float) -> np.ndarray:
-        """Command every thruster to ``effort`` at monotonic time 1 s + ``t_s``."""
+        """Command every thruster to ``effort`` at ROS time 1 s + ``t_s``."""
         self.now_ns = 1_000_000_000 + round(t_s * 1e9)
         self.pub.publish(JointState(name=self.names, effort=[effort] * len(self.names)))
         published = np.array(self.thrusts[-1].effort)
         np.testing.assert_array_equal(published, self.node.thrust)  # what the simulator gets
+        assert self.thrusts[-1].header.stamp.sec * 10 ** 9 + \
+            self.thrusts[-1].header.stamp.nanosec == self.now_ns   # stamped on that clock
         return published
 
 
 @pytest.fixture
-def lag(context, executor, monkeypatch) -> LagRig:
-    return LagRig(context, executor, monkeypatch)
+def lag(context, executor) -> LagRig:
+    return LagRig(context, executor)
 
 
 def first_order(f0: float, target: float, t: float) -> float:
@@ -240,3 +250,71 @@ def test_safe_state_cuts_the_thrust_and_the_next_command_starts_from_its_target(
     lag.node.safe_state()
     assert lag.node.thrust == pytest.approx([0.0] * len(lag.names), abs=0.0)
     assert lag.at(0.07, -0.5) == pytest.approx([-0.5 * F_REV] * len(lag.names), abs=1e-12)
+
+
+# -- two clocks: the lag on ROS time, the watchdog on the wall clock --------------------------
+
+def test_lag_does_not_move_while_only_the_wall_clock_runs(lag):
+    """Simulated time stands still (a scenario between two steps, a paused simulation) while
+    the wall clock runs 50 ms: the thrust must not move. On the wall clock it would have moved
+    1 - exp(-0.05 / 0.2) = 22 % of the way."""
+    f0 = 0.2 * F_FWD
+    lag.at(0.0, 0.2)
+    time.sleep(0.05)                                    # at least 50 ms of wall time
+    assert lag.at(0.0, 1.0) == pytest.approx([f0] * len(lag.names), abs=1e-12)
+    # The same 50 ms of simulated time, taken at once, move it by the closed form.
+    assert lag.at(0.05, 1.0) == pytest.approx([first_order(f0, F_FWD, 0.05)] * len(lag.names),
+                                              abs=1e-9)
+
+
+def test_clock_going_back_holds_the_thrust(lag):
+    """A simulation restarted under a running node sends its clock back: the lag does not
+    run backwards (exp of a positive number would throw the thrust past its target), it
+    holds, and goes on from the new present."""
+    f0 = 0.2 * F_FWD
+    lag.at(0.0, 0.2)
+    lag.at(0.5, 0.2)
+    assert lag.at(0.2, 1.0) == pytest.approx([f0] * len(lag.names), abs=1e-12)
+    assert lag.at(0.3, 1.0) == pytest.approx([first_order(f0, F_FWD, 0.1)] * len(lag.names),
+                                             abs=1e-9)
+
+
+def sim_time_thrusters(context: Any, executor: Any, command_timeout: float) -> Any:
+    """Thrusters on simulated ROS time, commanded once at 1 s."""
+    node = add(executor, SimThrustersNode(
+        node_name='thruster_control', context=context, parameter_overrides=layout_overrides(
+            time_constant=TC, command_timeout=command_timeout)))
+    clock = SimClock(node, t0_ns=1_000_000_000)
+    pub = probe(context, executor, 'controller').create_topic_publisher(
+        topics.THRUSTER_COMMANDS)
+    LinkBus.of(context).connect()
+    pub.publish(JointState(name=node.names, effort=[0.5] * len(node.names)))
+    assert not node.neutral
+    return node, clock
+
+
+def test_watchdog_ignores_simulated_time_racing_ahead(context, executor, spin):
+    """Simulated time jumps 60 s ahead in three steps right after a command (a scenario runs
+    faster than real time); the watchdog's timer fires on each step, but its 10 s timeout is
+    wall time, as an ESC's, and the real time since the command is far shorter."""
+    node, clock = sim_time_thrusters(context, executor, command_timeout=10.0)
+    commanded = time.monotonic()
+    calls = []
+    supervise = node.supervise
+    node.supervise = lambda: (calls.append(clock.ns), supervise())
+    for k in range(1, 4):
+        clock.advance(20.0)
+        assert spin(executor, lambda: len(calls) >= k, TIMEOUT)
+    assert time.monotonic() - commanded < 10.0, 'precondition: under 10 s of wall time'
+    assert node.timeouts == 0 and not node.neutral
+
+
+def test_watchdog_fires_on_wall_time_while_simulated_time_stands(context, executor):
+    """Simulated time stands still after a command; 0.1 s of wall time later the check (the
+    supervision timer's callback, called here because timers wait for simulated time) finds
+    the 0.05 s timeout passed and puts the thrusters neutral."""
+    node, _ = sim_time_thrusters(context, executor, command_timeout=0.05)
+    time.sleep(0.1)                                     # at least 0.1 s of wall time
+    node.supervise()
+    assert node.timeouts == 1 and node.neutral
+    assert not np.any(node.thrust)
