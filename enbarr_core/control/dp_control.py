@@ -32,7 +32,8 @@ used when ``bias_feedforward`` is on.
 * Bumpless mode entry: ``reset(tau_now)`` makes the next output equal tau_now (e.g. the manual
   force when the operator switches to automatic) by solving for I; the integral then takes
   over. Any part of that I beyond integral_limit bleeds off with time constant
-  gain_ramp_time instead of being cut at once.
+  gain_ramp_time instead of being cut at once; so does all of it in a DOF whose Ki is 0
+  (nothing would integrate it away: a PD loop would keep that force for good).
 """
 
 from __future__ import annotations
@@ -214,6 +215,10 @@ class DpController:
                     allow[j] *= bleed
                 lim = max(lim, allow[j])
                 e, i0, b, tm = err[j], i_old[j], base[j], tau_max[j]
+                if ki == 0.0:
+                    # Nothing integrates back what a bumpless entry put in I: it would be a
+                    # constant force for good. It bleeds off over gain_ramp_time instead.
+                    i0 *= bleed
                 delta = ki * e * dt  # I_dot = Ki e
                 i1 = min(max(i0 + delta, -lim), lim)
                 out = b - i1

@@ -458,3 +458,25 @@ def test_masked_integral_bleeds_off_after_bumpless_entry():
         out = ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.02)
     assert np.all(np.abs(ctrl.integral[:2]) < 0.01)
     assert np.all(np.abs(out.tau[:2]) < 0.01)
+
+
+def test_without_ki_the_bumpless_integral_bleeds_off_over_the_ramp_time():
+    """Ki = 0 in a DOF (a PD loop): what reset(tau_now) put in I would stay a constant force
+    for good, since nothing integrates it. It decays as e^(-t / gain_ramp_time) instead,
+    checked against that closed form at one and three ramp times; a DOF with Ki keeps its
+    integral (it integrates the error as before).
+    """
+    s = settings(Ki=(0.0, 0.0, s_ki := dp_settings().Ki[2]), gain_ramp_time=1.0)
+    assert s_ki > 0.0
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset((0.3, -0.2, 0.05))
+    first = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, DT)
+    np.testing.assert_allclose(first.tau, (0.3, -0.2, 0.05), atol=1e-12)  # still bumpless
+    i0 = first.integral.copy()  # (-0.3, 0.2, -0.05): at zero error tau = -I
+    for k in range(1, int(3.0 / DT) + 1):
+        out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, DT)
+        if k in (int(1.0 / DT), int(3.0 / DT)):
+            np.testing.assert_allclose(out.integral[:2], i0[:2] * math.exp(-k * DT / 1.0),
+                                       rtol=1e-9)
+    assert out.integral[2] == pytest.approx(i0[2], abs=1e-12)  # zero error: Ki e dt = 0
