@@ -443,7 +443,7 @@ def test_from_mapping_unknown_keys_message_lists_both_sides():
 
 def test_nu_dot_names_its_inputs():
     model = RigidBodyModel(params())
-    with pytest.raises(ValueError, match=r'^q: expected 4 values'):
+    with pytest.raises(ValueError, match=r'^q: expected shape \(4,\)'):
         model.nu_dot([0.0, 0.0, 1.0], np.zeros(6), np.zeros(6))
-    with pytest.raises(ValueError, match=r'^nu: expected 6 values'):
+    with pytest.raises(ValueError, match=r'^nu: expected shape \(6,\)'):
         model.nu_dot([0.0, 0.0, 0.0, 1.0], np.zeros(5), np.zeros(6))
