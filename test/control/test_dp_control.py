@@ -458,3 +458,28 @@ def test_masked_integral_bleeds_off_after_bumpless_entry():
         out = ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.02)
     assert np.all(np.abs(ctrl.integral[:2]) < 0.01)
     assert np.all(np.abs(out.tau[:2]) < 0.01)
+
+
+# --- gaps found by the mutation run (docs/testing.md) -------------------------------------
+
+
+def test_plain_reset_clears_what_a_bumpless_entry_allowed():
+    """After a bumpless entry the integral may exceed integral_limit while it bleeds off; a plain
+    reset() ends that: the next step integrates from zero and clamps at integral_limit
+    exactly. Hand numbers: Ki e dt = 10 * e * 0.1 = e, larger than each limit here.
+    """
+    s = settings(Ki=(10.0, 10.0, 10.0), integral_limit=(0.2, 0.2, 0.02),
+                 tau_max=(math.inf, math.inf, math.inf))
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset([30.0, -30.0, 3.0])       # far beyond the limits: a large allowance
+    ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    ctl.reset()
+    eta = np.array([1.0, -1.0, 0.5])    # e = R(0.5)^T [1, -1] = [0.398, -1.357], e3 = 0.5
+    out = ctl.step(eta, np.zeros(3), np.zeros(3), ref, 0.1)
+    np.testing.assert_allclose(out.integral, [0.2, -0.2, 0.02], rtol=1e-12)
+
+
+def test_reset_names_a_bad_tau_now():
+    with pytest.raises(ValueError, match=r'^tau_now: expected 3 values'):
+        DpController(settings()).reset([1.0, 2.0])
