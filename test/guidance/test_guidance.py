@@ -317,3 +317,59 @@ def test_bad_dt_raises(law):
     for dt in (0.0, -0.02, math.nan):
         with pytest.raises(ValueError, match='dt'):
             law.reference([0.0, 0.0, 0.0], dt)
+
+
+# -- gaps found by the mutation run (docs/testing.md) ------------------------------------------
+
+
+def test_go_to_waypoint_feed_forward_matches_finite_differences_while_turning():
+    """Moving and turning at once: nu_d = R(psi_d)^T eta_d_dot changes at the rate nu_d_dot
+    says, including the r_d terms of d/dt R^T. Central differences at dt = 1 ms have an error
+    of dt^2/6 |nu_d'''| < 1e-6 away from the profile's corners (where the acceleration steps;
+    those samples are skipped); the r_d terms are r_d |v| ~ 0.05 * 0.2 = 1e-2.
+    """
+    dt = 1e-3
+    goto = GoToWaypoint([1.0, -2.0, 0.4], (3.0, -1.0, 1.4), 0.2, 0.1, yaw_rate=0.1,
+                        yaw_accel=0.05)
+    refs = [goto.reference([1.0, -2.0, 0.4], dt) for _ in range(int(goto.duration / dt))]
+    nu_d = np.array([r.nu_d for r in refs])
+    nu_d_dot = np.array([r.nu_d_dot for r in refs])
+    fd = (nu_d[2:] - nu_d[:-2]) / (2 * dt)
+    smooth = np.all(np.abs(nu_d_dot[2:] - nu_d_dot[:-2]) < 1e-3, axis=1)  # not at a corner
+    assert smooth.sum() > 0.9 * len(smooth)
+    np.testing.assert_allclose(fd[smooth], nu_d_dot[1:-1][smooth], atol=1e-5)
+    assert np.abs(nu_d[:, 2] * np.hypot(*nu_d[:, :2].T)).max() > 5e-3  # the r_d terms matter
+
+
+def test_go_to_waypoint_along_and_cross_track_by_hand():
+    # start (1, 2) -> (4, 6): length 5, direction (0.6, 0.8); left normal (-0.8, 0.6)
+    goto = GoToWaypoint([1.0, 2.0, 0.0], (4.0, 6.0), 0.2, 0.1)
+    ref = goto.reference([1.0 + 2 * 0.6 - 0.5 * 0.8, 2.0 + 2 * 0.8 + 0.5 * 0.6, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((2.0, 0.5), abs=1e-12)
+    assert ref.segment == 0
+    # a leg shorter than 1 m is a leg too: (0, 0) -> (0.3, 0.4), length 0.5
+    short = GoToWaypoint([0.0, 0.0, 0.0], (0.3, 0.4), 0.2, 0.1)
+    ref = short.reference([0.25 * 0.6 - 0.1 * 0.8, 0.25 * 0.8 + 0.1 * 0.6, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((0.25, 0.1), abs=1e-12)
+    # no leg (already there): both zero wherever the vessel is
+    still = GoToWaypoint([1.0, 1.0, 0.0], (1.0, 1.0), 0.2, 0.1)
+    ref = still.reference([3.0, -2.0, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('where, finished', [
+    ((4.0, 6.25), True),          # exactly arrival_radius (0.25 m) away: arrived
+    ((3.75, 6.0), True),
+    ((4.0, 6.5), False),          # 0.5 m off in y only
+    ((4.5, 6.0), False),          # 0.5 m off in x only
+])
+def test_go_to_waypoint_arrival_is_a_circle(where, finished):
+    goto = GoToWaypoint([1.0, 2.0, 0.0], (4.0, 6.0), 0.2, 0.1, arrival_radius=0.25)
+    ref = goto.reference([*where, 0.0], goto.duration + 1.0)   # the profile has ended
+    assert ref.finished is finished and goto.finished is finished
+
+
+def test_go_to_waypoint_names_a_bad_pose():
+    goto = GoToWaypoint([0.0, 0.0, 0.0], (1.0, 0.0), 0.2, 0.1)
+    with pytest.raises(ValueError, match=r'^eta_hat: expected 3 values'):
+        goto.reference([0.0, 0.0], DT)
