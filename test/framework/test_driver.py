@@ -455,3 +455,21 @@ def test_backoff_maximum_below_initial_is_the_initial_delay():
     b = driver.Backoff(2.0, 0.5)
     assert b.maximum == 2.0
     assert [b.schedule(0) for _ in range(3)] == [2.0, 2.0, 2.0]
+
+
+def test_watchdog_is_armed_before_the_first_command(clock):
+    """An output that is not neutral and was never commanded goes neutral once a timeout has
+    passed since the monotonic epoch (the watchdog counts from 0, not from its first feed)."""
+    out = Output()
+    out.dog.set_timeout(0.25)
+    clock.ns = 250_000_000
+    assert out.dog.check() is False
+    clock.ns = 250_000_001
+    assert out.dog.check() is True and out.calls == 1
+
+
+def test_watchdog_timeout_in_seconds_is_exact_in_nanoseconds():
+    dog = driver.CommandWatchdog(lambda: True, lambda: None)
+    for seconds, ns in ((2.5, 2_500_000_000), (0.02, 20_000_000), (30.0, 30_000_000_000)):
+        dog.set_timeout(seconds)
+        assert dog.timeout_ns == ns
