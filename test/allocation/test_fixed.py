@@ -294,3 +294,9 @@ def test_weights_are_read_only():
     alloc = ThrustAllocator(vectored_8(), weights=[1.0] * 8)
     with pytest.raises(ValueError, match='read-only'):
         alloc.weights[0] = 2.0
+
+
+def test_thrust_limits_below_one_newton_are_valid():
+    """A limit must be > 0 N, not >= 1 N: a small thruster gives 0.5 N."""
+    t = Thruster('small', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_forward=0.8, max_reverse=0.5)
+    assert (t.max_forward, t.max_reverse) == (0.8, 0.5)

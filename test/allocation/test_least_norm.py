@@ -43,6 +43,8 @@ def test_no_weights_are_ones():
 def test_weights_become_a_flat_float_array():
     w = check_weights([1, 2.5, 3], 3, 'thruster')
     assert w.dtype == float and w.tolist() == [1.0, 2.5, 3.0]
+    w = check_weights(np.array([[1.0, 2.0, 3.0]]), 3, 'thruster')   # a row: flattened
+    assert w.shape == (3,)
 
 
 @pytest.mark.parametrize('weights', [
