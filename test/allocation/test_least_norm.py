@@ -41,8 +41,8 @@ def test_no_weights_are_ones():
 
 
 def test_weights_become_a_flat_float_array():
-    w = check_weights([1, 2.5, 3], 3, 'thruster')
-    assert w.dtype == float and w.tolist() == [1.0, 2.5, 3.0]
+    w = check_weights([1, 2, 3], 3, 'thruster')                     # integers: floats
+    assert w.dtype == float and w.tolist() == [1.0, 2.0, 3.0]
     w = check_weights(np.array([[1.0, 2.0, 3.0]]), 3, 'thruster')   # a row: flattened
     assert w.shape == (3,)
 
@@ -101,6 +101,7 @@ def test_weighted_pinv_of_a_rank_deficient_matrix_is_a_generalized_inverse():
     (np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0]]), 2, [0, 2]),
     (np.array([[1.0], [1.0], [0.0]]), 1, [0, 1, 2]),
     (np.zeros((3, 2)), 0, [0, 1, 2]),
+    (np.zeros((3, 0)), 0, [0, 1, 2]),   # no columns at all: no singular value to scale by
     # full rank but wide: every row reachable
     (np.array([[1.0, 2.0, 0.0, 1.0], [0.0, 1.0, 1.0, 1.0]]), 2, []),
 ])
