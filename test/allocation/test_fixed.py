@@ -300,3 +300,12 @@ def test_thrust_limits_below_one_newton_are_valid():
     """A limit must be > 0 N, not >= 1 N: a small thruster gives 0.5 N."""
     t = Thruster('small', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_forward=0.8, max_reverse=0.5)
     assert (t.max_forward, t.max_reverse) == (0.8, 0.5)
+
+
+def test_thruster_vector_errors_name_the_thruster_and_field():
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': position must be 3 numbers"):
+        Thruster('t', (1.0, 2.0), (1.0, 0.0, 0.0), 10, 5)
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': direction must be 3 numbers"):
+        Thruster('t', (0.0, 0.0, 0.0), (1.0, 0.0), 10, 5)
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': direction must be a non-zero"):
+        Thruster('t', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 10, 5)

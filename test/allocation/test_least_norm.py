@@ -116,3 +116,11 @@ def test_singular_values_below_the_relative_tolerance_count_as_zero():
     assert unreachable_rows(B) == (2, [2])
     B = np.diag([s0, 1.0, 4.0 * RANK_RTOL * s0])  # above it: full rank
     assert unreachable_rows(B) == (3, [])
+
+
+@pytest.mark.parametrize('scale', [1e-6, 1e-3, 1.0, 1e6])
+def test_rank_does_not_depend_on_the_units(scale):
+    """The tolerance is relative to the largest singular value: a matrix in mN or kN has the
+    rank it has in N (1e-11 in a matrix whose largest entry is 1e-3 is a direction)."""
+    assert unreachable_rows(scale * np.diag([1.0, 1e-8])) == (2, [])
+    assert unreachable_rows(scale * np.diag([1.0, 1e-10])) == (1, [1])
