@@ -373,3 +373,93 @@ def test_go_to_waypoint_names_a_bad_pose():
     goto = GoToWaypoint([0.0, 0.0, 0.0], (1.0, 0.0), 0.2, 0.1)
     with pytest.raises(ValueError, match=r'^eta_hat: expected 3 values'):
         goto.reference([0.0, 0.0], DT)
+
+
+@pytest.mark.parametrize('kwargs, match', [
+    (dict(start_eta=[0.0, 0.0]), r'^start_eta: expected 3 values'),
+    (dict(waypoint=None), r'^waypoint: must be \(x, y\) or \(x, y, psi\), got None$'),
+    (dict(speed=-0.1), r'^speed: must be finite and > 0'),
+    (dict(accel=0.0), r'^accel: must be finite and > 0'),
+    (dict(yaw_rate=0.0), r'^yaw_rate: must be finite and > 0'),
+    (dict(yaw_accel=math.inf), r'^yaw_accel: must be finite and > 0'),
+    (dict(arrival_radius=0.0), r'^arrival_radius: must be finite and > 0'),
+])
+def test_go_to_errors_start_with_the_field(kwargs, match):
+    args = dict(start_eta=[0.0, 0.0, 0.0], waypoint=(1.0, 0.0), speed=0.2, accel=0.1) | kwargs
+    with pytest.raises(ValueError, match=match):
+        GoToWaypoint(**args)
+
+
+def test_go_to_waypoint_defaults_are_the_documented_ones():
+    goto = GoToWaypoint([0.0, 0.0, 0.0], (1.0, 0.0), 0.2, 0.1)
+    assert (goto.yaw_rate, goto.yaw_accel, goto.arrival_radius) == (0.2, 0.2, 0.1)
+
+
+def test_los_names_a_bad_pose():
+    los = LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1)
+    with pytest.raises(ValueError, match=r'^eta_hat: expected 3 values'):
+        los.reference([0.0, 0.0], DT)
+
+
+# A path that does not start at the origin, on a diagonal: (2, 1) -> (10, 7) is 10 m long,
+# direction (0.8, 0.6), left normal (-0.6, 0.8); then north to (10, 15).
+DIAGONAL = [(2.0, 1.0), (10.0, 7.0), (10.0, 15.0)]
+
+
+def test_los_track_and_closest_point_by_hand_off_the_origin():
+    los = LosPath(DIAGONAL, speed=0.3, lookahead=1.0, acceptance_radius=0.5)
+    x, y = 2.0 + 3.0 * 0.8 - 0.5 * 0.6, 1.0 + 3.0 * 0.6 + 0.5 * 0.8   # 3 m along, 0.5 m left
+    ref = los.reference([x, y, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((3.0, 0.5), abs=1e-12)
+    np.testing.assert_allclose(ref.eta_d[:2], [2.0 + 3.0 * 0.8, 1.0 + 3.0 * 0.6], atol=1e-12)
+    assert ref.segment == 0 and not ref.finished
+
+
+def test_los_switches_inside_the_circle_around_the_segment_end():
+    los = LosPath(DIAGONAL, speed=0.3, lookahead=1.0, acceptance_radius=0.5)
+    # (9.8, 6.6): 9.6 m along (not past the end), 0.447 m from (10, 7): switch
+    assert los.reference([9.8, 6.6, 0.0], DT).segment == 1
+
+
+@pytest.mark.parametrize('where, segment', [
+    ((11.625, 0.5), 1),      # 9.625 m along, exactly 0.625 m from (12, 1): inside
+    ((12.0, 4.0), 1),        # exactly at the end along-track (s = length), far off: past it
+    ((11.5, 2.0), 0),        # short of the end and outside the circle
+])
+def test_los_switching_boundaries(where, segment):
+    los = LosPath([(2.0, 1.0), (12.0, 1.0), (12.0, 11.0)], speed=0.3, lookahead=1.0,
+                  acceptance_radius=0.625)
+    assert los.reference([*where, 0.0], DT).segment == segment
+
+
+def test_los_finished_reference_keeps_the_track_metrics():
+    los = LosPath([(2.0, 1.0), (12.0, 1.0)], speed=0.3, lookahead=1.0, acceptance_radius=0.1)
+    ref = los.reference([12.5, 1.25, 0.0], DT)           # 10.5 m along, 0.25 m left
+    assert ref.finished is True and ref.segment == 0
+    assert (ref.along_track, ref.cross_track) == pytest.approx((10.5, 0.25), abs=1e-12)
+    ref = los.reference([3.0, 1.0, 0.0], DT)             # not finished again
+    assert ref.finished is True
+
+
+def test_los_feed_forward_with_the_heading_off_the_course():
+    """The vessel turns at r_d but points 0.5 rad off the course, so it moves partly sideways:
+    the r_d [[-s, c], [-c, -s]] v term of nu_d_dot is r_d U sin(0.5) ~ 7e-3 and its sign
+    matters. Central differences at dt = 1 ms with psi integrating r_d exactly: error
+    dt^2/6 |nu_d'''| < 1e-6, so 1e-5 is the bound.
+    """
+    los = LosPath([(0.0, 0.0), (30.0, 0.0)], speed=0.3, lookahead=0.8, acceptance_radius=0.1)
+    dt = 1e-3
+    p = np.array([1.0, 2.0])
+    chi0 = -math.atan(2.0 / 0.8)
+    psi = chi0 + 0.5
+    refs = []
+    for _ in range(2000):
+        ref = los.reference([p[0], p[1], psi], dt)
+        refs.append(ref)
+        p = p + rot(psi)[:2, :2] @ ref.nu_d[:2] * dt
+        psi = psi + ref.nu_d[2] * dt
+    nu_d = np.array([r.nu_d for r in refs])
+    nu_d_dot = np.array([r.nu_d_dot for r in refs])
+    fd = (nu_d[2:, :2] - nu_d[:-2, :2]) / (2 * dt)
+    np.testing.assert_allclose(fd, nu_d_dot[1:-1, :2], atol=1e-5)
+    assert np.abs(nu_d[:, 1]).min() > 0.1 and np.abs(nu_d[:, 2]).max() > 0.03
