@@ -463,3 +463,25 @@ def test_los_feed_forward_with_the_heading_off_the_course():
     fd = (nu_d[2:, :2] - nu_d[:-2, :2]) / (2 * dt)
     np.testing.assert_allclose(fd, nu_d_dot[1:-1, :2], atol=1e-5)
     assert np.abs(nu_d[:, 1]).min() > 0.1 and np.abs(nu_d[:, 2]).max() > 0.03
+
+
+def test_go_to_waypoint_short_leg_and_pure_turn_durations_by_hand():
+    """Trapezoids worked by hand. A 0.5 m leg at 0.2 m/s, 0.1 m/s^2: 2 s up (0.2 m), 0.5 s
+    cruise (0.1 m), 2 s down: 4.5 s. A 0.5 rad turn in place at 0.2 rad/s, 0.1 rad/s^2: the
+    same numbers in radians, 4.5 s."""
+    leg = GoToWaypoint([1.0, 1.0, 0.0], (1.3, 1.4), 0.2, 0.1)
+    assert leg.duration == pytest.approx(4.5, rel=1e-12)
+    turn = GoToWaypoint([1.0, 1.0, 0.0], (1.0, 1.0, 0.5), 0.2, 0.1, yaw_rate=0.2,
+                        yaw_accel=0.1)
+    assert turn.duration == pytest.approx(4.5, rel=1e-12)
+
+
+@pytest.mark.parametrize('waypoints, match', [
+    ([(0.0, 0.0), ('a', 1.0)], r'^waypoints: must be a list of \(x, y\), got '),
+    ([(0.0, 0.0), (math.inf, 1.0)], r'^waypoints: must be finite$'),
+    ([(0.0, 0.0), (1.0, 0.0), (1.0, 0.0)],
+     r'^waypoints: points 1 and 2 coincide \(zero-length segment\)$'),
+])
+def test_los_waypoint_errors_say_which(waypoints, match):
+    with pytest.raises(ValueError, match=match):
+        LosPath(waypoints, 0.2, 0.5, 0.1)
