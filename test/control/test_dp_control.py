@@ -483,3 +483,24 @@ def test_plain_reset_clears_what_a_bumpless_entry_allowed():
 def test_reset_names_a_bad_tau_now():
     with pytest.raises(ValueError, match=r'^tau_now: expected 3 values'):
         DpController(settings()).reset([1.0, 2.0])
+
+
+@pytest.mark.parametrize('mask', [(False, True, True), (True, False, True), (True, True, False)])
+def test_one_masked_component_may_be_nan(mask):
+    """Any single component can be the one without a reference: NaN there is ignored and the
+    output equals that of any finite value there."""
+    eta, nu_hat = np.array([5.0, -3.0, 0.4]), np.array([0.15, 0.02, 0.01])
+    eta_d = np.array([1.0, 2.0, 0.5])
+    j = mask.index(False)
+    with_nan = eta_d.copy()
+    with_nan[j] = np.nan
+    other = eta_d.copy()
+    other[j] = 100.0
+    taus = [DpController(settings()).step(eta, nu_hat, np.zeros(3),
+                                          Reference(e, np.zeros(3), np.zeros(3), mask), DT).tau
+            for e in (with_nan, other)]
+    assert np.isfinite(taus[0]).all()
+    np.testing.assert_array_equal(taus[0], taus[1])
+    with pytest.raises(ValueError, match=r'^ref\.eta_d: expected 3 values'):
+        DpController(settings()).step(eta, nu_hat, np.zeros(3),
+                                      Reference(eta_d[:2], np.zeros(3), np.zeros(3), mask), DT)
