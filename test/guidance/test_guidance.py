@@ -485,3 +485,37 @@ def test_go_to_waypoint_short_leg_and_pure_turn_durations_by_hand():
 def test_los_waypoint_errors_say_which(waypoints, match):
     with pytest.raises(ValueError, match=match):
         LosPath(waypoints, 0.2, 0.5, 0.1)
+
+
+def test_hold_pose_is_finished_from_the_start():
+    ref = HoldPose([1.0, 2.0, 0.5]).reference([0.0, 0.0, 0.0], DT)
+    assert ref.finished is True
+
+
+def test_los_fixed_heading_given_is_held_wrapped():
+    los = LosPath([(0.0, 0.0), (10.0, 0.0)], 0.2, 0.5, 0.1, heading='fixed', fixed_heading=7.0)
+    ref = los.reference([1.0, 0.5, 0.3], DT)             # the vessel's own heading: 0.3
+    assert ref.eta_d[2] == pytest.approx(7.0 - 2 * math.pi, abs=1e-12) and ref.nu_d[2] == 0.0
+    with pytest.raises(ValueError, match=r'^fixed_heading: must be finite, got nan$'):
+        LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1, heading='fixed',
+                fixed_heading=math.nan)
+    with pytest.raises(ValueError, match=r"^fixed_heading: only with heading='fixed'$"):
+        LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1, fixed_heading=1.0)
+
+
+@pytest.mark.parametrize('kwargs, match', [
+    (dict(speed='fast'), r"^speed: must be a number, got 'fast'$"),
+    (dict(speed=0.0), r'^speed: must be finite and > 0, got 0.0$'),
+    (dict(lookahead=-1.0), r'^lookahead: must be finite and > 0, got -1.0$'),
+    (dict(acceptance_radius=-0.1), r'^acceptance_radius: must be finite and >= 0, got -0.1$'),
+])
+def test_los_errors_start_with_the_field(kwargs, match):
+    args = dict(waypoints=[(0.0, 0.0), (1.0, 0.0)], speed=0.2, lookahead=0.5,
+                acceptance_radius=0.1) | kwargs
+    with pytest.raises(ValueError, match=match):
+        LosPath(**args)
+
+
+def test_los_starts_on_the_first_segment_with_no_track_error():
+    los = LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1)
+    assert (los.segment, los.cross_track, los.along_track, los.finished) == (0, 0.0, 0.0, False)
