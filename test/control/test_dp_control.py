@@ -504,3 +504,16 @@ def test_one_masked_component_may_be_nan(mask):
     with pytest.raises(ValueError, match=r'^ref\.eta_d: expected 3 values'):
         DpController(settings()).step(eta, nu_hat, np.zeros(3),
                                       Reference(eta_d[:2], np.zeros(3), np.zeros(3), mask), DT)
+
+
+@pytest.mark.parametrize('bad, match', [
+    (dict(dt=0.0), r'^dt must be finite and > 0, got 0.0$'),
+    (dict(eta=[0.0, math.nan, 0.0]), r'^eta_hat\[1\]: must be finite'),
+    (dict(nu=[0.0, 0.0]), r'^nu_hat: expected 3 values'),
+    (dict(b=[math.inf, 0.0, 0.0]), r'^b_hat\[0\]: must be finite'),
+])
+def test_bad_inputs_are_named(bad, match):
+    ctl = DpController(settings())
+    args = dict(eta=np.zeros(3), nu=np.zeros(3), b=np.zeros(3), dt=DT) | bad
+    with pytest.raises(ValueError, match=match):
+        ctl.step(args['eta'], args['nu'], args['b'], hold(np.zeros(3)), args['dt'])
