@@ -517,3 +517,30 @@ def test_bad_inputs_are_named(bad, match):
     args = dict(eta=np.zeros(3), nu=np.zeros(3), b=np.zeros(3), dt=DT) | bad
     with pytest.raises(ValueError, match=match):
         ctl.step(args['eta'], args['nu'], args['b'], hold(np.zeros(3)), args['dt'])
+
+
+def test_coriolis_feed_forward_by_hand_with_unequal_masses():
+    """C(nu_d) nu_d = [-M22 v r, M11 u r, (M22 - M11) u v]; the Saucer's M11 = M22 hides the
+    yaw term, so M = (10, 20, 1) here, no damping: [-0.4, 0.5, 1.0] for nu_d = (0.5, 0.2, 0.1).
+    """
+    s = settings(M=(10.0, 20.0, 1.0), D=(0.0, 0.0, 0.0), Dn=(0.0, 0.0, 0.0),
+                 bias_feedforward=False)
+    ref = Reference(np.zeros(3), np.array([0.5, 0.2, 0.1]), np.zeros(3))
+    out = DpController(s).step(np.zeros(3), [0.5, 0.2, 0.1], np.zeros(3), ref, DT)
+    np.testing.assert_allclose(out.tau_ff, [-0.4, 0.5, 1.0], rtol=1e-12)
+
+
+def test_bumpless_excess_bleeds_off_with_time_constant_gain_ramp_time():
+    """tau_now = 5 N with integral_limit 1 N: the excess integral decays as exp(-t / T) with
+    T = gain_ramp_time = 2 s (not 1 s, where dt / T and dt * T agree): after 1 s at zero
+    error the output is 5 exp(-0.5) N exactly (the clamp follows the allowance)."""
+    s = settings(Ki=(0.0, 0.0, 0.0), integral_limit=(1.0, 1.0, 0.1),
+                 tau_max=(math.inf, math.inf, math.inf), gain_ramp_time=2.0)
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset([5.0, 0.0, 0.0])
+    out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    assert out.tau[0] == pytest.approx(5.0, rel=1e-12)
+    for _ in range(10):
+        out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    assert out.tau[0] == pytest.approx(5.0 * math.exp(-0.5), rel=1e-12)
