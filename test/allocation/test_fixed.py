@@ -248,3 +248,64 @@ def test_precomputed_matrices_are_read_only_and_results_fresh():
     b = alloc.allocate([2.0, 0, 0, 0, 0, 0])
     assert a.thrust is not b.thrust and a.thrust[0] != b.thrust[0]
     assert DOF_NAMES[5] == 'yaw'
+
+
+# --- gaps found by the mutation run (docs/testing.md) -------------------------------------
+
+
+def test_small_positive_thrust_is_normalized_by_the_forward_limit():
+    """0 < f < 1 N is forward thrust too: 0.5 N of 40 N forward is command 0.0125, not the
+    0.5/30 a reverse limit would give."""
+    t = Thruster('x', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_forward=40.0, max_reverse=30.0)
+    alloc = ThrustAllocator([t], controlled_dofs=(0,))
+    assert alloc.allocate([0.5, 0, 0, 0, 0, 0]).command[0] == pytest.approx(0.5 / 40.0,
+                                                                            rel=1e-12)
+
+
+def test_thrust_exactly_at_the_limit_is_not_saturated():
+    """s = max |f_i| / limit_i = 1 exactly (40 N of 40 N): delivered in full, scale 1."""
+    t = Thruster('x', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_forward=40.0, max_reverse=30.0)
+    res = ThrustAllocator([t], controlled_dofs=(0,)).allocate([40.0, 0, 0, 0, 0, 0])
+    assert res.command[0] == 1.0 and res.scale == 1.0 and res.saturated is False
+
+
+def test_layout_errors_say_what_is_wrong():
+    with pytest.raises(AllocationError,
+                       match='^thruster layout is empty: cannot produce any DOF$'):
+        ThrustAllocator([])
+    t = vectored_8()
+    with pytest.raises(ConfigurationError, match=r"^thruster names must be unique, got \['h_fl',"):
+        ThrustAllocator([t[0], t[0]])
+    with pytest.raises(ConfigurationError,
+                       match=r'^weights must be 8 positive finite numbers \(one per thruster\)'):
+        ThrustAllocator(t, weights=[1.0] * 7)
+    # Two thrusters along x make surge and yaw (differential); sway and heave are missing, both
+    # named, and the way out is said.
+    pair = [Thruster('a', (0, 0.1, 0), (1, 0, 0), 10, 10), Thruster('b', (0, -0.1, 0),
+                                                                       (1, 0, 0), 10, 10)]
+    with pytest.raises(AllocationError, match=(
+            r"^thruster layout \[a, b\] cannot produce sway, heave \(rank 2 of 4 controlled "
+            r"DOFs \['surge', 'sway', 'heave', 'yaw'\]\); add or re-aim thrusters, or remove "
+            r'the DOF from controlled_dofs$')):
+        ThrustAllocator(pair, controlled_dofs=(0, 1, 2, 5))
+
+
+def test_weights_are_read_only():
+    alloc = ThrustAllocator(vectored_8(), weights=[1.0] * 8)
+    with pytest.raises(ValueError, match='read-only'):
+        alloc.weights[0] = 2.0
+
+
+def test_thrust_limits_below_one_newton_are_valid():
+    """A limit must be > 0 N, not >= 1 N: a small thruster gives 0.5 N."""
+    t = Thruster('small', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_forward=0.8, max_reverse=0.5)
+    assert (t.max_forward, t.max_reverse) == (0.8, 0.5)
+
+
+def test_thruster_vector_errors_name_the_thruster_and_field():
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': position must be 3 numbers"):
+        Thruster('t', (1.0, 2.0), (1.0, 0.0, 0.0), 10, 5)
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': direction must be 3 numbers"):
+        Thruster('t', (0.0, 0.0, 0.0), (1.0, 0.0), 10, 5)
+    with pytest.raises(ConfigurationError, match=r"^thruster 't': direction must be a non-zero"):
+        Thruster('t', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 10, 5)

@@ -480,3 +480,89 @@ def test_without_ki_the_bumpless_integral_bleeds_off_over_the_ramp_time():
             np.testing.assert_allclose(out.integral[:2], i0[:2] * math.exp(-k * DT / 1.0),
                                        rtol=1e-9)
     assert out.integral[2] == pytest.approx(i0[2], abs=1e-12)  # zero error: Ki e dt = 0
+
+
+# --- gaps found by the mutation run (docs/testing.md) -------------------------------------
+
+
+def test_plain_reset_clears_what_a_bumpless_entry_allowed():
+    """After a bumpless entry the integral may exceed integral_limit while it bleeds off; a plain
+    reset() ends that: the next step integrates from zero and clamps at integral_limit
+    exactly. Hand numbers: Ki e dt = 10 * e * 0.1 = e, larger than each limit here.
+    """
+    s = settings(Ki=(10.0, 10.0, 10.0), integral_limit=(0.2, 0.2, 0.02),
+                 tau_max=(math.inf, math.inf, math.inf))
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset([30.0, -30.0, 3.0])       # far beyond the limits: a large allowance
+    ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    ctl.reset()
+    eta = np.array([1.0, -1.0, 0.5])    # e = R(0.5)^T [1, -1] = [0.398, -1.357], e3 = 0.5
+    out = ctl.step(eta, np.zeros(3), np.zeros(3), ref, 0.1)
+    np.testing.assert_allclose(out.integral, [0.2, -0.2, 0.02], rtol=1e-12)
+
+
+def test_reset_names_a_bad_tau_now():
+    with pytest.raises(ValueError, match=r'^tau_now: expected 3 values'):
+        DpController(settings()).reset([1.0, 2.0])
+
+
+@pytest.mark.parametrize('mask', [(False, True, True), (True, False, True), (True, True, False)])
+def test_one_masked_component_may_be_nan(mask):
+    """Any single component can be the one without a reference: NaN there is ignored and the
+    output equals that of any finite value there."""
+    eta, nu_hat = np.array([5.0, -3.0, 0.4]), np.array([0.15, 0.02, 0.01])
+    eta_d = np.array([1.0, 2.0, 0.5])
+    j = mask.index(False)
+    with_nan = eta_d.copy()
+    with_nan[j] = np.nan
+    other = eta_d.copy()
+    other[j] = 100.0
+    taus = [DpController(settings()).step(eta, nu_hat, np.zeros(3),
+                                          Reference(e, np.zeros(3), np.zeros(3), mask), DT).tau
+            for e in (with_nan, other)]
+    assert np.isfinite(taus[0]).all()
+    np.testing.assert_array_equal(taus[0], taus[1])
+    with pytest.raises(ValueError, match=r'^ref\.eta_d: expected 3 values'):
+        DpController(settings()).step(eta, nu_hat, np.zeros(3),
+                                      Reference(eta_d[:2], np.zeros(3), np.zeros(3), mask), DT)
+
+
+@pytest.mark.parametrize('bad, match', [
+    (dict(dt=0.0), r'^dt must be finite and > 0, got 0.0$'),
+    (dict(eta=[0.0, math.nan, 0.0]), r'^eta_hat\[1\]: must be finite'),
+    (dict(nu=[0.0, 0.0]), r'^nu_hat: expected 3 values'),
+    (dict(b=[math.inf, 0.0, 0.0]), r'^b_hat\[0\]: must be finite'),
+])
+def test_bad_inputs_are_named(bad, match):
+    ctl = DpController(settings())
+    args = dict(eta=np.zeros(3), nu=np.zeros(3), b=np.zeros(3), dt=DT) | bad
+    with pytest.raises(ValueError, match=match):
+        ctl.step(args['eta'], args['nu'], args['b'], hold(np.zeros(3)), args['dt'])
+
+
+def test_coriolis_feed_forward_by_hand_with_unequal_masses():
+    """C(nu_d) nu_d = [-M22 v r, M11 u r, (M22 - M11) u v]; the Saucer's M11 = M22 hides the
+    yaw term, so M = (10, 20, 1) here, no damping: [-0.4, 0.5, 1.0] for nu_d = (0.5, 0.2, 0.1).
+    """
+    s = settings(M=(10.0, 20.0, 1.0), D=(0.0, 0.0, 0.0), Dn=(0.0, 0.0, 0.0),
+                 bias_feedforward=False)
+    ref = Reference(np.zeros(3), np.array([0.5, 0.2, 0.1]), np.zeros(3))
+    out = DpController(s).step(np.zeros(3), [0.5, 0.2, 0.1], np.zeros(3), ref, DT)
+    np.testing.assert_allclose(out.tau_ff, [-0.4, 0.5, 1.0], rtol=1e-12)
+
+
+def test_bumpless_excess_bleeds_off_with_time_constant_gain_ramp_time():
+    """tau_now = 5 N with integral_limit 1 N: the excess integral decays as exp(-t / T) with
+    T = gain_ramp_time = 2 s (not 1 s, where dt / T and dt * T agree): after 1 s at zero
+    error the output is 5 exp(-0.5) N exactly (the clamp follows the allowance)."""
+    s = settings(Ki=(0.0, 0.0, 0.0), integral_limit=(1.0, 1.0, 0.1),
+                 tau_max=(math.inf, math.inf, math.inf), gain_ramp_time=2.0)
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset([5.0, 0.0, 0.0])
+    out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    assert out.tau[0] == pytest.approx(5.0, rel=1e-12)
+    for _ in range(10):
+        out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    assert out.tau[0] == pytest.approx(5.0 * math.exp(-0.5), rel=1e-12)

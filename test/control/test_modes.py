@@ -288,3 +288,48 @@ def test_manual_button_wins_when_pressed_with_another():
     out = mm.on_joy(axes, [1, 0, 0, 1] + [0] * 9, 0.2, True, True)  # cross + square
     assert mm.mode is Mode.MANUAL
     assert [t.requested for t in out] == [Mode.MANUAL]
+
+
+# -- boundaries the mutation run found unpinned (docs/testing.md) ------------------------------
+
+def test_default_joystick_timeout_is_half_a_second():
+    m = ModeManager(DS4, TAU_MAX)
+    m.on_joy(*sample(surge=0.5), 1.0, True, False)
+    assert m.check(1.5, True) is None                   # exactly 0.5 s: not yet
+    t = m.check(1.5 + 1e-6, True)
+    assert t is not None and t.reason == 'joystick lost'
+
+
+def test_stick_at_the_tolerance_edge_is_accepted_and_clamped():
+    """|axis| up to 1 + 1e-6 is a full stick (drivers overshoot by rounding), clamped to 1;
+    beyond it the sample is rejected."""
+    m = manager()
+    edge = 1.0 + 1e-6
+    assert m.on_joy(*sample(surge=edge, sway=-edge, yaw=-edge), 0.0, True, False) == []
+    assert m.rejected_samples == 0
+    assert m.tau_manual.tolist() == [TAU_MAX[0], -TAU_MAX[1], -TAU_MAX[2]]
+    m.on_joy(*sample(surge=-(edge + 1e-9)), 0.1, True, False)
+    assert m.rejected_samples == 1
+
+
+def test_a_button_held_in_the_first_sample_is_a_press():
+    """No earlier sample means every button was up: holding cross at start asks for manual
+    (refused, already manual), holding triangle asks for automatic."""
+    m = manager()
+    out = m.on_joy(*sample(pressed=(CROSS,)), 0.0, True, False)
+    assert out == [Transition(Mode.MANUAL, Mode.MANUAL, False, 'already manual')]
+    m = manager()
+    out = m.on_joy(*sample(pressed=(TRIANGLE,)), 0.0, True, False)
+    assert out == [Transition(Mode.AUTOMATIC, Mode.MANUAL, True, 'operator request')]
+
+
+@pytest.mark.parametrize('mode_button, path, mode', [(TRIANGLE, False, Mode.AUTOMATIC),
+                                                     (SQUARE, True, Mode.GUIDANCE)])
+def test_fallback_transitions_name_the_mode_left(mode_button, path, mode):
+    for fresh, reference, reason in ((False, True, 'pose estimate stale'),
+                                     (True, False, 'no guidance reference')):
+        m = manager()
+        m.on_joy(*sample(), 0.0, True, path)
+        press(m, mode_button, 0.05, path=path)
+        t = m.check(0.1, fresh, reference_fresh=reference)
+        assert t == Transition(Mode.MANUAL, mode, True, reason)

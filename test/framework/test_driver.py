@@ -361,3 +361,115 @@ def test_a_driver_over_the_fake_i2c_bus_faults_and_recovers(context, clock):
     node.poll()
     assert node.samples == 2
     node.destroy_node()
+
+
+# -- the watchdog and the retry schedule as plain objects (unit tier) --------------------------
+# The node tests above exercise them through a driver; these pin the boundaries on the fake
+# clock with nanosecond steps, no rclpy context.
+
+class Output:
+    """An actuator output the watchdog guards; records whether the lock was held."""
+
+    def __init__(self) -> None:
+        self.neutral = False
+        self.calls = 0
+        self.lock_held: list[bool] = []
+        self.dog = driver.CommandWatchdog(lambda: self.neutral, self.go_neutral)
+
+    def go_neutral(self) -> None:
+        self.calls += 1
+        self.neutral = True
+        self.lock_held.append(self.dog.lock.locked())
+
+    def command(self) -> None:
+        with self.dog.lock:
+            self.neutral = False
+            self.dog.fed()
+
+
+def test_watchdog_timeout_is_exact_to_the_nanosecond(clock):
+    out = Output()
+    out.dog.set_timeout(0.25)
+    assert out.dog.timeout_ns == 250_000_000
+    clock.at(1.0)
+    out.command()
+    clock.ns += 250_000_000               # exactly the timeout: still fed
+    assert out.dog.check() is False and out.calls == 0 and out.dog.timeouts == 0
+    clock.ns += 1                         # one nanosecond past it: neutral
+    assert out.dog.check() is True
+    assert out.calls == 1 and out.dog.timeouts == 1 and out.lock_held == [True]
+
+
+def test_watchdog_does_not_repeat_neutral_and_rearms_on_a_command(clock):
+    out = Output()
+    out.dog.set_timeout(0.1)
+    clock.at(0.0)
+    out.command()
+    clock.at(0.5)
+    assert out.dog.check() is True
+    clock.at(0.6)
+    assert out.dog.check() is False and out.dog.timeouts == 1  # already neutral
+    out.command()
+    clock.at(0.65)
+    assert out.dog.check() is False and not out.neutral        # fed 0.05 s ago
+    clock.at(0.75)
+    assert out.dog.check() is True and out.dog.timeouts == 2 and out.calls == 2
+
+
+def test_watchdog_does_not_act_on_a_neutral_output(clock):
+    out = Output()
+    out.neutral = True
+    clock.at(100.0)                       # never fed, long past any timeout
+    assert out.dog.check() is False and out.calls == 0 and out.dog.timeouts == 0
+
+
+def test_watchdog_with_no_timeout_set_acts_after_any_silence(clock):
+    out = Output()                        # timeout 0 until set_timeout
+    clock.at(0.0)
+    out.command()
+    assert out.dog.check() is False       # same instant: 0 <= 0
+    clock.ns += 1
+    assert out.dog.check() is True
+
+
+def test_backoff_doubles_up_to_the_maximum_from_the_failure_time():
+    b = driver.Backoff(0.5, 3.0)
+    assert b.next_ns is None and not b.due(10 * S)
+    assert [b.schedule(10 * S) for _ in range(5)] == [0.5, 1.0, 2.0, 3.0, 3.0]
+    assert b.next_ns == 13 * S            # the last failure at 10 s + 3.0 s
+    b = driver.Backoff(0.5, 3.0)
+    assert b.schedule(7 * S) == 0.5 and b.next_ns == 7 * S + S // 2
+    assert not b.due(7 * S + S // 2 - 1) and b.due(7 * S + S // 2)
+
+
+def test_backoff_reset_returns_to_the_first_delay_and_idles():
+    b = driver.Backoff(0.25, 4.0)
+    b.schedule(0)
+    b.schedule(0)
+    b.reset()
+    assert b.next_ns is None and not b.due(100 * S)
+    assert b.schedule(0) == 0.25
+
+
+def test_backoff_maximum_below_initial_is_the_initial_delay():
+    b = driver.Backoff(2.0, 0.5)
+    assert b.maximum == 2.0
+    assert [b.schedule(0) for _ in range(3)] == [2.0, 2.0, 2.0]
+
+
+def test_watchdog_is_armed_before_the_first_command(clock):
+    """An output that is not neutral and was never commanded goes neutral once a timeout has
+    passed since the monotonic epoch (the watchdog counts from 0, not from its first feed)."""
+    out = Output()
+    out.dog.set_timeout(0.25)
+    clock.ns = 250_000_000
+    assert out.dog.check() is False
+    clock.ns = 250_000_001
+    assert out.dog.check() is True and out.calls == 1
+
+
+def test_watchdog_timeout_in_seconds_is_exact_in_nanoseconds():
+    dog = driver.CommandWatchdog(lambda: True, lambda: None)
+    for seconds, ns in ((2.5, 2_500_000_000), (0.02, 20_000_000), (30.0, 30_000_000_000)):
+        dog.set_timeout(seconds)
+        assert dog.timeout_ns == ns

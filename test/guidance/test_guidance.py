@@ -317,3 +317,205 @@ def test_bad_dt_raises(law):
     for dt in (0.0, -0.02, math.nan):
         with pytest.raises(ValueError, match='dt'):
             law.reference([0.0, 0.0, 0.0], dt)
+
+
+# -- gaps found by the mutation run (docs/testing.md) ------------------------------------------
+
+
+def test_go_to_waypoint_feed_forward_matches_finite_differences_while_turning():
+    """Moving and turning at once: nu_d = R(psi_d)^T eta_d_dot changes at the rate nu_d_dot
+    says, including the r_d terms of d/dt R^T. Central differences at dt = 1 ms have an error
+    of dt^2/6 |nu_d'''| < 1e-6 away from the profile's corners (where the acceleration steps;
+    those samples are skipped); the r_d terms are r_d |v| ~ 0.05 * 0.2 = 1e-2.
+    """
+    dt = 1e-3
+    goto = GoToWaypoint([1.0, -2.0, 0.4], (3.0, -1.0, 1.4), 0.2, 0.1, yaw_rate=0.1,
+                        yaw_accel=0.05)
+    refs = [goto.reference([1.0, -2.0, 0.4], dt) for _ in range(int(goto.duration / dt))]
+    nu_d = np.array([r.nu_d for r in refs])
+    nu_d_dot = np.array([r.nu_d_dot for r in refs])
+    fd = (nu_d[2:] - nu_d[:-2]) / (2 * dt)
+    smooth = np.all(np.abs(nu_d_dot[2:] - nu_d_dot[:-2]) < 1e-3, axis=1)  # not at a corner
+    assert smooth.sum() > 0.9 * len(smooth)
+    np.testing.assert_allclose(fd[smooth], nu_d_dot[1:-1][smooth], atol=1e-5)
+    assert np.abs(nu_d[:, 2] * np.hypot(*nu_d[:, :2].T)).max() > 5e-3  # the r_d terms matter
+
+
+def test_go_to_waypoint_along_and_cross_track_by_hand():
+    # start (1, 2) -> (4, 6): length 5, direction (0.6, 0.8); left normal (-0.8, 0.6)
+    goto = GoToWaypoint([1.0, 2.0, 0.0], (4.0, 6.0), 0.2, 0.1)
+    ref = goto.reference([1.0 + 2 * 0.6 - 0.5 * 0.8, 2.0 + 2 * 0.8 + 0.5 * 0.6, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((2.0, 0.5), abs=1e-12)
+    assert ref.segment == 0
+    # a leg shorter than 1 m is a leg too: (0, 0) -> (0.3, 0.4), length 0.5
+    short = GoToWaypoint([0.0, 0.0, 0.0], (0.3, 0.4), 0.2, 0.1)
+    ref = short.reference([0.25 * 0.6 - 0.1 * 0.8, 0.25 * 0.8 + 0.1 * 0.6, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((0.25, 0.1), abs=1e-12)
+    # no leg (already there): both zero wherever the vessel is
+    still = GoToWaypoint([1.0, 1.0, 0.0], (1.0, 1.0), 0.2, 0.1)
+    ref = still.reference([3.0, -2.0, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('where, finished', [
+    ((4.0, 6.25), True),          # exactly arrival_radius (0.25 m) away: arrived
+    ((3.75, 6.0), True),
+    ((4.0, 6.5), False),          # 0.5 m off in y only
+    ((4.5, 6.0), False),          # 0.5 m off in x only
+])
+def test_go_to_waypoint_arrival_is_a_circle(where, finished):
+    goto = GoToWaypoint([1.0, 2.0, 0.0], (4.0, 6.0), 0.2, 0.1, arrival_radius=0.25)
+    ref = goto.reference([*where, 0.0], goto.duration + 1.0)   # the profile has ended
+    assert ref.finished is finished and goto.finished is finished
+
+
+def test_go_to_waypoint_names_a_bad_pose():
+    goto = GoToWaypoint([0.0, 0.0, 0.0], (1.0, 0.0), 0.2, 0.1)
+    with pytest.raises(ValueError, match=r'^eta_hat: expected 3 values'):
+        goto.reference([0.0, 0.0], DT)
+
+
+@pytest.mark.parametrize('kwargs, match', [
+    (dict(start_eta=[0.0, 0.0]), r'^start_eta: expected 3 values'),
+    (dict(waypoint=None), r'^waypoint: must be \(x, y\) or \(x, y, psi\), got None$'),
+    (dict(speed=-0.1), r'^speed: must be finite and > 0'),
+    (dict(accel=0.0), r'^accel: must be finite and > 0'),
+    (dict(yaw_rate=0.0), r'^yaw_rate: must be finite and > 0'),
+    (dict(yaw_accel=math.inf), r'^yaw_accel: must be finite and > 0'),
+    (dict(arrival_radius=0.0), r'^arrival_radius: must be finite and > 0'),
+])
+def test_go_to_errors_start_with_the_field(kwargs, match):
+    args = dict(start_eta=[0.0, 0.0, 0.0], waypoint=(1.0, 0.0), speed=0.2, accel=0.1) | kwargs
+    with pytest.raises(ValueError, match=match):
+        GoToWaypoint(**args)
+
+
+def test_go_to_waypoint_defaults_are_the_documented_ones():
+    goto = GoToWaypoint([0.0, 0.0, 0.0], (1.0, 0.0), 0.2, 0.1)
+    assert (goto.yaw_rate, goto.yaw_accel, goto.arrival_radius) == (0.2, 0.2, 0.1)
+
+
+def test_los_names_a_bad_pose():
+    los = LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1)
+    with pytest.raises(ValueError, match=r'^eta_hat: expected 3 values'):
+        los.reference([0.0, 0.0], DT)
+
+
+# A path that does not start at the origin, on a diagonal: (2, 1) -> (10, 7) is 10 m long,
+# direction (0.8, 0.6), left normal (-0.6, 0.8); then north to (10, 15).
+DIAGONAL = [(2.0, 1.0), (10.0, 7.0), (10.0, 15.0)]
+
+
+def test_los_track_and_closest_point_by_hand_off_the_origin():
+    los = LosPath(DIAGONAL, speed=0.3, lookahead=1.0, acceptance_radius=0.5)
+    x, y = 2.0 + 3.0 * 0.8 - 0.5 * 0.6, 1.0 + 3.0 * 0.6 + 0.5 * 0.8   # 3 m along, 0.5 m left
+    ref = los.reference([x, y, 0.0], DT)
+    assert (ref.along_track, ref.cross_track) == pytest.approx((3.0, 0.5), abs=1e-12)
+    np.testing.assert_allclose(ref.eta_d[:2], [2.0 + 3.0 * 0.8, 1.0 + 3.0 * 0.6], atol=1e-12)
+    assert ref.segment == 0 and not ref.finished
+
+
+def test_los_switches_inside_the_circle_around_the_segment_end():
+    los = LosPath(DIAGONAL, speed=0.3, lookahead=1.0, acceptance_radius=0.5)
+    # (9.8, 6.6): 9.6 m along (not past the end), 0.447 m from (10, 7): switch
+    assert los.reference([9.8, 6.6, 0.0], DT).segment == 1
+
+
+@pytest.mark.parametrize('where, segment', [
+    ((11.625, 0.5), 1),      # 9.625 m along, exactly 0.625 m from (12, 1): inside
+    ((12.0, 4.0), 1),        # exactly at the end along-track (s = length), far off: past it
+    ((11.5, 2.0), 0),        # short of the end and outside the circle
+])
+def test_los_switching_boundaries(where, segment):
+    los = LosPath([(2.0, 1.0), (12.0, 1.0), (12.0, 11.0)], speed=0.3, lookahead=1.0,
+                  acceptance_radius=0.625)
+    assert los.reference([*where, 0.0], DT).segment == segment
+
+
+def test_los_finished_reference_keeps_the_track_metrics():
+    los = LosPath([(2.0, 1.0), (12.0, 1.0)], speed=0.3, lookahead=1.0, acceptance_radius=0.1)
+    ref = los.reference([12.5, 1.25, 0.0], DT)           # 10.5 m along, 0.25 m left
+    assert ref.finished is True and ref.segment == 0
+    assert (ref.along_track, ref.cross_track) == pytest.approx((10.5, 0.25), abs=1e-12)
+    ref = los.reference([3.0, 1.0, 0.0], DT)             # not finished again
+    assert ref.finished is True
+
+
+def test_los_feed_forward_with_the_heading_off_the_course():
+    """The vessel turns at r_d but points 0.5 rad off the course, so it moves partly sideways:
+    the r_d [[-s, c], [-c, -s]] v term of nu_d_dot is r_d U sin(0.5) ~ 7e-3 and its sign
+    matters. Central differences at dt = 1 ms with psi integrating r_d exactly: error
+    dt^2/6 |nu_d'''| < 1e-6, so 1e-5 is the bound.
+    """
+    los = LosPath([(0.0, 0.0), (30.0, 0.0)], speed=0.3, lookahead=0.8, acceptance_radius=0.1)
+    dt = 1e-3
+    p = np.array([1.0, 2.0])
+    chi0 = -math.atan(2.0 / 0.8)
+    psi = chi0 + 0.5
+    refs = []
+    for _ in range(2000):
+        ref = los.reference([p[0], p[1], psi], dt)
+        refs.append(ref)
+        p = p + rot(psi)[:2, :2] @ ref.nu_d[:2] * dt
+        psi = psi + ref.nu_d[2] * dt
+    nu_d = np.array([r.nu_d for r in refs])
+    nu_d_dot = np.array([r.nu_d_dot for r in refs])
+    fd = (nu_d[2:, :2] - nu_d[:-2, :2]) / (2 * dt)
+    np.testing.assert_allclose(fd, nu_d_dot[1:-1, :2], atol=1e-5)
+    assert np.abs(nu_d[:, 1]).min() > 0.1 and np.abs(nu_d[:, 2]).max() > 0.03
+
+
+def test_go_to_waypoint_short_leg_and_pure_turn_durations_by_hand():
+    """Trapezoids worked by hand. A 0.5 m leg at 0.2 m/s, 0.1 m/s^2: 2 s up (0.2 m), 0.5 s
+    cruise (0.1 m), 2 s down: 4.5 s. A 0.5 rad turn in place at 0.2 rad/s, 0.1 rad/s^2: the
+    same numbers in radians, 4.5 s."""
+    leg = GoToWaypoint([1.0, 1.0, 0.0], (1.3, 1.4), 0.2, 0.1)
+    assert leg.duration == pytest.approx(4.5, rel=1e-12)
+    turn = GoToWaypoint([1.0, 1.0, 0.0], (1.0, 1.0, 0.5), 0.2, 0.1, yaw_rate=0.2,
+                        yaw_accel=0.1)
+    assert turn.duration == pytest.approx(4.5, rel=1e-12)
+
+
+@pytest.mark.parametrize('waypoints, match', [
+    ([(0.0, 0.0), ('a', 1.0)], r'^waypoints: must be a list of \(x, y\), got '),
+    ([(0.0, 0.0), (math.inf, 1.0)], r'^waypoints: must be finite$'),
+    ([(0.0, 0.0), (1.0, 0.0), (1.0, 0.0)],
+     r'^waypoints: points 1 and 2 coincide \(zero-length segment\)$'),
+])
+def test_los_waypoint_errors_say_which(waypoints, match):
+    with pytest.raises(ValueError, match=match):
+        LosPath(waypoints, 0.2, 0.5, 0.1)
+
+
+def test_hold_pose_is_finished_from_the_start():
+    ref = HoldPose([1.0, 2.0, 0.5]).reference([0.0, 0.0, 0.0], DT)
+    assert ref.finished is True
+
+
+def test_los_fixed_heading_given_is_held_wrapped():
+    los = LosPath([(0.0, 0.0), (10.0, 0.0)], 0.2, 0.5, 0.1, heading='fixed', fixed_heading=7.0)
+    ref = los.reference([1.0, 0.5, 0.3], DT)             # the vessel's own heading: 0.3
+    assert ref.eta_d[2] == pytest.approx(7.0 - 2 * math.pi, abs=1e-12) and ref.nu_d[2] == 0.0
+    with pytest.raises(ValueError, match=r'^fixed_heading: must be finite, got nan$'):
+        LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1, heading='fixed',
+                fixed_heading=math.nan)
+    with pytest.raises(ValueError, match=r"^fixed_heading: only with heading='fixed'$"):
+        LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1, fixed_heading=1.0)
+
+
+@pytest.mark.parametrize('kwargs, match', [
+    (dict(speed='fast'), r"^speed: must be a number, got 'fast'$"),
+    (dict(speed=0.0), r'^speed: must be finite and > 0, got 0.0$'),
+    (dict(lookahead=-1.0), r'^lookahead: must be finite and > 0, got -1.0$'),
+    (dict(acceptance_radius=-0.1), r'^acceptance_radius: must be finite and >= 0, got -0.1$'),
+])
+def test_los_errors_start_with_the_field(kwargs, match):
+    args = dict(waypoints=[(0.0, 0.0), (1.0, 0.0)], speed=0.2, lookahead=0.5,
+                acceptance_radius=0.1) | kwargs
+    with pytest.raises(ValueError, match=match):
+        LosPath(**args)
+
+
+def test_los_starts_on_the_first_segment_with_no_track_error():
+    los = LosPath([(0.0, 0.0), (1.0, 0.0)], 0.2, 0.5, 0.1)
+    assert (los.segment, los.cross_track, los.along_track, los.finished) == (0, 0.0, 0.0, False)

@@ -560,3 +560,29 @@ def test_current_must_be_three_finite_numbers():
         model.step(state, np.zeros(6), DT, current=[0.1, 0.2])
     with pytest.raises(ValueError, match='current'):
         model.step(state, np.zeros(6), DT, current=[0.1, math.nan, 0.0])
+
+
+# -- gaps found by the mutation run (docs/testing.md) ------------------------------------------
+
+def test_kinetic_energy_by_hand():
+    """T = 1/2 nu^T M nu: pure surge sees m + X_udot, pure yaw I_zz + N_rdot (ROV above)."""
+    model = RigidBodyModel(params())
+    assert model.kinetic_energy([2.0, 0, 0, 0, 0, 0]) == pytest.approx(0.5 * (11.5 + 5.5) * 4.0,
+                                                                         rel=1e-12)
+    assert model.kinetic_energy([0, 0, 0, 0, 0, 3.0]) == pytest.approx(0.5 * (0.37 + 0.12) * 9.0,
+                                                                         rel=1e-12)
+
+
+def test_from_mapping_unknown_keys_message_lists_both_sides():
+    with pytest.raises(ValueError, match=(
+            r'^massa, x: unknown key\(s\); expected mass, inertia, r_g, r_b, buoyancy, '
+            r'added_mass, d_lin, d_quad, gravity$')):
+        RigidBodyParams.from_mapping({**ROV, 'x': 1.0, 'massa': 2.0})
+
+
+def test_nu_dot_names_its_inputs():
+    model = RigidBodyModel(params())
+    with pytest.raises(ValueError, match=r'^q: expected shape \(4,\)'):
+        model.nu_dot([0.0, 0.0, 1.0], np.zeros(6), np.zeros(6))
+    with pytest.raises(ValueError, match=r'^nu: expected shape \(6,\)'):
+        model.nu_dot([0.0, 0.0, 0.0, 1.0], np.zeros(5), np.zeros(6))

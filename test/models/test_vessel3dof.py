@@ -329,3 +329,67 @@ def test_azimuth_spec_validation():
         AzimuthSpec('a', (0, 0), 1.0, 1.0, angle_min=0.5, angle_max=0.1)
     s = AzimuthSpec('a', [0, 1], 2, 1)
     assert s.position == (0.0, 1.0) and s.angle_max == math.pi  # no travel limit by default
+
+
+# -- inputs are named in their errors; actuator states set by hand -----------------------------
+# (gaps found by the mutation run, docs/testing.md)
+
+@pytest.mark.parametrize('call, message', [
+    (lambda v: v.derivatives([0.0] * 2, [0.0] * 3, [0.0] * 3), r'^eta: expected 3 values'),
+    (lambda v: v.derivatives([0.0] * 3, [0.0] * 4, [0.0] * 3), r'^nu: expected 3 values'),
+    (lambda v: v.derivatives([0.0] * 3, [0.0] * 3, [0.0] * 2), r'^tau: expected 3 values'),
+    (lambda v: v.derivatives([0.0] * 3, [0.0] * 3, [0.0] * 3, current=[0.0] * 3),
+     r'^current: expected 2 values'),
+    (lambda v: v.derivatives([0.0] * 3, [0.0] * 3, [0.0] * 3, bias=[0.0] * 2),
+     r'^bias: expected 3 values'),
+    (lambda v: v.step([0.0] * 4, [0.0] * 3, [0.0] * 3, 0.1), r'^eta: expected 3 values'),
+    (lambda v: v.step([0.0] * 3, [0.0] * 2, [0.0] * 3, 0.1), r'^nu: expected 3 values'),
+    (lambda v: v.coriolis([0.0] * 4), r'^nu: expected 3 values'),
+    (lambda v: v.damping([0.0] * 2), r'^nu: expected 3 values'),
+])
+def test_vessel_inputs_of_the_wrong_length_are_named(call, message):
+    with pytest.raises(ValueError, match=message):
+        call(Vessel3Dof(CS_SAUCER))
+
+
+def test_from_mapping_errors_name_the_keys():
+    good = {'M': [1.0, 1.0, 1.0], 'D': [1.0, 1.0, 1.0], 'Dn': [0.0, 0.0, 0.0]}
+    with pytest.raises(ValueError, match=r'^Mx, Q: unknown key\(s\); expected M, D, Dn$'):
+        Vessel3DofParams.from_mapping({**good, 'Q': [0.0] * 3, 'Mx': [0.0] * 3})
+    with pytest.raises(ValueError, match=r'^D: expected 3 values, got 4'):
+        Vessel3DofParams.from_mapping({**good, 'D': [1.0] * 4})
+
+
+@pytest.mark.parametrize('call, message', [
+    (lambda a: a.reset(thrust=[0.0] * 2), r'^thrust: expected 3 values'),
+    (lambda a: a.reset(angle=[0.0] * 4), r'^angle: expected 3 values'),
+    (lambda a: a.step([0.0] * 2, [0.0] * 3, 0.1), r'^thrust_cmd: expected 3 values'),
+    (lambda a: a.step([0.0] * 3, [0.0] * 4, 0.1), r'^angle_cmd: expected 3 values'),
+])
+def test_actuator_inputs_of_the_wrong_length_are_named(call, message):
+    with pytest.raises(ValueError, match=message):
+        call(AzimuthActuators(saucer_specs()))
+
+
+def test_actuator_reset_sets_and_clips_the_states():
+    act = AzimuthActuators(saucer_specs())
+    act.reset(thrust=[0.5, 9.0, -9.0], angle=[0.3, 3.0, -3.0])
+    # thrust limits +1.5 / -1.0 N, travel +/-114 deg (saucer_specs)
+    assert act.thrust.tolist() == [0.5, 1.5, -1.0]
+    assert act.angle.tolist() == [0.3, SERVO_LIMIT, -SERVO_LIMIT]
+    act.reset()
+    assert act.thrust.tolist() == [0.0] * 3 and act.angle.tolist() == [0.0] * 3
+
+
+def test_actuator_starts_at_the_reachable_angle_closest_to_zero():
+    act = AzimuthActuators(saucer_specs(angle_min=0.5, angle_max=2.0)
+                           + saucer_specs(angle_min=-2.0, angle_max=-0.25)[:1])
+    assert act.angle.tolist() == [0.5, 0.5, 0.5, -0.25]
+
+
+def test_actuator_layout_is_read_only_and_not_empty():
+    act = AzimuthActuators(saucer_specs())
+    with pytest.raises(ValueError, match='read-only'):
+        act.positions[0, 0] = 1.0
+    with pytest.raises(ConfigurationError, match='^azimuth layout is empty$'):
+        AzimuthActuators([])
