@@ -38,16 +38,31 @@ Each step:
    - gravity: ``h = R' [0, 0, g]`` (body), ``y = accel - h``, ``H = [S(h), 0]``. The component
      of ``y`` along ``h`` (the specific-force magnitude) is in the null space of ``H P H'`` and
      gets exactly zero gain, so only the direction of gravity corrects roll and pitch. The
-     update is skipped when ``| |accel| - g | > accel_gate`` (the vehicle is accelerating),
-     and when the tilt part of its innovation fails a chi-square test (normalized
-     innovation squared, 2 degrees of freedom, above ``accel_innovation_gate``). The second
-     gate is the one that sees a vehicle driving off: an acceleration a across gravity
-     changes ``|accel|`` by only a^2 / 2g, but tilts the measured gravity by a / g, and
-     through the tilt-compensated magnetometer that becomes a heading error of
-     tan(inclination) a / g, which the heading updates would write into the z gyro bias (a
-     0.5 m/s^2 surge at 69 deg inclination: 51 mrad of pitch, 136 mrad of heading). After
-     ``accel_gate_timeout`` of failures in a row the estimate is taken to be wrong (a tilt
-     the gyro did not see) and gravity is used again until a sample passes.
+     update is skipped when ``| |accel| - g | > accel_gate`` (the vehicle is accelerating).
+     An acceleration a across gravity changes ``|accel|`` by only a^2 / 2g but tilts the
+     measured gravity by a / g, and through the tilt-compensated magnetometer that becomes a
+     heading error of tan(inclination) a / g, which the heading updates write into the z
+     gyro bias (a 0.5 m/s^2 surge at 69 deg inclination: 51 mrad of pitch, 136 mrad of
+     heading). The accelerometer's noise model is white, so no setting of this filter tells
+     such a sustained specific force from a tilt; the error it leaves is bounded by the
+     specific force, a / g, and decays once the vehicle stops accelerating.
+
+     Optionally (``use_innovation_gate``, off by default) the update is also skipped when
+     the tilt part of its innovation fails a chi-square test (normalized innovation
+     squared, 2 degrees of freedom, above ``accel_innovation_gate``), and after
+     ``accel_gate_timeout`` of failures in a row gravity is used again until a sample
+     passes. That removes the surge error of a *converged* filter on a hull that does not
+     pitch, but the gate trusts the filter's tilt, and that trust can be wrong: a fresh
+     filter (gyro bias still uncertain) on a pendulous hull, which leans into its own
+     acceleration so that the accelerometer keeps reading "level" while the gyro sees the
+     pitch, writes the real rotation into the bias within a second; the tilt error then
+     exceeds the gate, gravity is refused for ``accel_gate_timeout`` while the magnetometer
+     (compensated with the wrong tilt) keeps feeding the heading error into the z bias, and
+     a yaw-rate loop on the published rate turns the vehicle (seen in the simulated ROV
+     with ``gyro_noise`` matched to its gyro: 50 deg of heading error in 5 s). Without the
+     gate the same start leaves a transient that gravity pulls back. A gate that is safe
+     needs a model of the vehicle's own acceleration in the filter (a Gauss-Markov
+     specific-force state), which this filter does not have.
    - heading: the magnetometer is rotated to the world frame with the estimated attitude and
      its horizontal part compared with north, ``y = ssa(pi/2 - atan2(m_w,y, m_w,x))``; that is
      the tilt-compensated heading minus the estimated yaw. A yaw error is a rotation about
@@ -103,6 +118,8 @@ _MIN_MAG_HORIZONTAL_FRACTION = 0.05
 _MIN_ACCEL_NORM = 1e-6
 
 _I3 = np.eye(3)
+# Switches among the settings; every other field is a positive finite number.
+_BOOL_FIELDS = ('use_magnetometer', 'use_innovation_gate')
 
 
 @dataclass(frozen=True)
@@ -114,9 +131,11 @@ class AttitudeFilterSettings:
     accel_noise: accelerometer noise std per sample [m/s^2].
     mag_noise: std of the heading from the tilt-compensated magnetometer [rad].
     accel_gate: skip the gravity update when | |a| - g | exceeds this [m/s^2].
-    accel_innovation_gate: skip the gravity update when the normalized innovation squared of
-        its tilt part (chi-square, 2 dof) exceeds this; 13.8 drops 0.1 % of the samples of a
-        vehicle at rest.
+    use_innovation_gate: also gate the gravity update on its innovation (off by default: it
+        can lock a fresh filter out of gravity, see the module docstring).
+    accel_innovation_gate: with ``use_innovation_gate``, skip the gravity update when the
+        normalized innovation squared of its tilt part (chi-square, 2 dof) exceeds this;
+        13.8 drops 0.1 % of the samples of a vehicle at rest.
     accel_gate_timeout: after the innovation gate has failed this long in a row, use
         gravity again [s]. 5 s covers the ROV's reference accelerating at 0.5 m/s^2 from
         full reverse to full ahead (2 m/s: 4 s).
@@ -130,6 +149,7 @@ class AttitudeFilterSettings:
     accel_noise: float = 0.05
     mag_noise: float = 0.05
     accel_gate: float = 1.0
+    use_innovation_gate: bool = False
     accel_innovation_gate: float = 13.8
     accel_gate_timeout: float = 5.0
     use_magnetometer: bool = True
@@ -140,10 +160,10 @@ class AttitudeFilterSettings:
         """Raise ``ValueError`` naming the first field that is not a positive finite number."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == 'use_magnetometer':
+            if f.name in _BOOL_FIELDS:
                 if not isinstance(value, (bool, np.bool_)):
                     raise ValueError(
-                        f'AttitudeFilterSettings.use_magnetometer must be a bool, got {value!r}')
+                        f'AttitudeFilterSettings.{f.name} must be a bool, got {value!r}')
                 continue
             if isinstance(value, (bool, np.bool_)) or not isinstance(
                     value, (int, float, np.integer, np.floating)):
@@ -358,7 +378,8 @@ class AttitudeFilter:
             Hg = skew(h)
             y = a - h                                               # y = z - h(x)
             ra = s.accel_noise ** 2
-            accel_used = self._gravity_consistent(Hg, h, y, ra, dt)
+            if s.use_innovation_gate:
+                accel_used = self._gravity_consistent(Hg, h, y, ra, dt)
         if accel_used:
             H[:3, :3] = Hg
             z[:3, 0] = y

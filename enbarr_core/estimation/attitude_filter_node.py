@@ -32,9 +32,13 @@ SPECS = [
               10.0),
     ParamSpec('accel_gate', _D.accel_gate, 'Skip the gravity update when | |a| - g | exceeds '
               'this', 'm/s^2', 1e-3, 100.0),
-    ParamSpec('accel_innovation_gate', _D.accel_innovation_gate, 'Skip the gravity update '
-              'when its tilt innovation (normalized, chi-square with 2 degrees of freedom) '
-              'exceeds this: the vehicle is accelerating sideways', '', 1.0, 1e6),
+    ParamSpec('use_innovation_gate', _D.use_innovation_gate, 'Also gate the gravity update '
+              'on its tilt innovation (off by default: it can lock a fresh filter out of '
+              'gravity on a hull that leans into its acceleration)'),
+    ParamSpec('accel_innovation_gate', _D.accel_innovation_gate, 'With use_innovation_gate, '
+              'skip the gravity update when its tilt innovation (normalized, chi-square with 2 '
+              'degrees of freedom) exceeds this: the vehicle is accelerating sideways', '', 1.0,
+              1e6),
     ParamSpec('accel_gate_timeout', _D.accel_gate_timeout, 'After the innovation gate has '
               'failed this long in a row, use gravity again', 's', 1e-3, 3600.0),
     ParamSpec('use_magnetometer', _D.use_magnetometer, 'Correct heading from imu/mag'),

@@ -47,6 +47,15 @@ def test_a_refused_value_keeps_the_old_one(executor, spin, tuned):
     assert get_param(executor, spin, client, 'accel_noise') == 0.2
 
 
+def test_innovation_gate_is_off_by_default_and_can_be_switched_on(executor, spin, tuned):
+    """The gate can lock a fresh filter out of gravity (attitude_filter.py): off unless asked."""
+    node, client = tuned
+    assert get_param(executor, spin, client, 'use_innovation_gate') is False
+    assert node.filter.settings.use_innovation_gate is False
+    assert set_param(executor, spin, client, 'use_innovation_gate', True).successful
+    assert node.filter.settings.use_innovation_gate is True
+
+
 # -- samples ---------------------------------------------------------------------------------
 
 class Imu400:
