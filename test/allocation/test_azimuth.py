@@ -463,3 +463,56 @@ def test_pwm_from_mapping():
         PwmCalibration.from_mapping({k: v for k, v in d.items() if k != 'duty_max_percent'})
     with pytest.raises(ValueError, match='^neutral: unknown'):
         PwmCalibration.from_mapping({**d, 'neutral': 6.85})
+
+
+# -- survivors of mutation testing (docs/testing.md): the travel limits and the sign choice ---
+
+
+HALF = math.pi / 2
+
+
+def half_turn_specs() -> list[AzimuthSpec]:
+    """The Saucer layout with exactly a half turn of travel, [-pi/2, pi/2] (the least allowed)."""
+    return saucer_specs(angle_min=-HALF, angle_max=HALF)
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_force_exactly_at_a_travel_limit_is_positive_thrust_there(sign):
+    # Pure sway Y = 0.3 N: each azimuth pushes (0, +-0.1) N, phi = +-pi/2 = a travel limit (to
+    # the last bit or two). Both representations are inside the travel then; without a previous
+    # angle positive thrust is preferred: T = +0.1 N at +-pi/2, not -0.1 N at -+pi/2.
+    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, sign * 0.3, 0.0])
+    np.testing.assert_allclose(res.thrust, 0.1, rtol=1e-12)
+    np.testing.assert_array_equal(res.angle, sign * HALF)  # clipped onto the limit exactly
+
+
+def test_reversed_thrust_exactly_at_a_travel_limit_is_kept_near_the_previous_angle():
+    # The same +Y force with the servos resting near -pi/2: reversed thrust at -pi/2 (0.07 rad
+    # away) is used, not a half turn to +pi/2.
+    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, 0.3, 0.0],
+                                                       previous_angle=[-1.5] * 3)
+    np.testing.assert_allclose(res.thrust, -0.1, rtol=1e-12)
+    np.testing.assert_array_equal(res.angle, -HALF)
+
+
+@pytest.mark.parametrize('phi', [0.5, 0.99, -0.5, 2.0])
+def test_the_reversed_angle_is_the_force_direction_minus_a_half_turn(phi):
+    # Full travel [-pi, pi]: force pairs (0.2 cos phi, 0.2 sin phi) for a pure X, Y push. With
+    # the servos 0.1 rad from the reversed direction phi -+ pi (whichever lies in (-pi, pi]),
+    # that is kept: T = -0.2 N at phi -+ pi.
+    specs = saucer_specs(angle_min=-math.pi, angle_max=math.pi)
+    phi_r = phi - math.pi if phi > 0.0 else phi + math.pi
+    res = AzimuthAllocator(specs).allocate([0.6 * math.cos(phi), 0.6 * math.sin(phi), 0.0],
+                                           previous_angle=[phi_r + 0.1] * 3)
+    np.testing.assert_allclose(res.thrust, -0.2, rtol=1e-12)
+    np.testing.assert_allclose(res.angle, phi_r, atol=1e-12)
+
+
+def test_allocate_errors_start_with_the_argument_name():
+    alloc = AzimuthAllocator(saucer_specs())
+    with pytest.raises(ValueError, match=r'^tau'):
+        alloc.allocate([0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r'^tau'):
+        alloc.allocate([0.0, math.nan, 0.0])
+    with pytest.raises(ValueError, match=r'^previous_angle'):
+        alloc.allocate([0.0, 0.0, 0.0], previous_angle=[0.0, 0.0])
