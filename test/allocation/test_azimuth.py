@@ -516,3 +516,28 @@ def test_allocate_errors_start_with_the_argument_name():
         alloc.allocate([0.0, math.nan, 0.0])
     with pytest.raises(ValueError, match=r'^previous_angle'):
         alloc.allocate([0.0, 0.0, 0.0], previous_angle=[0.0, 0.0])
+
+
+def test_pwm_duty_limits_of_a_whole_board_and_no_empty_range():
+    # 0 % and 100 % are valid limits (a board that takes any duty); 100.5 % and -0.5 % are
+    # not, and equal limits leave no range (every command would be refused).
+    n = len(THRUST_DUTY)
+    full = calibration(duty_min_percent=0.0, duty_max_percent=100.0)
+    assert full.accepts(0.0) and full.accepts(100.0) and not full.accepts(100.5)
+    for field, bad in (('duty_max_percent', 100.5), ('duty_min_percent', -0.5)):
+        with pytest.raises(ValueError, match=rf'^{field}: expected a duty cycle in \[0, 100\]'):
+            calibration(**{field: bad})
+    one = dict(thrust_duty_percent=[5.0] * n, angle_duty_percent=[5.0] * len(ANGLE_DUTY))
+    with pytest.raises(ValueError, match=r'^duty_max_percent: must be above'):
+        calibration(duty_min_percent=5.0, duty_max_percent=5.0, **one)
+
+
+def test_pwm_saturating_tables_clip_to_the_duty_nearest_neutral():
+    # Flat ends (the propeller gives no more thrust): beyond or at the flat value the duty
+    # closest to neutral that reaches it is used, at both ends: reverse -1.0 N is reached at
+    # 5.0 % already (THRUST_DUTY[1]), forward 1.2 N at 8.6 % (THRUST_DUTY[-2]).
+    cal = calibration(thrust_newton=[-1.0, -1.0] + THRUST_N[2:-1] + [1.2])
+    for T in (-1.0, -3.0):
+        assert cal.thrust_to_duty(T) == THRUST_DUTY[1]
+    for T in (1.2, 3.0):
+        assert cal.thrust_to_duty(T) == THRUST_DUTY[-2]
