@@ -486,13 +486,24 @@ def test_a_force_exactly_at_a_travel_limit_is_positive_thrust_there(sign):
     np.testing.assert_array_equal(res.angle, sign * HALF)  # clipped onto the limit exactly
 
 
-def test_reversed_thrust_exactly_at_a_travel_limit_is_kept_near_the_previous_angle():
-    # The same +Y force with the servos resting near -pi/2: reversed thrust at -pi/2 (0.07 rad
-    # away) is used, not a half turn to +pi/2.
-    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, 0.3, 0.0],
-                                                       previous_angle=[-1.5] * 3)
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_reversed_thrust_exactly_at_a_travel_limit_is_kept_near_the_previous_angle(sign):
+    # The same +-Y force with the servos resting near -+pi/2: reversed thrust at -+pi/2
+    # (0.07 rad away) is used, not a half turn to +-pi/2.
+    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, sign * 0.3, 0.0],
+                                                       previous_angle=[-sign * 1.5] * 3)
     np.testing.assert_allclose(res.thrust, -0.1, rtol=1e-12)
-    np.testing.assert_array_equal(res.angle, -HALF)
+    np.testing.assert_array_equal(res.angle, -sign * HALF)
+
+
+def test_reversed_thrust_is_scaled_by_the_reverse_limit():
+    # Pure yaw with max_reverse = 0.5 N: the azimuth at 90 deg pushes 0.8 N reversed (ratio
+    # 0.8 / 0.5 = 1.6), the others 0.8 N forward (0.8 / 1.5): all scaled by 1 / 1.6 = 0.625.
+    # (With max_reverse = 1 N, m / limit and m * limit agree.)
+    alloc = AzimuthAllocator(saucer_specs(max_reverse=0.5))
+    res = alloc.allocate([0.0, 0.0, 0.8 * 3.0 * RADIUS])
+    assert not res.feasible and res.scale == pytest.approx(0.625, rel=1e-12)
+    np.testing.assert_allclose(res.thrust, [-0.5, 0.5, 0.5], rtol=1e-12)
 
 
 @pytest.mark.parametrize('phi', [0.5, 0.99, -0.5, 2.0])
