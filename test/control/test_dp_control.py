@@ -599,3 +599,16 @@ def test_a_bumpless_entry_inside_the_limits_allows_no_excess():
     ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
     out = ctl.step(np.array([1.0, -1.0, 0.5]), np.zeros(3), np.zeros(3), ref, 0.1)
     np.testing.assert_allclose(out.integral, [0.2, -0.2, 0.02], rtol=1e-12)
+
+
+@pytest.mark.parametrize('on', [True, False])
+def test_bias_feedforward_is_minus_r_transpose_b_hat_only_when_on(on):
+    """At rest on the setpoint with heading pi/2, b_hat = (0.4, -0.3, 0.03) world: the
+    feed-forward is -R^T b_hat = -(b_y, -b_x, b_n) = (0.3, 0.4, -0.03) when on, and zero when
+    off (the station-keeping tests only showed that off still converges).
+    """
+    ctl = DpController(settings(bias_feedforward=on))
+    eta = np.array([1.0, 2.0, math.pi / 2])
+    out = ctl.step(eta, np.zeros(3), np.array([0.4, -0.3, 0.03]), hold(eta), DT)
+    want = np.array([0.3, 0.4, -0.03]) if on else np.zeros(3)
+    np.testing.assert_allclose(out.tau_ff, want, atol=1e-15)
