@@ -552,3 +552,37 @@ def test_pwm_saturating_tables_clip_to_the_duty_nearest_neutral():
         assert cal.thrust_to_duty(T) == THRUST_DUTY[1]
     for T in (1.2, 3.0):
         assert cal.thrust_to_duty(T) == THRUST_DUTY[-2]
+
+
+def test_allocator_layout_errors_name_what_and_where():
+    with pytest.raises(AllocationError, match=r'^azimuth layout is empty: cannot produce surge, '
+                                              r'sway, yaw$'):
+        AzimuthAllocator([])
+    # A half turn of travel is the least allowed (accepted above); 1 mrad less is refused,
+    # naming the azimuth, the parameter and the travel it has.
+    short = saucer_specs(angle_min=-HALF + 1e-3, angle_max=HALF)
+    with pytest.raises(ConfigurationError, match=r"^azimuth 'az0': angle_max - angle_min must "
+                                                 r'be >= pi rad \(180 deg\) for the allocator, '
+                                                 r'got 3\.1406 rad$') as info:
+        AzimuthAllocator(short)
+    assert info.value.parameter == 'angle_min'
+    with pytest.raises(ConfigurationError, match=r'per azimuth') as info:
+        AzimuthAllocator(saucer_specs(), weights=[1.0, 1.0])
+    assert info.value.parameter == 'weights'
+
+
+def test_allocator_exposes_its_matrices_read_only():
+    # B_ext by hand (columns [1, 0, -y_i] and [0, 1, x_i] per azimuth), B_pinv its right
+    # inverse, unit weights; none of them can be changed behind the allocator's back.
+    alloc = AzimuthAllocator(saucer_specs())
+    np.testing.assert_array_equal(alloc.positions, POS)
+    B = np.zeros((3, 6))
+    for i, (x, y) in enumerate(POS):
+        B[:, 2 * i] = (1.0, 0.0, -y)
+        B[:, 2 * i + 1] = (0.0, 1.0, x)
+    np.testing.assert_allclose(alloc.B_ext, B, atol=1e-15)
+    np.testing.assert_allclose(alloc.B_ext @ alloc.B_pinv, np.eye(3), atol=1e-12)
+    np.testing.assert_array_equal(alloc.weights, np.ones(3))
+    for a in (alloc.positions, alloc.B_ext, alloc.B_pinv, alloc.weights):
+        with pytest.raises(ValueError, match='read-only'):
+            a[0] = 1.0
