@@ -463,3 +463,126 @@ def test_pwm_from_mapping():
         PwmCalibration.from_mapping({k: v for k, v in d.items() if k != 'duty_max_percent'})
     with pytest.raises(ValueError, match='^neutral: unknown'):
         PwmCalibration.from_mapping({**d, 'neutral': 6.85})
+
+
+# -- survivors of mutation testing (docs/testing.md): the travel limits and the sign choice ---
+
+
+HALF = math.pi / 2
+
+
+def half_turn_specs() -> list[AzimuthSpec]:
+    """The Saucer layout with exactly a half turn of travel, [-pi/2, pi/2] (the least allowed)."""
+    return saucer_specs(angle_min=-HALF, angle_max=HALF)
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_force_exactly_at_a_travel_limit_is_positive_thrust_there(sign):
+    # Pure sway Y = 0.3 N: each azimuth pushes (0, +-0.1) N, phi = +-pi/2 = a travel limit (to
+    # the last bit or two). Both representations are inside the travel then; without a previous
+    # angle positive thrust is preferred: T = +0.1 N at +-pi/2, not -0.1 N at -+pi/2.
+    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, sign * 0.3, 0.0])
+    np.testing.assert_allclose(res.thrust, 0.1, rtol=1e-12)
+    np.testing.assert_array_equal(res.angle, sign * HALF)  # clipped onto the limit exactly
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_reversed_thrust_exactly_at_a_travel_limit_is_kept_near_the_previous_angle(sign):
+    # The same +-Y force with the servos resting near -+pi/2: reversed thrust at -+pi/2
+    # (0.07 rad away) is used, not a half turn to +-pi/2.
+    res = AzimuthAllocator(half_turn_specs()).allocate([0.0, sign * 0.3, 0.0],
+                                                       previous_angle=[-sign * 1.5] * 3)
+    np.testing.assert_allclose(res.thrust, -0.1, rtol=1e-12)
+    np.testing.assert_array_equal(res.angle, -sign * HALF)
+
+
+def test_reversed_thrust_is_scaled_by_the_reverse_limit():
+    # Pure yaw with max_reverse = 0.5 N: the azimuth at 90 deg pushes 0.8 N reversed (ratio
+    # 0.8 / 0.5 = 1.6), the others 0.8 N forward (0.8 / 1.5): all scaled by 1 / 1.6 = 0.625.
+    # (With max_reverse = 1 N, m / limit and m * limit agree.)
+    alloc = AzimuthAllocator(saucer_specs(max_reverse=0.5))
+    res = alloc.allocate([0.0, 0.0, 0.8 * 3.0 * RADIUS])
+    assert not res.feasible and res.scale == pytest.approx(0.625, rel=1e-12)
+    np.testing.assert_allclose(res.thrust, [-0.5, 0.5, 0.5], rtol=1e-12)
+
+
+@pytest.mark.parametrize('phi', [0.5, 0.99, -0.5, 2.0])
+def test_the_reversed_angle_is_the_force_direction_minus_a_half_turn(phi):
+    # Full travel [-pi, pi]: force pairs (0.2 cos phi, 0.2 sin phi) for a pure X, Y push. With
+    # the servos 0.1 rad from the reversed direction phi -+ pi (whichever lies in (-pi, pi]),
+    # that is kept: T = -0.2 N at phi -+ pi.
+    specs = saucer_specs(angle_min=-math.pi, angle_max=math.pi)
+    phi_r = phi - math.pi if phi > 0.0 else phi + math.pi
+    res = AzimuthAllocator(specs).allocate([0.6 * math.cos(phi), 0.6 * math.sin(phi), 0.0],
+                                           previous_angle=[phi_r + 0.1] * 3)
+    np.testing.assert_allclose(res.thrust, -0.2, rtol=1e-12)
+    np.testing.assert_allclose(res.angle, phi_r, atol=1e-12)
+
+
+def test_allocate_errors_start_with_the_argument_name():
+    alloc = AzimuthAllocator(saucer_specs())
+    with pytest.raises(ValueError, match=r'^tau'):
+        alloc.allocate([0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r'^tau'):
+        alloc.allocate([0.0, math.nan, 0.0])
+    with pytest.raises(ValueError, match=r'^previous_angle'):
+        alloc.allocate([0.0, 0.0, 0.0], previous_angle=[0.0, 0.0])
+
+
+def test_pwm_duty_limits_of_a_whole_board_and_no_empty_range():
+    # 0 % and 100 % are valid limits (a board that takes any duty); 100.5 % and -0.5 % are
+    # not, and equal limits leave no range (every command would be refused).
+    n = len(THRUST_DUTY)
+    full = calibration(duty_min_percent=0.0, duty_max_percent=100.0)
+    assert full.accepts(0.0) and full.accepts(100.0) and not full.accepts(100.5)
+    for field, bad in (('duty_max_percent', 100.5), ('duty_min_percent', -0.5)):
+        with pytest.raises(ValueError, match=rf'^{field}: expected a duty cycle in \[0, 100\]'):
+            calibration(**{field: bad})
+    one = dict(thrust_duty_percent=[5.0] * n, angle_duty_percent=[5.0] * len(ANGLE_DUTY))
+    with pytest.raises(ValueError, match=r'^duty_max_percent: must be above'):
+        calibration(duty_min_percent=5.0, duty_max_percent=5.0, **one)
+
+
+def test_pwm_saturating_tables_clip_to_the_duty_nearest_neutral():
+    # Flat ends (the propeller gives no more thrust): beyond or at the flat value the duty
+    # closest to neutral that reaches it is used, at both ends: reverse -1.0 N is reached at
+    # 5.0 % already (THRUST_DUTY[1]), forward 1.2 N at 8.6 % (THRUST_DUTY[-2]).
+    cal = calibration(thrust_newton=[-1.0, -1.0] + THRUST_N[2:-1] + [1.2])
+    for T in (-1.0, -3.0):
+        assert cal.thrust_to_duty(T) == THRUST_DUTY[1]
+    for T in (1.2, 3.0):
+        assert cal.thrust_to_duty(T) == THRUST_DUTY[-2]
+
+
+def test_allocator_layout_errors_name_what_and_where():
+    with pytest.raises(AllocationError, match=r'^azimuth layout is empty: cannot produce surge, '
+                                              r'sway, yaw$'):
+        AzimuthAllocator([])
+    # A half turn of travel is the least allowed (accepted above); 1 mrad less is refused,
+    # naming the azimuth, the parameter and the travel it has.
+    short = saucer_specs(angle_min=-HALF + 1e-3, angle_max=HALF)
+    with pytest.raises(ConfigurationError, match=r"^azimuth 'az0': angle_max - angle_min must "
+                                                 r'be >= pi rad \(180 deg\) for the allocator, '
+                                                 r'got 3\.1406 rad$') as info:
+        AzimuthAllocator(short)
+    assert info.value.parameter == 'angle_min'
+    with pytest.raises(ConfigurationError, match=r'per azimuth') as info:
+        AzimuthAllocator(saucer_specs(), weights=[1.0, 1.0])
+    assert info.value.parameter == 'weights'
+
+
+def test_allocator_exposes_its_matrices_read_only():
+    # B_ext by hand (columns [1, 0, -y_i] and [0, 1, x_i] per azimuth), B_pinv its right
+    # inverse, unit weights; none of them can be changed behind the allocator's back.
+    alloc = AzimuthAllocator(saucer_specs())
+    np.testing.assert_array_equal(alloc.positions, POS)
+    B = np.zeros((3, 6))
+    for i, (x, y) in enumerate(POS):
+        B[:, 2 * i] = (1.0, 0.0, -y)
+        B[:, 2 * i + 1] = (0.0, 1.0, x)
+    np.testing.assert_allclose(alloc.B_ext, B, atol=1e-15)
+    np.testing.assert_allclose(alloc.B_ext @ alloc.B_pinv, np.eye(3), atol=1e-12)
+    np.testing.assert_array_equal(alloc.weights, np.ones(3))
+    for a in (alloc.positions, alloc.B_ext, alloc.B_pinv, alloc.weights):
+        with pytest.raises(ValueError, match='read-only'):
+            a[0] = 1.0

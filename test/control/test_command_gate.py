@@ -33,8 +33,10 @@ def gate() -> CommandGate:
 # -- failsafe latency ------------------------------------------------------------------------
 
 def test_no_goal_before_the_first_command(gate):
+    # The goal is public: before any command it is already six zeros, not a placeholder.
+    np.testing.assert_array_equal(gate.goal, np.zeros(6))
     assert gate.failsafe(T0)
-    assert not np.any(gate.current_goal(T0))
+    np.testing.assert_array_equal(gate.current_goal(T0), np.zeros(6))
 
 
 @pytest.mark.parametrize('eps_ns', [1, 1_000_000])
@@ -143,6 +145,17 @@ def test_linear_and_angular_limits_are_apart(gate):
 
 
 @pytest.mark.parametrize('index', range(6))
+def test_each_component_has_its_own_kinds_limit_either_way_round(index):
+    # With the angular limit above the linear one (0.5 m/s, 1.0 rad/s), 0.8 is a valid rate
+    # and an invalid speed: u, v, w go by max_linear only and p, q, r by max_angular only
+    # (with SETTINGS the angular limit is the smaller one, so a rate judged by both passed).
+    gate = CommandGate(GateSettings(max_linear=0.5, max_angular=1.0))
+    verdict = Verdict.OUT_OF_RANGE if index < 3 else Verdict.ACCEPTED
+    assert gate.check(_one(index, 0.8), T0, T0) is verdict
+    assert gate.check(_one(index, -0.8), T0, T0) is verdict
+
+
+@pytest.mark.parametrize('index', range(6))
 @pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf])
 def test_non_finite_components_are_refused(gate, index, bad):
     assert gate.offer(_one(index, bad), T0, T0) is Verdict.NON_FINITE
@@ -162,6 +175,15 @@ def test_the_verdict_order_is_non_finite_range_stale_future(gate):
     assert gate.check(np.array([math.nan, 5.0, 0, 0, 0, 0]), T0 - S, T0) is Verdict.NON_FINITE
     assert gate.check(_one(0, 5.0), T0 - S, T0) is Verdict.OUT_OF_RANGE
     assert gate.check(_one(0, 0.5), T0 - S, T0) is Verdict.STALE
+
+
+def test_the_goal_is_float_whatever_the_caller_passes():
+    # A caller may build its command from integers (a button mapping): the goal is still the
+    # float64 array its type promises, so a later fractional update cannot be truncated.
+    gate = CommandGate(GateSettings(max_linear=1.0))
+    assert gate.offer([0, 1, 0, 0, 0, 0], T0, T0) is Verdict.ACCEPTED
+    assert gate.goal.dtype == np.float64
+    np.testing.assert_array_equal(gate.goal, [0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
 
 
 def test_the_goal_is_a_copy_of_the_command(gate):

@@ -566,3 +566,49 @@ def test_bumpless_excess_bleeds_off_with_time_constant_gain_ramp_time():
     for _ in range(10):
         out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
     assert out.tau[0] == pytest.approx(5.0 * math.exp(-0.5), rel=1e-12)
+
+
+def test_masked_integral_decays_with_time_constant_gain_ramp_time():
+    """The bleed of a masked DOF against its closed form I_n = I_0 e^(-n dt / T), with T = 2 s
+    (at T = 1 s the mutants e^(-dt T) and e^(-dt / T) agree; cutting it at once, decay 0, also
+    passed the 5 T check above). The entry integral is inside integral_limit, so no clamp acts.
+    """
+    T, dt, n = 2.0, 0.02, 50
+    ctrl = DpController(settings(gain_ramp_time=T))
+    ref = Reference(eta_d=np.zeros(3), nu_d=np.zeros(3), nu_d_dot=np.zeros(3),
+                    position_mask=(False, False, True))
+    ctrl.reset(tau_now=(0.1, -0.05, 0.0))
+    first = ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, dt)
+    np.testing.assert_allclose(first.integral, (-0.1, 0.05, 0.0), atol=1e-15)  # tau = -I
+    for _ in range(n):
+        ctrl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, dt)
+    np.testing.assert_allclose(ctrl.integral[:2], np.array([-0.1, 0.05]) * math.exp(-n * dt / T),
+                               rtol=1e-12)
+
+
+def test_a_bumpless_entry_inside_the_limits_allows_no_excess():
+    """Only an entry integral beyond integral_limit gets a bleeding allowance; one inside it
+    leaves the clamp at integral_limit from the next step on (hand numbers as in the plain
+    reset test above: Ki e dt is larger than each limit).
+    """
+    s = settings(Ki=(10.0, 10.0, 10.0), integral_limit=(0.2, 0.2, 0.02),
+                 tau_max=(math.inf, math.inf, math.inf))
+    ctl = DpController(s)
+    ref = hold(np.zeros(3))
+    ctl.reset([0.05, -0.05, 0.005])     # entry integral -tau_now: inside every limit
+    ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, 0.1)
+    out = ctl.step(np.array([1.0, -1.0, 0.5]), np.zeros(3), np.zeros(3), ref, 0.1)
+    np.testing.assert_allclose(out.integral, [0.2, -0.2, 0.02], rtol=1e-12)
+
+
+@pytest.mark.parametrize('on', [True, False])
+def test_bias_feedforward_is_minus_r_transpose_b_hat_only_when_on(on):
+    """At rest on the setpoint with heading pi/2, b_hat = (0.4, -0.3, 0.03) world: the
+    feed-forward is -R^T b_hat = -(b_y, -b_x, b_n) = (0.3, 0.4, -0.03) when on, and zero when
+    off (the station-keeping tests only showed that off still converges).
+    """
+    ctl = DpController(settings(bias_feedforward=on))
+    eta = np.array([1.0, 2.0, math.pi / 2])
+    out = ctl.step(eta, np.zeros(3), np.array([0.4, -0.3, 0.03]), hold(eta), DT)
+    want = np.array([0.3, 0.4, -0.03]) if on else np.zeros(3)
+    np.testing.assert_allclose(out.tau_ff, want, atol=1e-15)

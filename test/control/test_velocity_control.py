@@ -613,3 +613,83 @@ def test_coriolis_feed_forward_is_fossens_c_of_the_diagonal_inertia():
     f = coriolis_force(np.array([17.0, 24.2, 26.07, 0.28, 0.28, 0.28]),
                        np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.3]))
     np.testing.assert_allclose(f, [0.0, 17.0 * 0.3 * 0.3, 0.0, 0.0, 0.0, 0.0], atol=1e-12)
+
+
+# --- survivors of mutation testing (docs/testing.md): each pins one line of step() ----------
+
+
+def test_step_adds_the_coriolis_feed_forward_with_its_sign():
+    # coriolis_force itself is checked above; here the controller must ADD it: holding a turn
+    # at u = 0.3 m/s, r = 0.3 rad/s needs Y = +M_u u r = +1.53 N (Fossen: M nu_dot + C nu = tau),
+    # with every gain and the damping zero so the feed-forward is all there is.
+    inertia = (17.0, 24.2, 26.07, 0.28, 0.28, 0.28)
+    zero = six(0.0)
+    nu_d = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.3])
+    ctrl = VelocityController(settings(kp=zero, ki=zero, inertia=inertia))
+    out = ctrl.step(nu_d, nu_d, DT)
+    np.testing.assert_allclose(out.tau_ff, [0.0, 17.0 * 0.09, 0.0, 0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out.tau, out.tau_ff, atol=1e-12)
+    off = VelocityController(settings(kp=zero, ki=zero, inertia=inertia, coriolis=False))
+    np.testing.assert_array_equal(off.step(nu_d, nu_d, DT).tau_ff, 0.0)
+
+
+def test_with_an_unmeasured_dof_the_others_keep_their_integral_with_its_sign():
+    # r is not measured (NaN): its integral is held at 0 and its output is feed-forward only;
+    # u..q integrate k_i e dt per step (k_p = 0): after n steps I = n k_i e dt and tau = +I.
+    ki, n = 2.0, 10
+    ctrl = VelocityController(settings(kp=six(0.0), ki=six(ki)))
+    nu = np.array([0.0, 0.0, 0.0, 0.0, 0.0, math.nan])
+    for _ in range(n):
+        out = ctrl.step(six(0.5), nu, DT)
+    want = np.array([n * ki * 0.5 * DT] * 5 + [0.0])
+    np.testing.assert_allclose(out.integral, want, rtol=1e-12)
+    np.testing.assert_allclose(out.tau, want, rtol=1e-12)
+
+
+def test_a_saturating_p_term_freezes_the_integral_even_for_a_small_error():
+    # k_p e = 10 x 0.05 = 0.5 > tau_max = 0.2 in the direction e pushes: the integral is held
+    # at 0, however small e u is (0.025 here; the existing test has e u = 250).
+    ctrl = VelocityController(settings(kp=six(10.0), ki=six(1.0), tau_max=six(0.2)))
+    for _ in range(10):
+        out = ctrl.step(six(0.05), six(0.0), DT)
+        np.testing.assert_array_equal(out.integral, 0.0)
+        assert out.saturated.all()
+
+
+def test_an_output_driven_exactly_to_tau_max_is_not_saturated():
+    # Conditional integration stops the integral exactly at tau_max (u == tau_max): like a
+    # thruster exactly at its limit, that output is not reported as saturated (|u| > tau_max).
+    ctrl = VelocityController(settings(tau_max=six(1.0), kp=six(0.0), ki=six(1.0)))
+    for _ in range(101):
+        out = ctrl.step(six(5.0), six(0.0), DT)
+    np.testing.assert_array_equal(out.tau, 1.0)
+    assert not out.saturated.any()
+
+
+def test_leveling_with_a_unit_gain_and_its_neutral_default_attitude():
+    # k_lvl = 1: p_r = p_d - phi, q_r = q_d - theta (a gain of exactly 1 must not switch it
+    # off); without roll/pitch given the attitude is taken as level (no correction).
+    kp = np.asarray(settings().kp)
+    ctrl = VelocityController(settings(level_gain=1.0, ki=six(0.0)))
+    tau = ctrl.step(np.zeros(6), np.zeros(6), DT, roll=0.3, pitch=-0.2).tau
+    np.testing.assert_allclose(tau, kp * np.array([0, 0, 0, -0.3, 0.2, 0]), rtol=1e-12)
+    ctrl = VelocityController(settings(level_gain=1.0, ki=six(0.0)))
+    np.testing.assert_array_equal(ctrl.step(np.zeros(6), np.zeros(6), DT).tau, 0.0)
+
+
+@pytest.mark.parametrize('roll,pitch', [(math.nan, 0.0), (0.0, math.nan), (math.inf, 0.0)])
+def test_either_non_finite_attitude_angle_is_refused(roll, pitch):
+    ctrl = VelocityController(settings(level_gain=1.0))
+    with pytest.raises(ValueError, match=r'^roll and pitch must be finite'):
+        ctrl.step(np.zeros(6), np.zeros(6), DT, roll=roll, pitch=pitch)
+
+
+def test_input_errors_start_with_the_argument_name():
+    # Anchored: a message that merely contains the name somewhere (or a mangled name) fails.
+    ctrl = VelocityController(settings())
+    with pytest.raises(ValueError, match=r'^nu_d: '):
+        ctrl.step(np.zeros(5), np.zeros(6), DT)
+    with pytest.raises(ValueError, match=r'^nu: '):
+        ctrl.step(np.zeros(6), np.zeros(5), DT)
+    with pytest.raises(ValueError, match=r'^nu_d_dot: '):
+        ctrl.step(np.zeros(6), np.zeros(6), DT, nu_d_dot=np.zeros(5))

@@ -450,3 +450,48 @@ def test_model_conserves_energy_and_impulse_of_a_free_body():
     # The body really turned (the Munk moment changes r as u and v trade places).
     eta_end = run[-1][0]
     assert abs(eta_end[2] - 2.9) > 0.5
+
+
+def test_reinitialization_velocity_is_the_finite_difference_of_the_far_poses():
+    """Hand numbers (mutation-testing survivors: the span, the sign of R^T, age and count).
+
+    From rest at the origin the observer sees a vessel 5 m away moving at a world velocity
+    (0.2, -0.1) m/s and turning at 0.05 rad/s, poses every dt = 0.125 s (exact in binary). The
+    first far pose starts the evidence; after stale_after = 0.5 s (4 more poses) eta_hat is
+    the pose and nu_hat the finite difference over that 0.5 s, in the body frame. The body
+    velocity is checked by invariants, not by a rotation written again: its length is the
+    world speed and its direction plus the heading is the world course.
+    """
+    dt, v_world, r = 0.125, np.array([0.2, -0.1]), 0.05
+    obs = PassiveObserver(dataclasses.replace(observer_settings(), stale_after=0.5))
+
+    def pose(t):
+        return (5.0 + v_world[0] * t, 3.0 + v_world[1] * t, 1.0 + r * t)
+
+    for round_ in (1, 2):
+        obs.initialize((0.0, 0.0, 0.0))
+        for k in range(5):
+            est = obs.step(pose(k * dt), (0.0, 0.0, 0.0), dt)
+            assert est.reinitialized is (k == 4), k
+        assert obs.reinitializations == round_
+        np.testing.assert_allclose(est.eta_hat, pose(0.5), rtol=1e-12)
+        u, v, r_hat = est.nu_hat
+        assert math.hypot(u, v) == pytest.approx(math.hypot(*v_world), rel=1e-9)
+        course = math.atan2(v_world[1], v_world[0])
+        assert wrap(math.atan2(v, u) + est.eta_hat[2] - course) == pytest.approx(0.0, abs=1e-9)
+        assert r_hat == pytest.approx(r, rel=1e-9)
+        assert est.age == 0.0 and est.accepted and not est.stale
+
+
+@pytest.mark.parametrize('axis', [0, 1])
+def test_far_poses_inconsistent_along_one_axis_never_reinitialize(axis):
+    # Outliers 5 m away that jump 6 m along one axis only (the other axis and the heading
+    # agree) are not consistent with each other: each resets the evidence, none re-initializes.
+    obs = PassiveObserver(dataclasses.replace(observer_settings(), stale_after=0.5))
+    obs.initialize((0.0, 0.0, 0.0))
+    for k in range(40):
+        far = [4.0, 4.0, 0.0]
+        far[axis] = 3.0 if k % 2 else -3.0
+        est = obs.step(far, (0.0, 0.0, 0.0), 0.125)
+        assert est.rejected_jump and not est.reinitialized
+    assert obs.reinitializations == 0

@@ -393,3 +393,17 @@ def test_actuator_layout_is_read_only_and_not_empty():
         act.positions[0, 0] = 1.0
     with pytest.raises(ConfigurationError, match='^azimuth layout is empty$'):
         AzimuthActuators([])
+
+
+@pytest.mark.parametrize('field,args', [
+    ('max_forward', dict(max_forward=math.inf)),
+    ('max_reverse', dict(max_reverse=math.inf)),
+    ('max_forward', dict(max_forward=-1.0)),
+])
+def test_azimuth_thrust_limits_must_be_finite_and_positive(field, args):
+    # An infinite thrust limit would switch saturation off for that thruster (only the servo
+    # slew rate may be infinite): refused, the message names the field and the rule.
+    kw = {**dict(max_forward=1.0, max_reverse=1.0), **args}
+    with pytest.raises(ConfigurationError, match=rf"^azimuth 'a': {field} must be a positive"):
+        AzimuthSpec('a', (0, 0), **kw)
+    assert AzimuthSpec('a', (0, 0), 1.0, 1.0, max_angle_rate=math.inf).max_angle_rate == math.inf
