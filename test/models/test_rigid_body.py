@@ -56,6 +56,15 @@ def _R_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
+def _T_zyx(phi: float, theta: float) -> np.ndarray:
+    """ZYX Euler-angle rates from body rates (valid away from theta = +-90 deg)."""
+    return np.array([
+        [1.0, math.sin(phi) * math.tan(theta), math.cos(phi) * math.tan(theta)],
+        [0.0, math.cos(phi), -math.sin(phi)],
+        [0.0, math.sin(phi) / math.cos(theta), math.cos(phi) / math.cos(theta)],
+    ])
+
+
 def reference_rhs(prm: RigidBodyParams, tau: np.ndarray):
     """dy/dt of y = [p(3), phi, theta, psi, nu(6)], written without the module under test.
 
@@ -76,12 +85,7 @@ def reference_rhs(prm: RigidBodyParams, tau: np.ndarray):
         nu = y[6:]
         v, w = nu[:3], nu[3:]
         R = _R_zyx(phi, theta, psi)
-        # ZYX Euler-angle rates (valid away from theta = +-90 deg)
-        T = np.array([
-            [1.0, math.sin(phi) * math.tan(theta), math.cos(phi) * math.tan(theta)],
-            [0.0, math.cos(phi), -math.sin(phi)],
-            [0.0, math.sin(phi) / math.cos(theta), math.cos(phi) / math.cos(theta)],
-        ])
+        T = _T_zyx(phi, theta)
         h = M @ nu
         c_nu = np.concatenate((np.cross(w, h[:3]), np.cross(w, h[3:]) + np.cross(v, h[:3])))
         d_nu = (dl + dq * np.abs(nu)) * nu
@@ -451,11 +455,7 @@ def reference_rhs_in_current(prm: RigidBodyParams, tau: np.ndarray, v_c: np.ndar
         nu = y[6:]
         v, w = nu[:3], nu[3:]
         R = _R_zyx(phi, theta, psi)
-        T = np.array([
-            [1.0, math.sin(phi) * math.tan(theta), math.cos(phi) * math.tan(theta)],
-            [0.0, math.cos(phi), -math.sin(phi)],
-            [0.0, math.sin(phi) / math.cos(theta), math.cos(phi) / math.cos(theta)],
-        ])
+        T = _T_zyx(phi, theta)
         v_cb = R.T @ v_c
         nu_r = nu - np.concatenate((v_cb, np.zeros(3)))
         shift = np.concatenate((np.cross(w, v_cb), np.zeros(3)))  # nu_r_dot - nu_dot
