@@ -166,7 +166,7 @@ class DpController:
 
         if self._ramp_T > 0.0:  # linear blend of every numeric setting
             self._ramp_t += dt
-            a = min(1.0, self._ramp_t / self._ramp_T)
+            a = self._ramp_t / self._ramp_T  # from a >= 1 on: the target itself, exactly
             self._p = [t if (a >= 1.0 or not (math.isfinite(f) and math.isfinite(t)))
                        else f + a * (t - f) for f, t in zip(self._p_from, self._p_to)]
             if a >= 1.0:

@@ -612,3 +612,44 @@ def test_bias_feedforward_is_minus_r_transpose_b_hat_only_when_on(on):
     out = ctl.step(eta, np.zeros(3), np.array([0.4, -0.3, 0.03]), hold(eta), DT)
     want = np.array([0.3, 0.4, -0.03]) if on else np.zeros(3)
     np.testing.assert_allclose(out.tau_ff, want, atol=1e-15)
+
+
+def test_gain_ramp_with_a_period_that_does_not_divide_it_ends_exactly_on_the_new_gains():
+    """Frozen inputs, Ki = 0: tau is linear in every blended setting, so after k steps of
+    dt = 0.3 s into a 2 s ramp it is before + min(1, k dt / T) (after - before): 0.15, 0.3,
+    ... 0.9 of the change, then exactly the new gains at 2.1 s (no overshoot past them).
+    """
+    s = settings(gain_ramp_time=2.0, Ki=(0.0, 0.0, 0.0), tau_max=(50.0, 50.0, 5.0))
+    new = dataclasses.replace(s, Kp=(30.0, 30.0, 4.5), Kd=(25.0, 25.0, 1.2))
+    eta, nu = np.array([0.1, -0.05, 0.1]), np.array([0.05, 0.03, -0.02])
+    b_hat, ref, dt = np.array([0.2, 0.1, 0.01]), hold(np.zeros(3)), 0.3
+    before = DpController(s).step(eta, nu, b_hat, ref, dt).tau
+    after = DpController(new).step(eta, nu, b_hat, ref, dt).tau
+    ctl = DpController(s)
+    ctl.step(eta, nu, b_hat, ref, dt)
+    ctl.settings = new
+    for k in range(1, 10):
+        tau = ctl.step(eta, nu, b_hat, ref, dt).tau
+        np.testing.assert_allclose(tau, before + min(1.0, k * dt / 2.0) * (after - before),
+                                   rtol=1e-12, atol=1e-12, err_msg=f'step {k}')
+    assert not ctl.ramping
+
+
+def test_only_the_dofs_without_a_pose_error_bleed_after_a_bumpless_entry():
+    """Mask (True, False, False): x is held by position, y and psi are not. What the entry put
+    in the integral bleeds off as e^(-t / gain_ramp_time) in y and psi only; x keeps its own
+    (zero error: Ki e dt adds nothing). Heading 0, so world and body axes agree.
+    """
+    ctl = DpController(settings(gain_ramp_time=1.0))
+    ref = Reference(eta_d=np.zeros(3), nu_d=np.zeros(3), nu_d_dot=np.zeros(3),
+                    position_mask=(True, False, False))
+    ctl.reset(tau_now=(0.4, -0.3, 0.05))
+    i0 = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, DT).integral.copy()
+    n = int(2.0 / DT)
+    for _ in range(n):
+        out = ctl.step(np.zeros(3), np.zeros(3), np.zeros(3), ref, DT)
+    assert out.integral[0] == pytest.approx(i0[0], abs=1e-12)
+    # The bleed acts on the stored integral after a step's output is formed: the n-th output
+    # after the entry step carries n - 1 decays.
+    np.testing.assert_allclose(out.integral[1:], i0[1:] * math.exp(-(n - 1) * DT / 1.0),
+                               rtol=1e-9)
