@@ -100,6 +100,24 @@ def coriolis_matrix(M: ArrayLike, nu: ArrayLike) -> Matrix:
     return C
 
 
+def coriolis_force(inertia: ArrayLike, nu: ArrayLike) -> Vector:
+    """C(nu) nu [N, N m] of a diagonal inertia ``M = diag(inertia)`` at body velocity ``nu``.
+
+    With h = M nu: [w x h_lin; w x h_ang + v x h_lin] (Fossen 2021, Thm 3.2; v = nu[:3],
+    w = nu[3:]); the same as ``coriolis_matrix(diag(inertia), nu) @ nu``, written out for a
+    control loop at 400 Hz (six products are cheaper than building C).
+    """
+    nu = np.asarray(nu, dtype=float)
+    u, v, w, p, q, r = nu.tolist()
+    hu, hv, hw, hp, hq, hr = (np.asarray(inertia, dtype=float) * nu).tolist()
+    return np.array([q * hw - r * hv,
+                     r * hu - p * hw,
+                     p * hv - q * hu,
+                     q * hr - r * hq + v * hw - w * hv,
+                     r * hp - p * hr + w * hu - u * hw,
+                     p * hq - q * hp + u * hv - v * hu])
+
+
 @dataclass(frozen=True)
 class RigidBodyParams:
     """Physical parameters of the vehicle, all about the body origin CO (FLU, SI units)."""

@@ -45,7 +45,9 @@ began.
 - ``final_position_error_m``: distance from the last waypoint at the end of the guidance
   period.
 
-Both kinds: ``modes`` (time from the start of the run, mode) and ``thrust_saturation_s``,
+**Run** (``kind: run``): no mode is judged (a test reads the bag); only the figures below.
+
+Every kind: ``modes`` (time from the start of the run, mode) and ``thrust_saturation_s``,
 the time the allocation delivered less than the controller asked. A run that never reached
 the mode it is judged in gets an ``error`` and no figures.
 

@@ -600,7 +600,7 @@ def test_reference_refuses_a_non_finite_goal_and_an_infinite_time_constant():
 
 def test_coriolis_feed_forward_is_fossens_c_of_the_diagonal_inertia():
     """Against rigid_body.coriolis_matrix (the simulator's own C(nu), Fossen Thm 3.2)."""
-    from enbarr_core.control.velocity_control import coriolis_force
+    from enbarr_core.models.rigid_body import coriolis_force
     from enbarr_core.models.rigid_body import coriolis_matrix
     rng = np.random.default_rng(7)
     for _ in range(20):
