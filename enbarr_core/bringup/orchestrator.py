@@ -264,11 +264,13 @@ def composed(profile: Profile, group: str | None = None, *,
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
               check_only: bool = False) -> int:
     """Run the nodes of ``group`` (all when None) in this process until stopped."""
+    built: list[Node] = []
     with _Stop() as stop:
         try:
             with composed(profile, group, check_only=check_only) as c:
                 if check_only:
                     return 0
+                built = c.nodes
                 c.start()
                 names = ', '.join(n.get_name() for n in c.nodes)
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
@@ -282,7 +284,23 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                     log.info('%s received, stopping', signal.Signals(stop.signal).name)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
+    # After the shutdown (a recorder's last write fails at close): what went wrong.
+    problems = node_problems(built)
+    if problems:
+        log.error('%s%s ended with %d problem(s): %s', profile.name,
+                  f' [{group}]' if group else '', len(problems), '; '.join(problems))
+        return EXIT_PROBLEMS
     return 0
+
+
+#: Exit status of a run that went to its end but with faults it reported (``report_problem``).
+EXIT_PROBLEMS = 3
+
+
+def node_problems(nodes: Sequence[Node]) -> list[str]:
+    """Every fault the nodes reported with ``report_problem``, as 'node: message'."""
+    return [f'{n.get_name()}: {p}' for n in nodes if isinstance(n, EnbarrNode)
+            for p in n.problems]
 
 
 def supervise(profile: Profile, child_args: Callable[[str], list[str]],

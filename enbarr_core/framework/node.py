@@ -158,6 +158,7 @@ class EnbarrNode(Node):
         self._loops: list[RateLoop] = []
         self._diagnostics_pub = None
         self._started = False
+        self._problems: list[str] = []
 
     # -- topics -----------------------------------------------------------------------------
     def create_topic_publisher(self, spec: TopicSpec) -> LinkPublisher | Publisher:
@@ -216,6 +217,21 @@ class EnbarrNode(Node):
 
     def safe_state(self) -> None:
         """Put this node's actuators in their safe state. Nodes with actuators override it."""
+
+    def report_problem(self, message: str) -> None:
+        """Record a fault that must fail the run (``bringup`` exits non-zero naming it).
+
+        For faults the vehicle survives but the user must hear about at the end, such as a
+        recorder that could not write its bag. Logged once per distinct message.
+        """
+        if message not in self._problems:
+            self._problems.append(message)
+            self.get_logger().error(message)
+
+    @property
+    def problems(self) -> tuple[str, ...]:
+        """The faults reported with ``report_problem``, oldest first."""
+        return tuple(self._problems)
 
     def publish_diagnostics(self, level: int, message: str, values: dict[str, Any]) -> None:
         """Publish this node's status on ``/diagnostics`` (counters, modes, faults)."""

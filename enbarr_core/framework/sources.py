@@ -1,0 +1,59 @@
+"""One command source at a time: the rule for operator command topics.
+
+Surface commands (``surface_command/*``) and the joystick (``joy``) move the vessel, so two
+publishers on one of them (a second ``bringup`` in the domain, a stray ``ros2 topic pub``, an
+operator station started twice) must never take turns at driving it. The rule is exclusive
+control: **while more than one publisher is matched on a command topic, no message from it
+is executed**; the node refuses and counts them as ``contested`` (its failsafe then stops
+the vessel: zero velocity goal, or manual with zero force), reports ERROR on ``/diagnostics``
+naming every publisher (node and namespace), and takes commands again as soon as a single
+publisher remains.
+
+Why not "the first source keeps control": rclpy (Jazzy) does not say which publisher sent a
+message (its ``MessageInfo`` has no publisher GID), so a receiver cannot keep one source's
+messages and drop another's; any such rule would guess. The DDS reader does know how many
+writers it is matched with, and asks for nothing but a counter per message, so the rule
+costs nothing and cannot be fooled by messages that look alike. Stopping is also what an
+operator wants when someone else grabs the vessel: take the other publisher down to resume.
+
+Messages that arrive before discovery has matched the second publisher (the first few
+hundred milliseconds) cannot be caught; the graph check at ``report`` rate catches the rest.
+"""
+
+from __future__ import annotations
+
+from rclpy.node import Node
+from rclpy.subscription import Subscription
+
+from enbarr_core.framework.health import ERROR
+
+
+class SourceGuard:
+    """Watches one command subscription for competing publishers (see the module doc)."""
+
+    def __init__(self, node: Node, subscription: Subscription) -> None:
+        self._node = node
+        self._sub = subscription
+        self.topic = subscription.topic_name
+        self.contested_count = 0
+
+    def contested(self) -> bool:
+        """Return True (and count it) when more than one publisher is matched right now."""
+        if self._sub.get_publisher_count() > 1:
+            self.contested_count += 1
+            return True
+        return False
+
+    def publishers(self) -> list[str]:
+        """Name the publishers of the topic in the graph ('/ns/node'), sorted."""
+        infos = self._node.get_publishers_info_by_topic(self.topic)
+        return sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos)
+
+    def status(self) -> tuple[int, str]:
+        """(level, message) for ``/diagnostics``: ERROR naming the publishers when contested."""
+        if self._sub.get_publisher_count() <= 1:
+            return 0, 'ok'
+        names = self.publishers()
+        return ERROR, (f'{self.topic} has {len(names) or "several"} publishers '
+                   f'({", ".join(names) or "not yet in the graph"}): commands from it are '
+                   'refused until one remains')
