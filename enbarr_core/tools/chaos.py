@@ -821,6 +821,11 @@ def main(args: argparse.Namespace) -> int:
     """Run the chaos profile, print the JSON line; 1 when anything was unsafe."""
     if not args.duration > 0:
         raise EnbarrError(f'--duration must be positive, got {args.duration}')
+    unknown = [f for f in args.faults.split(',') if f.strip() and f.strip() not in KINDS
+               and ':' not in f and f.strip() != 'params']
+    if unknown:
+        raise EnbarrError(f'--faults: unknown {", ".join(unknown)}; kinds: {", ".join(KINDS)} '
+                          '(or a fault name such as future+20s:imu/data_raw)')
     if args.out:
         out = Path(args.out)
         if out.exists():
