@@ -7,8 +7,8 @@ observer, guidance, controllers, allocation, PWM mapping) go to group ``control`
 gets its own. The split is what lets injection reach the nodes: a fast topic travels the
 in-process link bus, and an outside publisher reaches a link subscription only when no
 publisher of that topic lives in the subscriber's process (``enbarr_interfaces.links``).
-The operator stand-in is given a steady command (drive ahead) so that the actuators are
-busy when a fault comes.
+The operator stand-in is given a steady command (an ROV drives ahead, a surface vessel holds
+its pose in automatic) so that the actuators are busy when a fault comes.
 
 Faults (``--faults`` selects kinds or names), each judged by ``chaos_judge`` from what a
 subscriber in this process and the bag observe:
@@ -24,7 +24,7 @@ subscriber in this process and the bag observe:
     A second publisher on every command topic the profile has (``surface_command/twist``,
     ``surface_command/io``, ``joy``), sending a distinctive command for the window. Safe:
     control not disrupted and the intruder's command never executed (never the velocity
-    goal, never an io request, never a mode change).
+    goal, never an io request, never a mode change: the joystick intruder presses manual).
 ``params``
     A parameter storm: for every node, ``SetParameters`` calls as ``ros2 param set`` makes
     them (one parameter per call, all at once): each parameter set to its own value
@@ -81,8 +81,11 @@ CONTROL_GROUP = 'control'
 #: The operator stand-ins' steady command during a chaos run (a busy vehicle).
 STEADY_SCRIPTS = {
     'scripted_commands': ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0', '0.5 io gpio_12 false'],
-    'scripted_joy': ['0.0 sticks 0.6 0.0 0.0'],
+    # Then the automatic button (hold the pose): the observer's estimate is in the loop.
+    'scripted_joy': ['0.0 sticks 0.0 0.0 0.0'],
 }
+JOY_PRESS_EVERY_S = 3
+JOY_SCRIPT_S = 1200
 KINDS = ('stamps', 'compete', 'params', 'sigstop', 'sigkill', 'disk', 'supervisor')
 #: Stamp offsets injected on every stamped input [s]: far future, just beyond a tolerance,
 #: older than the last accepted sample.
@@ -129,16 +132,24 @@ def write_split_profile(ref: str, out: Path) -> Plan:
         raise EnbarrError(f'{prof.path}: chaos needs core nodes ({core}) and plugins beside '
                           'them to split the profile')
     nodes: dict[str, Any] = {n: {'group': CONTROL_GROUP} for n in control}
+    buttons = {k.split('.', 1)[1]: v for k, v in prof.parameters.items()
+               if k.startswith('joy.') and isinstance(v, int)}
     for n in prof.nodes:
         if n.plugin in STEADY_SCRIPTS:
-            nodes[n.name] = {'parameters': {'script': STEADY_SCRIPTS[n.plugin]}}
+            script = list(STEADY_SCRIPTS[n.plugin])
+            names = n.parameters.get('joy.buttons', ())
+            auto = buttons.get('button_automatic')
+            if n.plugin == 'scripted_joy' and auto is not None and auto < len(names):
+                # Pressed again every few seconds: a control group restarted after a fault
+                # starts in manual, and the run goes on in automatic.
+                script += [f'{t:.1f} press {names[auto]}'
+                           for t in range(1, JOY_SCRIPT_S, JOY_PRESS_EVERY_S)]
+            nodes[n.name] = {'parameters': {'script': script}}
     doc = {'profile': f'chaos_{prof.name}', 'description': f'{prof.name} split for chaos',
            'include': [str(Path(prof.path).resolve())], 'nodes': nodes,
            'groups': {CONTROL_GROUP: {'restart_limit': 50, 'restart_delay': 0.2}}}
     path = out / 'chaos.yaml'
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    buttons = {k.split('.', 1)[1]: v for k, v in prof.parameters.items()
-               if k.startswith('joy.') and isinstance(v, int)}
     return Plan(path, frozenset(control), buttons)
 
 
@@ -393,6 +404,7 @@ class Chaos:
         self.outputs: list[str] = []
         self.bags: list[Path] = []
         self.tree: Tree | None = None
+        self.broken = False  # control did not come back: the remaining faults are skipped
         self.obs: Observer | None = None
 
     def wanted(self, kind: str, name: str = '') -> bool:
@@ -424,7 +436,8 @@ class Chaos:
             if not self.obs.wait_busy(STARTUP_TIMEOUT):
                 raise EnbarrError(f'control never drove the actuators; see {self.tree.log_path}')
             for fault in self.faults():
-                if not self.settle():
+                if self.broken or not self.settle():
+                    self.broken = True
                     self.verdicts.append(judge.skipped(fault.name, '', 'control did not '
                                                        'recover from the previous fault'))
                     continue
@@ -432,7 +445,7 @@ class Chaos:
                 self.verdicts.append(verdict)
                 self._say(verdict)
                 supervisor_killed = supervisor_killed or fault.kind == 'supervisor'
-            if not supervisor_killed:
+            if not supervisor_killed and not self.broken:
                 self.settle()  # a restarted group is not stopped while it still starts
         finally:
             if not supervisor_killed:
@@ -511,7 +524,7 @@ class Chaos:
             msg.header.frame_id = template.header.frame_id
             msg.axes = [0.0] * len(template.axes)
             msg.buttons = [0] * len(template.buttons)
-            press = self.plan.joy_buttons.get('button_automatic')
+            press = self.plan.joy_buttons.get('button_manual')
             if press is not None and press < len(msg.buttons):
                 msg.buttons[press] = 1
             surge = self.plan.joy_buttons.get('axis_surge')

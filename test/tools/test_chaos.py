@@ -142,6 +142,9 @@ def test_split_profile_of_the_saucer_knows_its_buttons(tmp_path: Path) -> None:
     plan = chaos.write_split_profile('saucer_sim', tmp_path)
     assert {'observer', 'dp_control', 'pwm'} <= plan.control_nodes
     assert plan.joy_buttons['button_automatic'] == 2
+    # It holds its pose in automatic (the profile's name of button 2), the observer in the loop.
+    script = load_profile(str(plan.path)).node('joystick').parameters['script']
+    assert script[:3] == ['0.0 sticks 0.0 0.0 0.0', '1.0 press triangle', '4.0 press triangle']
 
 
 def test_profile_without_plugins_is_refused(tmp_path: Path) -> None:
