@@ -84,6 +84,8 @@ STEADY_SCRIPTS = {
     # Then the automatic button (hold the pose): the observer's estimate is in the loop.
     'scripted_joy': ['0.0 sticks 0.0 0.0 0.0'],
 }
+#: Operator command topics: an injection there is also a second source (see chaos_judge).
+COMMAND_TOPICS = ('surface_command/twist', 'surface_command/io', 'joy')
 JOY_PRESS_EVERY_S = 3
 JOY_SCRIPT_S = 1200
 KINDS = ('stamps', 'compete', 'params', 'sigstop', 'sigkill', 'disk', 'supervisor')
@@ -352,7 +354,7 @@ class Observer:
     def command_topics(self, control_nodes: frozenset[str]) -> list[str]:
         """Name the operator command topics a control node subscribes to, someone publishes."""
         found = []
-        for name in ('surface_command/twist', 'surface_command/io', 'joy'):
+        for name in COMMAND_TOPICS:
             subs = self.node.get_subscriptions_info_by_topic('/' + name)
             if any(s.node_name in control_nodes for s in subs) and \
                     self.node.count_publishers('/' + name) > 0:
@@ -575,7 +577,8 @@ class Chaos:
             if msg is not template else 0
         return judge.judge_kept(name, list(self.obs.control), list(self.obs.actuators),
                                 start, end, executed=executed,
-                                executed_what='commands with that stamp executed')
+                                executed_what='commands with that stamp executed',
+                                allow_neutral=topic in COMMAND_TOPICS)
 
     def compete(self, name: str, topic: str) -> Verdict:
         """Publish on command ``topic`` as a second source; its commands must not act."""
@@ -602,7 +605,7 @@ class Chaos:
         return judge.judge_kept(name, list(self.obs.control), list(self.obs.actuators),
                                 start, end, executed=executed,
                                 executed_what="of the intruder's commands executed",
-                                figures={'sent': sent})
+                                allow_neutral=True, figures={'sent': sent})
 
     def param_storm(self, name: str) -> Verdict:
         """Many SetParameters calls, valid and invalid, on every node; control must hold."""

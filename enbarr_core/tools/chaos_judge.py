@@ -16,6 +16,9 @@ Two kinds of fault, two safe outcomes:
   ``CONTROL_GAP_S`` (the thruster plugin's command timeout), the actuators are never put
   neutral meanwhile, and nothing the bad input carried was executed (counted by the runner:
   an intruder's command reaching the goal, an invalid parameter value accepted, ...).
+  On an operator command topic (``surface_command/*``, ``joy``) any injection is a second
+  publisher, which the single-source rule answers by refusing both: there the safe state is
+  allowed, and only executing the injected command fails.
 """
 
 from __future__ import annotations
@@ -97,19 +100,22 @@ def judge_removal(fault: str, outputs: Sequence[tuple[int, bool]], fault_ns: int
 def judge_kept(fault: str, control_times: Sequence[int],
                outputs: Sequence[tuple[int, bool]], start_ns: int, end_ns: int,
                *, executed: int = 0, executed_what: str = 'bad inputs executed',
-               gap_limit_s: float = CONTROL_GAP_S,
+               gap_limit_s: float = CONTROL_GAP_S, allow_neutral: bool = False,
                figures: dict[str, Any] | None = None) -> Verdict:
     """Judge a bad input: control kept over ``start_ns .. end_ns``, nothing of it executed.
 
     ``control_times`` are receive times of the control output, ``outputs`` the actuator
     outputs ``(stamp ns, neutral)``; ``executed`` counts what the bad input made happen.
+    ``allow_neutral``: the actuators may go neutral (a command topic with a second publisher
+    is contested: refusing every source, hence the operator's command lost and the safe
+    state, is a safe answer; executing the intruder's command is not).
     """
     gap = max_gap(control_times, start_ns, end_ns)
     neutral = [t for t, n in outputs if n and start_ns <= t <= end_ns]
     problems = []
     if gap > gap_limit_s:
         problems.append(f'control output paused {gap:.3f} s (> {gap_limit_s} s)')
-    if neutral:
+    if neutral and not allow_neutral:
         problems.append(f'actuators put neutral {(neutral[0] - start_ns) * 1e-9:.3f} s '
                         'after the fault')
     if executed:

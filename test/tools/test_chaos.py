@@ -87,6 +87,16 @@ def test_neutral_actuators_fail_a_bad_input() -> None:
     assert not v.passed and 'neutral' in v.detail
 
 
+def test_safe_state_is_allowed_on_a_contested_command_topic() -> None:
+    # Two sources on joy: refusing both (joystick lost -> zero force) is safe ...
+    obs = outputs([0.2, 0.4], 0.2)
+    assert judge.judge_kept('compete:joy', steady(-1, 3), obs, T0, T0 + 2 * S,
+                            allow_neutral=True).passed
+    # ... executing the intruder is not.
+    assert not judge.judge_kept('compete:joy', steady(-1, 3), obs, T0, T0 + 2 * S,
+                                executed=1, allow_neutral=True).passed
+
+
 def test_executed_intruder_fails() -> None:
     v = judge.judge_kept('compete:surface_command/twist', steady(-1, 3), [], T0, T0 + 2 * S,
                          executed=3, executed_what="of the intruder's commands executed")
@@ -144,7 +154,8 @@ def test_split_profile_of_the_saucer_knows_its_buttons(tmp_path: Path) -> None:
     assert plan.joy_buttons['button_automatic'] == 2
     # It holds its pose in automatic (the profile's name of button 2), the observer in the loop.
     script = load_profile(str(plan.path)).node('joystick').parameters['script']
-    assert script[:3] == ['0.0 sticks 0.0 0.0 0.0', '1.0 press triangle', '4.0 press triangle']
+    assert script[:3] == ['0.0 sticks 0.0 0.0 0.0', '1.0 press triangle',
+                          '4.0 press triangle']
 
 
 def test_profile_without_plugins_is_refused(tmp_path: Path) -> None:
