@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import json
 import math
 import os
@@ -99,6 +99,7 @@ RSS_GROWTH_LIMIT_MB = 3.0       # recorder memory growth allowed while the disk 
 RSS_SETTLE_S = 2.0              # ... counted from this long after the disk filled
 STARTUP_TIMEOUT = 90.0          # s, a split profile coming up on a loaded machine
 RECOVERY_TIMEOUT = 5.0          # s, control back after a bad input, before a reset
+RESET_TIMEOUT = 45.0            # s, control back after that reset
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -481,18 +482,32 @@ class Chaos:
         return faults
 
     def settle(self) -> bool:
-        """Wait for control to drive again; reset the control group if it does not."""
+        """Wait for control to drive again; reset the control group if it does not.
+
+        How long that took is added to the previous fault's figures (``recovered_after_s``,
+        and ``reset`` when the control group had to be restarted).
+        """
         assert self.obs is not None and self.tree is not None
-        if self.obs.wait_busy(RECOVERY_TIMEOUT):
-            return True
-        pid = self.tree.group_pid(CONTROL_GROUP)
-        if pid is not None and _alive(pid):
-            os.kill(pid, signal.SIGKILL)
-        try:
-            self.tree.wait_group(CONTROL_GROUP, 30.0, other_than=pid)
-        except EnbarrError:
-            return False
-        return self.obs.wait_busy(30.0)
+        t0 = time.monotonic()
+        ok, reset = self.obs.wait_busy(RECOVERY_TIMEOUT), False
+        if not ok:
+            reset = True
+            pid = self.tree.group_pid(CONTROL_GROUP)
+            if pid is not None and _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+            try:
+                self.tree.wait_group(CONTROL_GROUP, 30.0, other_than=pid)
+                ok = self.obs.wait_busy(RESET_TIMEOUT)
+            except EnbarrError:
+                ok = False
+        if self.verdicts:
+            v = self.verdicts[-1]
+            figures = {**v.figures, 'recovered_after_s': round(time.monotonic() - t0, 1)
+                       if ok else None}
+            if reset:
+                figures['reset'] = True
+            self.verdicts[-1] = replace(v, figures=figures)
+        return ok
 
     def _observe(self, seconds: float) -> tuple[int, int]:
         start = time.time_ns()
