@@ -704,6 +704,7 @@ class Chaos:
         except EnbarrError as err:
             return Verdict(v.fault, v.expected, False, v.time_to_safe_s,
                            f'{v.detail}; not restarted: {err}')
+        self.obs.wait_busy(RESET_TIMEOUT)  # a restart takes seconds here: not a failed one
         return v
 
     def kill_supervisor(self, name: str) -> Verdict:
