@@ -84,6 +84,8 @@ STEADY_SCRIPTS = {
     # Then the automatic button (hold the pose): the observer's estimate is in the loop.
     'scripted_joy': ['0.0 sticks 0.0 0.0 0.0'],
 }
+#: A driver's log line saying its outputs went neutral: ``[WARN] [<wall s>] [node]: ...``.
+NEUTRAL_LOG = re.compile(r'^\[WARN\] \[(\d+\.\d+)\] \[[^\]]+\]: [^\n]*neutral', re.MULTILINE)
 #: Operator command topics: an injection there is also a second source (see chaos_judge).
 COMMAND_TOPICS = ('surface_command/twist', 'surface_command/io', 'joy')
 JOY_PRESS_EVERY_S = 3
@@ -689,7 +691,7 @@ class Chaos:
         os.kill(pid, signal.SIGSTOP)
         time.sleep(max(1.0, self.window))
         os.kill(pid, signal.SIGCONT)
-        return judge.judge_removal(name, list(self.obs.actuators), fault)
+        return judge.judge_removal(name, self._neutral_events(), fault)
 
     def sigkill(self, name: str) -> Verdict:
         """SIGKILL the control group (the supervisor restarts it): neutral within 0.5 s."""
@@ -698,7 +700,7 @@ class Chaos:
         fault = time.time_ns()
         os.kill(pid, signal.SIGKILL)
         time.sleep(max(1.0, self.window))
-        v = judge.judge_removal(name, list(self.obs.actuators), fault)
+        v = judge.judge_removal(name, self._neutral_events(), fault)
         try:
             self.tree.wait_group(CONTROL_GROUP, 30.0, other_than=pid)
         except EnbarrError as err:
@@ -706,6 +708,16 @@ class Chaos:
                            f'{v.detail}; not restarted: {err}')
         self.obs.wait_busy(RESET_TIMEOUT)  # a restart takes seconds here: not a failed one
         return v
+
+    def _neutral_events(self) -> list[tuple[int, bool]]:
+        """Actuator outputs seen, plus the drivers' own 'neutral' log lines (their stamps).
+
+        A driver that goes neutral publishes its output once; over best-effort DDS to a busy
+        observer that one message can be lost, while the driver's log line is not.
+        """
+        assert self.obs is not None and self.tree is not None
+        logged = [(int(float(t) * 1e9), True) for t in NEUTRAL_LOG.findall(self.tree.text)]
+        return sorted([*self.obs.actuators, *logged])
 
     def kill_supervisor(self, name: str) -> Verdict:
         """SIGKILL the supervisor (children stop through PDEATHSIG): neutral within 0.5 s."""

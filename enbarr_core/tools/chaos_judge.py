@@ -137,7 +137,11 @@ def count_tracebacks(text: str) -> int:
 
 def summary(verdicts: Sequence[Verdict], tracebacks: int, bags_readable: int,
             bags: int) -> dict[str, Any]:
-    """Return the one JSON line of a chaos run."""
+    """Return the one JSON line of a chaos run.
+
+    ``safe_within_0_5s`` counts the injected faults that ended safe: neutral within 0.5 s
+    for those that remove control, control kept for bad inputs.
+    """
     injected = [v for v in verdicts if not v.figures.get('skipped')]
     return {
         'faults_injected': len(injected),

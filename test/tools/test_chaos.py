@@ -179,3 +179,10 @@ def test_existing_out_directory_is_refused(tmp_path: Path) -> None:
                               json=True)
     with pytest.raises(EnbarrError, match='exists'):
         chaos.main(args)
+
+
+def test_a_drivers_neutral_log_line_is_an_observation() -> None:
+    log = ('[INFO] [1795376177.2] [dp_control]: mode automatic -> manual (neutral stick)\n'
+           '[WARN] [1795376177.885158580] [arduino]: PWM input stopped: outputs neutral\n'
+           '[ERROR] [enbarr.bringup]: group control died (signal SIGKILL); restart 2 of 50\n')
+    assert chaos.NEUTRAL_LOG.findall(log) == ['1795376177.885158580']
