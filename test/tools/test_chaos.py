@@ -164,7 +164,7 @@ def test_profile_without_plugins_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize('argv, message', [
-    (['--faults', 'sigkil'], "--faults: unknown sigkil; kinds: stamps"),
+    (['--faults', 'sigkil'], '--faults: unknown sigkil; kinds: stamps'),
     (['--duration', '0'], '--duration must be positive'),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(argv: list[str], message: str,
