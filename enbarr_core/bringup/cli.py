@@ -104,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                        f'Scenarios (params/scenarios/): {", ".join(known_scenarios())}.')
     scenario_arguments(p)
     p.set_defaults(func=_scenario)
+    __import__('enbarr_core.tools.chaos', fromlist=['register']).register(sub)
     p = sub.add_parser('list', help='list known nodes or installed profiles')
     p.add_argument('what', choices=('nodes', 'profiles'))
     p.set_defaults(func=_list)

@@ -1,0 +1,188 @@
+"""``enbarr chaos``: the judging rules on synthetic observations (they pass a safe outcome and
+fail each unsafe one), the split profile a run is built on, and the command line's refusals.
+The real run is in test/e2e/test_chaos.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from enbarr_core.bringup.cli import main as enbarr_main
+from enbarr_core.bringup.profile import load_profile
+from enbarr_core.framework.errors import EnbarrError
+from enbarr_core.tools import chaos
+from enbarr_core.tools import chaos_judge as judge
+
+S = 1_000_000_000   # ns per s
+T0 = 100 * S        # the fault
+
+
+def steady(start_s: float, end_s: float, rate: float = 100.0) -> list[int]:
+    """Receive times of a control output at ``rate`` from ``start_s`` to ``end_s``."""
+    n = int(round((end_s - start_s) * rate))
+    return [T0 + int((start_s + i / rate) * S) for i in range(n + 1)]
+
+
+def outputs(times_s: list[float], neutral_from_s: float | None = None) -> list[tuple[int, bool]]:
+    return [(T0 + int(t * S), neutral_from_s is not None and t >= neutral_from_s)
+            for t in times_s]
+
+
+# -- removal faults: actuators neutral within 0.5 s -------------------------------------------
+def test_neutral_in_time_passes_with_its_time() -> None:
+    v = judge.judge_removal('sigkill:control', outputs([-0.1, 0.1, 0.3, 0.4], 0.3), T0)
+    assert v.passed and v.time_to_safe_s == pytest.approx(0.3)
+    assert v.expected == judge.REMOVES_CONTROL
+
+
+def test_neutral_too_late_fails() -> None:
+    v = judge.judge_removal('sigkill:control', outputs([0.1, 0.3, 0.7], 0.7), T0)
+    assert not v.passed and v.time_to_safe_s == pytest.approx(0.7)
+    assert '> 0.5 s' in v.detail
+
+
+def test_no_neutral_output_fails() -> None:
+    v = judge.judge_removal('sigstop:control', outputs([0.1, 0.2, 1.0]), T0)
+    assert not v.passed and v.time_to_safe_s is None
+
+
+def test_neutral_before_the_fault_does_not_count() -> None:
+    # Neutral at -0.2 s (say the operator stopped), driving again, then nothing neutral.
+    obs = [(T0 - int(0.2 * S), True), (T0 - int(0.1 * S), False), (T0 + int(0.2 * S), False)]
+    assert judge.time_to_neutral(obs, T0) is None
+    assert not judge.judge_removal('sigkill:supervisor', obs, T0).passed
+
+
+def test_extra_condition_fails_an_in_time_neutral() -> None:
+    v = judge.judge_removal('sigkill:supervisor', outputs([0.1], 0.1), T0,
+                            extra='last recorded actuator output [0.02]', extra_ok=False)
+    assert not v.passed and 'last recorded' in v.detail
+
+
+# -- bad inputs: control kept ---------------------------------------------------------------
+def test_steady_control_passes() -> None:
+    v = judge.judge_kept('future+20s:imu/data_raw', steady(-1, 3), outputs([0.5, 1.0]),
+                         T0, T0 + 2 * S)
+    assert v.passed and v.figures['max_control_gap_s'] == pytest.approx(0.01)
+
+
+def test_control_pause_fails() -> None:
+    times = [t for t in steady(-1, 3) if not T0 + int(0.5 * S) < t < T0 + int(0.9 * S)]
+    v = judge.judge_kept('future+0.4s:imu/data_raw', times, [], T0, T0 + 2 * S)
+    assert not v.passed and 'paused 0.4' in v.detail
+
+
+def test_control_stopping_at_the_fault_fails() -> None:
+    # The window's edges count: nothing after the fault is a gap of the whole window.
+    v = judge.judge_kept('future+20s:imu/data_raw', steady(-1, 0), [], T0, T0 + 2 * S)
+    assert not v.passed and v.figures['max_control_gap_s'] == pytest.approx(2.0)
+
+
+def test_neutral_actuators_fail_a_bad_input() -> None:
+    v = judge.judge_kept('params', steady(-1, 3), outputs([0.2, 0.4], 0.4), T0, T0 + 2 * S)
+    assert not v.passed and 'neutral' in v.detail
+
+
+def test_safe_state_is_allowed_on_a_contested_command_topic() -> None:
+    # Two sources on joy: refusing both (joystick lost -> zero force) is safe ...
+    obs = outputs([0.2, 0.4], 0.2)
+    assert judge.judge_kept('compete:joy', steady(-1, 3), obs, T0, T0 + 2 * S,
+                            allow_neutral=True).passed
+    # ... executing the intruder is not.
+    assert not judge.judge_kept('compete:joy', steady(-1, 3), obs, T0, T0 + 2 * S,
+                                executed=1, allow_neutral=True).passed
+
+
+def test_executed_intruder_fails() -> None:
+    v = judge.judge_kept('compete:surface_command/twist', steady(-1, 3), [], T0, T0 + 2 * S,
+                         executed=3, executed_what="of the intruder's commands executed")
+    assert not v.passed and "3 of the intruder's commands executed" in v.detail
+
+
+def test_max_gap_counts_the_edges() -> None:
+    assert judge.max_gap([], T0, T0 + S) == pytest.approx(1.0)
+    assert judge.max_gap([T0 + S // 4], T0, T0 + S) == pytest.approx(0.75)
+
+
+# -- the summary line ---------------------------------------------------------------------
+def test_summary_counts_and_pass() -> None:
+    ok = judge.judge_removal('sigkill:control', outputs([0.2], 0.2), T0)
+    bad = judge.judge_kept('params', [], [], T0, T0 + S)
+    skip = judge.skipped('disk_full:recorder', judge.KEEPS_CONTROL, 'needs root')
+    result = judge.summary([ok, bad, skip], tracebacks=0, bags_readable=1, bags=1)
+    assert result['faults_injected'] == 2 and result['safe_within_0_5s'] == 1
+    assert result['bags_readable'] == '1/1'
+    assert [f['fault'] for f in result['per_fault']] == [
+        'sigkill:control', 'params', 'disk_full:recorder']
+    json.dumps(result)  # one JSON line
+    assert not judge.run_passed(result)
+    assert judge.run_passed(judge.summary([ok, skip], 0, 1, 1))
+
+
+@pytest.mark.parametrize('tracebacks, readable', [(1, 1), (0, 0)])
+def test_a_traceback_or_an_unreadable_bag_fails_the_run(tracebacks: int,
+                                                         readable: int) -> None:
+    ok = judge.judge_removal('sigkill:control', outputs([0.2], 0.2), T0)
+    assert not judge.run_passed(judge.summary([ok], tracebacks, readable, 1))
+
+
+def test_tracebacks_are_counted_per_line() -> None:
+    text = 'ok\nTraceback (most recent call last):\n  x\nException in thread:\nTraceback (\n'
+    assert judge.count_tracebacks(text) == 2
+
+
+# -- the split profile and the command line -----------------------------------------------
+def test_split_profile_puts_the_core_in_the_control_group(tmp_path: Path) -> None:
+    plan = chaos.write_split_profile('enbarr_sim', tmp_path)
+    prof = load_profile(str(plan.path))
+    groups = {n.name: n.group for n in prof.nodes}
+    assert plan.control_nodes == {'command_receiver', 'filtering', 'control_loop',
+                                  'thruster_converter'}
+    assert {n for n, g in groups.items() if g == chaos.CONTROL_GROUP} == plan.control_nodes
+    assert groups['imu'] == groups['thruster_control'] == 'main'
+    assert prof.node('surface').parameters['script'] == chaos.STEADY_SCRIPTS[
+        'scripted_commands']
+
+
+def test_split_profile_of_the_saucer_knows_its_buttons(tmp_path: Path) -> None:
+    plan = chaos.write_split_profile('saucer_sim', tmp_path)
+    assert {'observer', 'dp_control', 'pwm'} <= plan.control_nodes
+    assert plan.joy_buttons['button_automatic'] == 2
+    # It holds its pose in automatic (the profile's name of button 2), the observer in the loop.
+    script = load_profile(str(plan.path)).node('joystick').parameters['script']
+    assert script[:3] == ['0.0 sticks 0.0 0.0 0.0', '1.0 press triangle',
+                          '4.0 press triangle']
+
+
+def test_profile_without_plugins_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(EnbarrError, match='chaos needs core nodes'):
+        chaos.write_split_profile('core', tmp_path)
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['--faults', 'sigkil'], '--faults: unknown sigkil; kinds: stamps'),
+    (['--duration', '0'], '--duration must be positive'),
+])
+def test_bad_arguments_are_one_line_and_exit_2(argv: list[str], message: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    assert enbarr_main(['chaos', 'enbarr_sim', *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('enbarr chaos: error: ') and message in err[0]
+
+
+def test_existing_out_directory_is_refused(tmp_path: Path) -> None:
+    args = argparse.Namespace(profile='enbarr_sim', duration=2.0, faults='', out=str(tmp_path),
+                              json=True)
+    with pytest.raises(EnbarrError, match='exists'):
+        chaos.main(args)
+
+
+def test_a_drivers_neutral_log_line_is_an_observation() -> None:
+    log = ('[INFO] [1795376177.2] [dp_control]: mode automatic -> manual (neutral stick)\n'
+           '[WARN] [1795376177.885158580] [arduino]: PWM input stopped: outputs neutral\n'
+           '[ERROR] [enbarr.bringup]: group control died (signal SIGKILL); restart 2 of 50\n')
+    assert chaos.NEUTRAL_LOG.findall(log) == ['1795376177.885158580']
