@@ -6,9 +6,10 @@ Velocity commands (``surface_command/twist``) pass through ``CommandGate``: non-
 out-of-range, stale, future-stamped, out-of-order ones and those in a frame other than
 ``base_link`` (an empty ``frame_id`` counts as ``base_link``) are refused and counted, never
 passed on. The goal is republished at ``rate`` and falls to zero after ``timeout`` without an
-accepted command. IO requests (``surface_command/io``) are forwarded when they name an
-executor and carry a finite typed value; the failsafe does not touch IO (lights and
-manipulator hold).
+accepted command (a ``timeout`` shorter than two measured command periods is refused when set
+live, and an ERROR on ``/diagnostics`` when it was the start value). IO requests
+(``surface_command/io``) are forwarded when they name an executor and carry a finite typed
+value; the failsafe does not touch IO (lights and manipulator hold).
 
 One source at a time (``framework.sources``): while more than one publisher is matched on
 ``surface_command/twist`` or ``surface_command/io``, their messages are refused and counted as
@@ -30,7 +31,7 @@ from rcl_interfaces.msg import Parameter, ParameterType
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.command_gate import CommandGate, GateSettings, Verdict
-from enbarr_core.framework.health import InputHealth, worst
+from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.sources import SourceGuard
@@ -80,9 +81,10 @@ class CommandReceiverNode(EnbarrNode):
         self.io_rejected = 0
         self.io_contested = 0
         self.health = InputHealth()
+        self.period = IntervalMeter()  # of accepted surface_command/twist stamps
         self._failsafe = True
         self.settings: CommandReceiverSettings
-        self.bind_settings(SPECS, CommandReceiverSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
         self._io_pub = self.create_topic_publisher(topics.IO_REQUEST)
         self.twist_guard = SourceGuard(
@@ -91,6 +93,22 @@ class CommandReceiverNode(EnbarrNode):
             self, self.create_topic_subscription(topics.SURFACE_IO, self._on_io))
         self.create_timer(1.0 / self.settings.rate, self._publish_goal)
         self.create_timer(REPORT_PERIOD, self._report)
+
+    def _build(self, v: Mapping[str, Any]) -> CommandReceiverSettings:
+        settings = CommandReceiverSettings.from_params(v)
+        reason = self._timeout_too_short(settings.gate.timeout)
+        if reason:
+            raise ValueError(reason)
+        return settings
+
+    def _timeout_too_short(self, timeout: float) -> str | None:
+        """Why ``timeout`` [s] is too short for the measured command period, or None."""
+        period = self.period.period
+        if period is None or timeout >= 2.0 * period:
+            return None
+        return (f'timeout = {timeout:g} s is shorter than 2 periods of '
+                f'{topics.SURFACE_TWIST.name} (measured period {period:.4g} s): the goal '
+                'would drop to zero between commands')
 
     def _apply(self, settings: CommandReceiverSettings) -> None:
         self.settings = settings
@@ -118,6 +136,7 @@ class CommandReceiverNode(EnbarrNode):
                                    throttle_duration_sec=1.0)
             return
         self.health.accepted('surface_command/twist')
+        self.period.add(convert.stamp_to_ns(msg.header.stamp))
         self._publish_goal()
 
     def _on_io(self, msg: Parameter) -> None:
@@ -159,8 +178,10 @@ class CommandReceiverNode(EnbarrNode):
         counts = {v.value: n for v, n in self.gate.counts.items()}
         health = self.health.report(REPORT_PERIOD)
         failsafe = (1, 'failsafe: no surface command') if self._failsafe else (0, 'ok')
+        reason = self._timeout_too_short(self.gate.settings.timeout)
+        rate = (ERROR, reason) if reason else (0, 'ok')
         level, message = worst(self.twist_guard.status(), self.io_guard.status(),
-                               failsafe, health[:2])
+                               failsafe, health[:2], rate)
         self.publish_diagnostics(level, message, {
             **counts, 'io_forwarded': self.io_forwarded, 'io_rejected': self.io_rejected,
             'io_contested': self.io_contested, 'failsafe': self._failsafe, **health[2]})

@@ -341,3 +341,35 @@ def test_two_io_publishers_are_refused(context, executor, spin):
     other.publish(io_msg('gpio_12', False))
     assert rig.until(lambda: rig.node.io_contested == 2)
     assert rig.ios == [] and rig.node.io_forwarded == 0
+
+
+# -- timeout against the measured command rate (issue 8: valid but harmful) ------------------
+
+def test_a_timeout_shorter_than_two_command_periods_is_refused_live(context, executor, spin):
+    """A timeout under the surface's command period drops the goal to zero between every two
+    commands (the vehicle stutters). Refused live with the measured period; ok once longer."""
+    from support.nodes import param_client, set_param
+    rig = ClockedSurface(context, executor, spin)
+    t = 1_000 * 1_000_000_000
+    for k in range(12):  # 10 Hz commands
+        rig.set_time(t + k * 100_000_000)
+        rig.send(WANTED)
+    client = param_client(executor, spin, context, 'command_receiver')
+    result = set_param(executor, spin, client, 'timeout', 0.15)
+    assert not result.successful
+    assert 'timeout' in result.reason and 'period' in result.reason, result.reason
+    assert set_param(executor, spin, client, 'timeout', 0.25).successful
+
+
+def test_a_start_timeout_too_short_for_the_commands_is_reported(context, executor, spin):
+    rig = ClockedSurface(context, executor, spin)
+    reports = Reports(rig.node)
+    rig.node.gate.settings = rig.node.gate.settings.__class__(
+        **{**rig.node.gate.settings.__dict__, 'timeout': 0.05})
+    t = 1_000 * 1_000_000_000
+    for k in range(12):
+        rig.set_time(t + k * 100_000_000)
+        rig.send(WANTED)
+    rig.node._report()
+    level, message, _ = reports.all[-1]
+    assert level >= 1 and 'timeout' in message and 'period' in message, message
