@@ -373,3 +373,16 @@ def test_a_start_timeout_too_short_for_the_commands_is_reported(context, executo
     rig.node._report()
     level, message, _ = reports.all[-1]
     assert level >= 1 and 'timeout' in message and 'period' in message, message
+
+
+def test_goal_stamps_strictly_increase_at_a_standing_clock(context, executor, spin):
+    """The timer and a command at one simulated instant both publish the goal: the second is
+    stamped 1 ns later, so the controller's time policy takes it (it refuses repeats)."""
+    rig = ClockedSurface(context, executor, spin)
+    rig.set_time(1_000 * 1_000_000_000)
+    n = len(rig.goals)
+    rig.node._publish_goal()
+    rig.send(WANTED)
+    stamps = [t for t, _ in rig.goals[n:]]
+    assert len(stamps) >= 2 and all(b > a for a, b in zip(stamps, stamps[1:])), stamps
+    assert np.allclose(rig.goals[-1][1], WANTED)
