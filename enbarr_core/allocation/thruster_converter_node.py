@@ -5,6 +5,11 @@ from each thruster's position and direction (``layout_params.THRUSTERS``), the w
 pseudo-inverse gives the smallest thrust, and saturation scales all thrusters together so the
 delivered force keeps the requested direction (``allocation.fixed``). A layout that cannot
 produce a controlled degree of freedom is refused at start with the DOF named.
+
+Time policy (``framework.stamps``): a ``force_command`` stamped more than ``max_future`` ahead
+of the node's clock, or not later than the last accepted one, is refused and counted (its
+stamp would travel on to the thrusters as the command's time); ``/diagnostics`` reports the
+node degraded when more than 5 % of a second's commands are refused.
 """
 
 from __future__ import annotations
@@ -21,14 +26,21 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
 from enbarr_core.allocation.layout_params import THRUSTERS
+from enbarr_core.estimation.attitude_filter_node import MAX_FUTURE
 from enbarr_core.framework.errors import AllocationError
+from enbarr_core.framework.health import InputHealth
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 
 SPECS = [
     ParamSpec('controlled_dofs', list(DOF_NAMES),
               'Degrees of freedom the thrusters must produce', read_only=True),
+    ParamSpec('max_future', MAX_FUTURE, 'force_command stamped further ahead of the node clock '
+              'is refused (time policy)', 's', 0.0, 1.0),
 ]
+#: Window of the diagnostics report [s].
+REPORT_PERIOD = 1.0
 
 
 @dataclass(frozen=True)
@@ -37,6 +49,7 @@ class ThrusterConverterSettings:
 
     thrusters: tuple[Thruster, ...]
     controlled_dofs: tuple[int, ...]  # indices into DOF_NAMES
+    max_future: float                 # time policy of force_command [s]
 
     @classmethod
     def from_params(cls, names: Sequence[str],
@@ -47,7 +60,7 @@ class ThrusterConverterSettings:
             raise ValueError(f'controlled_dofs: unknown {unknown}; expected some of '
                              f'{DOF_NAMES}')
         return cls(THRUSTERS.from_params(names, v),
-                   tuple(DOF_NAMES.index(d) for d in v['controlled_dofs']))
+                   tuple(DOF_NAMES.index(d) for d in v['controlled_dofs']), v['max_future'])
 
 
 class ThrusterConverterNode(EnbarrNode):
@@ -56,10 +69,12 @@ class ThrusterConverterNode(EnbarrNode):
     def __init__(self, node_name: str = 'thruster_converter', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         names = THRUSTERS.names(self)
+        self.gate = StampGate()
+        self.health = InputHealth()
         self.settings: ThrusterConverterSettings = self.bind_settings(
             THRUSTERS.specs(self, names) + SPECS,
             lambda v: ThrusterConverterSettings.from_params(names, v),
-            lambda _: None).settings  # every parameter is read only
+            self._apply).settings  # every parameter but max_future is read only
         s = self.settings
         try:
             self.allocator = ThrustAllocator(s.thrusters, controlled_dofs=s.controlled_dofs)
@@ -71,13 +86,25 @@ class ThrusterConverterNode(EnbarrNode):
         self._names = [t.name for t in s.thrusters]
         self._pub = self.create_topic_publisher(topics.THRUSTER_COMMANDS)
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_wrench)
-        self.create_timer(1.0, self._report)
+        self.create_timer(REPORT_PERIOD, self._report)
+
+    def _apply(self, settings: ThrusterConverterSettings) -> None:
+        self.settings = settings
+        self.gate.policy = StampPolicy(settings.max_future)
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau(msg.wrench)
         if not np.all(np.isfinite(tau)):
             self.rejected += 1
+            self.health.refused('force_command', 'non_finite')
             return
+        verdict = self.gate.offer(convert.stamp_to_ns(msg.header.stamp),
+                                  self.get_clock().now().nanoseconds)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.rejected += 1
+            self.health.refused('force_command', verdict.value)
+            return
+        self.health.accepted('force_command')
         self.result = r = self.allocator.allocate(tau)
         self.saturated += r.saturated
         cmd = JointState(name=self._names, effort=r.command.tolist())
@@ -86,5 +113,6 @@ class ThrusterConverterNode(EnbarrNode):
         self._pub.publish(cmd)
 
     def _report(self) -> None:
-        self.publish_diagnostics(0, 'ok', {'saturated': self.saturated,
-                                           'rejected': self.rejected})
+        level, message, values = self.health.report(REPORT_PERIOD)
+        self.publish_diagnostics(level, message, {'saturated': self.saturated,
+                                                  'rejected': self.rejected, **values})

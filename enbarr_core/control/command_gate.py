@@ -1,7 +1,13 @@
 """The command receiver's rules, free of ROS: validation, staleness and the failsafe.
 
-A surface velocity command is accepted only when it is finite, within the configured limits
-and fresh (its stamp no older than ``max_age`` and not from the future). The goal falls to
+A surface velocity command is accepted only when it is finite, within the configured limits,
+given in the body frame (``frame_id`` ``base_link``, or empty: a sender that names no frame
+means the body frame the topic's contract states), and on time: its stamp no older than
+``max_age``, no further ahead than ``max_future``, and later than the last accepted command's
+(the time policy of ``framework.stamps``; verdicts ``stale``, ``future``, ``not_newer``). A
+command the node refuses for a reason of its own (``contested``: two sources at once, see
+``framework.sources``) is counted here with ``withdraw``, which also drops the goal to zero
+at once. The goal falls to
 zero when no command was accepted for ``timeout`` seconds: a lost tether or a crashed
 operator station stops the vehicle instead of leaving it driving.
 
@@ -22,6 +28,11 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+
+#: The frame velocity commands are expressed in (``enbarr_interfaces.topics.BODY_FRAME``).
+BODY_FRAME = 'base_link'
+
 
 class Verdict(enum.Enum):
     """What the gate made of one command."""
@@ -31,6 +42,9 @@ class Verdict(enum.Enum):
     OUT_OF_RANGE = 'out_of_range'
     STALE = 'stale'
     FUTURE = 'future'
+    NOT_NEWER = 'not_newer'
+    WRONG_FRAME = 'wrong_frame'
+    CONTESTED = 'contested'
 
 
 @dataclass(frozen=True)
@@ -79,28 +93,50 @@ class CommandGate:
         self._timeout_ns = _ns(settings.timeout)
         self._max_age_ns = _ns(settings.max_age)
         self._max_future_ns = _ns(settings.max_future)
+        # The order of accepted stamps (and a clock that went back) as the time policy has it;
+        # age and future are judged above, with this gate's inclusive boundaries.
+        policy = StampPolicy(max_future=settings.max_future)
+        if hasattr(self, '_stamps'):
+            self._stamps.policy = policy
+        else:
+            self._stamps = StampGate(policy)
 
-    def check(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int) -> Verdict:
-        """Judge ``nu`` stamped ``stamp_ns`` at ``now_ns`` without taking it."""
+    def check(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int,
+              frame_id: str = BODY_FRAME) -> Verdict:
+        """Judge ``nu`` stamped ``stamp_ns`` in ``frame_id`` at ``now_ns`` without taking it."""
         s = self.settings
         if not np.all(np.isfinite(nu)):
             return Verdict.NON_FINITE
         if np.any(np.abs(nu[:3]) > s.max_linear) or np.any(np.abs(nu[3:]) > s.max_angular):
             return Verdict.OUT_OF_RANGE
+        if frame_id not in ('', BODY_FRAME):
+            return Verdict.WRONG_FRAME
         if now_ns - stamp_ns > self._max_age_ns:
             return Verdict.STALE
         if stamp_ns - now_ns > self._max_future_ns:
             return Verdict.FUTURE
+        if self._stamps.check(stamp_ns, now_ns) is StampVerdict.NOT_NEWER:
+            return Verdict.NOT_NEWER
         return Verdict.ACCEPTED
 
-    def offer(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int) -> Verdict:
+    def offer(self, nu: NDArray[np.float64], stamp_ns: int, now_ns: int,
+              frame_id: str = BODY_FRAME) -> Verdict:
         """Take ``nu`` as the goal if it passes ``check``; count the verdict."""
-        verdict = self.check(nu, stamp_ns, now_ns)
+        verdict = self.check(nu, stamp_ns, now_ns, frame_id)
         self.counts[verdict] += 1
         if verdict is Verdict.ACCEPTED:
+            self._stamps.offer(stamp_ns, now_ns)  # the order goes on from this stamp
             self.goal = np.array(nu, dtype=float)
             self.last_accept_ns = now_ns
         return verdict
+
+    def withdraw(self, verdict: Verdict) -> None:
+        """Count a command refused by the node (``verdict``) and drop the goal to zero now."""
+        if verdict is Verdict.ACCEPTED:
+            raise ValueError('withdraw takes the reason of a refusal, not accepted')
+        self.counts[verdict] += 1
+        self.goal = np.zeros(6)
+        self.last_accept_ns = None
 
     def failsafe(self, now_ns: int) -> bool:
         """Return True when no command was accepted within ``timeout`` (the goal is then zero)."""

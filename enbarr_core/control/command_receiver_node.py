@@ -3,11 +3,19 @@
 Surface commands become ``trajectory_request`` (the velocity goal) and ``io_request``.
 
 Velocity commands (``surface_command/twist``) pass through ``CommandGate``: non-finite,
-out-of-range, stale and future-stamped ones are refused and counted, never passed on. The goal
-is republished at ``rate`` and falls to zero after ``timeout`` without an accepted command.
-IO requests (``surface_command/io``) are forwarded when they name an executor and carry a
-finite typed value; the failsafe does not touch IO (lights and manipulator hold).
-Counters go to ``/diagnostics`` every second.
+out-of-range, stale, future-stamped, out-of-order ones and those in a frame other than
+``base_link`` (an empty ``frame_id`` counts as ``base_link``) are refused and counted, never
+passed on. The goal is republished at ``rate`` and falls to zero after ``timeout`` without an
+accepted command (a ``timeout`` shorter than two measured command periods is refused when set
+live, and an ERROR on ``/diagnostics`` when it was the start value). IO requests
+(``surface_command/io``) are forwarded when they name an executor and carry a finite typed
+value; the failsafe does not touch IO (lights and manipulator hold).
+
+One source at a time (``framework.sources``): while more than one publisher is matched on
+``surface_command/twist`` or ``surface_command/io``, their messages are refused and counted as
+``contested``, a contested twist drops the goal to zero at once, and ``/diagnostics`` says
+ERROR naming the publishers. Counters go to ``/diagnostics`` every second; the node is
+degraded when it refuses more than 5 % of a second's commands.
 """
 
 from __future__ import annotations
@@ -23,8 +31,10 @@ from rcl_interfaces.msg import Parameter, ParameterType
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.command_gate import CommandGate, GateSettings, Verdict
+from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.sources import SourceGuard
 
 SPECS = [
     ParamSpec('max_linear', 1.0, 'Largest accepted linear velocity component', 'm/s', 0.0,
@@ -40,6 +50,8 @@ SPECS = [
               read_only=True),
 ]
 _EXECUTOR = re.compile(r'^[A-Za-z][A-Za-z0-9_/]*$')
+#: Window of the diagnostics report [s].
+REPORT_PERIOD = 1.0
 
 
 @dataclass(frozen=True)
@@ -67,15 +79,36 @@ class CommandReceiverNode(EnbarrNode):
         self.gate = CommandGate()
         self.io_forwarded = 0
         self.io_rejected = 0
+        self.io_contested = 0
+        self.health = InputHealth()
+        self.period = IntervalMeter()  # of accepted surface_command/twist stamps
         self._failsafe = True
         self.settings: CommandReceiverSettings
-        self.bind_settings(SPECS, CommandReceiverSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
         self._io_pub = self.create_topic_publisher(topics.IO_REQUEST)
-        self.create_topic_subscription(topics.SURFACE_TWIST, self._on_twist)
-        self.create_topic_subscription(topics.SURFACE_IO, self._on_io)
+        self.twist_guard = SourceGuard(
+            self, self.create_topic_subscription(topics.SURFACE_TWIST, self._on_twist))
+        self.io_guard = SourceGuard(
+            self, self.create_topic_subscription(topics.SURFACE_IO, self._on_io))
         self.create_timer(1.0 / self.settings.rate, self._publish_goal)
-        self.create_timer(1.0, self._report)
+        self.create_timer(REPORT_PERIOD, self._report)
+
+    def _build(self, v: Mapping[str, Any]) -> CommandReceiverSettings:
+        settings = CommandReceiverSettings.from_params(v)
+        reason = self._timeout_too_short(settings.gate.timeout)
+        if reason:
+            raise ValueError(reason)
+        return settings
+
+    def _timeout_too_short(self, timeout: float) -> str | None:
+        """Why ``timeout`` [s] is too short for the measured command period, or None."""
+        period = self.period.period
+        if period is None or timeout >= 2.0 * period:
+            return None
+        return (f'timeout = {timeout:g} s is shorter than 2 periods of '
+                f'{topics.SURFACE_TWIST.name} (measured period {period:.4g} s): the goal '
+                'would drop to zero between commands')
 
     def _apply(self, settings: CommandReceiverSettings) -> None:
         self.settings = settings
@@ -85,17 +118,34 @@ class CommandReceiverNode(EnbarrNode):
         return self.get_clock().now().nanoseconds
 
     def _on_twist(self, msg: TwistStamped) -> None:
+        if self.twist_guard.contested():
+            self.gate.withdraw(Verdict.CONTESTED)  # zero goal now, not after the timeout
+            self.health.refused('surface_command/twist', Verdict.CONTESTED.value)
+            self.get_logger().error(self.twist_guard.status()[1], throttle_duration_sec=1.0)
+            self._publish_goal()
+            return
         now = self._now()
         verdict = self.gate.offer(convert.twist_to_nu(msg.twist),
-                                  convert.stamp_to_ns(msg.header.stamp), now)
+                                  convert.stamp_to_ns(msg.header.stamp), now,
+                                  msg.header.frame_id)
         if verdict is not Verdict.ACCEPTED:
-            self.get_logger().warn(f'refused surface command ({verdict.value})',
+            self.health.refused('surface_command/twist', verdict.value)
+            why = (f'frame {msg.header.frame_id!r}, expected {topics.BODY_FRAME!r}'
+                   if verdict is Verdict.WRONG_FRAME else verdict.value)
+            self.get_logger().warn(f'refused surface command ({why})',
                                    throttle_duration_sec=1.0)
             return
+        self.health.accepted('surface_command/twist')
+        self.period.add(convert.stamp_to_ns(msg.header.stamp))
         self._publish_goal()
 
     def _on_io(self, msg: Parameter) -> None:
         reason = None
+        if self.io_guard.contested():
+            self.io_contested += 1
+            self.health.refused('surface_command/io', 'contested')
+            self.get_logger().error(self.io_guard.status()[1], throttle_duration_sec=1.0)
+            return
         if not _EXECUTOR.match(msg.name):
             reason = f'executor name {msg.name!r} is not valid'
         elif msg.value.type == ParameterType.PARAMETER_NOT_SET:
@@ -104,8 +154,10 @@ class CommandReceiverNode(EnbarrNode):
             reason = 'value is not finite'
         if reason:
             self.io_rejected += 1
+            self.health.refused('surface_command/io', 'invalid')
             self.get_logger().warn(f'refused io request: {reason}', throttle_duration_sec=1.0)
             return
+        self.health.accepted('surface_command/io')
         self.io_forwarded += 1
         self._io_pub.publish(msg)
 
@@ -124,7 +176,12 @@ class CommandReceiverNode(EnbarrNode):
 
     def _report(self) -> None:
         counts = {v.value: n for v, n in self.gate.counts.items()}
-        self.publish_diagnostics(
-            1 if self._failsafe else 0, 'failsafe: no surface command' if self._failsafe
-            else 'ok', {**counts, 'io_forwarded': self.io_forwarded,
-                        'io_rejected': self.io_rejected, 'failsafe': self._failsafe})
+        health = self.health.report(REPORT_PERIOD)
+        failsafe = (1, 'failsafe: no surface command') if self._failsafe else (0, 'ok')
+        reason = self._timeout_too_short(self.gate.settings.timeout)
+        rate = (ERROR, reason) if reason else (0, 'ok')
+        level, message = worst(self.twist_guard.status(), self.io_guard.status(),
+                               failsafe, health[:2], rate)
+        self.publish_diagnostics(level, message, {
+            **counts, 'io_forwarded': self.io_forwarded, 'io_rejected': self.io_rejected,
+            'io_contested': self.io_contested, 'failsafe': self._failsafe, **health[2]})

@@ -8,6 +8,16 @@ unless ``velocity_topic`` names an ``nav_msgs/Odometry`` source (a DVL, an acous
 odometry), surge, sway and heave run on the feed-forward alone. A velocity goal stamped more
 than ``goal_timeout`` before the IMU sample counts as zero.
 Every gain is a parameter; a new value acts on the next sample without a jump in tau.
+
+Time policy (``framework.stamps``): ``imu/data`` and ``trajectory_request`` stamps pass one
+gate each before they are used: a stamp more than ``max_future`` ahead of the node's clock, or
+not later than the last accepted one of its input, is refused and counted. So one early IMU
+sample cannot become the loop's time base (and stall it until the clock catches up), and one
+early goal cannot outlive ``goal_timeout``. ``/diagnostics`` reports the node degraded when it
+refuses more than 5 % of an input's samples in a second or resets its integrators, and
+``max_gap`` / ``goal_timeout`` must cover two measured periods of ``imu/data`` /
+``trajectory_request`` (a live change below that is refused with the figure; a start value
+below it is reported once the period is measured).
 """
 
 from __future__ import annotations
@@ -27,10 +37,16 @@ from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.control.velocity_control import (
     VelocityControlSettings, VelocityController, VelocityReference)
+from enbarr_core.estimation.attitude_filter_node import GAP_PERIODS, MAX_FUTURE, gap_too_short
 from enbarr_core.framework.checks import floats
+from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
 from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+
+#: Window of the diagnostics report [s].
+REPORT_PERIOD = 1.0
 
 _DOF = 'surge, sway, heave, roll, pitch, yaw'
 SPECS = [
@@ -57,6 +73,8 @@ SPECS = [
               0.01, 60.0),
     ParamSpec('max_gap', 0.5, 'IMU gaps longer than this reset the integrators', 's', 1e-3,
               60.0),
+    ParamSpec('max_future', MAX_FUTURE, 'imu/data and goals stamped further ahead of the node '
+              'clock are refused (time policy)', 's', 0.0, 1.0),
     ParamSpec('velocity_topic', '', 'nav_msgs/Odometry source of linear body velocity; empty: '
               'feed-forward only on surge, sway, heave', read_only=True),
     ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass (feed-forward model)', 'kg', 0.01, 1e5),
@@ -80,6 +98,7 @@ class VelocityControlNodeSettings:
     max_accel: tuple[float, ...]                # [m/s^2, rad/s^2]
     goal_timeout: float                         # [s]
     max_gap: float                              # [s]
+    max_future: float                           # time policy of imu/data and goals [s]
     velocity_topic: str
 
     @classmethod
@@ -106,7 +125,15 @@ class VelocityControlNodeSettings:
                        'reference_time_constant', v['reference_time_constant'], 6),
                    max_accel=floats('max_accel', v['max_accel'], 6),
                    goal_timeout=v['goal_timeout'], max_gap=v['max_gap'],
-                   velocity_topic=v['velocity_topic'])
+                   max_future=v['max_future'], velocity_topic=v['velocity_topic'])
+
+    def check_rates(self, imu_period: float | None, goal_period: float | None) -> None:
+        """Raise ValueError when a tolerance is too short for a measured input period [s]."""
+        if imu_period is not None and self.max_gap < GAP_PERIODS * imu_period:
+            raise ValueError(gap_too_short('max_gap', self.max_gap, 'imu/data', imu_period))
+        if goal_period is not None and self.goal_timeout < GAP_PERIODS * goal_period:
+            raise ValueError(gap_too_short('goal_timeout', self.goal_timeout,
+                                           'trajectory_request', goal_period))
 
 
 class VelocityControlNode(EnbarrNode):
@@ -122,11 +149,17 @@ class VelocityControlNode(EnbarrNode):
         self._last_ns: int | None = None
         self._linear = np.full(3, math.nan)
         self.rejected = 0
+        self.health = InputHealth()
+        self.imu_gate = StampGate()
+        self.goal_gate = StampGate()
+        self.imu_period = IntervalMeter()
+        self.goal_period = IntervalMeter()
         self.settings: VelocityControlNodeSettings
-        self.bind_settings(SPECS, VelocityControlNodeSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         self._pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self.create_topic_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
         self.create_topic_subscription(topics.IMU, self._on_imu)
+        self.create_timer(REPORT_PERIOD, self._report)
         velocity_topic = self.settings.velocity_topic
         if velocity_topic:
             self.create_topic_subscription(TopicSpec(
@@ -145,11 +178,29 @@ class VelocityControlNode(EnbarrNode):
         self.reference = reference
         self._goal_timeout_ns = int(settings.goal_timeout * 1e9)
         self._max_gap_ns = int(settings.max_gap * 1e9)
+        self.imu_gate.policy = self.goal_gate.policy = StampPolicy(settings.max_future)
+
+    def _build(self, v: Mapping[str, Any]) -> VelocityControlNodeSettings:
+        settings = VelocityControlNodeSettings.from_params(v)
+        settings.check_rates(self.imu_period.period, self.goal_period.period)
+        return settings
+
+    def _now(self) -> int:
+        return self.get_clock().now().nanoseconds
 
     def _on_goal(self, msg: TwistStamped) -> None:
         nu = convert.twist_to_nu(msg.twist)
-        if np.all(np.isfinite(nu)):
-            self._goal, self._goal_ns = nu, convert.stamp_to_ns(msg.header.stamp)
+        if not np.all(np.isfinite(nu)):
+            self.health.refused('trajectory_request', 'non_finite')
+            return
+        t = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.goal_gate.offer(t, self._now())
+        if verdict is not StampVerdict.ACCEPTED:
+            self.health.refused('trajectory_request', verdict.value)
+            return
+        self.health.accepted('trajectory_request')
+        self.goal_period.add(t)
+        self._goal, self._goal_ns = nu, t
 
     def _on_velocity(self, msg: Odometry) -> None:
         v = convert.vector3_to_array(msg.twist.twist.linear)
@@ -158,15 +209,23 @@ class VelocityControlNode(EnbarrNode):
 
     def _on_imu(self, msg: Imu) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
-        last = self._last_ns
-        if last is not None and t <= last:  # out of order or repeated: drop, keep the state
+        # The time policy: early, repeated or out-of-order stamps are dropped, the state kept.
+        verdict = self.imu_gate.offer(t, self._now())
+        if verdict is not StampVerdict.ACCEPTED:
             self.rejected += 1
+            self.health.refused('imu/data', verdict.value)
             return
-        self._last_ns = t
-        if last is None or t - last > self._max_gap_ns:
+        self.imu_period.add(t)
+        last, self._last_ns = self._last_ns, t
+        if last is None or not 0 < t - last <= self._max_gap_ns:
+            # The first sample, a gap, or the clock went back (the gate started over).
+            if last is not None:
+                self.health.refused('imu/data', 'gap')
+                self.health.reset('integrator')
             self.controller.reset()
             self.reference.reset()
             return
+        self.health.accepted('imu/data')
         # The goal's age on the IMU's time line (both stamped by the same ROS clock).
         goal = self._goal if (self._goal_ns is not None
                               and t - self._goal_ns <= self._goal_timeout_ns) else np.zeros(6)
@@ -182,3 +241,11 @@ class VelocityControlNode(EnbarrNode):
         w.header.frame_id = topics.BODY_FRAME
         convert.set_wrench(w.wrench, self.output.tau)
         self._pub.publish(w)
+
+    def _report(self) -> None:
+        level, message, values = self.health.report(REPORT_PERIOD)
+        try:
+            self.settings.check_rates(self.imu_period.period, self.goal_period.period)
+        except ValueError as err:  # a start value the measured rates show to be wrong
+            level, message = worst((level, message), (ERROR, str(err)))
+        self.publish_diagnostics(level, message, {'rejected': self.rejected, **values})

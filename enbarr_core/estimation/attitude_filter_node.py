@@ -1,8 +1,18 @@
 """Orientation filter node: ``imu/data_raw`` (+ ``imu/mag``) -> ``imu/data``.
 
 An error-state Kalman filter on filterpy (``enbarr_core.estimation.attitude_filter``). dt comes
-from the sample stamps. A sample with NaN/Inf, a stamp that does not advance, or a gap longer
-than ``max_gap`` is dropped and counted (a gap re-initializes the filter from the next sample).
+from the sample stamps, and only stamps the time policy accepts (``framework.stamps``) become
+the filter's time base: a sample stamped more than ``max_future`` ahead of the node's clock, or
+not later than the last accepted one, is refused and counted, so one bad sample (another
+computer's clock, a stray publisher) costs at most itself. A sample with NaN/Inf, or after a
+gap longer than ``max_gap``, is dropped and counted (a gap re-initializes the filter from the
+next sample).
+
+``/diagnostics`` tells the truth: the node is degraded when it refuses more than 5 % of a
+second's samples or re-initializes the filter, and says why. ``max_gap`` must be at least two
+sample periods of ``imu/data_raw`` as measured (one lost sample must not re-initialize the
+filter): a live change below that is refused with the measured period, and a start value
+below it (nothing is measured before samples flow) is reported as soon as it is.
 """
 
 from __future__ import annotations
@@ -17,8 +27,21 @@ from sensor_msgs.msg import Imu, MagneticField
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.attitude_filter import AttitudeFilter, AttitudeFilterSettings
+from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+
+#: Default time-policy tolerance of sensor stamps ahead of the node's clock [s]. In one
+#: process sender and receiver share the clock (a good stamp is never ahead); across machines
+#: chrony keeps clocks within a few milliseconds, so 50 ms is a wide margin, yet short against
+#: what a refused run of good samples after an accepted early one may cost (the thrusters'
+#: 0.25 s command watchdog, the 0.5 s gap tolerance).
+MAX_FUTURE = 0.05
+#: ``max_gap`` must cover this many measured sample periods (one lost sample is not a gap).
+GAP_PERIODS = 2.0
+#: Window of the diagnostics report [s].
+REPORT_PERIOD = 1.0
 
 _D = AttitudeFilterSettings()
 SPECS = [
@@ -47,6 +70,9 @@ SPECS = [
     ParamSpec('gravity', _D.gravity, 'Magnitude of gravity', 'm/s^2', 1.0, 30.0),
     ParamSpec('max_gap', 0.5, 'A gap between samples longer than this re-initializes', 's',
               1e-3, 60.0),
+    ParamSpec('max_future', MAX_FUTURE, 'Samples stamped further ahead of the node clock are '
+              'refused (time policy; the clock offset tolerated between machines)', 's', 0.0,
+              1.0),
     ParamSpec('mag_max_age', 0.05, 'Use imu/mag only when its stamp is this close to the '
               'IMU sample', 's', 0.0, 10.0),
 ]
@@ -60,13 +86,27 @@ class AttitudeFilterNodeSettings:
     filter: AttitudeFilterSettings  # noise model and gates of the filter
     max_gap: float                  # a longer gap between samples re-initializes [s]
     mag_max_age: float              # largest |IMU stamp - mag stamp| for a heading update [s]
+    max_future: float               # time policy: stamps further ahead are refused [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> AttitudeFilterNodeSettings:
         """Build from the declared parameters' values; ``ValueError`` names the field."""
         settings = AttitudeFilterSettings(**{k: v[k] for k in _FIELDS})
         settings.validate()
-        return cls(filter=settings, max_gap=v['max_gap'], mag_max_age=v['mag_max_age'])
+        return cls(filter=settings, max_gap=v['max_gap'], mag_max_age=v['mag_max_age'],
+                   max_future=v['max_future'])
+
+    def check_rate(self, period: float | None) -> None:
+        """Raise ValueError when ``max_gap`` is too short for the measured ``period`` [s]."""
+        if period is not None and self.max_gap < GAP_PERIODS * period:
+            raise ValueError(gap_too_short('max_gap', self.max_gap, 'imu/data_raw', period))
+
+
+def gap_too_short(name: str, value: float, topic: str, period: float) -> str:
+    """Say why a gap tolerance ``value`` is too short for an input of period ``period``."""
+    return (f'{name} = {value:g} s is shorter than {GAP_PERIODS:g} sample periods of {topic} '
+            f'(measured period {period:.4g} s): every lost sample, or every sample, would '
+            'count as a gap')
 
 
 class AttitudeFilterNode(EnbarrNode):
@@ -77,26 +117,48 @@ class AttitudeFilterNode(EnbarrNode):
         self.filter = AttitudeFilter()
         self.rejected = 0
         self.samples = 0
+        self.health = InputHealth()
+        self.period = IntervalMeter()  # of accepted imu/data_raw stamps
+        self.raw_gate = StampGate()
+        self.mag_gate = StampGate()
         self._last_ns: int | None = None
         self._mag: np.ndarray | None = None
         self._mag_ns = 0
         self.settings: AttitudeFilterNodeSettings
-        self.bind_settings(SPECS, AttitudeFilterNodeSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         self._pub = self.create_topic_publisher(topics.IMU)
         self.create_topic_subscription(topics.IMU_MAG, self._on_mag)
         self.create_topic_subscription(topics.IMU_RAW, self._on_imu)
-        self.create_timer(1.0, self._report)
+        self.create_timer(REPORT_PERIOD, self._report)
+
+    def _build(self, v: Mapping[str, Any]) -> AttitudeFilterNodeSettings:
+        settings = AttitudeFilterNodeSettings.from_params(v)
+        settings.check_rate(self.period.period)
+        return settings
 
     def _apply(self, settings: AttitudeFilterNodeSettings) -> None:
         self.settings = settings
         self.filter.settings = settings.filter
         self._max_gap_ns = int(settings.max_gap * 1e9)
         self._mag_age_ns = int(settings.mag_max_age * 1e9)
+        policy = StampPolicy(max_future=settings.max_future)
+        self.raw_gate.policy = self.mag_gate.policy = policy
+
+    def _now(self) -> int:
+        return self.get_clock().now().nanoseconds
 
     def _on_mag(self, msg: MagneticField) -> None:
         m = convert.vector3_to_array(msg.magnetic_field)
-        if np.all(np.isfinite(m)):
-            self._mag, self._mag_ns = m, convert.stamp_to_ns(msg.header.stamp)
+        if not np.all(np.isfinite(m)):
+            self.health.refused('imu/mag', 'non_finite')
+            return
+        t = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.mag_gate.offer(t, self._now())
+        if verdict is not StampVerdict.ACCEPTED:
+            self.health.refused('imu/mag', verdict.value)
+            return
+        self.health.accepted('imu/mag')
+        self._mag, self._mag_ns = m, t
 
     def _on_imu(self, msg: Imu) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
@@ -104,17 +166,25 @@ class AttitudeFilterNode(EnbarrNode):
         accel = convert.vector3_to_array(msg.linear_acceleration)
         if not convert.all_finite(gyro, accel):
             self.rejected += 1
+            self.health.refused('imu/data_raw', 'non_finite')
             return
+        # The time policy first: only an accepted stamp may become the time base.
+        verdict = self.raw_gate.offer(t, self._now())
+        if verdict is not StampVerdict.ACCEPTED:
+            self.rejected += 1
+            self.health.refused('imu/data_raw', verdict.value)
+            return
+        self.period.add(t)
         last, self._last_ns = self._last_ns, t
-        if last is None or t - last > self._max_gap_ns:
-            if last is not None:  # a gap (not the first sample): dropped and counted
+        if last is None or not 0 < t - last <= self._max_gap_ns:
+            # The first sample, a gap, or the clock went back (the gate started over).
+            if last is not None:  # not the first sample: dropped and counted
                 self.rejected += 1
+                self.health.refused('imu/data_raw', 'gap')
+                self.health.reset('filter')
             self.filter.reset()
             return
-        if t <= last:
-            self.rejected += 1
-            self._last_ns = last
-            return
+        self.health.accepted('imu/data_raw')
         mag = self._mag if abs(t - self._mag_ns) <= self._mag_age_ns else None
         est = self.filter.step(gyro, accel, mag, (t - last) * 1e-9)
         self.samples += 1
@@ -129,4 +199,10 @@ class AttitudeFilterNode(EnbarrNode):
         self._pub.publish(out)
 
     def _report(self) -> None:
-        self.publish_diagnostics(0, 'ok', {'samples': self.samples, 'rejected': self.rejected})
+        level, message, values = self.health.report(REPORT_PERIOD)
+        try:
+            self.settings.check_rate(self.period.period)
+        except ValueError as err:  # a start value the measured rate shows to be wrong
+            level, message = worst((level, message), (ERROR, str(err)))
+        self.publish_diagnostics(level, message, {
+            'samples': self.samples, 'rejected': self.rejected, **values})

@@ -18,7 +18,9 @@ must get right, so a new driver writes only its device's bytes:
   driver's counters (``status_values()``).
 - **actuators** (``ActuatorDriver``): a ``CommandWatchdog`` that puts the outputs in their
   safe state when commands stop for ``command_timeout`` (wall clock, like an ESC's own
-  watchdog), ``safe_state()`` on every bringup exit path, and neutral at start.
+  watchdog), ``safe_state()`` on every bringup exit path, and neutral at start. The command
+  period is measured: a ``command_timeout`` shorter than two periods (the watchdog would trip
+  between commands) is refused when set live, and reported (WARN) when a start value is.
 - **sensors** (``SensorDriver``): ``sample_received()`` per sample; no sample for
   ``sample_timeout`` is reported as stale.
 
@@ -38,6 +40,7 @@ from typing import Any, Iterator
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from enbarr_core.framework.errors import DeviceError
+from enbarr_core.framework.health import IntervalMeter
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 
@@ -101,6 +104,7 @@ class CommandWatchdog:
         self.lock = threading.Lock()
         self.timeout_ns = 0
         self.timeouts = 0
+        self.period = IntervalMeter()  # of the commands, on the monotonic clock
         self._last_ns = 0
         self._is_neutral = is_neutral
         self._go_neutral = go_neutral
@@ -112,6 +116,7 @@ class CommandWatchdog:
     def fed(self) -> None:
         """Note a command applied just now (call with ``lock`` held)."""
         self._last_ns = time.monotonic_ns()
+        self.period.add(self._last_ns)
 
     def check(self) -> bool:
         """Go neutral if commands stopped; True when it did."""
@@ -253,8 +258,22 @@ class ActuatorDriver(DeviceNode):
         super().__init__(node_name, **kwargs)
         self.bind_settings([ParamSpec(
             'command_timeout', command_timeout, 'Outputs neutral when commands stop for this '
-            'long', 's', 0.005, 10.0)], lambda v: v['command_timeout'],
-            self.watchdog.set_timeout)
+            'long', 's', 0.005, 10.0)], self._build_timeout, self.watchdog.set_timeout)
+
+    def _build_timeout(self, v: dict[str, Any]) -> float:
+        reason = self._timeout_too_short(v['command_timeout'])
+        if reason:
+            raise ValueError(reason)
+        return v['command_timeout']
+
+    def _timeout_too_short(self, timeout: float) -> str | None:
+        """Why ``timeout`` [s] is too short for the measured command period, or None."""
+        period = self.watchdog.period.period
+        if period is None or timeout >= 2.0 * period:
+            return None
+        return (f'command_timeout = {timeout:g} s is shorter than 2 command periods (measured '
+                f'period {period:.4g} s): the watchdog would put the outputs neutral between '
+                'commands')
 
     def is_neutral(self) -> bool:
         """Whether the outputs are in their safe state now."""
@@ -285,6 +304,14 @@ class ActuatorDriver(DeviceNode):
         """Run the command watchdog."""
         if self.watchdog.check():
             self.get_logger().warn(self._timeout_message)
+
+    def status(self) -> tuple[int, str]:
+        """Return the device status, WARN when command_timeout is too short for the commands."""
+        level, message = super().status()
+        reason = self._timeout_too_short(self.watchdog.timeout_ns * 1e-9)
+        if level == OK and reason:
+            return WARN, reason
+        return level, message
 
     def status_values(self) -> dict[str, Any]:
         """Return whether the outputs are neutral and the watchdog count."""

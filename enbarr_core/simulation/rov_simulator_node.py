@@ -10,6 +10,10 @@ ground, as a DVL locked on the bottom measures it).
 
 The thrust's age is measured on the node's ROS clock, the clock the simulated time of
 ``enbarr scenario`` overrides, so a scenario run does not depend on the machine's speed.
+``sim/thrust`` carries no stamp the simulator uses (its arrival on that clock is what counts),
+so the time policy has nothing to gate here; but ``thrust_timeout`` must cover two measured
+periods of ``sim/thrust`` (else tau drops to zero between messages): a live change below that
+is refused with the measured period.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
 from enbarr_core.framework.checks import floats
+from enbarr_core.framework.health import IntervalMeter
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.allocation.layout_params import declare_thrusters
@@ -114,8 +119,9 @@ class RovSimulatorNode(EnbarrNode):
         self._B = allocation_matrix(self.thrusters)
         self._index = {t.name: i for i, t in enumerate(self.thrusters)}
         self._model: RigidBodyModel | None = None
+        self.thrust_period = IntervalMeter()  # arrivals of sim/thrust on the node's clock
         self.settings: RovSimulatorSettings
-        self.bind_settings(SPECS, RovSimulatorSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         v = self.settings
         self.state = RigidBodyState(np.array(v.initial_position),
                                     quat_from_euler(*v.initial_rpy), np.zeros(6))
@@ -135,6 +141,16 @@ class RovSimulatorNode(EnbarrNode):
         if v.status_period > 0.0:
             self.create_timer(v.status_period, self._status)
 
+    def _build(self, v: Mapping[str, Any]) -> RovSimulatorSettings:
+        settings = RovSimulatorSettings.from_params(v)
+        period = self.thrust_period.period
+        if period is not None and settings.thrust_timeout < 2.0 * period:
+            raise ValueError(
+                f'thrust_timeout = {settings.thrust_timeout:g} s is shorter than 2 periods of '
+                f'{topics.SIM_THRUST.name} (measured period {period:.4g} s): the thrust would '
+                'drop to zero between messages')
+        return settings
+
     def _apply(self, settings: RovSimulatorSettings) -> None:
         with self._lock:
             self.settings = settings
@@ -150,6 +166,7 @@ class RovSimulatorNode(EnbarrNode):
                 thrust[i] = f
         self._thrust = thrust
         self._thrust_ns = self.get_clock().now().nanoseconds
+        self.thrust_period.add(self._thrust_ns)
 
     @property
     def tau(self) -> np.ndarray:

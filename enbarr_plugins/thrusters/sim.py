@@ -7,6 +7,12 @@ goes neutral when commands stop for ``command_timeout`` (a crashed controller or
 link) and on ``safe_state`` (every bringup exit path). Commands outside -1..1 are clipped and
 counted; a command with NaN/Inf or an unknown thruster name is refused and counted.
 
+Time policy (``framework.stamps``): a command stamped more than ``max_future`` ahead of the
+node's clock, or not later than the last applied one (an old command overtaking a newer one),
+is refused and counted, never applied; its stamp is the sensor time the latency log measures
+from. ``/diagnostics`` reports the node degraded when more than 5 % of a second's commands
+are refused.
+
 Two clocks, on purpose. The motor lag is part of the simulated plant: it runs on the node's
 ROS clock, like the simulator that integrates the thrust (with ``use_sim_time``, and in
 ``enbarr scenario``, that is the simulated clock, so a transient does not depend on how fast
@@ -25,15 +31,20 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from enbarr_core.framework.driver import ActuatorDriver
+from enbarr_core.estimation.attitude_filter_node import MAX_FUTURE
+from enbarr_core.framework.driver import REPORT_PERIOD, ActuatorDriver
+from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.allocation.layout_params import declare_thrusters
 from enbarr_interfaces import convert, topics
 
 SPECS = [
     ParamSpec('time_constant', 0.05, 'First-order thrust response time constant', 's', 0.0,
               5.0),
+    ParamSpec('max_future', MAX_FUTURE, 'Commands stamped further ahead of the node clock are '
+              'refused (time policy)', 's', 0.0, 1.0),
 ]
 
 
@@ -42,11 +53,12 @@ class SimThrustersSettings:
     """Settings of ``SimThrustersNode`` (see ``SPECS``)."""
 
     time_constant: float  # [s]
+    max_future: float     # time policy of thruster_commands [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> SimThrustersSettings:
         """Build from the declared parameters' values."""
-        return cls(time_constant=v['time_constant'])
+        return cls(time_constant=v['time_constant'], max_future=v['max_future'])
 
 
 class SimThrustersNode(ActuatorDriver):
@@ -54,6 +66,9 @@ class SimThrustersNode(ActuatorDriver):
 
     def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
         self.neutral = True
+        self.gate = StampGate()
+        self.health = InputHealth()
+        self._health_values: dict[str, int] = {}
         super().__init__(node_name, timeout_message='thruster commands stopped: thrusters '
                          'neutral', **kwargs)
         self.thrusters = declare_thrusters(self)
@@ -77,27 +92,37 @@ class SimThrustersNode(ActuatorDriver):
 
     def _apply(self, settings: SimThrustersSettings) -> None:
         self.settings = settings
+        self.gate.policy = StampPolicy(settings.max_future)
 
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort):
             self.refused += 1
+            self.health.refused('thruster_commands', 'invalid')
             return
         cmd = np.zeros(len(self.names))
         for name, value in zip(msg.name, msg.effort):
             i = self._index.get(name)
             if i is None or not math.isfinite(value):
                 self.refused += 1
+                self.health.refused('thruster_commands', 'invalid')
                 self.get_logger().warn(f'refused thruster command {name}={value}',
                                        throttle_duration_sec=1.0)
                 return
             cmd[i] = value
+        now_ns = self.get_clock().now().nanoseconds
+        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.gate.offer(stamp_ns, now_ns)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.refused += 1
+            self.health.refused('thruster_commands', verdict.value)
+            return
+        self.health.accepted('thruster_commands')
         if np.any(np.abs(cmd) > 1.0):
             self.clipped += 1
             np.clip(cmd, -1.0, 1.0, out=cmd)
-        now_ns = self.get_clock().now().nanoseconds
         with self.commanding():
             self._output(cmd, now_ns)
-        self.latency.add(now_ns - convert.stamp_to_ns(msg.header.stamp))
+        self.latency.add(now_ns - stamp_ns)
 
     def _output(self, cmd: np.ndarray, now_ns: int) -> None:
         """Apply ``cmd`` (normalized) at ``now_ns`` on the node's clock; caller holds the lock.
@@ -139,6 +164,15 @@ class SimThrustersNode(ActuatorDriver):
         self.thrust = np.zeros(len(self.names))  # cut: the lag starts again from rest
         self._output(np.zeros(len(self.names)), self.get_clock().now().nanoseconds)
 
+    def status(self) -> tuple[int, str]:
+        """Return the driver's status, degraded while commands are refused.
+
+        Closes the health window: called once per report, before ``status_values``.
+        """
+        level, message, self._health_values = self.health.report(REPORT_PERIOD)
+        return worst(super().status(), (level, message))
+
     def status_values(self) -> dict[str, Any]:
         """Return the driver counters plus refused and clipped commands."""
-        return {**super().status_values(), 'refused': self.refused, 'clipped': self.clipped}
+        return {**super().status_values(), 'refused': self.refused, 'clipped': self.clipped,
+                **self._health_values}

@@ -11,11 +11,13 @@ import pytest
 from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from support.nodes import add, probe
+from support.saucer import SimClock
 from support.rov import layout_overrides, overrides, sim_parameters, sim_thrusters
 
 from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.allocation.thruster_converter_node import ThrusterConverterNode
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
+from enbarr_core.framework.stamps import StampVerdict
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 
@@ -106,6 +108,7 @@ def rig(context, executor) -> Rig:
     return Rig(node, pub, commands)
 
 
+T0 = 1_000 * 1_000_000_000  # a clock reading [ns]
 THRUSTERS = sim_thrusters()
 B = allocation_matrix(THRUSTERS)
 FWD = np.array([t.max_forward for t in THRUSTERS])
@@ -144,3 +147,29 @@ def test_thruster_converter_refuses_non_finite_wrench(rig):
     w.wrench.force.x = math.nan
     rig.pub.publish(w)
     assert rig.node.rejected == 1 and len(rig.commands) == 0
+
+
+# -- the time policy (issue 8) ---------------------------------------------------------------
+
+def test_force_commands_stamped_ahead_or_out_of_order_are_refused_and_counted(rig):
+    """A force_command stamped 20 s ahead (another process, another clock) was allocated and
+    its stamp handed on to the thrusters; an out-of-order one replaced a newer command."""
+    clock = SimClock(rig.node, t0_ns=T0)
+    rig.send(TAU.tolist(), clock.ns)
+    reports: list[Any] = []
+    rig.node.publish_diagnostics = lambda *a: reports.append(a)
+    for stamp in (clock.ns + 20_000_000_000, clock.ns - 1_000_000):
+        n = len(rig.commands)
+        w = WrenchStamped()
+        convert.ns_to_stamp(stamp, w.header.stamp)
+        convert.set_wrench(w.wrench, (2 * TAU).tolist())
+        rig.pub.publish(w)
+        assert len(rig.commands) == n
+    assert rig.node.gate.counts[StampVerdict.FUTURE] == 1
+    assert rig.node.gate.counts[StampVerdict.NOT_NEWER] == 1
+    clock.advance(0.01)
+    rig.send(TAU.tolist(), clock.ns)  # the next good one goes through
+    rig.node._report()
+    level, message, values = reports[-1]
+    assert level == 1 and 'force_command' in message, message
+    assert values['force_command.future'] == 1 and values['force_command.not_newer'] == 1

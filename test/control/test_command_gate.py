@@ -88,10 +88,10 @@ def test_the_boundaries_are_whole_nanoseconds():
     # below their whole nanosecond): the gate holds exactly 1 001 000 000 ns etc., so a
     # command is held, or accepted, exactly at its limit as documented.
     gate = CommandGate(GateSettings(timeout=1.001, max_age=1.003, max_future=1.005))
-    gate.offer(WANTED, T0, T0)
+    assert gate.check(WANTED, T0 - 1_003_000_000, T0) is Verdict.ACCEPTED
+    gate.offer(WANTED, T0 - 1_003_000_000, T0)
     assert not gate.failsafe(T0 + 1_001_000_000)
     assert gate.failsafe(T0 + 1_001_000_001)
-    assert gate.check(WANTED, T0 - 1_003_000_000, T0) is Verdict.ACCEPTED
     assert gate.check(WANTED, T0 - 1_003_000_001, T0) is Verdict.STALE
     assert gate.check(WANTED, T0 + 1_005_000_000, T0) is Verdict.ACCEPTED
     assert gate.check(WANTED, T0 + 1_005_000_001, T0) is Verdict.FUTURE
@@ -196,12 +196,13 @@ def test_the_goal_is_a_copy_of_the_command(gate):
 # -- counts -----------------------------------------------------------------------------------
 
 def test_every_offer_is_counted_once_under_its_verdict(gate):
-    offers = [(WANTED, 0), (WANTED, 0), (_one(1, math.nan), 0), (_one(2, 1.0), 0),
+    offers = [(WANTED, 1), (WANTED, 0), (WANTED, 0), (_one(1, math.nan), 0), (_one(2, 1.0), 0),
               (_one(3, -0.7), 0), (WANTED, 2 * MAX_AGE_NS), (WANTED, -2 * MAX_FUTURE_NS)]
     for nu, age in offers:
         gate.offer(nu, T0 - age, T0)
-    assert gate.counts == {Verdict.ACCEPTED: 2, Verdict.NON_FINITE: 1,
-                           Verdict.OUT_OF_RANGE: 2, Verdict.STALE: 1, Verdict.FUTURE: 1}
+    assert gate.counts == {Verdict.ACCEPTED: 2, Verdict.NON_FINITE: 1, Verdict.NOT_NEWER: 1,
+                           Verdict.OUT_OF_RANGE: 2, Verdict.STALE: 1, Verdict.FUTURE: 1,
+                           Verdict.WRONG_FRAME: 0, Verdict.CONTESTED: 0}
     gate.check(_one(0, math.nan), T0, T0)  # check alone counts nothing
     assert sum(gate.counts.values()) == len(offers)
 
@@ -234,3 +235,37 @@ def test_bad_new_settings_are_refused_and_the_old_kept(gate):
     with pytest.raises(ValueError, match='timeout'):
         gate.settings = GateSettings(timeout=-1.0)
     assert gate.settings == SETTINGS
+
+
+# -- ordering, frame, contested (issue 8) ----------------------------------------------------
+
+def test_a_command_not_newer_than_the_last_accepted_is_refused(gate):
+    assert gate.offer(WANTED, T0, T0) is Verdict.ACCEPTED
+    assert gate.offer(WANTED * 0.5, T0, T0 + 1) is Verdict.NOT_NEWER
+    assert gate.offer(WANTED * 0.5, T0 - 1, T0 + 1) is Verdict.NOT_NEWER
+    np.testing.assert_array_equal(gate.goal, WANTED)
+    assert gate.offer(WANTED * 0.5, T0 + 1, T0 + 1) is Verdict.ACCEPTED
+    assert gate.counts[Verdict.NOT_NEWER] == 2
+
+
+def test_a_refused_command_does_not_move_the_order(gate):
+    gate.offer(WANTED, T0, T0)
+    assert gate.offer(WANTED * 9.0, T0 + 5, T0 + 5) is Verdict.OUT_OF_RANGE
+    assert gate.offer(WANTED, T0 + 2, T0 + 5) is Verdict.ACCEPTED
+
+
+@pytest.mark.parametrize('frame_id, verdict', [
+    ('base_link', Verdict.ACCEPTED), ('', Verdict.ACCEPTED), ('odom', Verdict.WRONG_FRAME),
+    ('base_link ', Verdict.WRONG_FRAME)])
+def test_frames_other_than_base_link_are_refused(gate, frame_id, verdict):
+    assert gate.offer(WANTED, T0, T0, frame_id) is verdict
+
+
+def test_withdraw_counts_and_engages_the_failsafe(gate):
+    gate.offer(WANTED, T0, T0)
+    gate.withdraw(Verdict.CONTESTED)
+    assert gate.failsafe(T0 + 1)
+    np.testing.assert_array_equal(gate.current_goal(T0 + 1), np.zeros(6))
+    assert gate.counts[Verdict.CONTESTED] == 1
+    with pytest.raises(ValueError):
+        gate.withdraw(Verdict.ACCEPTED)

@@ -262,3 +262,127 @@ def test_failsafe_latency_on_a_controlled_clock(context, executor, spin):
     assert late and late[0][0] - deadline <= rig.PERIOD_NS, (late[0][0] - deadline)
     assert all(not np.any(g) for _, g in late), late
     assert rig.node._failsafe
+
+
+# -- ordering, frame and the single-source rule (issue 8) ------------------------------------
+
+def frame_twist(node: Any, nu: list[float], frame_id: str, offset_s: float = 0.0) -> Any:
+    msg = twist(node, nu, offset_s)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def test_an_out_of_order_command_is_refused_and_counted(rig):
+    rig.send(WANTED)
+    assert rig.until(lambda: rig.node.gate.counts[Verdict.ACCEPTED] == 1)
+    rig.send([0.9, 0, 0, 0, 0, 0], offset_s=-0.2)  # older than the accepted one
+    assert rig.until(lambda: rig.node.gate.counts[Verdict.NOT_NEWER] == 1)
+    assert np.allclose(rig.node.gate.goal, WANTED)
+
+
+@pytest.mark.parametrize('frame_id, accepted', [
+    (topics.BODY_FRAME, True), ('', True), ('odom', False), ('map', False)])
+def test_a_command_in_another_frame_is_refused_and_counted(rig, frame_id, accepted):
+    """Issue 8: a twist in 'odom' was executed as if in base_link."""
+    rig.twist_pub.publish(frame_twist(rig.probe, WANTED, frame_id))
+    if accepted:
+        assert rig.until(lambda: rig.node.gate.counts[Verdict.ACCEPTED] == 1)
+    else:
+        assert rig.until(lambda: rig.node.gate.counts[Verdict.WRONG_FRAME] == 1)
+        assert not np.any(rig.node.gate.goal)
+
+
+class Reports:
+    def __init__(self, node: Any) -> None:
+        self.node = node
+        self.all: list[tuple[int, str, dict[str, Any]]] = []
+        node.publish_diagnostics = lambda *a: self.all.append(a)
+
+
+def test_two_twist_publishers_are_refused_and_named(context, executor, spin):
+    """Issue 8: an outside publisher alternating with the scripted one made the goal
+    alternate. Now while two publish, no command is executed, the goal is zero and
+    /diagnostics says ERROR naming both."""
+    rig = Surface(context, executor, spin)
+    reports = Reports(rig.node)
+    intruder = probe(context, executor, 'intruder')
+    other = intruder.create_publisher(TwistStamped, topics.SURFACE_TWIST.name,
+                                      topics.SURFACE_TWIST.qos)
+    assert rig.until(lambda: other.get_subscription_count() > 0)
+    assert rig.until(lambda: rig.node.twist_guard._sub.get_publisher_count() == 2)
+    n = len(rig.goals)
+    for k in range(6):
+        if k % 2:
+            other.publish(twist(intruder, [-0.5, 0, 0, 0, 0, 0]))
+        else:
+            rig.send(WANTED)
+        assert rig.until(lambda k=k: rig.node.gate.counts[Verdict.CONTESTED] == k + 1)
+    assert rig.node.gate.counts[Verdict.ACCEPTED] == 0
+    assert all(not np.any(g) for g in rig.goals[n:])
+    rig.node._report()
+    level, message, values = reports.all[-1]
+    assert level == 2, message
+    assert '/surface' in message and '/intruder' in message, message
+    assert values['contested'] == 6
+    # One publisher left: commands are taken again.
+    intruder.destroy_publisher(other)
+    assert rig.until(lambda: rig.node.twist_guard._sub.get_publisher_count() == 1)
+    rig.send(WANTED)
+    assert rig.until(lambda: rig.node.gate.counts[Verdict.ACCEPTED] == 1)
+
+
+def test_two_io_publishers_are_refused(context, executor, spin):
+    rig = Surface(context, executor, spin)
+    intruder = probe(context, executor, 'intruder')
+    other = intruder.create_publisher(ParameterMsg, topics.SURFACE_IO.name,
+                                      topics.SURFACE_IO.qos)
+    assert rig.until(lambda: rig.node.io_guard._sub.get_publisher_count() == 2)
+    rig.io_pub.publish(io_msg('gpio_12', True))
+    other.publish(io_msg('gpio_12', False))
+    assert rig.until(lambda: rig.node.io_contested == 2)
+    assert rig.ios == [] and rig.node.io_forwarded == 0
+
+
+# -- timeout against the measured command rate (issue 8: valid but harmful) ------------------
+
+def test_a_timeout_shorter_than_two_command_periods_is_refused_live(context, executor, spin):
+    """A timeout under the surface's command period drops the goal to zero between every two
+    commands (the vehicle stutters). Refused live with the measured period; ok once longer."""
+    from support.nodes import param_client, set_param
+    rig = ClockedSurface(context, executor, spin)
+    t = 1_000 * 1_000_000_000
+    for k in range(12):  # 10 Hz commands
+        rig.set_time(t + k * 100_000_000)
+        rig.send(WANTED)
+    client = param_client(executor, spin, context, 'command_receiver')
+    result = set_param(executor, spin, client, 'timeout', 0.15)
+    assert not result.successful
+    assert 'timeout' in result.reason and 'period' in result.reason, result.reason
+    assert set_param(executor, spin, client, 'timeout', 0.25).successful
+
+
+def test_a_start_timeout_too_short_for_the_commands_is_reported(context, executor, spin):
+    rig = ClockedSurface(context, executor, spin)
+    reports = Reports(rig.node)
+    rig.node.gate.settings = rig.node.gate.settings.__class__(
+        **{**rig.node.gate.settings.__dict__, 'timeout': 0.05})
+    t = 1_000 * 1_000_000_000
+    for k in range(12):
+        rig.set_time(t + k * 100_000_000)
+        rig.send(WANTED)
+    rig.node._report()
+    level, message, _ = reports.all[-1]
+    assert level >= 1 and 'timeout' in message and 'period' in message, message
+
+
+def test_goal_stamps_strictly_increase_at_a_standing_clock(context, executor, spin):
+    """The timer and a command at one simulated instant both publish the goal: the second is
+    stamped 1 ns later, so the controller's time policy takes it (it refuses repeats)."""
+    rig = ClockedSurface(context, executor, spin)
+    rig.set_time(1_000 * 1_000_000_000)
+    n = len(rig.goals)
+    rig.node._publish_goal()
+    rig.send(WANTED)
+    stamps = [t for t, _ in rig.goals[n:]]
+    assert len(stamps) >= 2 and all(b > a for a, b in zip(stamps, stamps[1:])), stamps
+    assert np.allclose(rig.goals[-1][1], WANTED)

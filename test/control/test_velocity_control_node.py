@@ -11,9 +11,11 @@ from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.parameter import Parameter
 from support.nodes import add, get_param, param_client, probe, set_param
 from support.rov import imu_sample
+from support.saucer import SimClock
 
 from enbarr_core.control.velocity_control_node import VelocityControlNode
 from enbarr_core.framework import registry
+from enbarr_core.framework.stamps import StampVerdict
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 
@@ -181,3 +183,116 @@ def test_a_stale_goal_counts_as_zero(feeder):
     feeder.run(250)  # samples go on without a gap; from 2.0 s the goal is stale
     assert abs(node.reference.nu_ref[0]) < 1e-3
     assert node.rejected == 0  # no gap, no reset: the goal timed out
+
+
+# -- the time policy (issue 8) on a controlled clock ----------------------------------------
+
+T0 = 1_000 * 1_000_000_000  # the node's clock at the start of these tests [ns]
+IMU_NS = 2_500_000          # 400 Hz
+GOAL_NS = 100_000_000       # the receiver's 10 Hz
+
+
+class Clocked:
+    """The loop on a clock the test moves; imu/data and goals stamped at the clock's present
+    (what the in-process filter and receiver do)."""
+
+    def __init__(self, context: Any, executor: Any, spin: Any, **params: Any) -> None:
+        self.executor, self.spin, self.context = executor, spin, context
+        self.node = add(executor, VelocityControlNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()]))
+        self.clock = SimClock(self.node, t0_ns=T0)
+        feeder = probe(context, executor, 'feeder')
+        self.imu_pub = feeder.create_topic_publisher(topics.IMU)
+        self.goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
+        self.taus: list[tuple[int, np.ndarray]] = []
+        feeder.create_topic_subscription(topics.FORCE_COMMAND, lambda m: self.taus.append(
+            (convert.stamp_to_ns(m.header.stamp), convert.wrench_to_tau(m.wrench))))
+        LinkBus.of(context).connect()
+        self.t = T0
+        self.reports: list[tuple[int, str, dict[str, Any]]] = []
+        self.node.publish_diagnostics = lambda *a: self.reports.append(a)
+
+    def goal(self, surge: float, stamp_ns: int | None = None) -> None:
+        goal = TwistStamped()
+        goal.twist.linear.x = surge
+        convert.ns_to_stamp(self.t if stamp_ns is None else stamp_ns, goal.header.stamp)
+        self.goal_pub.publish(goal)
+
+    def run(self, n: int, surge: float | None = 0.3) -> None:
+        """``n`` IMU samples at 400 Hz; a goal every 100 ms unless ``surge`` is None."""
+        for _ in range(n):
+            self.t += IMU_NS
+            self.clock.set(self.t)
+            if surge is not None and (self.t - T0) % GOAL_NS == 0:
+                self.goal(surge)
+            self.imu_pub.publish(imu_sample(self.t, rate_z=0.0))
+
+    def report(self) -> tuple[int, str, dict[str, Any]]:
+        self.node._report()
+        return self.reports[-1]
+
+
+@pytest.mark.parametrize('ahead_s', [20.0, 0.4])
+def test_one_future_imu_sample_costs_only_itself(context, executor, spin, ahead_s):
+    """Issue 8: one sample 20 s (0.4 s) ahead stopped the loop for that long (watchdog ->
+    neutral). Now it is refused and counted; every good sample after it gives a force."""
+    rig = Clocked(context, executor, spin)
+    rig.run(200)
+    n = len(rig.taus)
+    rig.imu_pub.publish(imu_sample(rig.t + round(ahead_s * 1e9), rate_z=0.0))
+    rig.run(100)
+    assert len(rig.taus) == n + 100
+    assert max(t for t, _ in rig.taus) == rig.t
+    assert rig.node.imu_gate.counts[StampVerdict.FUTURE] == 1
+    assert rig.node.reference.nu_ref[0] > 0.2  # not reset
+    _, _, values = rig.report()
+    assert values['imu/data.future'] == 1
+
+
+def test_a_future_goal_is_refused_and_never_outlives_its_timeout(context, executor, spin):
+    """A goal stamped 20 s ahead looked fresh for 20 s + goal_timeout: the vehicle drove on
+    after its commands stopped. Refused now: the goal times out as if it never came."""
+    rig = Clocked(context, executor, spin)
+    rig.run(200)
+    rig.goal(0.3, rig.t + 20_000_000_000)
+    rig.run(800, surge=None)  # 2 s without goals: goal_timeout (1 s) passed 1 s ago
+    assert abs(rig.node.reference.nu_ref[0]) < 0.05  # decaying to zero (0.3 when driven)
+    assert rig.node.goal_gate.counts[StampVerdict.FUTURE] == 1
+
+
+def test_an_out_of_order_goal_is_refused(context, executor, spin):
+    rig = Clocked(context, executor, spin)
+    rig.run(800)  # 2 s: the reference settles on 0.3 m/s
+    rig.goal(0.6, rig.t - 50_000_000)  # older than the last goal
+    rig.run(100, surge=None)
+    assert rig.node.reference.nu_ref[0] == pytest.approx(0.3, abs=0.02)
+    assert rig.node.goal_gate.counts[StampVerdict.NOT_NEWER] == 1
+
+
+@pytest.mark.parametrize('name, value, measured', [
+    ('max_gap', 0.004, 'imu/data'),            # 400 Hz: 2 periods = 5 ms
+    ('goal_timeout', 0.15, 'trajectory_request'),  # 10 Hz: 2 periods = 0.2 s
+])
+def test_tolerances_shorter_than_the_measured_period_are_refused(context, executor, spin,
+                                                                name, value, measured):
+    rig = Clocked(context, executor, spin)
+    rig.run(400)
+    client = param_client(executor, spin, context, 'velocity_control')
+    result = set_param(executor, spin, client, name, value)
+    assert not result.successful
+    assert name in result.reason and measured in result.reason and 'period' in result.reason
+    assert set_param(executor, spin, client, name, 0.3).successful
+
+
+def test_resets_and_refusals_make_the_node_degraded(context, executor, spin):
+    rig = Clocked(context, executor, spin, max_gap=0.001)  # every sample is a gap
+    rig.run(400)
+    level, message, values = rig.report()
+    assert level != 0 and 'reset' in message and 'max_gap' in message, message
+    assert values['reset.integrator'] >= 399
+
+
+def test_a_healthy_loop_reports_ok(context, executor, spin):
+    rig = Clocked(context, executor, spin)
+    rig.run(400)
+    assert rig.report()[:2] == (0, 'ok')

@@ -7,12 +7,15 @@ from typing import Any
 
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu, MagneticField
 from support.nodes import add, get_param, param_client, probe, set_param
 from support.rov import G
+from support.saucer import SimClock
 
 from enbarr_core.estimation.attitude_filter_node import AttitudeFilterNode
 from enbarr_core.framework.kinematics import quat_to_euler, ssa
+from enbarr_core.framework.stamps import StampVerdict
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 
@@ -155,3 +158,122 @@ def test_a_gap_restarts_the_filter(rig):
     assert rig.node.rejected == 1 and len(rig.out) == 299 and not rig.node.filter.initialized
     rig.sample(t + DT_NS)
     assert len(rig.out) == 300 and rig.node.rejected == 1 and rig.node.filter.initialized
+
+
+# -- the time policy (issue 8) on a controlled clock ----------------------------------------
+
+T0 = 1_000 * 1_000_000_000  # the node's clock at the start of these tests [ns]
+
+
+class ClockedImu(Imu400):
+    """The filter on a clock the test moves (``SimClock``): a good sample is stamped at the
+    clock's present, as the in-process simulated IMU stamps it."""
+
+    def __init__(self, context: Any, executor: Any, **params: Any) -> None:
+        self.node = add(executor, AttitudeFilterNode(
+            node_name='filtering', context=context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]))
+        self.clock = SimClock(self.node, t0_ns=T0)
+        p = probe(context, executor, 'imu')
+        self._raw_pub = p.create_topic_publisher(topics.IMU_RAW)
+        self._mag_pub = p.create_topic_publisher(topics.IMU_MAG)
+        self.out: list[Imu] = []
+        p.create_topic_subscription(topics.IMU, self.out.append)
+        LinkBus.of(context).connect()
+        self.mag_body = NORTH_BODY_Y
+        self.t = T0
+        self.reports: list[tuple[int, str, dict[str, Any]]] = []
+        self.node.publish_diagnostics = lambda *a: self.reports.append(a)
+
+    def run(self, n: int = 300) -> None:
+        for _ in range(n):
+            self.t += DT_NS
+            self.clock.set(self.t)
+            self.sample(self.t)
+
+
+@pytest.mark.parametrize('ahead_s', [20.0, 0.4, 0.06])
+def test_one_future_sample_costs_only_itself(context, executor, ahead_s):
+    """Issue 8: one imu/data_raw sample stamped 20 s (or 0.4 s) ahead, from another process,
+    stopped imu/data for that long. Now it is refused and counted; every good sample after it
+    gives an output, and the filter is not re-initialized."""
+    rig = ClockedImu(context, executor)
+    rig.run()
+    n = len(rig.out)
+    rig.sample(rig.t + round(ahead_s * 1e9))
+    rig.run(100)
+    assert len(rig.out) == n + 100
+    assert rig.node.filter.initialized
+    assert rig.node.raw_gate.counts[StampVerdict.FUTURE] == 1
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in rig.out]
+    assert max(stamps) == rig.t  # the future stamp never became the time base
+    rig.node._report()
+    level, message, values = rig.reports[-1]
+    assert values['imu/data_raw.future'] == 1
+
+
+def test_a_sample_ahead_within_max_future_costs_at_most_max_future(context, executor):
+    """Accepted (clock offsets up to max_future are normal across machines): the samples
+    that follow are refused as not newer until the clock passes it, max_future at most."""
+    rig = ClockedImu(context, executor, max_future=0.05)
+    rig.run()
+    n = len(rig.out)
+    rig.sample(rig.t + 30_000_000)  # 30 ms ahead, within the 50 ms tolerance
+    rig.run(100)
+    lost = n + 101 - len(rig.out)
+    assert 0 < lost <= 30_000_000 // DT_NS, lost
+    assert rig.node.raw_gate.counts[StampVerdict.NOT_NEWER] == lost
+    assert rig.node.filter.initialized
+
+
+def test_a_future_magnetometer_sample_is_refused(context, executor):
+    rig = ClockedImu(context, executor)
+    rig.run()
+    mag = MagneticField()
+    convert.ns_to_stamp(rig.t + 20_000_000_000, mag.header.stamp)
+    convert.set_vector3(mag.magnetic_field, [1e-5, 0.0, 0.0])
+    rig._mag_pub.publish(mag)
+    assert rig.node.mag_gate.counts[StampVerdict.FUTURE] == 1
+    rig.run(10)
+    assert rig.node.mag_gate.counts[StampVerdict.ACCEPTED] == 310
+
+
+# -- diagnostics and rate-aware max_gap (issue 8: valid but harmful) -----------------------
+
+def test_a_gap_shorter_than_the_sample_period_is_reported_not_ok(context, executor):
+    """Issue 8: max_gap = 0.001 with a 400 Hz IMU reset the filter at every sample and
+    /diagnostics said 'ok'."""
+    rig = ClockedImu(context, executor, max_gap=0.001)
+    rig.run(400)
+    rig.node._report()
+    level, message, values = rig.reports[-1]
+    assert level != 0, message
+    assert 'reset' in message and 'max_gap' in message and '0.0025' in message, message
+    assert values['reset.filter'] >= 399
+
+
+def test_a_max_gap_shorter_than_the_measured_period_is_refused_live(context, executor, spin):
+    rig = ClockedImu(context, executor)
+    rig.run()
+    client = param_client(executor, spin, context, 'filtering')
+    result = set_param(executor, spin, client, 'max_gap', 0.001)
+    assert not result.successful
+    assert 'max_gap' in result.reason and 'period' in result.reason, result.reason
+    assert rig.node.settings.max_gap == 0.5
+    assert set_param(executor, spin, client, 'max_gap', 0.1).successful
+
+
+def test_refused_samples_above_5_percent_make_the_node_degraded(context, executor):
+    rig = ClockedImu(context, executor)
+    rig.run(100)
+    rig.node._report()
+    assert rig.reports[-1][0] == 0, rig.reports[-1]
+    for k in range(10):
+        rig.sample(rig.t + 20_000_000_000 + k)
+    rig.run(100)
+    rig.node._report()
+    level, message, _ = rig.reports[-1]
+    assert level == 1 and 'imu/data_raw' in message and 'future 10' in message, message
+    rig.run(100)
+    rig.node._report()
+    assert rig.reports[-1][0] == 0  # one window later: ok again

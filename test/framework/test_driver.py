@@ -473,3 +473,34 @@ def test_watchdog_timeout_in_seconds_is_exact_in_nanoseconds():
     for seconds, ns in ((2.5, 2_500_000_000), (0.02, 20_000_000), (30.0, 30_000_000_000)):
         dog.set_timeout(seconds)
         assert dog.timeout_ns == ns
+
+
+# -- command_timeout against the measured command rate (issue 8) ---------------------------
+
+def test_a_command_timeout_shorter_than_two_command_periods_is_refused_live(context, clock):
+    """A timeout under the command period trips the watchdog between every two commands: the
+    outputs flicker to neutral while the controller runs. Refused, with the measured period."""
+    node = actuator(context)
+    for i in range(20):  # 10 Hz
+        clock.at(0.1 * i)
+        node.command(0.5)
+    result = node.set_parameters([Parameter('command_timeout', value=0.15)])[0]
+    assert not result.successful
+    assert 'command_timeout' in result.reason and 'period' in result.reason, result.reason
+    assert '0.1 s' in result.reason, result.reason
+    assert node.set_parameters([Parameter('command_timeout', value=0.3)])[0].successful
+    node.destroy_node()
+
+
+def test_a_start_command_timeout_too_short_for_the_commands_is_reported(context, clock):
+    node = actuator(context, command_timeout=0.05)
+    reports = Reports(node)
+    for i in range(20):  # 10 Hz: the watchdog trips between every two commands
+        clock.at(0.1 * i)
+        node.command(0.5)
+        node._supervise()
+    clock.at(3.0)
+    node._supervise()
+    level, message, _ = reports.last
+    assert level == WARN and 'command_timeout' in message and 'period' in message, message
+    node.destroy_node()

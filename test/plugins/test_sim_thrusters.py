@@ -14,6 +14,7 @@ from support.rov import layout_overrides, sim_parameters
 from support.saucer import SimClock
 
 from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.stamps import StampVerdict
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins.thrusters.sim import SimThrustersNode
@@ -121,9 +122,10 @@ def test_time_constant_ramps_thrust(context, executor):
     LinkBus.of(context).connect()
     p = probe(context, executor, 'controller')
     pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
+    msg.header.stamp.sec = 1
     pub.publish(msg)        # from neutral: no lag on the first command
     assert node.thrust == pytest.approx([51.5] * len(names))
-    pub.publish(JointState(name=names, effort=[-1.0] * len(names)))
+    pub.publish(stamped(names, -1.0, 2_000_000_000))
     assert np.all(node.thrust > -40.2) and np.all(node.thrust < 51.5)  # lags
 
 
@@ -148,6 +150,7 @@ class LagRig:
             node_name='thruster_control', context=context, parameter_overrides=layout_overrides(
                 time_constant=TC, command_timeout=10.0)))
         self.clock = SimClock(self.node, t0_ns=1_000_000_000)
+        self.sent = 0
         self.names = self.node.names
         p = probe(context, executor, 'controller')
         self.pub = p.create_topic_publisher(topics.THRUSTER_COMMANDS)
@@ -166,7 +169,10 @@ class LagRig:
     def at(self, t_s: float, effort: float) -> np.ndarray:
         """Command every thruster to ``effort`` at ROS time 1 s + ``t_s``."""
         self.now_ns = 1_000_000_000 + round(t_s * 1e9)
-        self.pub.publish(JointState(name=self.names, effort=[effort] * len(self.names)))
+        # Stamped now, plus 1 ns per command so that a command at a standing clock is still
+        # newer than the last (the time policy refuses repeats; the lag is what is tested).
+        self.sent += 1
+        self.pub.publish(stamped(self.names, effort, self.now_ns + self.sent))
         published = np.array(self.thrusts[-1].effort)
         np.testing.assert_array_equal(published, self.node.thrust)  # what the simulator gets
         assert self.thrusts[-1].header.stamp.sec * 10 ** 9 + \
@@ -318,3 +324,33 @@ def test_watchdog_fires_on_wall_time_while_simulated_time_stands(context, execut
     node.supervise()
     assert node.timeouts == 1 and node.neutral
     assert not np.any(node.thrust)
+
+
+# -- the time policy (issue 8) ---------------------------------------------------------------
+
+def stamped(names: list[str], effort: float, stamp_ns: int) -> JointState:
+    msg = JointState(name=list(names), effort=[effort] * len(names))
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    return msg
+
+
+def test_commands_stamped_ahead_or_out_of_order_are_refused_and_counted(rig):
+    """An older command arriving after a newer one replaced it (and one stamped 20 s ahead
+    put a negative latency in the log). Both are refused, counted, and never applied."""
+    reports: list[Any] = []
+    rig.node.publish_diagnostics = lambda *a: reports.append(a)
+    now = rig.probe.get_clock().now().nanoseconds
+    rig.pub.publish(stamped(NAMES, 0.5, now))
+    n = len(rig.outputs)
+    rig.pub.publish(stamped(NAMES, -0.9, now - 1_000_000))          # older: out of order
+    rig.pub.publish(stamped(NAMES, -0.8, now + 20_000_000_000))     # 20 s ahead
+    assert len(rig.outputs) == n
+    assert rig.node.command.tolist() == [0.5] * len(NAMES)
+    assert rig.node.gate.counts[StampVerdict.NOT_NEWER] == 1
+    assert rig.node.gate.counts[StampVerdict.FUTURE] == 1
+    assert rig.node.gate.counts[StampVerdict.ACCEPTED] == 1
+    assert np.all(rig.node.latency.last(rig.node.latency.count) >= 0)
+    rig.node._supervise()
+    level, message, values = reports[-1]
+    assert level == 1 and 'thruster_commands' in message, message
+    assert values['thruster_commands.future'] == 1

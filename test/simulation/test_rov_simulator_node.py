@@ -230,3 +230,25 @@ def test_profile_vehicle_surge_coast_follows_the_quadratic_damping_solution(cont
         np.testing.assert_allclose(p, np.array(p0) + s * heading, rtol=0.0, atol=TOL)
         assert rot.as_euler('ZYX')[0] == pytest.approx(psi0, abs=TOL)
     assert abs(u) < 0.6 * speed           # it really slowed down (2 s, quadratic drag)
+
+
+# -- thrust_timeout against the measured thrust period (issue 8: valid but harmful) ----------
+
+def test_a_thrust_timeout_shorter_than_two_thrust_periods_is_refused_live(context, executor):
+    """A thrust_timeout under the period of sim/thrust drops tau to zero between every two
+    thrust messages (the simulated ESC stutters). Refused live with the measured period."""
+    from sensor_msgs.msg import JointState
+    sim = add(executor, RovSimulatorNode(
+        node_name='simulator', context=context,
+        parameter_overrides=overrides(sim_parameters('simulator'))))
+    clock = SimClock(sim, t0_ns=1_000 * 1_000_000_000)
+    pub = probe(context, executor, 'thrusters').create_topic_publisher(topics.SIM_THRUST)
+    LinkBus.of(context).connect()
+    names = [t.name for t in sim.thrusters]
+    for _ in range(12):  # 20 Hz
+        clock.advance(0.05)
+        pub.publish(JointState(name=names, effort=[1.0] * len(names)))
+    result = sim.set_parameters([Parameter('thrust_timeout', value=0.08)])[0]
+    assert not result.successful
+    assert 'thrust_timeout' in result.reason and 'period' in result.reason, result.reason
+    assert sim.set_parameters([Parameter('thrust_timeout', value=0.1)])[0].successful
