@@ -23,9 +23,11 @@ from dataclasses import dataclass, replace
 import difflib
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from typing import Any
 
@@ -176,15 +178,17 @@ def _safely(fn: Callable[[], Any], what: str) -> None:
 
 
 class _Stop:
-    """SIGINT/SIGTERM set a flag that the spin loop checks.
+    """SIGINT/SIGTERM set a flag that the spin loop and every wait of the supervisor check.
 
     rclpy's own handlers are off so that the context still works while thrusters are put in
-    their safe state.
+    their safe state. ``count`` counts the requests: a second one while children are being
+    stopped ends their grace period.
     """
 
     def __init__(self) -> None:
         self.requested = False
         self.signal: int | None = None
+        self.count = 0
         self._old: dict[int, Any] = {}
 
     def __enter__(self) -> _Stop:
@@ -195,10 +199,25 @@ class _Stop:
     def _handle(self, signum: int, frame: Any) -> None:
         self.requested = True
         self.signal = signum
+        self.count += 1
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep ``seconds`` or until a stop is requested; True when one was."""
+        deadline = time.monotonic() + seconds
+        while not self.requested:
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                break
+            time.sleep(min(left, STOP_POLL))
+        return self.requested
 
     def __exit__(self, *exc: Any) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+
+
+#: The longest slice of any wait of the supervisor [s]: a stop request is served within it.
+STOP_POLL = 0.1
 
 
 #: How long a Python thread may hold the GIL while another waits [s] (CPython default 5 ms).
@@ -299,23 +318,33 @@ EXIT_PROBLEMS = 3
 
 def node_problems(nodes: Sequence[Node]) -> list[str]:
     """Every fault the nodes reported with ``report_problem``, as 'node: message'."""
-    return [f'{n.get_name()}: {p}' for n in nodes if isinstance(n, EnbarrNode)
+    # The logger's name, not get_name(): the nodes are destroyed by now.
+    return [f'{n.get_logger().name}: {p}' for n in nodes if isinstance(n, EnbarrNode)
             for p in n.problems]
 
 
 def supervise(profile: Profile, child_args: Callable[[str], list[str]],
               duration: float | None = None) -> int:
-    """Run each group as a child process; restart a dead group up to its limit."""
+    """Run each group as a child process; restart a dead group up to its limit.
+
+    Every wait (polling, a restart delay, the grace period of stopping) serves SIGINT and
+    SIGTERM within ``STOP_POLL``. Exit code: 0, 1 (a group died past its restart limit), 2 (a
+    group refused its configuration) or ``EXIT_PROBLEMS`` (a group ended with faults it
+    reported, named again at the end).
+    """
     run_group(profile, None, check_only=True)  # validate every node before anything starts
     procs: dict[str, subprocess.Popen[bytes]] = {}
+    relays: list[_ProblemRelay] = []
     restarts = {g: 0 for g in profile.groups}
     exit_code = 0
 
     def spawn(group: str) -> None:
         procs[group] = subprocess.Popen(child_args(group), preexec_fn=_die_with_parent,
-                                        start_new_session=True)
+                                        start_new_session=True, stderr=subprocess.PIPE)
+        relays.append(_ProblemRelay(group, procs[group]))
         log.info('group %s started (pid %d)', group, procs[group].pid)
 
+    codes: dict[str, int | None] = {}
     with _Stop() as stop:
         try:
             for g in profile.groups:
@@ -330,7 +359,9 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                     limit = profile.groups[g].restart_limit
                     if rc == 2:
                         log.error('group %s refused its configuration (%s)', g, how)
-                        return 2
+                        exit_code = 2
+                        stop.requested = True
+                        break
                     if restarts[g] >= limit:
                         log.error('group %s died (%s); restart limit %d reached, stopping',
                                   g, how, limit)
@@ -340,30 +371,98 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                     restarts[g] += 1
                     log.error('group %s died (%s); restart %d of %d', g, how, restarts[g],
                               limit)
-                    time.sleep(profile.groups[g].restart_delay)
+                    if stop.sleep(profile.groups[g].restart_delay):
+                        break
                     spawn(g)
-                time.sleep(0.1)
+                else:
+                    stop.sleep(STOP_POLL)
+            if stop.signal is not None:
+                log.info('%s received, stopping', signal.Signals(stop.signal).name)
         finally:
-            _stop_children(procs)
+            codes = _stop_children(procs, stop)
+            for relay in relays:
+                relay.join()
+    problems = [f'group {r.group}: {line}' for r in relays for line in r.problems]
+    if problems and exit_code == 0:
+        exit_code = EXIT_PROBLEMS
+    if problems or EXIT_PROBLEMS in codes.values():
+        log.error('%s ended with problems: %s', profile.name, '; '.join(problems) or ', '.join(
+            f'group {g} exited with code {EXIT_PROBLEMS}' for g, c in codes.items()
+            if c == EXIT_PROBLEMS))
+        exit_code = exit_code or EXIT_PROBLEMS
     return exit_code
 
 
-def _stop_children(procs: dict[str, subprocess.Popen[bytes]]) -> None:
-    """SIGINT every group, the recorder last so that it records the others' safe state."""
+class _ProblemRelay:
+    """Copy a child's stderr to ours line by line; keep the problems it ended with.
+
+    ``run_group`` names them in one log line ('... ended with N problem(s): ...'); the
+    supervisor repeats them at its end, naming the group. Bounded: a line is cut at
+    ``MAX_RELAYED_LINE`` characters and at most ``MAX_PROBLEM_LINES`` lines are kept.
+    """
+
+    def __init__(self, group: str, proc: subprocess.Popen[bytes]) -> None:
+        self.group = group
+        self.problems: list[str] = []
+        self._stream = proc.stderr
+        self._thread = threading.Thread(target=self._run, name=f'relay_{group}', daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        assert self._stream is not None
+        out = sys.stderr.buffer if hasattr(sys.stderr, 'buffer') else None
+        for raw in iter(self._stream.readline, b''):
+            try:
+                if out is not None:
+                    out.write(raw)
+                    out.flush()
+                else:
+                    sys.stderr.write(raw.decode('utf-8', 'replace'))
+            except (OSError, ValueError):
+                pass  # our stderr is gone: keep draining so that the child never blocks
+            line = raw.decode('utf-8', 'replace').strip()
+            m = _PROBLEMS_LINE.search(line)
+            if m and len(self.problems) < MAX_PROBLEM_LINES:
+                self.problems.append(m.group(1)[:MAX_RELAYED_LINE])
+        self._stream.close()
+
+    def join(self) -> None:
+        """Wait until the child's stderr is closed and read (bounded)."""
+        self._thread.join(timeout=GRACE_SECONDS)
+
+
+_PROBLEMS_LINE = re.compile(r'ended with \d+ problem\(s\): (.*)$')
+MAX_RELAYED_LINE = 2000
+MAX_PROBLEM_LINES = 20
+
+
+def _stop_children(procs: dict[str, subprocess.Popen[bytes]],
+                   stop: _Stop | None = None) -> dict[str, int | None]:
+    """SIGINT every group, the recorder last so that it records the others' safe state.
+
+    A group still running ``GRACE_SECONDS`` later, or when another stop request comes in
+    while waiting, is killed. Returns each group's exit code.
+    """
     first = {g: p for g, p in procs.items() if g != RECORDER_GROUP}
     last = {g: p for g, p in procs.items() if g == RECORDER_GROUP}
+    seen = stop.count if stop is not None else 0
     for batch in (first, last):
         for p in batch.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
         deadline = time.monotonic() + GRACE_SECONDS
-        for g, p in batch.items():
-            try:
-                p.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.error('group %s did not stop in %.0f s: killed', g, GRACE_SECONDS)
-                p.kill()
-                p.wait()
+        while any(p.poll() is None for p in batch.values()):
+            again = stop is not None and stop.count > seen
+            if again or time.monotonic() >= deadline:
+                for g, p in batch.items():
+                    if p.poll() is None:
+                        why = 'a second stop request' if again else f'{GRACE_SECONDS:.0f} s'
+                        log.error('group %s did not stop (%s): killed', g, why)
+                        p.kill()
+                        p.wait()
+                break
+            time.sleep(STOP_POLL)
+    return {g: p.returncode for g, p in procs.items()}
 
 
 def _die_with_parent() -> None:
