@@ -110,18 +110,47 @@ def _construct(profile: Profile, spec: NodeSpec, context: Context) -> Node:
                    parameter_overrides=overrides, cli_args=cli_args,
                    use_global_arguments=False)
     except EnbarrError as err:
-        param = getattr(err, 'parameter', None)
-        if param is not None:  # point at the file that set the value, if a profile did
-            if param in spec.parameters:
-                key = f'nodes.{spec.name}.parameters.{param}'
-                where = profile.where(key)
-            elif param in profile.parameters:
-                key = f'parameters.{param}'
-                where = profile.where(key)
+        where, key = blame(profile, spec, getattr(err, 'parameter', None))
         raise ProfileError(str(err), path=where, key=key) from err
     except (ValueError, TypeError) as err:  # rclpy refusing a name, a remap, a value
         raise ProfileError(f'{spec.plugin}: {err}', path=where,
                            key=f'nodes.{spec.name}') from err
+
+
+def blame(profile: Profile, spec: NodeSpec, parameter: str | None) -> tuple[str, str]:
+    """Return where (file or '--set') and which key a node's refused configuration came from.
+
+    A node names the parameter at fault, as a full name, a prefix ('azimuths') or a member
+    field ('angle_max'); often a check of several values together names just one of them.
+    So: the latest source (the user's file after its includes, ``--set`` last) among the
+    values the node was given that match the parameter; and when a later source gave the
+    node any other value, that one, since it is what changed the combination. Without a
+    matching value: the file that named the plugin, unless a later source gave values.
+    """
+    keys = [(f'nodes.{spec.name}.parameters.{k}', k) for k in spec.parameters]
+    keys += [(f'parameters.{k}', k) for k in profile.parameters if k not in spec.parameters]
+    rank = {f: i for i, f in enumerate(profile.files)}
+    rank['--set'] = len(profile.files)
+
+    def source(k: str) -> tuple[int, str]:
+        origin = profile.where(k)
+        return rank.get(origin, -1), origin
+
+    def matches(name: str) -> bool:
+        return parameter is not None and (
+            name == parameter or name.startswith(parameter + '.')
+            or name.endswith('.' + parameter))
+
+    matching = [k for k, name in keys if matches(name)]
+    best = max(matching, key=lambda k: source(k)[0], default=None)
+    floor = source(best)[0] if best is not None else rank.get(spec.origin, -1)
+    later = [k for k, _ in keys if source(k)[0] > floor]
+    if later:
+        top = max(source(k)[0] for k in later)
+        best = next(k for k in later if source(k)[0] == top)
+    if best is None:
+        return spec.origin or profile.path, f'nodes.{spec.name}'
+    return profile.where(best), best
 
 
 def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) -> None:

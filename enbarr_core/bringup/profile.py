@@ -198,10 +198,10 @@ def _load_merged(path: Path, stack: tuple[Path, ...], origins: dict[str, str],
 
 #: Limits on an untrusted profile: what a vessel profile needs many times over, and bounded
 #: memory, time and output whatever a file holds (issue 8).
-MAX_FILE_BYTES = 1 << 20        # a profile file [bytes]
+MAX_FILE_BYTES = 256 << 10      # a profile file [bytes] (the largest shipped: 5 KB)
 MAX_NODES = 100_000             # YAML nodes of one document, with aliases expanded
 MAX_DEPTH = 32                  # nesting of mappings and lists
-MAX_ITEMS = 10_000              # items of one mapping or list
+MAX_ITEMS = 4_096               # items of one mapping or list
 MAX_KEY = 200                   # characters of a key
 MAX_SCALAR = 20_000             # characters of a value
 MAX_MESSAGE = 2_000             # characters of an error message's echo of a value
