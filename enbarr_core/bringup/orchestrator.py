@@ -21,10 +21,12 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 import difflib
+import json
 import logging
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -37,7 +39,9 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
 
 from enbarr_interfaces.links import LinkBus
 
@@ -219,10 +223,15 @@ class _Stop:
         self.signal: int | None = None
         self.count = 0
         self._old: dict[int, Any] = {}
+        self._outer: _Stop | None = None
+
+    #: The stop of the run in progress in this process, if any (``VesselGuard`` waits on it).
+    active: _Stop | None = None
 
     def __enter__(self) -> _Stop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._old[sig] = signal.signal(sig, self._handle)
+        self._outer, _Stop.active = _Stop.active, self
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
@@ -243,6 +252,7 @@ class _Stop:
     def __exit__(self, *exc: Any) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+        _Stop.active = self._outer
 
 
 #: The longest slice of any wait of the supervisor [s]: a stop request is served within it.
@@ -292,6 +302,7 @@ def composed(profile: Profile, group: str | None = None, *,
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     nodes: list[Node] = []
+    quiet = check_only
     try:
         nodes.extend(build_nodes(profile, context, group))
         if not check_only:
@@ -299,14 +310,133 @@ def composed(profile: Profile, group: str | None = None, *,
                 executor.add_node(n)
             LinkBus.of(context).connect()
         yield Composition(context, executor, nodes)
+    except DuplicateVesselError as err:
+        quiet = quiet or not err.started  # never publish into another vessel's graph
+        raise
     finally:
-        if check_only:  # nothing ran: no safe state to publish, nothing to record
+        if quiet:  # nothing ran: no safe state to publish, nothing to record
             for n in reversed(nodes):
                 _safely(n.destroy_node, f'destroying {n.get_name()}')
         else:
             shutdown_nodes(nodes)
         executor.shutdown()
         rclpy.try_shutdown(context=context)
+
+
+# -- one vessel per set of node names on a graph ---------------------------------------------
+#: How long a group watches the graph for a namesake before it starts its sources [s].
+#: Discovery between two processes here takes 0.2 s or 2.5 s (bimodal); a later discovery
+#: is still caught by the claims (``VesselGuard``), at the cost of a late stop.
+DISCOVERY_WAIT = 3.0
+#: Where every running group announces its node names and when it started (std_msgs/String,
+#: JSON). Latched: a process that joins later still gets every claim.
+CLAIM_TOPIC = '/enbarr/claims'
+CLAIM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MAX_CLAIM_BYTES = 1 << 16
+
+
+class DuplicateVesselError(EnbarrError):
+    """Another process on this ROS graph runs nodes with the same fully qualified names.
+
+    ``started``: False when refused before any source started (nothing may be published then,
+    not even a safe state: the topics are the other vessel's too).
+    """
+
+    def __init__(self, message: str, *, started: bool) -> None:
+        self.started = started
+        super().__init__(message)
+
+
+class VesselGuard:
+    """Refuse a second process that runs a profile's nodes on the same graph.
+
+    Two runs of one profile in one domain would drive each other's thrusters. At start
+    (``check_start``, before any source starts) a group watches the graph for
+    ``DISCOVERY_WAIT`` and refuses (``DuplicateVesselError``, exit code 2) if any of its nodes'
+    fully qualified names is also another process's. Then it publishes a claim (its names,
+    host, pid and start time) on ``CLAIM_TOPIC``; every group reads the others' claims for
+    the whole run. When two runs missed each other at start (slow discovery, or both started
+    at once), both get each other's claim and agree without talking further: the one whose
+    claim is later in (start time, host, pid) order stops; the earlier one keeps running and
+    logs a warning. The groups of one split profile have disjoint names; a restarted group is
+    a new process that never discovers its killed predecessor.
+    """
+
+    def __init__(self, composition: Composition) -> None:
+        self.nodes = composition.nodes
+        self.names = sorted(n.get_fully_qualified_name() for n in self.nodes)
+        self.host, self.pid = socket.gethostname(), os.getpid()
+        self.started_ns = 0
+        host = self.nodes[0]
+        self._pub = host.create_publisher(String, CLAIM_TOPIC, CLAIM_QOS)
+        self._sub = host.create_subscription(String, CLAIM_TOPIC, self._on_claim, CLAIM_QOS)
+        self._warned: set[tuple[str, int]] = set()
+
+    def duplicates(self) -> list[str]:
+        """Our fully qualified node names that the graph lists more than once."""
+        seen: dict[str, int] = {}
+        for name, ns in self.nodes[0].get_node_names_and_namespaces():
+            fq = f'{ns.rstrip("/")}/{name}'
+            seen[fq] = seen.get(fq, 0) + 1
+        return [fq for fq in self.names if seen.get(fq, 0) > 1]
+
+    def check_start(self, wait: float = DISCOVERY_WAIT) -> None:
+        """Watch the graph for ``wait`` s; refuse on a namesake, else claim the names."""
+        deadline = time.monotonic() + wait
+        while True:
+            dup = self.duplicates()
+            if dup:
+                raise DuplicateVesselError(
+                    f'another process on this ROS graph (ROS_DOMAIN_ID '
+                    f'{os.environ.get("ROS_DOMAIN_ID", "0")}) already runs '
+                    f'{_names(dup)}: refusing to start a second vessel with the same node '
+                    'names; stop the other run, or use another ROS_DOMAIN_ID or namespace',
+                    started=False)
+            stop = _Stop.active
+            if stop is not None and stop.requested:
+                raise KeyboardInterrupt  # a stop before the start: nothing to start
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(STOP_POLL)
+        self.started_ns = time.time_ns()
+        self._pub.publish(String(data=json.dumps({
+            'nodes': self.names, 'host': self.host, 'pid': self.pid,
+            'started_ns': self.started_ns})))
+
+    def _key(self) -> tuple[int, str, int]:
+        return self.started_ns, self.host, self.pid
+
+    def _on_claim(self, msg: String) -> None:
+        if not self.started_ns or len(msg.data) > MAX_CLAIM_BYTES:
+            return
+        try:
+            claim = json.loads(msg.data)
+            other = (int(claim['started_ns']), str(claim['host']), int(claim['pid']))
+            names = {str(n) for n in claim['nodes']}
+        except (ValueError, KeyError, TypeError):
+            return  # not a claim of ours: nothing to agree on
+        if other[1:] == (self.host, self.pid):
+            return
+        shared = sorted(names.intersection(self.names))
+        if not shared:
+            return
+        if other < self._key():
+            raise DuplicateVesselError(
+                f'process {other[2]} on {other[1]} runs {_names(shared)} on this ROS graph '
+                f'and started first: this later run stops (its sources were running for '
+                f'{(time.time_ns() - self.started_ns) / 1e9:.1f} s)', started=True)
+        if other[1:] not in self._warned:
+            self._warned.add(other[1:])
+            log.warning('process %d on %s started later with %s on this ROS graph: it must '
+                        'stop (it will, on seeing the claim of this run)', other[2], other[1],
+                        _names(shared))
+
+
+def _names(names: Sequence[str]) -> str:
+    shown = ', '.join(names[:5])
+    return f'node(s) {shown}' + (f' and {len(names) - 5} more' if len(names) > 5 else '')
+
 
 
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
@@ -319,6 +449,7 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                 if check_only:
                     return 0
                 built = c.nodes
+                VesselGuard(c).check_start()  # one vessel per set of node names on a graph
                 c.start()
                 names = ', '.join(n.get_name() for n in c.nodes)
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
