@@ -135,9 +135,15 @@ def blame(profile: Profile, spec: NodeSpec, parameter: str | None) -> tuple[str,
     keys += [(f'parameters.{k}', k) for k in profile.parameters if k not in spec.parameters]
     rank = {f: i for i, f in enumerate(profile.files)}
     rank['--set'] = len(profile.files)
+    rank.setdefault(spec.origin, len(profile.files) + 1)  # a node no file named: '--record'
+    from_files = f'nodes.{spec.name}' in profile.origins
+
+    def where(k: str) -> str:
+        own = k.startswith(f'nodes.{spec.name}.')
+        return profile.where(k) if from_files or not own else spec.origin
 
     def source(k: str) -> tuple[int, str]:
-        origin = profile.where(k)
+        origin = where(k)
         return rank.get(origin, -1), origin
 
     def matches(name: str) -> bool:
@@ -154,7 +160,7 @@ def blame(profile: Profile, spec: NodeSpec, parameter: str | None) -> tuple[str,
         best = next(k for k in later if source(k)[0] == top)
     if best is None:
         return spec.origin or profile.path, f'nodes.{spec.name}'
-    return profile.where(best), best
+    return where(best), best
 
 
 def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) -> None:

@@ -633,6 +633,9 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
 
 def with_record(profile: Profile, path: str, topics: Sequence[str] = ()) -> Profile:
     """Return the profile with recording to ``path`` switched on (``--record``)."""
+    for t in topics:
+        if not _TOPIC.match(t):
+            raise ProfileError(f'--record-topic {_show(t)}: not a valid topic name')
     seg = profile.record.segment_seconds if profile.record else 1.0
     return replace(profile, record=RecordSpec(path=path, topics=tuple(topics) or (
         profile.record.topics if profile.record else ()), segment_seconds=seg))

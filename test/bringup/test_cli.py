@@ -172,7 +172,8 @@ def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
 def test_negative_duration(tmp_path: Path) -> None:
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '-1',
                           cwd=tmp_path))
-    assert line == 'enbarr bringup: error: --duration must be positive, got -1.0'
+    assert line == ('enbarr bringup: error: --duration must be a positive finite number of '
+                    'seconds, got -1.0')
 
 
 def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
