@@ -751,7 +751,7 @@ def test_bad_value_messages_are_bounded(tmp_path: Path) -> None:
 def test_alias_bomb_in_a_set_value_is_refused() -> None:
     value = '[' + ', '.join(['&a [x, x, x, x, x, x, x, x, x, x]'] + ['*a'] * 9) + ']'
     err = load_error(SIM, (f'imu.p={value}',))  # small; only checks the loader is the same
-    assert "--set" in str(err)
+    assert '--set' in str(err)
 
 
 def test_set_value_too_long_is_refused() -> None:

@@ -301,14 +301,14 @@ def test_a_second_stop_request_kills_groups_that_ignore_the_first(tmp_path: Path
 
 
 # -- a group that ends with problems fails the supervisor, naming them ------------------------
-PROBLEM_PLUGIN = '''
+PROBLEM_PLUGIN = """
 from enbarr_core.framework.node import EnbarrNode
 
 
 class ProblemNode(EnbarrNode):
     def safe_state(self):
         self.report_problem('cannot write the bag: No space left on device (injected)')
-'''
+"""
 
 
 def test_a_group_that_ends_with_problems_fails_the_supervisor(tmp_path: Path) -> None:
