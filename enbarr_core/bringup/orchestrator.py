@@ -549,8 +549,6 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
             for relay in relays:
                 relay.join()
     problems = [f'group {r.group}: {line}' for r in relays for line in r.problems]
-    if problems and exit_code == 0:
-        exit_code = EXIT_PROBLEMS
     if problems or EXIT_PROBLEMS in codes.values():
         log.error('%s ended with problems: %s', profile.name, '; '.join(problems) or ', '.join(
             f'group {g} exited with code {EXIT_PROBLEMS}' for g, c in codes.items()
