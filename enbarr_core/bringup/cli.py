@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from typing import Sequence
 
@@ -32,11 +33,16 @@ def _bringup_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--group', help=argparse.SUPPRESS)  # a supervised child process
 
 
+def check_seconds(option: str, value: float | None) -> None:
+    """Refuse a time span that is not a positive, finite number of seconds."""
+    if value is not None and not (value > 0 and math.isfinite(value)):
+        raise EnbarrError(f'{option} must be a positive finite number of seconds, got {value}')
+
+
 def _bringup(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from enbarr_core.bringup import orchestrator as bringup, profile as profiles
 
-    if args.duration is not None and not args.duration > 0:
-        raise EnbarrError(f'--duration must be positive, got {args.duration}')
+    check_seconds('--duration', args.duration)
     prof = profiles.load_profile(args.profile, args.set)
     profiles.apply_environment(prof)
     if args.record:
@@ -120,8 +126,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args, sub_argv)
     except EnbarrError as err:
-        print(f'enbarr {args.command}: error: {err}', file=sys.stderr)
-        return 2
+        _error(args.command, str(err))
+    except OSError as err:  # the environment refused (a path, a device): not a bug of ours
+        where = f'{err.filename}: ' if err.filename else ''
+        _error(args.command, f'{where}{err.strerror or err}')
+    except RecursionError:  # a last resort: profiles are depth-checked before this
+        _error(args.command, 'input nested too deeply')
+    except KeyboardInterrupt:  # a stop before the run's own handlers were in place
+        return 130
+    return 2
+
+
+#: The longest error line printed [characters]: messages quote values from untrusted files.
+MAX_ERROR = 4000
+
+
+def _error(command: str, message: str) -> None:
+    """Print ``message`` as the one error line of ``command`` (bounded, no line breaks)."""
+    line = ' '.join(message.split('\n'))
+    if len(line) > MAX_ERROR:
+        line = f'{line[:MAX_ERROR]}... ({len(line) - MAX_ERROR} more characters)'
+    print(f'enbarr {command}: error: {line}', file=sys.stderr)
 
 
 def bringup_main() -> int:

@@ -21,11 +21,15 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 import difflib
+import json
 import logging
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 from typing import Any
 
@@ -35,7 +39,9 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
 
 from enbarr_interfaces.links import LinkBus
 
@@ -108,18 +114,53 @@ def _construct(profile: Profile, spec: NodeSpec, context: Context) -> Node:
                    parameter_overrides=overrides, cli_args=cli_args,
                    use_global_arguments=False)
     except EnbarrError as err:
-        param = getattr(err, 'parameter', None)
-        if param is not None:  # point at the file that set the value, if a profile did
-            if param in spec.parameters:
-                key = f'nodes.{spec.name}.parameters.{param}'
-                where = profile.where(key)
-            elif param in profile.parameters:
-                key = f'parameters.{param}'
-                where = profile.where(key)
+        where, key = blame(profile, spec, getattr(err, 'parameter', None))
         raise ProfileError(str(err), path=where, key=key) from err
     except (ValueError, TypeError) as err:  # rclpy refusing a name, a remap, a value
         raise ProfileError(f'{spec.plugin}: {err}', path=where,
                            key=f'nodes.{spec.name}') from err
+
+
+def blame(profile: Profile, spec: NodeSpec, parameter: str | None) -> tuple[str, str]:
+    """Return where (file or '--set') and which key a node's refused configuration came from.
+
+    A node names the parameter at fault, as a full name, a prefix ('azimuths') or a member
+    field ('angle_max'); often a check of several values together names just one of them.
+    So: the latest source (the user's file after its includes, ``--set`` last) among the
+    values the node was given that match the parameter; and when a later source gave the
+    node any other value, that one, since it is what changed the combination. Without a
+    matching value: the file that named the plugin, unless a later source gave values.
+    """
+    keys = [(f'nodes.{spec.name}.parameters.{k}', k) for k in spec.parameters]
+    keys += [(f'parameters.{k}', k) for k in profile.parameters if k not in spec.parameters]
+    rank = {f: i for i, f in enumerate(profile.files)}
+    rank['--set'] = len(profile.files)
+    rank.setdefault(spec.origin, len(profile.files) + 1)  # a node no file named: '--record'
+    from_files = f'nodes.{spec.name}' in profile.origins
+
+    def where(k: str) -> str:
+        own = k.startswith(f'nodes.{spec.name}.')
+        return profile.where(k) if from_files or not own else spec.origin
+
+    def source(k: str) -> tuple[int, str]:
+        origin = where(k)
+        return rank.get(origin, -1), origin
+
+    def matches(name: str) -> bool:
+        return parameter is not None and (
+            name == parameter or name.startswith(parameter + '.')
+            or name.endswith('.' + parameter))
+
+    matching = [k for k, name in keys if matches(name)]
+    best = max(matching, key=lambda k: source(k)[0], default=None)
+    floor = source(best)[0] if best is not None else rank.get(spec.origin, -1)
+    later = [k for k, _ in keys if source(k)[0] > floor]
+    if later:
+        top = max(source(k)[0] for k in later)
+        best = next(k for k in later if source(k)[0] == top)
+    if best is None:
+        return spec.origin or profile.path, f'nodes.{spec.name}'
+    return where(best), best
 
 
 def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) -> None:
@@ -176,29 +217,52 @@ def _safely(fn: Callable[[], Any], what: str) -> None:
 
 
 class _Stop:
-    """SIGINT/SIGTERM set a flag that the spin loop checks.
+    """SIGINT/SIGTERM set a flag that the spin loop and every wait of the supervisor check.
 
     rclpy's own handlers are off so that the context still works while thrusters are put in
-    their safe state.
+    their safe state. ``count`` counts the requests: a second one while children are being
+    stopped ends their grace period.
     """
 
     def __init__(self) -> None:
         self.requested = False
         self.signal: int | None = None
+        self.count = 0
         self._old: dict[int, Any] = {}
+        self._outer: _Stop | None = None
+
+    #: The stop of the run in progress in this process, if any (``VesselGuard`` waits on it).
+    active: _Stop | None = None
 
     def __enter__(self) -> _Stop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._old[sig] = signal.signal(sig, self._handle)
+        self._outer, _Stop.active = _Stop.active, self
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.requested = True
         self.signal = signum
+        self.count += 1
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep ``seconds`` or until a stop is requested; True when one was."""
+        deadline = time.monotonic() + seconds
+        while not self.requested:
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                break
+            time.sleep(min(left, STOP_POLL))
+        return self.requested
 
     def __exit__(self, *exc: Any) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+        _Stop.active = self._outer
+
+
+#: The longest slice of any wait of the supervisor [s]: a stop request is served within it.
+STOP_POLL = 0.1
 
 
 #: How long a Python thread may hold the GIL while another waits [s] (CPython default 5 ms).
@@ -244,6 +308,7 @@ def composed(profile: Profile, group: str | None = None, *,
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     nodes: list[Node] = []
+    quiet = check_only
     try:
         nodes.extend(build_nodes(profile, context, group))
         if not check_only:
@@ -251,14 +316,133 @@ def composed(profile: Profile, group: str | None = None, *,
                 executor.add_node(n)
             LinkBus.of(context).connect()
         yield Composition(context, executor, nodes)
+    except DuplicateVesselError as err:
+        quiet = quiet or not err.started  # never publish into another vessel's graph
+        raise
     finally:
-        if check_only:  # nothing ran: no safe state to publish, nothing to record
+        if quiet:  # nothing ran: no safe state to publish, nothing to record
             for n in reversed(nodes):
                 _safely(n.destroy_node, f'destroying {n.get_name()}')
         else:
             shutdown_nodes(nodes)
         executor.shutdown()
         rclpy.try_shutdown(context=context)
+
+
+# -- one vessel per set of node names on a graph ---------------------------------------------
+#: How long a group watches the graph for a namesake before it starts its sources [s].
+#: Discovery between two processes here takes 0.2 s or 2.5 s (bimodal); a later discovery
+#: is still caught by the claims (``VesselGuard``), at the cost of a late stop.
+DISCOVERY_WAIT = 3.0
+#: Where every running group announces its node names and when it started (std_msgs/String,
+#: JSON). Latched: a process that joins later still gets every claim.
+CLAIM_TOPIC = '/enbarr/claims'
+CLAIM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MAX_CLAIM_BYTES = 1 << 16
+
+
+class DuplicateVesselError(EnbarrError):
+    """Another process on this ROS graph runs nodes with the same fully qualified names.
+
+    ``started``: False when refused before any source started (nothing may be published then,
+    not even a safe state: the topics are the other vessel's too).
+    """
+
+    def __init__(self, message: str, *, started: bool) -> None:
+        self.started = started
+        super().__init__(message)
+
+
+class VesselGuard:
+    """Refuse a second process that runs a profile's nodes on the same graph.
+
+    Two runs of one profile in one domain would drive each other's thrusters. At start
+    (``check_start``, before any source starts) a group watches the graph for
+    ``DISCOVERY_WAIT`` and refuses (``DuplicateVesselError``, exit code 2) if any of its nodes'
+    fully qualified names is also another process's. Then it publishes a claim (its names,
+    host, pid and start time) on ``CLAIM_TOPIC``; every group reads the others' claims for
+    the whole run. When two runs missed each other at start (slow discovery, or both started
+    at once), both get each other's claim and agree without talking further: the one whose
+    claim is later in (start time, host, pid) order stops; the earlier one keeps running and
+    logs a warning. The groups of one split profile have disjoint names; a restarted group is
+    a new process that never discovers its killed predecessor.
+    """
+
+    def __init__(self, composition: Composition) -> None:
+        self.nodes = composition.nodes
+        self.names = sorted(n.get_fully_qualified_name() for n in self.nodes)
+        self.host, self.pid = socket.gethostname(), os.getpid()
+        self.started_ns = 0
+        host = self.nodes[0]
+        self._pub = host.create_publisher(String, CLAIM_TOPIC, CLAIM_QOS)
+        self._sub = host.create_subscription(String, CLAIM_TOPIC, self._on_claim, CLAIM_QOS)
+        self._warned: set[tuple[str, int]] = set()
+
+    def duplicates(self) -> list[str]:
+        """Our fully qualified node names that the graph lists more than once."""
+        seen: dict[str, int] = {}
+        for name, ns in self.nodes[0].get_node_names_and_namespaces():
+            fq = f'{ns.rstrip("/")}/{name}'
+            seen[fq] = seen.get(fq, 0) + 1
+        return [fq for fq in self.names if seen.get(fq, 0) > 1]
+
+    def check_start(self, wait: float = DISCOVERY_WAIT) -> None:
+        """Watch the graph for ``wait`` s; refuse on a namesake, else claim the names."""
+        deadline = time.monotonic() + wait
+        while True:
+            dup = self.duplicates()
+            if dup:
+                raise DuplicateVesselError(
+                    f'another process on this ROS graph (ROS_DOMAIN_ID '
+                    f'{os.environ.get("ROS_DOMAIN_ID", "0")}) already runs '
+                    f'{_names(dup)}: refusing to start a second vessel with the same node '
+                    'names; stop the other run, or use another ROS_DOMAIN_ID or namespace',
+                    started=False)
+            stop = _Stop.active
+            if stop is not None and stop.requested:
+                raise KeyboardInterrupt  # a stop before the start: nothing to start
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(STOP_POLL)
+        self.started_ns = time.time_ns()
+        self._pub.publish(String(data=json.dumps({
+            'nodes': self.names, 'host': self.host, 'pid': self.pid,
+            'started_ns': self.started_ns})))
+
+    def _key(self) -> tuple[int, str, int]:
+        return self.started_ns, self.host, self.pid
+
+    def _on_claim(self, msg: String) -> None:
+        if not self.started_ns or len(msg.data) > MAX_CLAIM_BYTES:
+            return
+        try:
+            claim = json.loads(msg.data)
+            other = (int(claim['started_ns']), str(claim['host']), int(claim['pid']))
+            names = {str(n) for n in claim['nodes']}
+        except (ValueError, KeyError, TypeError):
+            return  # not a claim of ours: nothing to agree on
+        if other[1:] == (self.host, self.pid):
+            return
+        shared = sorted(names.intersection(self.names))
+        if not shared:
+            return
+        if other < self._key():
+            raise DuplicateVesselError(
+                f'process {other[2]} on {other[1]} runs {_names(shared)} on this ROS graph '
+                f'and started first: this later run stops (its sources were running for '
+                f'{(time.time_ns() - self.started_ns) / 1e9:.1f} s)', started=True)
+        if other[1:] not in self._warned:
+            self._warned.add(other[1:])
+            log.warning('process %d on %s started later with %s on this ROS graph: it must '
+                        'stop (it will, on seeing the claim of this run)', other[2], other[1],
+                        _names(shared))
+
+
+def _names(names: Sequence[str]) -> str:
+    shown = ', '.join(names[:5])
+    return f'node(s) {shown}' + (f' and {len(names) - 5} more' if len(names) > 5 else '')
+
 
 
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
@@ -271,6 +455,7 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                 if check_only:
                     return 0
                 built = c.nodes
+                VesselGuard(c).check_start()  # one vessel per set of node names on a graph
                 c.start()
                 names = ', '.join(n.get_name() for n in c.nodes)
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
@@ -299,23 +484,33 @@ EXIT_PROBLEMS = 3
 
 def node_problems(nodes: Sequence[Node]) -> list[str]:
     """Every fault the nodes reported with ``report_problem``, as 'node: message'."""
-    return [f'{n.get_name()}: {p}' for n in nodes if isinstance(n, EnbarrNode)
+    # The logger's name, not get_name(): the nodes are destroyed by now.
+    return [f'{n.get_logger().name}: {p}' for n in nodes if isinstance(n, EnbarrNode)
             for p in n.problems]
 
 
 def supervise(profile: Profile, child_args: Callable[[str], list[str]],
               duration: float | None = None) -> int:
-    """Run each group as a child process; restart a dead group up to its limit."""
+    """Run each group as a child process; restart a dead group up to its limit.
+
+    Every wait (polling, a restart delay, the grace period of stopping) serves SIGINT and
+    SIGTERM within ``STOP_POLL``. Exit code: 0, 1 (a group died past its restart limit), 2 (a
+    group refused its configuration) or ``EXIT_PROBLEMS`` (a group ended with faults it
+    reported, named again at the end).
+    """
     run_group(profile, None, check_only=True)  # validate every node before anything starts
     procs: dict[str, subprocess.Popen[bytes]] = {}
+    relays: list[_ProblemRelay] = []
     restarts = {g: 0 for g in profile.groups}
     exit_code = 0
 
     def spawn(group: str) -> None:
         procs[group] = subprocess.Popen(child_args(group), preexec_fn=_die_with_parent,
-                                        start_new_session=True)
+                                        start_new_session=True, stderr=subprocess.PIPE)
+        relays.append(_ProblemRelay(group, procs[group]))
         log.info('group %s started (pid %d)', group, procs[group].pid)
 
+    codes: dict[str, int | None] = {}
     with _Stop() as stop:
         try:
             for g in profile.groups:
@@ -330,7 +525,9 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                     limit = profile.groups[g].restart_limit
                     if rc == 2:
                         log.error('group %s refused its configuration (%s)', g, how)
-                        return 2
+                        exit_code = 2
+                        stop.requested = True
+                        break
                     if restarts[g] >= limit:
                         log.error('group %s died (%s); restart limit %d reached, stopping',
                                   g, how, limit)
@@ -340,30 +537,96 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                     restarts[g] += 1
                     log.error('group %s died (%s); restart %d of %d', g, how, restarts[g],
                               limit)
-                    time.sleep(profile.groups[g].restart_delay)
+                    if stop.sleep(profile.groups[g].restart_delay):
+                        break
                     spawn(g)
-                time.sleep(0.1)
+                else:
+                    stop.sleep(STOP_POLL)
+            if stop.signal is not None:
+                log.info('%s received, stopping', signal.Signals(stop.signal).name)
         finally:
-            _stop_children(procs)
+            codes = _stop_children(procs, stop)
+            for relay in relays:
+                relay.join()
+    problems = [f'group {r.group}: {line}' for r in relays for line in r.problems]
+    if problems or EXIT_PROBLEMS in codes.values():
+        log.error('%s ended with problems: %s', profile.name, '; '.join(problems) or ', '.join(
+            f'group {g} exited with code {EXIT_PROBLEMS}' for g, c in codes.items()
+            if c == EXIT_PROBLEMS))
+        exit_code = exit_code or EXIT_PROBLEMS
     return exit_code
 
 
-def _stop_children(procs: dict[str, subprocess.Popen[bytes]]) -> None:
-    """SIGINT every group, the recorder last so that it records the others' safe state."""
+class _ProblemRelay:
+    """Copy a child's stderr to ours line by line; keep the problems it ended with.
+
+    ``run_group`` names them in one log line ('... ended with N problem(s): ...'); the
+    supervisor repeats them at its end, naming the group. Bounded: a line is cut at
+    ``MAX_RELAYED_LINE`` characters and at most ``MAX_PROBLEM_LINES`` lines are kept.
+    """
+
+    def __init__(self, group: str, proc: subprocess.Popen[bytes]) -> None:
+        self.group = group
+        self.problems: list[str] = []
+        self._stream = proc.stderr
+        self._thread = threading.Thread(target=self._run, name=f'relay_{group}', daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        assert self._stream is not None
+        out = sys.stderr.buffer if hasattr(sys.stderr, 'buffer') else None
+        for raw in iter(self._stream.readline, b''):
+            try:
+                if out is not None:
+                    out.write(raw)
+                    out.flush()
+                else:
+                    sys.stderr.write(raw.decode('utf-8', 'replace'))
+            except (OSError, ValueError):
+                pass  # our stderr is gone: keep draining so that the child never blocks
+            line = raw.decode('utf-8', 'replace').strip()
+            m = _PROBLEMS_LINE.search(line)
+            if m and len(self.problems) < MAX_PROBLEM_LINES:
+                self.problems.append(m.group(1)[:MAX_RELAYED_LINE])
+        self._stream.close()
+
+    def join(self) -> None:
+        """Wait until the child's stderr is closed and read (bounded)."""
+        self._thread.join(timeout=GRACE_SECONDS)
+
+
+_PROBLEMS_LINE = re.compile(r'ended with \d+ problem\(s\): (.*)$')
+MAX_RELAYED_LINE = 2000
+MAX_PROBLEM_LINES = 20
+
+
+def _stop_children(procs: dict[str, subprocess.Popen[bytes]],
+                   stop: _Stop | None = None) -> dict[str, int | None]:
+    """SIGINT every group, the recorder last so that it records the others' safe state.
+
+    A group still running ``GRACE_SECONDS`` later, or when another stop request comes in
+    while waiting, is killed. Returns each group's exit code.
+    """
     first = {g: p for g, p in procs.items() if g != RECORDER_GROUP}
     last = {g: p for g, p in procs.items() if g == RECORDER_GROUP}
+    seen = stop.count if stop is not None else 0
     for batch in (first, last):
         for p in batch.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
         deadline = time.monotonic() + GRACE_SECONDS
-        for g, p in batch.items():
-            try:
-                p.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.error('group %s did not stop in %.0f s: killed', g, GRACE_SECONDS)
-                p.kill()
-                p.wait()
+        while any(p.poll() is None for p in batch.values()):
+            again = stop is not None and stop.count > seen
+            if again or time.monotonic() >= deadline:
+                for g, p in batch.items():
+                    if p.poll() is None:
+                        why = 'a second stop request' if again else f'{GRACE_SECONDS:.0f} s'
+                        log.error('group %s did not stop (%s): killed', g, why)
+                        p.kill()
+                        p.wait()
+                break
+            time.sleep(STOP_POLL)
+    return {g: p.returncode for g, p in procs.items()}
 
 
 def _die_with_parent() -> None:

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 import os
 from pathlib import Path
 import re
+import reprlib
 import sys
 from typing import Any
 
@@ -152,7 +153,8 @@ def resolve_profile(ref: str, relative_to: Path | None = None) -> Path:
             return c.resolve()
     installed = sorted({f.stem for d in search_dirs() for f in d.glob('*.yaml')})
     raise ProfileError(
-        f'profile {ref!r} not found (looked in: {", ".join(str(c.parent) for c in candidates)}); '
+        f'profile {_show(ref)} not found (looked in: '
+        f'{", ".join(str(c.parent) for c in candidates)}); '
         f'installed profiles: {", ".join(installed) or "none"}')
 
 
@@ -194,27 +196,169 @@ def _load_merged(path: Path, stack: tuple[Path, ...], origins: dict[str, str],
     return merged
 
 
+#: Limits on an untrusted profile: what a vessel profile needs many times over, and bounded
+#: memory, time and output whatever a file holds (issue 8).
+MAX_FILE_BYTES = 256 << 10      # a profile file [bytes] (the largest shipped: 5 KB)
+MAX_NODES = 100_000             # YAML nodes of one document, with aliases expanded
+MAX_DEPTH = 32                  # nesting of mappings and lists
+MAX_ITEMS = 4_096               # items of one mapping or list
+MAX_KEY = 200                   # characters of a key
+MAX_SCALAR = 20_000             # characters of a value
+MAX_MESSAGE = 2_000             # characters of an error message's echo of a value
+
+
+class _Refused(Exception):
+    """What the loader refuses, and where (turned into a ``ProfileError`` by its caller)."""
+
+    def __init__(self, message: str, mark: Any) -> None:
+        super().__init__(message)
+        self.mark = mark
+
+
+# libyaml when PyYAML has it: the pure-Python scanner takes ~100 s for a 256 KiB profile on a
+# loaded Pi-class core; libyaml ~4 s. Both parse the same YAML 1.1.
+_Loader: Any = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+
+
+class _ProfileLoader(_Loader):  # type: ignore[misc, valid-type]
+    """``SafeLoader`` that refuses duplicate keys (merge keys ``<<`` aside)."""
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == 'tag:yaml.org,2002:merge':
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:  # an unhashable key: SafeLoader says so itself
+                    continue
+                if first is not key_node:
+                    raise _Refused(f'duplicate key {_show(key)} (first at line '
+                                   f'{first.start_mark.line + 1})', key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _check_events(text: str) -> None:
+    """Refuse nesting deeper than ``MAX_DEPTH`` or a scalar longer than ``MAX_SCALAR``.
+
+    On the flat event stream, before anything recursive (composing, constructing) runs.
+    """
+    depth = 0
+    for event in yaml.parse(text, Loader=_Loader):
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise _Refused(f'nested deeper than {MAX_DEPTH} levels', event.start_mark)
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+        elif isinstance(event, yaml.ScalarEvent) and len(event.value) > MAX_SCALAR:
+            raise _Refused(f'a value longer than {MAX_SCALAR} characters', event.start_mark)
+
+
+def _check_size(root: Any) -> None:
+    """Refuse a document whose expanded size, collections or scalars pass the limits.
+
+    Counts every node as often as aliases repeat it (an alias bomb expands exponentially)
+    without expanding anything: each node's expanded size is computed once.
+    """
+    sizes: dict[int, int] = {}
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        if id(node) in sizes:
+            continue
+        if isinstance(node, yaml.ScalarNode):
+            if len(node.value) > MAX_SCALAR:
+                raise _Refused(f'a value longer than {MAX_SCALAR} characters', node.start_mark)
+            sizes[id(node)] = 1
+            continue
+        children = ([c for kv in node.value for c in kv] if isinstance(node, yaml.MappingNode)
+                    else list(node.value))
+        if not done:
+            if len(node.value) > MAX_ITEMS:
+                raise _Refused(f'more than {MAX_ITEMS} items', node.start_mark)
+            if isinstance(node, yaml.MappingNode):
+                for k, _ in node.value:
+                    if isinstance(k, yaml.ScalarNode) and len(k.value) > MAX_KEY:
+                        raise _Refused(f'a key longer than {MAX_KEY} characters', k.start_mark)
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in sizes)
+            continue
+        total = 1 + sum(sizes[id(c)] for c in children)
+        if total > MAX_NODES:
+            raise _Refused(f'expands to more than {MAX_NODES} values (aliases included)',
+                           node.start_mark)
+        sizes[id(node)] = total
+
+
+def _safe_load(text: str) -> Any:
+    """``yaml.safe_load`` that refuses duplicate keys and anything past the limits above."""
+    _check_events(text)
+    loader = _ProfileLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_size(node)
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 200
+_REPR.maxlist = _REPR.maxdict = 20
+_REPR.maxlevel = 4
+
+
+def _show(value: Any) -> str:
+    """``repr(value)``, bounded: error messages echo untrusted values."""
+    return _REPR.repr(value)
+
+
+def _where(mark: Any) -> str:
+    return f'line {mark.line + 1}, column {mark.column + 1}: ' if mark else ''
+
+
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text(encoding='utf-8')
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise ProfileError(f'too large: {path.stat().st_size} bytes (at most '
+                               f'{MAX_FILE_BYTES})', path=str(path))
+        with path.open('rb') as f:  # a file that grows after stat is still cut off
+            data = f.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise ProfileError(f'too large: more than {MAX_FILE_BYTES} bytes', path=str(path))
+        text = data.decode('utf-8')
     except OSError as err:
-        raise ProfileError(f'cannot read: {err.strerror}', path=str(path)) from err
+        raise ProfileError(f'cannot read: {err.strerror or err}', path=str(path)) from err
     except UnicodeDecodeError as err:
         raise ProfileError(f'not UTF-8 text: byte {err.start}: {err.reason}',
                            path=str(path)) from err
     try:
-        raw = yaml.safe_load(text)
+        raw = _safe_load(text)
+    except _Refused as err:
+        raise ProfileError(f'{_where(err.mark)}{err}', path=str(path)) from None
+    except RecursionError:
+        raise ProfileError(f'nested deeper than {MAX_DEPTH} levels', path=str(path)) from None
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
-        at = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark else ''
         problem = getattr(err, 'problem', None) or str(err)
-        raise ProfileError(f'{at}invalid YAML: {problem}', path=str(path)) from err
+        raise ProfileError(f'{_where(mark)}invalid YAML: {_cut(problem)}',
+                           path=str(path)) from err
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
         raise ProfileError(f'expected a mapping at the top level, got {_kind(raw)}',
                            path=str(path))
     return raw
+
+
+def _cut(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text``, cut to ``limit`` characters: messages echo values, and values are untrusted."""
+    return text if len(text) <= limit else f'{text[:limit]}... ({len(text) - limit} more)'
 
 
 def _check_structure(raw: dict[str, Any], where: str) -> None:
@@ -256,7 +400,7 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                     raise ProfileError(f'expected a string, got {_kind(node[k])}', path=where,
                                        key=f'{key}.{k}')
             if 'namespace' in node and not _NAMESPACE.match(node['namespace']):
-                raise ProfileError(f'{node["namespace"]!r} is not a valid ROS namespace',
+                raise ProfileError(f'{_show(node["namespace"])} is not a valid ROS namespace',
                                    path=where, key=f'{key}.namespace')
             if 'group' in node and not _NAME.match(node['group']):
                 raise ProfileError('group names are letters, digits and _', path=where,
@@ -269,7 +413,7 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                 for src, dst in remaps.items():
                     for t in (src, dst):
                         if not isinstance(t, str) or not _TOPIC.match(t):
-                            raise ProfileError(f'{t!r} is not a valid topic name', path=where,
+                            raise ProfileError(f'{_show(t)} is not a valid topic name', path=where,
                                                key=f'{key}.remappings')
             if 'parameters' in node:
                 node['parameters'] = _flatten_parameters(node['parameters'], where,
@@ -321,12 +465,12 @@ def _expect_number(d: dict[str, Any], k: str, where: str, key: str, *, integer: 
     if isinstance(v, bool) or not ok or v < 0 or (positive and v == 0):
         what = 'a non-negative integer' if integer else (
             'a positive number' if positive else 'a non-negative number')
-        raise ProfileError(f'expected {what}, got {v!r}', path=where, key=f'{key}.{k}')
+        raise ProfileError(f'expected {what}, got {_show(v)}', path=where, key=f'{key}.{k}')
 
 
 def _kind(v: Any) -> str:
     return {dict: 'a mapping', list: 'a list', str: 'a string', type(None): 'nothing'}.get(
-        type(v), f'{type(v).__name__} {v!r}')
+        type(v), f'{type(v).__name__} {_show(v)}')
 
 
 def _flatten_parameters(params: Any, where: str, key: str) -> dict[str, Any]:
@@ -359,7 +503,7 @@ def _parameter_value(v: Any, where: str, key: str) -> Any:
         if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
             return list(v) if all(isinstance(x, int) for x in v) else [float(x) for x in v]
         raise ProfileError('a list parameter holds values of one type (numbers, strings or '
-                           f'booleans), got {v!r}', path=where, key=key)
+                           f'booleans), got {_show(v)}', path=where, key=key)
     raise ProfileError(f'expected a number, string, boolean or list of them, got {_kind(v)}',
                        path=where, key=key)
 
@@ -393,22 +537,30 @@ def _copy(v: Any) -> Any:
 
 def _apply_set(merged: dict[str, Any], item: str, origins: dict[str, str]) -> None:
     """``node.param=value`` (value parsed as YAML) into the merged profile."""
+    if len(item) > MAX_SCALAR:
+        raise ProfileError(f'--set {_show(item)}: longer than {MAX_SCALAR} characters')
     target, sep, text = item.partition('=')
     node, dot, param = target.partition('.')
     if not sep or not dot or not node or not param:
-        raise ProfileError(f'--set {item!r}: expected NODE.PARAM=VALUE, e.g. '
+        raise ProfileError(f'--set {_show(item)}: expected NODE.PARAM=VALUE, e.g. '
                            'velocity_control.kp=[1.0,1.0,1.0,1.0,1.0,1.0]')
     nodes = merged.get('nodes') or {}
     if node not in nodes:
-        raise ProfileError(f'--set {item!r}: no node {node!r}; nodes: '
+        raise ProfileError(f'--set {_show(item)}: no node {_show(node)}; nodes: '
                            f'{", ".join(sorted(nodes))}')
     try:
-        value = yaml.safe_load(text)
+        value = _safe_load(text)
+    except _Refused as err:
+        raise ProfileError(f'--set {_show(item)}: value {err}') from None
+    except RecursionError:
+        raise ProfileError(f'--set {_show(item)}: value nested deeper than {MAX_DEPTH} '
+                           'levels') from None
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         at = f' at column {mark.column + 1}' if mark else ''
         problem = getattr(err, 'problem', None) or str(err).replace('\n', ' ')
-        raise ProfileError(f'--set {item!r}: value is not valid YAML{at}: {problem}') from err
+        raise ProfileError(f'--set {_show(item)}: value is not valid YAML{at}: '
+                           f'{_cut(problem)}') from err
     value = _parameter_value(value, '--set', f'{node}.{param}')
     nodes[node].setdefault('parameters', {})[param] = value
     origins[f'nodes.{node}.parameters.{param}'] = '--set'
@@ -487,6 +639,9 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
 
 def with_record(profile: Profile, path: str, topics: Sequence[str] = ()) -> Profile:
     """Return the profile with recording to ``path`` switched on (``--record``)."""
+    for t in topics:
+        if not _TOPIC.match(t):
+            raise ProfileError(f'--record-topic {_show(t)}: not a valid topic name')
     seg = profile.record.segment_seconds if profile.record else 1.0
     return replace(profile, record=RecordSpec(path=path, topics=tuple(topics) or (
         profile.record.topics if profile.record else ()), segment_seconds=seg))

@@ -60,12 +60,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Measure the chain and print one JSON line of figures."""
-    from enbarr_core.framework.errors import EnbarrError
-    if not (args.rate > 0 and args.seconds > 0):
-        raise EnbarrError('--rate and --seconds must be positive')
+    import math
+
+    from enbarr_core.bringup.cli import check_seconds
+    from enbarr_core.framework.errors import EnbarrError, ProfileError
+    if not (args.rate > 0 and math.isfinite(args.rate)):
+        raise EnbarrError(f'--rate must be a positive finite number of Hz, got {args.rate}')
+    check_seconds('--seconds', args.seconds)
     chain = CHAINS[args.chain]
     result: dict[str, Any] = {'chain': args.chain, 'rate_hz_requested': args.rate}
-    result.update(run_ros(chain, args.rate, args.seconds))
+    try:
+        result.update(run_ros(chain, args.rate, args.seconds))
+    except ProfileError as err:
+        if not (err.key or '').endswith('.rate'):
+            raise
+        raise EnbarrError(f'--rate {args.rate:g}: not a rate the {args.chain} chain runs at: '
+                          f'{err.__cause__ or err}') from err
     pure = run_pure_rov(args.rate) if args.chain == 'rov' else run_pure_saucer(args.rate)
     result['pure_s_per_cycle'] = round(pure, 6)
     result['ros_overhead_ratio'] = round(result['cpu_s_per_cycle'] / pure, 2)

@@ -74,6 +74,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``enbarr scenario`` and print its metrics as one JSON line."""
+    from enbarr_core.bringup.cli import check_seconds
+    check_seconds('--duration', args.duration)
+    if args.output is not None:
+        out = Path(args.output)
+        if out.exists() and not out.is_dir():
+            raise EnbarrError(f'--output {out}: exists and is not a directory')
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise EnbarrError(f'--output {out}: cannot create the directory: '
+                              f'{err.strerror or err}') from err
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
                  duration=args.duration)
     print(json.dumps(result))

@@ -163,7 +163,8 @@ def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
             rear_left: {position: [0.0, 0.0, 0.0]}
         """)
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
-    assert "nodes.thruster_converter: node 'thruster_converter': thruster layout" in line
+    assert f"{path}: parameters.thrusters.front_right.position: node 'thruster_converter': " \
+        'thruster layout' in line  # the user's file, not core.yaml that named the plugin
     assert 'cannot produce yaw' in line
     assert 'sway' not in line.split('cannot produce')[1].split('(')[0]
 
@@ -171,7 +172,8 @@ def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
 def test_negative_duration(tmp_path: Path) -> None:
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '-1',
                           cwd=tmp_path))
-    assert line == 'enbarr bringup: error: --duration must be positive, got -1.0'
+    assert line == ('enbarr bringup: error: --duration must be a positive finite number of '
+                    'seconds, got -1.0')
 
 
 def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
@@ -264,3 +266,44 @@ def test_out_of_range_vector_element_names_the_index(tmp_path: Path) -> None:
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
     assert f'{path}: nodes.simulator.parameters.vehicle.r_g: ' in line
     assert 'vehicle.r_g[2] = -1000.0 is outside [-100.0, 100.0]' in line
+
+
+# -- an error names where the faulty values came from (issue 8) --------------------------------
+CENTRED_AZIMUTHS = """
+    include: [saucer_sim]
+    parameters:
+      azimuths:
+        az_bow: {position: [0.0, 0.0]}
+        az_port_aft: {position: [0.0, 0.0]}
+        az_stbd_aft: {position: [0.0, 0.0]}
+    """
+
+
+def test_cross_check_error_names_the_users_file(tmp_path: Path) -> None:
+    # Before the fix: 'saucer_core.yaml: parameters.azimuth_names: ... cannot produce yaw',
+    # the included file, which the user never touched.
+    path = write(tmp_path / 'centred.yaml', CENTRED_AZIMUTHS)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert 'cannot produce yaw' in line
+    assert f'{path}: parameters.azimuths.az_bow.position' in line, line
+
+
+def test_cross_check_error_names_set(tmp_path: Path) -> None:
+    sets = [a for n in ('az_bow', 'az_port_aft', 'az_stbd_aft')
+            for a in ('--set', f'allocation.azimuths.{n}.position=[0.0, 0.0]')]
+    line = refused(enbarr('bringup', '--profile', 'saucer_sim', '--check', *sets,
+                          cwd=tmp_path))
+    assert 'cannot produce yaw' in line
+    assert '--set: nodes.allocation.parameters.azimuths.az_bow.position' in line, line
+
+
+def test_error_about_a_member_field_names_the_users_file(tmp_path: Path) -> None:
+    # The allocation checks 'angle_min < angle_max' of one azimuth (parameter 'angle_max').
+    path = write(tmp_path / 'angles.yaml', """
+        include: [saucer_sim]
+        parameters:
+          azimuths:
+            az_bow: {angle_min: 1.0, angle_max: 0.5}
+        """)
+    line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
+    assert f'{path}: parameters.azimuths.az_bow.angle_' in line, line

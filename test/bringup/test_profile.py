@@ -609,3 +609,151 @@ def test_set_value_without_ros_type() -> None:
 def test_set_value_of_mixed_types() -> None:
     err = load_error(SIM, ('control_loop.kp=[1, a]',))
     assert 'a list parameter holds values of one type' in str(err)
+
+
+# -- duplicate keys (issue 8): refused with file and line, at any depth ------------------------
+@pytest.mark.parametrize('text, line, key', [
+    ("""
+     nodes:
+       imu: {plugin: sim_imu}
+       imu: {plugin: sim_thrusters}
+     """, 3, 'imu'),
+    ("""
+     profile: a
+     nodes:
+       imu:
+         plugin: sim_imu
+         parameters:
+           rate: 100.0
+           rate: 200.0
+     """, 7, 'rate'),
+    ("""
+     nodes: {imu: {plugin: sim_imu}}
+     nodes: {}
+     """, 2, 'nodes'),
+    ("""
+     parameters:
+       vehicle: {mass: 1.0, mass: 2.0}
+     nodes: {imu: {plugin: sim_imu}}
+     """, 2, 'mass'),
+])
+def test_duplicate_keys_are_refused_with_file_and_line(tmp_path: Path, text: str, line: int,
+                                                       key: str) -> None:
+    # Before the fix the last one silently won: the vehicle ran with no IMU.
+    path = write(tmp_path / 'dup.yaml', text)
+    err = load_error(path)
+    assert str(err).startswith(f'{path}: line {line}'), str(err)
+    assert f'duplicate key {key!r}' in str(err)
+
+
+def test_duplicate_key_in_an_included_file_names_that_file(tmp_path: Path) -> None:
+    inc = write(tmp_path / 'inc.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+          imu: {plugin: sim_imu}
+        """)
+    path = write(tmp_path / 'top.yaml', 'include: [inc.yaml]\n')
+    assert str(load_error(path)).startswith(f'{inc}: line 3')
+
+
+def test_yaml_merge_keys_are_not_duplicates(tmp_path: Path) -> None:
+    path = write(tmp_path / 'merge.yaml', """
+        nodes:
+          imu: &imu {plugin: sim_imu, parameters: {rate: 100.0}}
+          imu2:
+            <<: *imu
+            parameters: {rate: 200.0}
+        """)
+    assert load_profile(path).node('imu2').parameters == {'rate': 200.0}
+
+
+def test_duplicate_key_in_a_set_value_is_refused() -> None:
+    err = load_error(SIM, ('imu.gyro={a: 1, a: 2}',))
+    assert "duplicate key 'a'" in str(err) and '--set' in str(err)
+
+
+# -- untrusted files: bounded memory and output (issue 8) --------------------------------------
+BOMB = '\n'.join(['parameters:', '  p:', '  - &a [x, x, x, x, x, x, x, x, x, x]']
+                 + [f'  - &{chr(98 + i)} [{", ".join(["*" + chr(97 + i)] * 10)}]'
+                    for i in range(8)]
+                 + ['nodes: {imu: {plugin: sim_imu}}'])
+
+
+def test_alias_bomb_is_refused(tmp_path: Path) -> None:
+    # 10^9 strings once expanded; before the fix the flattening walked them all.
+    path = write(tmp_path / 'bomb.yaml', BOMB)
+    err = load_error(path)
+    assert 'expands to more than' in str(err) and str(err).startswith(path), str(err)
+
+
+def test_a_few_aliases_are_fine(tmp_path: Path) -> None:
+    path = write(tmp_path / 'alias.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, parameters: {rate: &r 100.0}}
+          imu2: {plugin: sim_imu, parameters: {rate: *r}}
+        """)
+    assert load_profile(path).node('imu2').parameters == {'rate': 100.0}
+
+
+def test_huge_file_is_refused_before_it_is_read(tmp_path: Path) -> None:
+    path = tmp_path / 'huge.yaml'
+    with path.open('w') as f:
+        f.write('nodes: {imu: {plugin: sim_imu}}\n')
+        f.write('#' * (profiles.MAX_FILE_BYTES + 10) + '\n')
+    err = load_error(str(path))
+    assert 'too large' in str(err) and str(err).startswith(str(path))
+
+
+@pytest.mark.parametrize('depth', [100, 5000])
+def test_deep_nesting_is_refused_without_a_traceback(tmp_path: Path, depth: int) -> None:
+    # Before the fix 5000 levels raised RecursionError (a traceback).
+    path = write(tmp_path / 'deep.yaml', 'parameters: ' + '[' * depth + ']' * depth + '\n')
+    err = load_error(path)
+    assert 'nested deeper than' in str(err) and 'line 1' in str(err), str(err)
+
+
+def test_deep_mapping_nesting_is_refused(tmp_path: Path) -> None:
+    text = 'parameters:\n' + ''.join('  ' * (i + 1) + f'k{i}:\n' for i in range(80)) + \
+        '  ' * 81 + 'v: 1\n'
+    err = load_error(write(tmp_path / 'deep.yaml', text))
+    assert 'nested deeper than' in str(err)
+
+
+def test_very_long_key_is_refused_and_not_echoed(tmp_path: Path) -> None:
+    path = write(tmp_path / 'long.yaml', 'nodes:\n  ' + 'k' * 1000 + ': {plugin: sim_imu}\n')
+    err = load_error(path)  # YAML itself refuses implicit keys past 1024 characters
+    assert 'longer than' in str(err) and len(str(err)) < 1000, str(err)[:300]
+
+
+def test_very_long_value_is_refused_and_not_echoed(tmp_path: Path) -> None:
+    path = write(tmp_path / 'long.yaml',
+                 'nodes:\n  imu: {plugin: "' + 'x' * 200_000 + '"}\n')
+    err = load_error(path)
+    assert 'longer than' in str(err) and len(str(err)) < 1000, str(err)[:300]
+
+
+def test_huge_list_is_refused(tmp_path: Path) -> None:
+    path = write(tmp_path / 'list.yaml', 'nodes: {imu: {plugin: sim_imu, parameters: {p: ['
+                 + ', '.join(['1'] * 5000) + ']}}}\n')
+    err = load_error(path)
+    assert 'more than' in str(err) and 'items' in str(err) and len(str(err)) < 1000
+
+
+def test_bad_value_messages_are_bounded(tmp_path: Path) -> None:
+    # A list of mixed types near the limits is echoed in the message: cut short.
+    values = ', '.join(['1', '"a"'] * 2000)
+    path = write(tmp_path / 'mixed.yaml',
+                 'nodes: {imu: {plugin: sim_imu, parameters: {p: [' + values + ']}}}\n')
+    err = load_error(path)
+    assert 'one type' in str(err) and len(str(err)) < profiles.MAX_MESSAGE + 200
+
+
+def test_alias_bomb_in_a_set_value_is_refused() -> None:
+    value = '[' + ', '.join(['&a [x, x, x, x, x, x, x, x, x, x]'] + ['*a'] * 9) + ']'
+    err = load_error(SIM, (f'imu.p={value}',))  # small; only checks the loader is the same
+    assert '--set' in str(err)
+
+
+def test_set_value_too_long_is_refused() -> None:
+    err = load_error(SIM, ('imu.p=' + 'x' * 100_000,))
+    assert 'longer than' in str(err) and len(str(err)) < 1000

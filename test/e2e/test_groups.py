@@ -231,3 +231,104 @@ def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> 
                            timeout=120, cwd=workspace.cwd)
     assert (str(workspace.install / 'share' / 'enbarr' / 'params' / 'enbarr_sim.yaml')
             in check.stdout)
+
+
+# -- every wait of the supervisor serves a stop request (issue 8, supervision) ----------------
+LONG_DELAY_PROFILE = SPLIT_PROFILE.replace('restart_delay: 0.2', 'restart_delay: 3600')
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_stop_request_is_served_during_a_long_restart_delay(tmp_path: Path, sig: int) -> None:
+    # Before the fix the supervisor slept through restart_delay: still alive 14 s after the
+    # signal with restart_delay 3600.
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(LONG_DELAY_PROFILE)
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    out = Output(proc)
+    try:
+        pid = int(out.wait_for(r'group control started \(pid (\d+)\)', 60).group(1))
+        out.wait_for(r'group main started', 60)
+        out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
+        os.kill(pid, signal.SIGKILL)
+        out.wait_for(r'restart 1 of 1', 30)
+        time.sleep(0.5)  # the supervisor is now in its restart delay
+        t0 = time.monotonic()
+        proc.send_signal(sig)
+        out.wait_for(rf'{signal.Signals(sig).name} received', 1.0 + 2.0)  # 2 s of slack: load
+        rc = proc.wait(timeout=30)  # main still stops through its own safe state
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert rc == 0, out.text[-3000:]
+    assert took < 30
+    assert 'group control started' not in out.text.split('restart 1 of 1')[1]
+
+
+SIGINT_DEAF = ('import signal, sys, time\n'
+               'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+               'print("ready", flush=True)\n'
+               'time.sleep(600)\n')
+
+
+def test_a_second_stop_request_kills_groups_that_ignore_the_first(tmp_path: Path) -> None:
+    # The grace period of stopping the children (10 s) is a wait too: a second SIGINT ends it.
+    from enbarr_core.bringup import orchestrator
+
+    procs = {name: subprocess.Popen([sys.executable, '-c', SIGINT_DEAF],
+                                    stdout=subprocess.PIPE, text=True)
+             for name in ('main', orchestrator.RECORDER_GROUP)}
+    for p in procs.values():
+        assert p.stdout is not None and p.stdout.readline().strip() == 'ready'
+    stop = orchestrator._Stop()
+    timer = threading.Timer(0.5, lambda: stop._handle(signal.SIGINT, None))
+    t0 = time.monotonic()
+    try:
+        timer.start()
+        codes = orchestrator._stop_children(procs, stop)
+    finally:
+        timer.cancel()
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+    took = time.monotonic() - t0
+    assert took < 0.5 + 1.0 + 1.0, took  # served within 1 s (and 1 s of slack for load)
+    assert codes == {'main': -signal.SIGKILL, orchestrator.RECORDER_GROUP: -signal.SIGKILL}
+
+
+# -- a group that ends with problems fails the supervisor, naming them ------------------------
+PROBLEM_PLUGIN = """
+from enbarr_core.framework.node import EnbarrNode
+
+
+class ProblemNode(EnbarrNode):
+    def safe_state(self):
+        self.report_problem('cannot write the bag: No space left on device (injected)')
+"""
+
+
+def test_a_group_that_ends_with_problems_fails_the_supervisor(tmp_path: Path) -> None:
+    # Before the fix: bringup of a split profile exited 0 although a group exited 3.
+    (tmp_path / 'problem_plugin.py').write_text(PROBLEM_PLUGIN)
+    dist = tmp_path / 'enbarr_problem_probe-0.dist-info'
+    dist.mkdir()
+    (dist / 'METADATA').write_text('Metadata-Version: 2.1\nName: enbarr-problem-probe\n'
+                                   'Version: 0\n')
+    (dist / 'entry_points.txt').write_text(
+        '[enbarr.nodes]\nproblem_probe = problem_plugin:ProblemNode\n')
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(SPLIT_PROFILE.replace(
+        'nodes:\n', 'nodes:\n  probe: {plugin: problem_probe, group: control}\n', 1))
+    env = {**os.environ,
+           'PYTHONPATH': os.pathsep.join([str(tmp_path), str(ROOT),
+                                          os.environ.get('PYTHONPATH', '')])}
+    result = subprocess.run([*ENBARR, 'bringup', '--profile', str(profile), '--duration', '8'],
+                            env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 3, (result.returncode, result.stderr[-3000:])
+    assert 'Traceback' not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert 'group control' in last and 'No space left on device (injected)' in last, last

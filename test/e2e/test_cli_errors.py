@@ -1,0 +1,106 @@
+"""Hostile command lines of ``bringup``, ``scenario`` and ``bench`` (issue 8).
+
+Every one must end in one clear line ``enbarr COMMAND: error: ...`` and exit code 2, never a
+traceback. One test per class of failure found by trying them; the comment says what each
+did before the fix.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from support.cli import enbarr, refused
+
+
+@pytest.fixture
+def a_file(tmp_path: Path) -> Path:
+    f = tmp_path / 'a_file'
+    f.write_text('x')
+    return f
+
+
+@pytest.mark.parametrize('command', [
+    ['bringup', '--profile', 'enbarr_sim'],
+    ['scenario', 'station_keeping'],
+])
+@pytest.mark.parametrize('value', ['inf', '-inf', 'nan', '-1', '0'])
+def test_duration_must_be_positive_and_finite(tmp_path: Path, command: list[str],
+                                              value: str) -> None:
+    # Before: bringup --duration inf ran forever; scenario --duration inf: OverflowError.
+    line = refused(enbarr(*command, f'--duration={value}', cwd=tmp_path), command[0])
+    assert '--duration' in line and 'finite' in line, line
+
+
+@pytest.mark.parametrize('where', ['file', 'under_file', 'proc'])
+def test_scenario_output_that_cannot_be_a_directory(tmp_path: Path, a_file: Path,
+                                                    where: str) -> None:
+    # Before: NotADirectoryError / FileNotFoundError tracebacks.
+    out = {'file': a_file, 'under_file': a_file / 'sub', 'proc': Path('/proc/enbarr/x')}[where]
+    line = refused(enbarr('scenario', 'station_keeping', '--output', str(out), '--no-plot',
+                          cwd=tmp_path), 'scenario')
+    assert '--output' in line and str(out) in line, line
+
+
+@pytest.mark.parametrize('where', ['file', 'under_file', 'proc'])
+def test_bringup_record_that_cannot_be_a_directory(tmp_path: Path, a_file: Path,
+                                                   where: str) -> None:
+    # Before: the message blamed 'enbarr_sim.yaml: parameters.thruster_names'.
+    out = {'file': a_file, 'under_file': a_file / 'sub', 'proc': Path('/proc/enbarr/x')}[where]
+    line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '1',
+                          '--record', str(out), cwd=tmp_path))
+    assert 'error: --record: ' in line and str(out) in line, line
+    assert 'thruster_names' not in line
+
+
+def test_bad_record_topic_is_refused(tmp_path: Path) -> None:
+    # Before: accepted; the run recorded nothing of it and exited 0.
+    line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '1',
+                          '--record', str(tmp_path / 'bag'), '--record-topic', 'bad topic!',
+                          cwd=tmp_path))
+    assert '--record-topic' in line and "'bad topic!'" in line, line
+    assert not (tmp_path / 'bag').exists()
+
+
+@pytest.mark.parametrize('value', ['inf', 'nan', '1e9'])
+def test_bench_rate_out_of_reach(tmp_path: Path, value: str) -> None:
+    # Before: 'inf' and '1e9' were blamed on an internal '--set: nodes.simulator...'.
+    line = refused(enbarr('bench', '--rate', value, '--seconds', '1', cwd=tmp_path), 'bench')
+    assert '--rate' in line and '--set' not in line, line
+
+
+def test_bench_seconds_must_be_finite(tmp_path: Path) -> None:
+    line = refused(enbarr('bench', '--seconds', 'inf', cwd=tmp_path), 'bench')
+    assert '--seconds' in line
+
+
+@pytest.mark.parametrize('command', [['bringup', '--check', '--profile'], ['scenario']])
+def test_a_directory_or_missing_file_as_profile(tmp_path: Path, command: list[str]) -> None:
+    (tmp_path / 'dir.yaml').mkdir()
+    for ref in (str(tmp_path / 'dir.yaml'), str(tmp_path / 'missing.yaml')):
+        line = refused(enbarr(*command, ref, cwd=tmp_path), command[0])
+        assert 'not found' in line and ref.rsplit('/', 1)[-1] in line, line
+
+
+def test_scenario_of_a_vessel_profile_is_refused(tmp_path: Path) -> None:
+    line = refused(enbarr('scenario', 'enbarr_sim', cwd=tmp_path), 'scenario')
+    assert "no scenario 'enbarr_sim'" in line
+
+
+def test_hostile_profile_gives_one_short_line(tmp_path: Path) -> None:
+    # Deep nesting was a RecursionError traceback; a long value was echoed in full.
+    for name, text in (('deep', 'parameters: ' + '[' * 5000 + ']' * 5000 + '\n'),
+                       ('long', 'nodes: {imu: {plugin: "' + 'x' * 100_000 + '"}}\n')):
+        path = tmp_path / f'{name}.yaml'
+        path.write_text(text)
+        for command in (['bringup', '--check', '--profile'], ['scenario']):
+            line = refused(enbarr(*command, str(path), cwd=tmp_path), command[0])
+            assert len(line) < 600, line[:300]
+
+
+def test_not_utf8_and_binary_profiles(tmp_path: Path) -> None:
+    path = tmp_path / 'binary.yaml'
+    path.write_bytes(bytes(range(256)) * 4)
+    line = refused(enbarr('bringup', '--check', '--profile', str(path), cwd=tmp_path))
+    assert 'not UTF-8' in line and len(line) < 600

@@ -1,0 +1,130 @@
+"""A second vessel process on one ROS graph with the same node names is refused (issue 8).
+
+Two real ``bringup`` processes of one profile in one domain: before the fix both ran and
+fought over the same topics (a vehicle followed the other run's commands against its own).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+from support.cli import ENBARR
+
+SPLIT_PROFILE = """
+include: [enbarr_sim]
+nodes:
+  filtering: {group: control}
+  control_loop: {group: control}
+  thruster_converter: {group: control}
+groups:
+  control: {restart_limit: 1, restart_delay: 0.2}
+"""
+
+
+class Output:
+    """A child's merged output lines, read on a thread (as in test_groups)."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
+
+    def _read(self, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.lines.append(line)
+
+    @property
+    def text(self) -> str:
+        return ''.join(self.lines)
+
+    def wait_for(self, pattern: str, timeout: float, start: int = 0) -> re.Match[str]:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = re.search(pattern, ''.join(self.lines[start:]))
+            if m:
+                return m
+            time.sleep(0.1)
+        raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
+
+
+def start(*args: str) -> tuple[subprocess.Popen[str], Output]:
+    proc = subprocess.Popen([*ENBARR, 'bringup', *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    return proc, Output(proc)
+
+
+def stop(proc: subprocess.Popen[str]) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+    return proc.wait()
+
+
+def test_second_bringup_of_a_profile_is_refused_before_it_starts() -> None:
+    first, first_out = start('--profile', 'enbarr_sim')
+    second = None
+    try:
+        first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # the first one drives
+        second, second_out = start('--profile', 'enbarr_sim')
+        rc = second.wait(timeout=90)
+        time.sleep(0.3)
+        text = second_out.text
+        assert rc == 2, text[-3000:]
+        assert 'Traceback' not in text
+        assert 'already runs node(s) /command_receiver' in text, text[-3000:]
+        assert 'refusing to start a second vessel' in text
+        assert ' running: ' not in text  # no source started, nothing published
+        assert 'neutral' not in text  # no safe state published into the first one's graph
+        mark = len(first_out.lines)
+        first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 30, mark)  # the first drives on
+        assert first.poll() is None
+        assert 'must stop' not in first_out.text
+    finally:
+        if second is not None:
+            stop(second)
+        assert stop(first) == 0
+
+
+def test_one_of_two_simultaneous_bringups_stops(tmp_path: Path) -> None:
+    # Started together, they may miss each other at start (discovery is 0.2 s or 2.5 s):
+    # then their claims decide, the later one stops. Either way they do not both run.
+    a, a_out = start('--profile', 'enbarr_sim')
+    b, b_out = start('--profile', 'enbarr_sim')
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and a.poll() is None and b.poll() is None:
+            time.sleep(0.2)
+        time.sleep(8.0)  # a late claim has arrived by now
+        codes = [a.poll(), b.poll()]
+        assert 2 in codes, (codes, a_out.text[-2000:], b_out.text[-2000:])
+        for p, out in ((a, a_out), (b, b_out)):
+            if p.poll() is not None:
+                assert p.returncode == 2 and 'Traceback' not in out.text, out.text[-3000:]
+    finally:
+        for p in (a, b):
+            stop(p)
+
+
+def test_groups_of_one_split_profile_are_not_duplicates(tmp_path: Path) -> None:
+    # Two supervisors of one split profile: the second one's groups are refused (exit 2),
+    # the first one's own groups never refuse each other.
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(SPLIT_PROFILE)
+    first, first_out = start('--profile', str(profile))
+    try:
+        first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)
+        second, second_out = start('--profile', str(profile))
+        assert second.wait(timeout=90) == 2, second_out.text[-3000:]
+        assert 'refusing to start a second vessel' in second_out.text
+        assert first.poll() is None
+    finally:
+        assert stop(first) == 0
