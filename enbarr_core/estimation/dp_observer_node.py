@@ -18,8 +18,10 @@ others are refused and counted, so a pose stamped in the future never becomes th
 (one such pose once froze the estimate for as long as it was ahead). ``max_future`` (10 ms)
 covers the offset between the motion-capture computer's clock and this one (milliseconds under
 chrony; zero in one process, where the pose is stamped from this clock) and stays under the
-pose period, so an early pose costs at most itself. A pose not later than the estimate's time
-(the estimate dead-reckoned past it) is refused as ``late``. The force
+pose period, so an early pose costs at most itself. Poses cross processes and networks, so
+they arrive after their stamp: dead reckoning stays ``max_latency`` (0.1 s) behind the clock,
+and a pose arriving later than that after its stamp, once the estimate was dead-reckoned past
+it, is refused as ``late``. The force
 (``allocation/delivered``) is only a value here: its stamp is judged by the same rule so that
 an older force never replaces a newer one.
 
@@ -72,6 +74,8 @@ SPECS = [
     ParamSpec('max_future', 0.01, 'Poses stamped further ahead of the clock than this are '
               'refused (clock offset of the motion-capture computer; under the pose period)',
               's', 0.0, 0.5),
+    ParamSpec('max_latency', 0.1, 'Poses arriving up to this long after their stamp are used: '
+              'dead reckoning stays this far behind the clock', 's', 0.0, 1.0),
     ParamSpec('rate', 50.0, 'Integration rate of dead reckoning when poses stop (checked at '
               '10 Hz, integrated in steps of 1/rate)', 'Hz', 1.0, 1000.0, read_only=True),
 ]
@@ -84,6 +88,7 @@ class DpObserverNodeSettings:
     observer: ObserverSettings  # gains, model and measurement checks
     rate: float                 # dead-reckoning integration rate [Hz]
     max_future: float           # poses stamped further ahead of the clock are refused [s]
+    max_latency: float          # dead reckoning stays this far behind the clock [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> DpObserverNodeSettings:
@@ -99,7 +104,8 @@ class DpObserverNodeSettings:
         except ValueError as err:
             field = str(err).split(':')[0]
             raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
-        return cls(observer=s, rate=v['rate'], max_future=v['max_future'])
+        return cls(observer=s, rate=v['rate'], max_future=v['max_future'],
+                   max_latency=v['max_latency'])
 
     def rate_problem(self, pose_period: float | None) -> str | None:
         """Why these settings do not fit poses arriving every ``pose_period`` [s] (or None)."""
@@ -203,7 +209,8 @@ class DpObserverNode(EnbarrNode):
     def _dead_reckon(self) -> None:
         if self._last_ns is None:
             return
-        now = self.get_clock().now().nanoseconds
+        # Up to max_latency behind the clock: a pose on its way is not overtaken.
+        now = self.get_clock().now().nanoseconds - round(self.settings.max_latency * 1e9)
         if now - self._last_ns > 1.5 * self._period_ns:
             # Poses stopped: integrate up to now in steps of 1/rate, publish the newest.
             n = -(-(now - self._last_ns) // self._period_ns)
