@@ -12,7 +12,6 @@ no publisher of the topic is in its process): this test's publisher reaches it t
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import subprocess
@@ -141,11 +140,10 @@ def test_station_is_kept_through_future_and_past_poses(tmp_path: Path, context: 
         time.sleep(3.0)
         w.inject(-1.0)
         time.sleep(AHEAD_S)
-        w.wait(lambda: any(int(d.get('mocap/pose.future', 0)) >= 1 for d in w.observer), 10,
-               "the observer's count of the future pose")
         etas = w.since(t0)
         error = np.linalg.norm(etas[:, :2] - held, axis=1)
         modes_after = list(w.modes[w.modes.index('automatic'):])
+        time.sleep(1.5)  # the observer's next report
         last = w.observer[-1]
     finally:
         w.close()
@@ -158,14 +156,14 @@ def test_station_is_kept_through_future_and_past_poses(tmp_path: Path, context: 
             code = proc.wait()
         reader.join(5.0)
     output = ''.join(lines)
+    print(f'max position error {error.max():.4f} m over {len(etas)} truth samples; '
+          f'modes {modes_after}; observer: {last}')
     assert modes_after == ['automatic'], f'left automatic: {modes_after}\n{output[-3000:]}'
     assert len(etas) > 50 * AHEAD_S, 'too few truth samples to judge'
     assert error.max() < MAX_ERROR, (
         f'position error up to {error.max():.3f} m (bound {MAX_ERROR} m)\n{output[-3000:]}')
-    assert int(last['mocap/pose.future']) == 1 and int(last['mocap/pose.not_newer']) >= 1, last
+    assert int(last.get('mocap/pose.future', 0)) == 1, last
+    assert int(last.get('mocap/pose.not_newer', 0)) >= 1, last
     assert last['level'] == '0' and last['age'] != 'none' and float(last['age']) < 0.1, last
     assert 'math domain error' not in output and 'Traceback' not in output, output[-3000:]
     assert code == 0, output[-3000:]
-    print(f'max position error {error.max():.4f} m over {len(etas)} truth samples; '
-          f'observer: {last}')
-    assert math.isfinite(error.max())
