@@ -63,6 +63,18 @@ class PwmMapperSettings:
         return [f'{a.name}/{k}' for a in self.azimuths for k in ('motor', 'servo')]
 
 
+def command_timeout_problem(timeout: float, period: float | None, what: str) -> str | None:
+    """Why ``command_timeout`` [s] does not fit messages arriving every ``period`` [s].
+
+    None when it fits or the period is not measured yet. It must cover two periods of the
+    ``what`` messages, or the outputs go neutral between them.
+    """
+    if period is not None and timeout < 2.0 * period:
+        return (f'command_timeout {timeout:g} s is under two {what} periods: the outputs would '
+                f'go neutral between messages ({what} period measured {period:.3g} s)')
+    return None
+
+
 def duty_message(duties: Sequence[float]) -> Float64MultiArray:
     """Build a ``PWM_DUTY`` message: one duty [%] per channel, labelled ``PWM_DUTY_LABEL``."""
     n = len(duties)
@@ -121,12 +133,7 @@ class PwmMapperNode(ActuatorDriver):
         self._gate.policy = StampPolicy(max_future=max_future)
 
     def _timeout_problem(self, timeout: float) -> str | None:
-        period = self.command_period.period
-        if period is not None and timeout < 2.0 * period:
-            return (f'command_timeout {timeout:g} s is under two command periods: the outputs '
-                    f'would go neutral between commands (command period measured '
-                    f'{period:.3g} s)')
-        return None
+        return command_timeout_problem(timeout, self.command_period.period, 'command')
 
     def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
