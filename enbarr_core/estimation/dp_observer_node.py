@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+import math
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -138,6 +139,7 @@ class DpObserverNode(EnbarrNode):
         self._tau_gate = StampGate()
         self.bind_settings(SPECS, self._build, self._apply)
         self.estimate = None
+        self.age = math.inf  # published measurement age [s]: clock time since the last pose
         self.rejected = 0
         self._tau = np.zeros(3)
         self._last_ns: int | None = None
@@ -209,18 +211,24 @@ class DpObserverNode(EnbarrNode):
     def _dead_reckon(self) -> None:
         if self._last_ns is None:
             return
-        # Up to max_latency behind the clock: a pose on its way is not overtaken.
-        now = self.get_clock().now().nanoseconds - round(self.settings.max_latency * 1e9)
+        # Up to max_latency behind the clock: a pose on its way is not overtaken. The age
+        # published is still the clock's: the time since the last pose taken.
+        lag = round(self.settings.max_latency * 1e9)
+        now = self.get_clock().now().nanoseconds - lag
         if now - self._last_ns > 1.5 * self._period_ns:
             # Poses stopped: integrate up to now in steps of 1/rate, publish the newest.
             n = -(-(now - self._last_ns) // self._period_ns)
             for k in range(1, n + 1):
                 t = self._last_ns + (now - self._last_ns) // (n - k + 1)
-                if not self._step(None, t, publish=(k == n)):
+                if not self._step(None, t, publish=(k == n), lag=lag * 1e-9):
                     return
 
-    def _step(self, y: np.ndarray | None, t: int, publish: bool = True) -> bool:
-        """Advance the estimate to ``t`` [ns]; False when it diverged (and was dropped)."""
+    def _step(self, y: np.ndarray | None, t: int, publish: bool = True,
+              lag: float = 0.0) -> bool:
+        """Advance the estimate to ``t`` [ns], ``lag`` [s] before the clock's present.
+
+        Return False when it diverged (and was dropped).
+        """
         dt = (t - self._last_ns) * 1e-9
         self._last_ns = t
         self.estimate = e = self.observer.step(y, self._tau, dt)
@@ -243,7 +251,8 @@ class DpObserverNode(EnbarrNode):
         odom.child_frame_id = topics.BODY_FRAME
         convert.set_pose_eta(odom.pose.pose, e.eta_hat)
         convert.set_twist_nu3(odom.twist.twist, e.nu_hat)
-        age = Float64(data=float(e.age))
+        self.age = e.age + lag if e.age else 0.0
+        age = Float64(data=float(self.age))
         bias = WrenchStamped()
         bias.header.stamp = stamp
         bias.header.frame_id = topics.WORLD_FRAME
@@ -267,7 +276,7 @@ class DpObserverNode(EnbarrNode):
         level, message = worst(own, (level, message), rates)
         period = self.pose_period.period
         return level, message, {
-            'rejected': self.rejected, 'age': e.age if e else 'none', **totals,
+            'rejected': self.rejected, 'age': self.age if e else 'none', **totals,
             'divergences': self.observer.divergences,
             'pose_period': 'unknown' if period is None else round(period, 6)}
 

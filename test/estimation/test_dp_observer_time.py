@@ -144,3 +144,16 @@ def test_poses_arriving_late_are_still_taken(context, executor):
     o.poses(100, ahead=-0.04)
     assert o.node.health.totals[('mocap/pose', 'late')] == 0
     assert o.ages[-1] == 0.0 and o.node.diagnostic_status()[:2] == (0, 'ok')
+
+
+def test_the_age_published_while_dead_reckoning_is_the_clocks(context, executor):
+    # Dead reckoning stays max_latency behind the clock, but observer/measurement_age is the
+    # time since the last pose on the clock (what dp_control compares with estimate_max_age).
+    o = Observer(context, executor)
+    o.poses(10)
+    t_pose = o.clock.ns
+    for _ in range(50):  # 1 s without poses
+        o.clock.advance(PERIOD)
+        o.executor.spin_once(timeout_sec=0.0)
+    assert o.ages[-1] == pytest.approx((o.clock.ns - t_pose) * 1e-9, abs=0.1 + 1e-9)
+    assert o.ages[-1] > 0.9
