@@ -6,6 +6,11 @@ thrust limits (``allocation.azimuth``); when tau is not achievable the thrusts a
 together (direction kept) and the shortfall is reported: a warning, the ``infeasible`` counter
 and ``allocation/delivered``. The previous angles are passed back each time so servos do not
 flip 180 degrees needlessly.
+
+Time (issue 8, ``framework.stamps``): a force stamped more than ``max_future`` ahead of the
+clock, or not later than the last one allocated, is refused and counted (dp_control keeps its
+force stream ordered); more than 5 % refused in a second makes the node DEGRADED.
+``max_future`` must stay under the measured force period.
 """
 
 from __future__ import annotations
@@ -23,7 +28,10 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.allocation.azimuth import AzimuthAllocator
 from enbarr_core.allocation.layout_params import AZIMUTHS
 from enbarr_core.framework.errors import AllocationError
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.models.vessel3dof import AzimuthSpec
 
 
@@ -38,6 +46,18 @@ class AzimuthAllocationSettings:
                     v: Mapping[str, Any]) -> AzimuthAllocationSettings:
         """Build from the declared parameters' values (ValueError naming the azimuth)."""
         return cls(AZIMUTHS.from_params(names, v))
+
+
+MAX_FUTURE = ParamSpec('max_future', 0.01, 'Forces stamped further ahead of the clock than '
+                       "this are refused (at least the observer's)", 's', 0.0, 0.5)
+
+
+def stamp_rate_problem(max_future: float, period: float | None, what: str) -> str | None:
+    """Why ``max_future`` [s] does not fit an input arriving every ``period`` [s] (or None)."""
+    if period is not None and max_future >= period:
+        return (f'max_future {max_future:g} s is not under the {what} period: one early '
+                f'sample could hide the next ({what} period measured {period:.3g} s)')
+    return None
 
 
 class AzimuthAllocationNode(EnbarrNode):
@@ -56,6 +76,10 @@ class AzimuthAllocationNode(EnbarrNode):
         except AllocationError as err:
             raise AllocationError(f'node {node_name!r}: {err}',
                                   parameter='azimuth_names') from err
+        self.health = InputHealth()
+        self.force_period = IntervalMeter()
+        self._gate = StampGate()
+        self.bind_settings([MAX_FUTURE], self._build_max_future, self._apply_max_future)
         self.names = [a.name for a in specs]
         self.angle = np.zeros(len(specs))
         self.result = None
@@ -66,11 +90,31 @@ class AzimuthAllocationNode(EnbarrNode):
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
         self.create_timer(1.0, self._report)
 
+    def _build_max_future(self, v: Mapping[str, Any]) -> float:
+        problem = stamp_rate_problem(v['max_future'], self.force_period.period, 'force')
+        if problem:
+            raise ValueError(problem)
+        return v['max_future']
+
+    def _apply_max_future(self, max_future: float) -> None:
+        self._gate.policy = StampPolicy(max_future=max_future)
+
     def _on_tau(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau3(msg.wrench)
         if not np.all(np.isfinite(tau)):
             self.rejected += 1
+            self.health.refused('force_command', 'non_finite')
             return
+        t = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.rejected += 1
+            self.health.refused('force_command', verdict.value)
+            self.get_logger().warn(f'force_command refused ({verdict.value})',
+                                   throttle_duration_sec=1.0)
+            return
+        self.health.accepted('force_command')
+        self.force_period.add(t)
         self.result = r = self.allocator.allocate(tau, previous_angle=self.angle)
         self.angle = r.angle
         if not r.feasible:
@@ -87,6 +131,20 @@ class AzimuthAllocationNode(EnbarrNode):
         convert.set_wrench_tau3(delivered.wrench, r.tau_delivered)
         self._delivered_pub.publish(delivered)
 
+    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) for ``/diagnostics``; closes the input-health window."""
+        own = (DEGRADED, f'{self.infeasible} forces not achievable') if self.infeasible \
+            else (OK, 'ok')
+        level, message, totals = self.health.report(1.0)
+        problem = stamp_rate_problem(self._gate.policy.max_future, self.force_period.period,
+                                     'force')
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        level, message = worst(own, (level, message), rates)
+        return level, message, {'infeasible': self.infeasible, 'rejected': self.rejected,
+                                **totals}
+
     def _report(self) -> None:
-        self.publish_diagnostics(1 if self.infeasible else 0, 'ok', {
-            'infeasible': self.infeasible, 'rejected': self.rejected})
+        self.publish_diagnostics(*self.diagnostic_status())

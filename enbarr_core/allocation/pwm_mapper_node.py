@@ -10,6 +10,12 @@ start and on ``safe_state`` (every bringup exit path). The serial link to the Ar
 hardware plugin's job; this node computes what it sends. The duty message has no header, so
 this node keeps the ``LatencyLog`` of the chain (command stamp -> duties delivered: with the
 in-process link bus the delivery includes the Arduino plugin's callback).
+
+Time (issue 8, ``framework.stamps``): a stamped command more than ``max_future`` ahead of the
+clock, or not later than the last one mapped, is refused and counted (a command with a zero
+stamp carries no time and is taken as it comes); more than 5 % refused in a second makes the
+node DEGRADED. ``command_timeout`` must cover two measured command periods (shorter, the
+outputs would go neutral between commands) and ``max_future`` stay under one.
 """
 
 from __future__ import annotations
@@ -24,11 +30,18 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayou
 
 from enbarr_interfaces import convert, topics
 
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
+
 from enbarr_core.allocation.azimuth import PwmCalibration
+from enbarr_core.allocation.azimuth_allocation_node import MAX_FUTURE, stamp_rate_problem
 from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
 from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.framework.node import LatencyLog
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.models.vessel3dof import AzimuthSpec
 
 
@@ -48,6 +61,18 @@ class PwmMapperSettings:
     def channels(self) -> list[str]:
         """Channel names in the order of the duties: ``<azimuth>/motor, <azimuth>/servo``."""
         return [f'{a.name}/{k}' for a in self.azimuths for k in ('motor', 'servo')]
+
+
+def command_timeout_problem(timeout: float, period: float | None, what: str) -> str | None:
+    """Why ``command_timeout`` [s] does not fit messages arriving every ``period`` [s].
+
+    None when it fits or the period is not measured yet. It must cover two periods of the
+    ``what`` messages, or the outputs go neutral between them.
+    """
+    if period is not None and timeout < 2.0 * period:
+        return (f'command_timeout {timeout:g} s is under two {what} periods: the outputs would '
+                f'go neutral between messages ({what} period measured {period:.3g} s)')
+    return None
 
 
 def duty_message(duties: Sequence[float]) -> Float64MultiArray:
@@ -78,6 +103,15 @@ class PwmMapperNode(ActuatorDriver):
             except ValueError as err:
                 raise ConfigurationError(f'node {node_name!r}: azimuth {a.name!r}: {err}',
                                          parameter='pwm.angle_rad') from err
+        self.health = InputHealth()
+        self.command_period = IntervalMeter()
+        self._totals: dict[str, int] = {}
+        self._gate = StampGate()
+        self.bind_settings([ParamSpec(
+            'max_future', MAX_FUTURE.default, 'Commands stamped further ahead of the clock than '
+            "this are refused (at least the observer's)", 's', 0.0, 0.5)],
+            self._build_max_future, self._apply_max_future)
+        self.add_on_set_parameters_callback(self._check_command_timeout)
         self.azimuths = list(names)
         self._index = {n: i for i, n in enumerate(self.azimuths)}
         self.channels = self.settings.channels
@@ -89,24 +123,73 @@ class PwmMapperNode(ActuatorDriver):
         self.safe_state()
         self.connect()
 
+    def _build_max_future(self, v: Mapping[str, Any]) -> float:
+        problem = stamp_rate_problem(v['max_future'], self.command_period.period, 'command')
+        if problem:
+            raise ValueError(problem)
+        return v['max_future']
+
+    def _apply_max_future(self, max_future: float) -> None:
+        self._gate.policy = StampPolicy(max_future=max_future)
+
+    def _timeout_problem(self, timeout: float) -> str | None:
+        return command_timeout_problem(timeout, self.command_period.period, 'command')
+
+    def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name == 'command_timeout' and isinstance(p.value, float):
+                problem = self._timeout_problem(p.value)
+                if problem:
+                    return SetParametersResult(successful=False, reason=problem)
+        return SetParametersResult(successful=True)
+
+    def _refuse(self, reason: str) -> None:
+        self.rejected += 1
+        self.health.refused('azimuth_commands', reason)
+
     def _on_command(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.effort) or len(msg.name) != len(msg.position):
-            self.rejected += 1
+            self._refuse('malformed')
             return
+        t = convert.stamp_to_ns(msg.header.stamp)
+        if t:  # a zero stamp carries no time: nothing to judge
+            verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+            if verdict is not StampVerdict.ACCEPTED:
+                self._refuse(verdict.value)
+                self.get_logger().warn(f'azimuth_commands refused ({verdict.value})',
+                                       throttle_duration_sec=1.0)
+                return
         c = self.calibration
         duty = [c.neutral_thrust_duty, c.neutral_angle_duty] * len(self.azimuths)
         for name, thrust, angle in zip(msg.name, msg.effort, msg.position):
             i = self._index.get(name)
             if i is None or not (math.isfinite(thrust) and math.isfinite(angle)):
-                self.rejected += 1
+                self._refuse('malformed')
                 return
             duty[2 * i] = c.thrust_to_duty(thrust)
             duty[2 * i + 1] = c.angle_to_duty(angle)
+        self.health.accepted('azimuth_commands')
         with self.commanding():
             self._publish(duty, neutral=False)
-        if msg.header.stamp.sec:
-            self.latency.add(self.get_clock().now().nanoseconds
-                             - convert.stamp_to_ns(msg.header.stamp))
+        if t:
+            self.command_period.add(t)
+            self.latency.add(self.get_clock().now().nanoseconds - t)
+
+    def status(self) -> tuple[int, str]:
+        """Return the driver's status, DEGRADED when commands are refused or settings misfit."""
+        level, message, self._totals = self.health.report(1.0)
+        period = self.command_period.period
+        problem = (self._timeout_problem(self.watchdog.timeout_ns * 1e-9)
+                   or stamp_rate_problem(self._gate.policy.max_future, period, 'command'))
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        return worst(super().status(), (level, message), rates)
+
+    def status_values(self) -> dict[str, Any]:
+        """Return the driver's values and the input counts since start."""
+        return {**super().status_values(), 'rejected': self.rejected, **self._totals}
 
     def _publish(self, duty: list[float], neutral: bool) -> None:
         self.duty, self.neutral = duty, neutral

@@ -38,6 +38,21 @@ and dropped.
 Gains (3-element diagonals and scalars) and the vessel model come from the profile (they have
 no default: a node started without them refuses, naming the parameter), are validated
 together and applied live over ``gain_ramp_time``, so the force never jumps.
+
+Hostile input (issue 8). One joystick at a time (``framework.sources``): while ``joy`` has
+more than one publisher every sample is refused and counted as ``contested``, so the
+joystick-loss rule applies (manual, zero force after ``joy_timeout``) and ``/diagnostics``
+says ERROR naming the publishers. Time (``framework.stamps``): estimates, biases, references
+and joystick samples each pass their own gate: stamped more than ``max_future`` ahead of the
+clock, or not later than the last one taken, they are refused and counted, so none becomes
+the controller's dt or the force's stamp. A ``Joy`` with a zero stamp (a driver that does not
+stamp) is timed by its arrival. The force stream stays ordered whatever its source (estimate,
+joystick, the clock on a fall-back): a force that answers a sample older than the last force
+sent is stamped 1 ns after it, since downstream refuses forces that are not newer. More than
+5 % of an input refused in a second makes the node DEGRADED. ``joy_timeout`` and
+``estimate_max_age`` must cover two periods of their input, and ``max_future`` stay under
+one; values that do not are refused with the measured period (and a start value that breaks
+the rule is reported once the period is known).
 """
 
 from __future__ import annotations
@@ -46,6 +61,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
+import threading
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
@@ -60,8 +76,11 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.control.dp_control import DpControlSettings, DpController
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
 from enbarr_interfaces.modes import Mode
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.sources import SourceGuard
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.guidance.guidance_node import msg_to_reference
 from enbarr_core.models.vessel3dof_params import (
     vector3, VESSEL_SPECS, vessel_from_params)
@@ -88,6 +107,9 @@ SPECS = [
               0.01, 60.0),
     ParamSpec('joy_timeout', 0.5, 'No joystick sample for this long: manual, zero force', 's',
               0.01, 60.0),
+    ParamSpec('max_future', 0.01, 'Estimates, references and joystick samples stamped further '
+              "ahead of the clock than this are refused (at least the observer's)", 's',
+              0.0, 0.5),
     ParamSpec('joy.axis_surge', 0, 'Joy axis for surge (up = +1)', '', 0, 64, required=True),
     ParamSpec('joy.axis_sway', 0, 'Joy axis for sway (left = +1)', '', 0, 64, required=True),
     ParamSpec('joy.axis_yaw', 0, 'Joy axis for yaw (left = +1)', '', 0,
@@ -114,6 +136,7 @@ class DpControlNodeSettings:
     manual_tau_max: tuple[float, ...]       # force at full stick [N, N, N m]
     estimate_max_age: float                 # [s]
     joy_timeout: float                      # [s]
+    max_future: float                       # [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> DpControlNodeSettings:
@@ -135,7 +158,23 @@ class DpControlNodeSettings:
         except ValueError as err:
             raise ValueError(f'joy: {err}') from err
         return cls(control, mapping, vector3(v, 'manual_tau_max'),
-                   v['estimate_max_age'], v['joy_timeout'])
+                   v['estimate_max_age'], v['joy_timeout'], v['max_future'])
+
+    def rate_problem(self, estimate_period: float | None,
+                     joy_period: float | None) -> str | None:
+        """Why these settings do not fit the measured input periods [s] (None: fine)."""
+        for name, value, period, what in (
+                ('estimate_max_age', self.estimate_max_age, estimate_period, 'estimate'),
+                ('joy_timeout', self.joy_timeout, joy_period, 'joystick')):
+            if period is not None and value < 2.0 * period:
+                return (f'{name} {value:g} s is under two {what} periods: one lost sample '
+                        f'would return to manual ({what} period measured {period:.3g} s)')
+        for period, what in ((estimate_period, 'estimate'), (joy_period, 'joystick')):
+            if period is not None and self.max_future >= period:
+                return (f'max_future {self.max_future:g} s is not under the {what} period: one '
+                        f'early sample could hide the next ({what} period measured '
+                        f'{period:.3g} s)')
+        return None
 
 
 @dataclass(frozen=True)
@@ -155,7 +194,12 @@ class DpControlNode(EnbarrNode):
         self.controller: DpController | None = None
         self.manager: ModeManager | None = None
         self.settings: DpControlNodeSettings
-        self.bind_settings(SPECS, DpControlNodeSettings.from_params, self._apply)
+        self.health = InputHealth()
+        self.estimate_period = IntervalMeter()  # of the estimates taken
+        self.joy_period = IntervalMeter()       # of the joystick samples taken
+        self._gates = {name: StampGate() for name in (
+            'observer/odometry', 'observer/bias', 'guidance/reference', 'joy')}
+        self.bind_settings(SPECS, self._build, self._apply)
         self.tau = np.zeros(3)
         self.reference = None
         self.refusals = 0
@@ -169,6 +213,8 @@ class DpControlNode(EnbarrNode):
         self._estimates: deque[_Estimate] = deque(maxlen=_ESTIMATES_KEPT)
         self._pending: tuple[int, Any] | None = None  # a reference waiting for its estimate
         self._reference_ns: int | None = None  # node clock at mode entry or last reference
+        self._tau_lock = threading.Lock()  # force from the chain thread and the executor's
+        self._tau_ns: int | None = None    # stamp of the last force sent
         self._tau_pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self._mode_pub = self.create_topic_publisher(topics.MODE)
         self.create_topic_subscription(topics.OBSERVER_AGE, self._on_age)
@@ -176,12 +222,23 @@ class DpControlNode(EnbarrNode):
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.GUIDANCE_REFERENCE, self._on_reference)
         self.create_topic_subscription(topics.GUIDANCE_PATH_AVAILABLE, self._on_path_available)
-        self.create_topic_subscription(topics.JOY, self._on_joy)
+        self._joy_sub = self.create_topic_subscription(topics.JOY, self._on_joy)
+        self.joy_guard = SourceGuard(self, self._joy_sub)
         self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))
 
+    def _build(self, v: Mapping[str, Any]) -> DpControlNodeSettings:
+        """Build the settings and refuse those that do not fit the measured input periods."""
+        settings = DpControlNodeSettings.from_params(v)
+        problem = settings.rate_problem(self.estimate_period.period, self.joy_period.period)
+        if problem:
+            raise ValueError(problem)
+        return settings
+
     def _apply(self, s: DpControlNodeSettings) -> None:
+        for gate in self._gates.values():
+            gate.policy = StampPolicy(max_future=s.max_future)
         if self.controller is None:
             self.controller = DpController(s.control)
             self.manager = ModeManager(s.mapping, s.manual_tau_max, s.joy_timeout)
@@ -206,27 +263,57 @@ class DpControlNode(EnbarrNode):
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def _admit(self, name: str, stamp_ns: int, count_accepted: bool = True) -> bool:
+        """Offer a sample of input ``name`` to its time gate; count a refusal (and a take)."""
+        verdict = self._gates[name].offer(stamp_ns, self.get_clock().now().nanoseconds)
+        if verdict is StampVerdict.ACCEPTED:
+            if count_accepted:
+                self.health.accepted(name)
+            return True
+        self.health.refused(name, verdict.value)
+        self.get_logger().warn(f'{name} refused ({verdict.value}): stamped '
+                               + ('ahead of the clock' if verdict is StampVerdict.FUTURE
+                                  else 'before the last one taken'),
+                               throttle_duration_sec=1.0)
+        return False
+
     def _on_age(self, msg: Float64) -> None:
         self._age = msg.data
 
     def _on_bias(self, msg: WrenchStamped) -> None:
-        self._bias = convert.wrench_to_tau3(msg.wrench)
+        if self._admit('observer/bias', convert.stamp_to_ns(msg.header.stamp)):
+            self._bias = convert.wrench_to_tau3(msg.wrench)
 
     def _on_path_available(self, msg: Bool) -> None:
         self.path_available = msg.data
 
     def _on_joy(self, msg: Joy) -> None:
+        if self.joy_guard.contested():
+            self.health.refused('joy', 'contested')
+            self.get_logger().error(self.joy_guard.status()[1], throttle_duration_sec=2.0)
+            return  # as if it never arrived: the joystick-loss rule stops the vessel
+        now = self.get_clock().now()
+        stamp = msg.header.stamp
+        t = convert.stamp_to_ns(stamp)
+        if t == 0:  # not stamped: timed by its arrival
+            t, stamp = now.nanoseconds, now.to_msg()
+        elif not self._admit('joy', t, count_accepted=False):
+            return
         before = self.manager.rejected_samples
-        transitions = self.manager.on_joy(list(msg.axes), list(msg.buttons), self._now_s(),
-                                          self._fresh(), self.path_available)
+        transitions = self.manager.on_joy(list(msg.axes), list(msg.buttons),
+                                          now.nanoseconds * 1e-9, self._fresh(),
+                                          self.path_available)
         if self.manager.rejected_samples > before:
+            self.health.refused('joy', 'malformed')
             self.get_logger().warn('joystick sample refused (non-finite or out-of-range axes, '
                                    'or too few axes/buttons)', throttle_duration_sec=1.0)
             return  # as if it never arrived: no force republished on its behalf
-        for t in transitions:
-            self._transition(t)
+        self.health.accepted('joy')
+        self.joy_period.add(t)
+        for tr in transitions:
+            self._transition(tr)
         if self.manager.mode is Mode.MANUAL:
-            self._publish_tau(self.manager.tau_manual, msg.header.stamp)
+            self._publish_tau(self.manager.tau_manual, stamp)
 
     def _reference_fresh(self) -> bool:
         """Tell whether a reference was applied (or the mode entered) recently."""
@@ -253,14 +340,17 @@ class DpControlNode(EnbarrNode):
 
     def _on_estimate(self, msg: Odometry) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
+        if not self._admit('observer/odometry', t):
+            return
+        self.estimate_period.add(t)
         last, self._last_ns = self._last_ns, t
         self._eta = eta = convert.pose_to_eta(msg.pose.pose)
         self._estimate_ns = self.get_clock().now().nanoseconds
         self._estimates.append(_Estimate(t, last, eta, convert.twist_to_nu3(msg.twist.twist),
                                          msg.header.stamp))
         if self._pending is not None and self._pending[0] == t:
-            pending, self._pending = self._pending[1], None
-            self._on_reference(pending)
+            (pending, ref), self._pending = self._pending[1], None
+            self._apply_reference(pending, ref)
 
     def _on_reference(self, msg: MultiDOFJointTrajectory) -> None:
         if self.manager.mode is Mode.MANUAL:  # the operator has the force
@@ -269,12 +359,19 @@ class DpControlNode(EnbarrNode):
             ref = msg_to_reference(msg)
         except ValueError as err:
             self.bad_references += 1
+            self.health.refused('guidance/reference', 'malformed')
             self.get_logger().error(str(err), throttle_duration_sec=1.0)
+            return
+        if self._admit('guidance/reference', convert.stamp_to_ns(msg.header.stamp)):
+            self._apply_reference(msg, ref)
+
+    def _apply_reference(self, msg: MultiDOFJointTrajectory, ref: Any) -> None:
+        if self.manager.mode is Mode.MANUAL:
             return
         t = convert.stamp_to_ns(msg.header.stamp)
         estimate = next((e for e in reversed(self._estimates) if e.t_ns == t), None)
         if estimate is None:  # its estimate has not arrived yet: wait for it
-            self._pending = (t, msg)
+            self._pending = (t, (msg, ref))
             return
         if estimate.last_ns is None or t <= estimate.last_ns:
             return
@@ -285,14 +382,33 @@ class DpControlNode(EnbarrNode):
         self._publish_tau(self.tau, estimate.stamp)
 
     def _publish_tau(self, tau: np.ndarray, stamp: Any) -> None:
-        self.tau = tau
-        w = WrenchStamped()
-        w.header.stamp = stamp
-        w.header.frame_id = topics.BODY_FRAME
-        convert.set_wrench_tau3(w.wrench, tau)
-        self._tau_pub.publish(w)
+        with self._tau_lock:  # the chain thread and the executor both send forces
+            t = convert.stamp_to_ns(stamp)
+            if self._tau_ns is not None and t <= self._tau_ns:
+                t = self._tau_ns + 1  # keep the stream ordered (see the module doc)
+                stamp = convert.ns_to_stamp(t)
+            self._tau_ns = t
+            self.tau = tau
+            w = WrenchStamped()
+            w.header.stamp = stamp
+            w.header.frame_id = topics.BODY_FRAME
+            convert.set_wrench_tau3(w.wrench, tau)
+            self._tau_pub.publish(w)
+
+    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) for ``/diagnostics``; closes the input-health window."""
+        level, message, totals = self.health.report(1.0)
+        problem = self.settings.rate_problem(self.estimate_period.period,
+                                             self.joy_period.period)
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        level, message = worst((level, message), rates, self.joy_guard.status())
+        return level, (self.manager.mode.value if level == OK else message), {
+            'mode': self.manager.mode.value, 'refusals': self.refusals,
+            'joy_rejected': self.manager.rejected_samples,
+            'bad_references': self.bad_references, **totals}
 
     def _report(self) -> None:
-        self.publish_diagnostics(0, self.manager.mode.value, {
-            'refusals': self.refusals, 'joy_rejected': self.manager.rejected_samples,
-            'bad_references': self.bad_references})
+        self.publish_diagnostics(*self.diagnostic_status())

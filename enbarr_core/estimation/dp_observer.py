@@ -38,6 +38,14 @@ Measurement handling, in this order:
 Discretization: explicit second-order Runge-Kutta (Heun) over dt, tau held, y interpolated
 linearly from the previous accepted pose (first-order hold; held after a dropout). The test
 suite shows it matches a fine RK4 of the same ODE at 50 Hz.
+
+Divergence: Heun is only stable for dt well under the fastest error time constant (the
+quadratic yaw damping makes that ~2 / (Dn |r| / M) = 0.03 s at 1 rad/s for the CS Saucer). A
+dt far beyond it (a pose stamped seconds ahead, before the node's time policy refused such
+poses) blows the state up to inf within a few steps. The heading is wrapped at both Heun
+stages (so trigonometry never sees inf), and a state that is no longer finite is dropped:
+the observer is uninitialized again (stale, age inf, counted in ``divergences``, the step's
+estimate says ``diverged``) and the next pose starts it over.
 """
 
 from __future__ import annotations
@@ -123,6 +131,7 @@ class ObserverEstimate:
     accepted: bool       # this step's y was used (or re-initialized the estimate)
     rejected_jump: bool  # this step's y was rejected as an implausible jump
     reinitialized: bool = False  # this step's y re-initialized eta_hat
+    diverged: bool = False       # the state stopped being finite: dropped, uninitialized
 
 
 class PassiveObserver:
@@ -138,6 +147,7 @@ class PassiveObserver:
         self._far_first: tuple[float, float, float] | None = None  # first of the consistent ones
         self.rejected = 0                  # measurements rejected as implausible jumps
         self.reinitializations = 0         # re-initializations from consistent far poses
+        self.divergences = 0               # states dropped for not being finite
         self.settings = settings
 
     @property
@@ -224,10 +234,24 @@ class PassiveObserver:
             self._far_time += dt  # a dropout between far poses does not reset the evidence
 
         self._integrate(y if accepted else None, tau, dt)
+        if not all(map(math.isfinite, self._x)):
+            return self._diverged()
         self._age = 0.0 if accepted else self._age + dt
         return self._estimate(accepted, rejected, False)
 
     # -- internals -------------------------------------------------------------------------
+
+    def _diverged(self) -> ObserverEstimate:
+        """Drop a state that is no longer finite: uninitialized, the next pose starts over."""
+        self._x = [0.0] * 9
+        self._initialized = False
+        self._age = math.inf
+        self._y_prev = None
+        self._far_time, self._far_y, self._far_first = 0.0, None, None
+        self.divergences += 1
+        x = np.zeros(9)
+        return ObserverEstimate(x[0:3], x[3:6], x[6:9], True, math.inf, False, False,
+                                diverged=True)
 
     def _reinitialize(self, y: tuple[float, float, float]) -> None:
         """Set eta_hat = y, nu_hat from the consistent far poses, keep b_hat.
@@ -291,7 +315,9 @@ class PassiveObserver:
         x = self._x
         y0 = self._y_prev if (y is not None and self._y_prev is not None) else y
         k1 = self._f(x, y0, tau)
-        k2 = self._f([xi + dt * ki for xi, ki in zip(x, k1)], y, tau)
+        x1 = [xi + dt * ki for xi, ki in zip(x, k1)]
+        x1[2] = ssa(x1[2])  # cos(inf) raises, ssa(inf) is NaN (see Divergence)
+        k2 = self._f(x1, y, tau)
         self._y_prev = y
         h = 0.5 * dt
         x = [xi + h * (a + b) for xi, a, b in zip(x, k1, k2)]

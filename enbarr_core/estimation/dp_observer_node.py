@@ -11,12 +11,33 @@ implausibly far from the estimate, or hold NaN/Inf, are rejected and counted. Th
 (``k1``, ``k2``, ``k3``: 3-element diagonals) and the vessel model (``vessel.*``) come from the
 profile and have no default (a node started without them refuses, naming the parameter);
 they and ``t_b`` change live, the state kept.
+
+Time (``docs/architecture.md``, Time; ``framework.stamps``): a pose is used only when its
+stamp is at most ``max_future`` ahead of the node's clock and later than the last pose taken;
+others are refused and counted, so a pose stamped in the future never becomes the time base
+(one such pose once froze the estimate for as long as it was ahead). ``max_future`` (10 ms)
+covers the offset between the motion-capture computer's clock and this one (milliseconds under
+chrony; zero in one process, where the pose is stamped from this clock) and stays under the
+pose period, so an early pose costs at most itself. Poses cross processes and networks, so
+they arrive after their stamp: dead reckoning stays ``max_latency`` (0.1 s) behind the clock,
+and a pose arriving later than that after its stamp, once the estimate was dead-reckoned past
+it, is refused as ``late``. The force
+(``allocation/delivered``) is only a value here: its stamp is judged by the same rule so that
+an older force never replaces a newer one.
+
+Diagnostics: DEGRADED when more than 5 % of the poses of the last second were refused (the
+reasons counted), when the estimate was reset (a diverged state), or when it is stale; a
+parameter that only makes sense against the pose rate (``stale_after`` at least two pose
+periods, ``max_future`` under one) is refused with the measured period, and a start value
+that breaks the rule is reported (log, ``/diagnostics``, the run's problems) once the period
+is known.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+import math
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -27,8 +48,10 @@ from std_msgs.msg import Float64
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.models.vessel3dof_params import (
     vector3, VESSEL_SPECS, vessel_from_params)
 
@@ -49,6 +72,11 @@ SPECS = [
               100.0),
     ParamSpec('max_heading_jump', 0.5, 'Reject headings this far from the estimate', 'rad',
               1e-3, 3.2),
+    ParamSpec('max_future', 0.01, 'Poses stamped further ahead of the clock than this are '
+              'refused (clock offset of the motion-capture computer; under the pose period)',
+              's', 0.0, 0.5),
+    ParamSpec('max_latency', 0.1, 'Poses arriving up to this long after their stamp are used: '
+              'dead reckoning stays this far behind the clock', 's', 0.0, 1.0),
     ParamSpec('rate', 50.0, 'Integration rate of dead reckoning when poses stop (checked at '
               '10 Hz, integrated in steps of 1/rate)', 'Hz', 1.0, 1000.0, read_only=True),
 ]
@@ -60,6 +88,8 @@ class DpObserverNodeSettings:
 
     observer: ObserverSettings  # gains, model and measurement checks
     rate: float                 # dead-reckoning integration rate [Hz]
+    max_future: float           # poses stamped further ahead of the clock are refused [s]
+    max_latency: float          # dead reckoning stays this far behind the clock [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> DpObserverNodeSettings:
@@ -75,7 +105,21 @@ class DpObserverNodeSettings:
         except ValueError as err:
             field = str(err).split(':')[0]
             raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
-        return cls(observer=s, rate=v['rate'])
+        return cls(observer=s, rate=v['rate'], max_future=v['max_future'],
+                   max_latency=v['max_latency'])
+
+    def rate_problem(self, pose_period: float | None) -> str | None:
+        """Why these settings do not fit poses arriving every ``pose_period`` [s] (or None)."""
+        if pose_period is None:
+            return None
+        measured = f'pose period measured {pose_period:.3g} s'
+        if self.observer.stale_after < 2.0 * pose_period:
+            return (f'stale_after {self.observer.stale_after:g} s is under two pose periods:'
+                    f' one lost pose would make the estimate stale ({measured})')
+        if self.max_future >= pose_period:
+            return (f'max_future {self.max_future:g} s is not under the pose period: one early '
+                    f'pose could hide the next good one ({measured})')
+        return None
 
 
 _PARAMETER = {'K1': 'k1', 'K2': 'k2', 'K3': 'k3', 'T_b': 't_b', 'M': 'vessel.inertia',
@@ -89,8 +133,13 @@ class DpObserverNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         self.observer: PassiveObserver | None = None
         self.settings: DpObserverNodeSettings
-        self.bind_settings(SPECS, DpObserverNodeSettings.from_params, self._apply)
+        self.health = InputHealth()
+        self.pose_period = IntervalMeter()  # of the poses taken
+        self._pose_gate = StampGate()
+        self._tau_gate = StampGate()
+        self.bind_settings(SPECS, self._build, self._apply)
         self.estimate = None
+        self.age = math.inf  # published measurement age [s]: clock time since the last pose
         self.rejected = 0
         self._tau = np.zeros(3)
         self._last_ns: int | None = None
@@ -103,8 +152,18 @@ class DpObserverNode(EnbarrNode):
         self.create_timer(WATCHDOG_PERIOD, self._dead_reckon)
         self.create_timer(1.0, self._report)
 
+    def _build(self, v: Mapping[str, Any]) -> DpObserverNodeSettings:
+        """Build the settings and refuse those that do not fit the measured pose period."""
+        settings = DpObserverNodeSettings.from_params(v)
+        problem = settings.rate_problem(self.pose_period.period)
+        if problem:
+            raise ValueError(problem)
+        return settings
+
     def _apply(self, settings: DpObserverNodeSettings) -> None:
         self.settings = settings
+        policy = StampPolicy(max_future=settings.max_future)
+        self._pose_gate.policy = self._tau_gate.policy = policy
         if self.observer is None:
             self.observer = PassiveObserver(settings.observer)
         else:
@@ -112,15 +171,37 @@ class DpObserverNode(EnbarrNode):
 
     def _on_tau(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau3(msg.wrench)
-        if np.all(np.isfinite(tau)):
-            self._tau = tau
+        if not np.all(np.isfinite(tau)):
+            self.health.refused('allocation/delivered', 'non_finite')
+            return
+        verdict = self._tau_gate.offer(convert.stamp_to_ns(msg.header.stamp),
+                                       self.get_clock().now().nanoseconds)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.health.refused('allocation/delivered', verdict.value)
+            return
+        self.health.accepted('allocation/delivered')
+        self._tau = tau
+
+    def _refuse_pose(self, reason: str) -> None:
+        self.rejected += 1
+        self.health.refused('mocap/pose', reason)
+        self.get_logger().warn(f'mocap/pose refused ({reason})', throttle_duration_sec=1.0)
 
     def _on_pose(self, msg: PoseStamped) -> None:
         y = convert.pose_to_eta(msg.pose)
         t = convert.stamp_to_ns(msg.header.stamp)
-        if not np.all(np.isfinite(y)) or (self._last_ns is not None and t <= self._last_ns):
-            self.rejected += 1
+        if not np.all(np.isfinite(y)):
+            self._refuse_pose('non_finite')
             return
+        verdict = self._pose_gate.offer(t, self.get_clock().now().nanoseconds)
+        if verdict is not StampVerdict.ACCEPTED:
+            self._refuse_pose(verdict.value)
+            return
+        if self._last_ns is not None and t <= self._last_ns:
+            self._refuse_pose('late')  # the estimate was dead-reckoned past it
+            return
+        self.health.accepted('mocap/pose')
+        self.pose_period.add(t)
         if not self.observer.initialized:
             self.observer.initialize(y)
             self._last_ns = t
@@ -130,23 +211,39 @@ class DpObserverNode(EnbarrNode):
     def _dead_reckon(self) -> None:
         if self._last_ns is None:
             return
-        now = self.get_clock().now().nanoseconds
+        # Up to max_latency behind the clock: a pose on its way is not overtaken. The age
+        # published is still the clock's: the time since the last pose taken.
+        lag = round(self.settings.max_latency * 1e9)
+        now = self.get_clock().now().nanoseconds - lag
         if now - self._last_ns > 1.5 * self._period_ns:
             # Poses stopped: integrate up to now in steps of 1/rate, publish the newest.
             n = -(-(now - self._last_ns) // self._period_ns)
             for k in range(1, n + 1):
                 t = self._last_ns + (now - self._last_ns) // (n - k + 1)
-                self._step(None, t, publish=(k == n))
+                if not self._step(None, t, publish=(k == n), lag=lag * 1e-9):
+                    return
 
-    def _step(self, y: np.ndarray | None, t: int, publish: bool = True) -> None:
+    def _step(self, y: np.ndarray | None, t: int, publish: bool = True,
+              lag: float = 0.0) -> bool:
+        """Advance the estimate to ``t`` [ns], ``lag`` [s] before the clock's present.
+
+        Return False when it diverged (and was dropped).
+        """
         dt = (t - self._last_ns) * 1e-9
         self._last_ns = t
         self.estimate = e = self.observer.step(y, self._tau, dt)
+        if e.diverged:
+            self._last_ns = None  # the next pose starts the estimate over
+            self.health.reset('estimate')
+            self.get_logger().error('the estimate diverged (no longer finite): dropped, '
+                                    'waiting for the next pose')
+            return False
         if e.rejected_jump:
             self.rejected += 1
+            self.health.refused('mocap/pose', 'jump')
             self.get_logger().warn('implausible pose jump rejected', throttle_duration_sec=1.0)
         if not publish:
-            return
+            return True
         stamp = convert.ns_to_stamp(t)
         odom = Odometry()
         odom.header.stamp = stamp
@@ -154,7 +251,8 @@ class DpObserverNode(EnbarrNode):
         odom.child_frame_id = topics.BODY_FRAME
         convert.set_pose_eta(odom.pose.pose, e.eta_hat)
         convert.set_twist_nu3(odom.twist.twist, e.nu_hat)
-        age = Float64(data=float(e.age))
+        self.age = e.age + lag if e.age else 0.0
+        age = Float64(data=float(self.age))
         bias = WrenchStamped()
         bias.header.stamp = stamp
         bias.header.frame_id = topics.WORLD_FRAME
@@ -162,9 +260,25 @@ class DpObserverNode(EnbarrNode):
         self._age_pub.publish(age)      # before the odometry: the controller reads both
         self._bias_pub.publish(bias)
         self._odom_pub.publish(odom)
+        return True
+
+    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) for ``/diagnostics``; closes the input-health window."""
+        e = self.estimate
+        stale = e is None or e.stale
+        own = (DEGRADED, 'stale') if stale else (OK, 'ok')
+        level, message, totals = self.health.report(1.0)
+        problem = self.settings.rate_problem(self.pose_period.period)
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        level, message = worst(own, (level, message), rates)
+        period = self.pose_period.period
+        return level, message, {
+            'rejected': self.rejected, 'age': self.age if e else 'none', **totals,
+            'divergences': self.observer.divergences,
+            'pose_period': 'unknown' if period is None else round(period, 6)}
 
     def _report(self) -> None:
-        e = self.estimate
-        self.publish_diagnostics(
-            1 if e is None or e.stale else 0, 'stale' if e is None or e.stale else 'ok',
-            {'rejected': self.rejected, 'age': e.age if e else 'none'})
+        self.publish_diagnostics(*self.diagnostic_status())

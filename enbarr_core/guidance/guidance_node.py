@@ -12,6 +12,11 @@ whether it has a path, which the controller needs to refuse guidance without one
 
 Another guidance law (say, one that avoids collisions) replaces this node with one
 ``plugin:`` line of the profile, as long as it speaks the same three topics.
+
+Time (issue 8, ``framework.stamps``): an estimate stamped more than ``max_future`` ahead of
+the clock, or not later than the last one taken, is refused and counted: it neither becomes
+the law's dt nor the stamp of a reference. More than 5 % refused in a second makes the node
+DEGRADED on ``/diagnostics``; ``max_future`` must stay under the measured estimate period.
 """
 
 from __future__ import annotations
@@ -30,8 +35,10 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 from enbarr_interfaces import convert, topics
 
 from enbarr_interfaces.modes import Mode
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
 SPECS = [
@@ -42,6 +49,8 @@ SPECS = [
               'm/s^2', 1e-4, 10.0),
     ParamSpec('path.lookahead', 0.5, 'Line-of-sight lookahead distance', 'm', 1e-3, 100.0),
     ParamSpec('path.acceptance_radius', 0.1, 'Waypoint acceptance radius', 'm', 1e-3, 100.0),
+    ParamSpec('max_future', 0.01, 'Estimates stamped further ahead of the clock than this are '
+              "refused (at least the observer's)", 's', 0.0, 0.5),
     ParamSpec('path.heading', 'fixed', 'Heading along the path: fixed (keep the heading held '
               'when guidance starts) or course (face the direction of travel)'),
 ]
@@ -103,6 +112,7 @@ class GuidanceSettings:
     lookahead: float           # line-of-sight lookahead [m]
     acceptance_radius: float   # waypoint acceptance radius [m]
     heading: str               # 'fixed' or 'course'
+    max_future: float = 0.01   # estimates stamped further ahead of the clock are refused [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> GuidanceSettings:
@@ -118,13 +128,21 @@ class GuidanceSettings:
                                  'y1, ... of a path')
             waypoints = [(float(x), float(y)) for x, y in zip(w[::2], w[1::2])]
         s = cls(tuple(waypoints), v['path.speed'], v['path.accel'], v['path.lookahead'],
-                v['path.acceptance_radius'], v['path.heading'])
+                v['path.acceptance_radius'], v['path.heading'], v['max_future'])
         if len(waypoints) > 1:  # a path: check it now (a single waypoint is checked on use)
             try:
                 s.path_law()
             except ValueError as err:
                 raise ValueError(f'path: {err}') from err
         return s
+
+    def rate_problem(self, estimate_period: float | None) -> str | None:
+        """Why these settings do not fit estimates every ``estimate_period`` [s] (or None)."""
+        if estimate_period is not None and self.max_future >= estimate_period:
+            return (f'max_future {self.max_future:g} s is not under the estimate period: one '
+                    f'early estimate could hide the next (estimate period measured '
+                    f'{estimate_period:.3g} s)')
+        return None
 
     def path_law(self) -> LosPath:
         """Line-of-sight following of the path (two or more waypoints)."""
@@ -144,14 +162,26 @@ class GuidanceNode(EnbarrNode):
         self.failures = 0
         self._eta: np.ndarray | None = None
         self._last_ns: int | None = None
+        self.health = InputHealth()
+        self.estimate_period = IntervalMeter()
+        self._gate = StampGate()
         self._ref_pub = self.create_topic_publisher(topics.GUIDANCE_REFERENCE)
         self._path_pub = self.create_topic_publisher(topics.GUIDANCE_PATH_AVAILABLE)
-        self.bind_settings(SPECS, GuidanceSettings.from_params, self._apply)
+        self.bind_settings(SPECS, self._build, self._apply)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.MODE, self._on_mode)
         self.create_timer(1.0, self._report)
 
+    def _build(self, v: Mapping[str, Any]) -> GuidanceSettings:
+        """Build the settings and refuse those that do not fit the measured estimate period."""
+        settings = GuidanceSettings.from_params(v)
+        problem = settings.rate_problem(self.estimate_period.period)
+        if problem:
+            raise ValueError(problem)
+        return settings
+
     def _apply(self, settings: GuidanceSettings) -> None:
+        self._gate.policy = StampPolicy(max_future=settings.max_future)
         self.settings = settings
         self._path_pub.publish(Bool(data=bool(settings.waypoints)))
 
@@ -188,16 +218,38 @@ class GuidanceNode(EnbarrNode):
 
     def _on_estimate(self, msg: Odometry) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.health.refused('observer/odometry', verdict.value)
+            self.get_logger().warn(f'observer/odometry refused ({verdict.value})',
+                                   throttle_duration_sec=1.0)
+            return
+        self.health.accepted('observer/odometry')
+        self.estimate_period.add(t)
         last, self._last_ns = self._last_ns, t
         self._eta = eta = convert.pose_to_eta(msg.pose.pose)
-        if self.law is None or last is None or t <= last:
+        if self.law is None or last is None:
             return
         self.reference = ref = self.law.reference(eta, (t - last) * 1e-9)
         self._ref_pub.publish(reference_to_msg(ref, msg.header))
 
-    def _report(self) -> None:
+    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
+        """(level, message, values) for ``/diagnostics``; closes the input-health window."""
         ref = self.reference
         cross_track = ref.cross_track if ref is not None else None
-        self.publish_diagnostics(0 if self.failures == 0 else 1, self.mode.value, {
-            'failures': self.failures, 'finished': ref is not None and ref.finished,
-            'cross_track': 'none' if cross_track is None else cross_track})
+        own = (DEGRADED, f'{self.mode.value}: {self.failures} failures') if self.failures \
+            else (OK, 'ok')
+        level, message, totals = self.health.report(1.0)
+        problem = self.settings.rate_problem(self.estimate_period.period)
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        level, message = worst(own, (level, message), rates)
+        return level, (self.mode.value if level == OK else message), {
+            'mode': self.mode.value, 'failures': self.failures,
+            'finished': ref is not None and ref.finished,
+            'cross_track': 'none' if cross_track is None else cross_track, **totals}
+
+    def _report(self) -> None:
+        self.publish_diagnostics(*self.diagnostic_status())

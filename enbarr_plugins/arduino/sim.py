@@ -6,7 +6,10 @@ Reads ``pwm/duty_cycle`` (``std_msgs/Float64MultiArray``: one duty [%] per chann
 same calibration tables the real hardware was measured with. Like firmware with a watchdog,
 it drives every channel to its neutral duty when duty cycles stop for ``command_timeout``.
 A message with another label or size, and duties outside the profile's
-``pwm.duty_min_percent .. pwm.duty_max_percent`` or non-finite ones, are refused and counted.
+``pwm.duty_min_percent .. pwm.duty_max_percent`` or non-finite ones, are refused and counted;
+more than 5 % refused in a second makes the node DEGRADED (issue 8). The duty message has no
+stamp, so its period is measured on arrival: a ``command_timeout`` under two periods (the
+outputs would go neutral between messages) is refused with the measured period.
 """
 
 from __future__ import annotations
@@ -15,12 +18,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from enbarr_core.allocation.azimuth import PwmCalibration
 from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
+from enbarr_core.allocation.pwm_mapper_node import command_timeout_problem
 from enbarr_core.framework.driver import ActuatorDriver
+from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
 from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
 
@@ -54,6 +61,9 @@ class SimArduinoNode(ActuatorDriver):
         self.calibration = self.settings.calibration
         self.channels = 2 * len(self.names)  # motor, servo per azimuth
         self.refused = 0
+        self.health = InputHealth()
+        self.duty_period = IntervalMeter()  # on arrival: the duty message has no stamp
+        self.add_on_set_parameters_callback(self._check_command_timeout)
         self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
         self.connect()
@@ -66,12 +76,34 @@ class SimArduinoNode(ActuatorDriver):
                 or dim[0].stride != n or len(msg.data) != n
                 or not all(c.accepts(d) for d in msg.data)):
             self.refused += 1
+            self.health.refused('pwm/duty_cycle', 'malformed')
             return
+        self.health.accepted('pwm/duty_cycle')
+        self.duty_period.add(self.get_clock().now().nanoseconds)
         thrust = [c.duty_to_thrust(d) for d in msg.data[0::2]]
         angle = [c.duty_to_angle(d) for d in msg.data[1::2]]
         with self.commanding():
             self.neutral = not any(thrust)
             self._send(thrust, angle)
+
+    def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name == 'command_timeout' and isinstance(p.value, float):
+                problem = command_timeout_problem(p.value, self.duty_period.period, 'duty')
+                if problem:
+                    return SetParametersResult(successful=False, reason=problem)
+        return SetParametersResult(successful=True)
+
+    def status(self) -> tuple[int, str]:
+        """Return the driver's status, DEGRADED when duties are refused or settings misfit."""
+        level, message, _ = self.health.report(1.0)
+        problem = command_timeout_problem(self.watchdog.timeout_ns * 1e-9,
+                                          self.duty_period.period, 'duty')
+        rates = (OK, 'ok')
+        if problem:
+            rates = (DEGRADED, problem)
+            self.report_problem(f'parameter {problem}')
+        return worst(super().status(), (level, message), rates)
 
     def _send(self, thrust: list[float], angle: list[float]) -> None:
         out = JointState(name=self.names, effort=thrust, position=angle)

@@ -132,3 +132,37 @@ def test_azimuth_allocation_settings_are_typed_and_frozen(rig):
     assert [a.position for a in s.azimuths] == [tuple(p) for p in POSITIONS]
     with pytest.raises(AttributeError):
         s.azimuths = ()
+
+
+def _force(tau: list[float], ns: int) -> WrenchStamped:
+    w = WrenchStamped()
+    convert.ns_to_stamp(ns, w.header.stamp)
+    w.header.frame_id = topics.BODY_FRAME
+    convert.set_wrench_tau3(w.wrench, tau)
+    return w
+
+
+def test_a_force_stamped_ahead_or_out_of_order_is_refused_and_reported(context, executor):
+    # Issue 8: one force_command stamped 20 s ahead (an outside publisher, the allocation in
+    # its own process) was allocated and passed its stamp on to the PWM stage and the observer.
+    from support.saucer import SimClock
+    node = add(executor, AzimuthAllocationNode(node_name='allocation', context=context,
+                                               parameter_overrides=overrides()))
+    clock = SimClock(node)
+    p = probe(context, executor, 'controller')
+    pub = p.create_topic_publisher(topics.FORCE_COMMAND)
+    commands: list[JointState] = []
+    p.create_topic_subscription(topics.AZIMUTH_COMMANDS, commands.append)
+    LinkBus.of(context).connect()
+    for _ in range(10):
+        pub.publish(_force([0.1, 0.0, 0.0], clock.advance(0.02)))
+    pub.publish(_force([2.0, 0.0, 0.0], clock.ns + 20_000_000_000))
+    pub.publish(_force([2.0, 0.0, 0.0], clock.ns - 1))
+    assert len(commands) == 10, 'a force from the future or the past was allocated'
+    pub.publish(_force([0.1, 0.0, 0.0], clock.advance(0.02)))
+    assert len(commands) == 11
+    level, message, values = node.diagnostic_status()
+    assert level == 1 and 'force_command: refused 2 of 13' in message, message
+    assert values['force_command.future'] == 1 and values['force_command.not_newer'] == 1
+    result = node.set_parameters([Parameter('max_future', value=0.03)])[0]
+    assert not result.successful and 'measured 0.02 s' in result.reason, result.reason

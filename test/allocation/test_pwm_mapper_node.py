@@ -158,3 +158,37 @@ def test_pwm_mapper_duty_limits_come_from_the_profile(context, executor):
         parameter_overrides=overrides({'pwm.duty_min_percent': 2.0,
                                        'pwm.duty_max_percent': 12.0})))
     assert (r.calibration.duty_min_percent, r.calibration.duty_max_percent) == (2.0, 12.0)
+
+
+def test_pwm_mapper_refuses_commands_stamped_ahead_or_out_of_order(context, executor):
+    # Issue 8: a command stamped 20 s ahead was mapped to duties (and logged as a latency of
+    # -20 s). Unstamped commands (stamp 0) carry no time and are taken as they come.
+    from support.saucer import SimClock
+    r = rig(context, executor)
+    clock = SimClock(r.node)
+    for _ in range(10):
+        r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=clock.advance(0.02)))
+    n = len(r.duties)
+    r.pub.publish(azimuth_msg([0.0] * 3, ANGLE, stamp_ns=clock.ns + 20_000_000_000))
+    r.pub.publish(azimuth_msg([0.0] * 3, ANGLE, stamp_ns=clock.ns - 1))
+    assert len(r.duties) == n, 'a command from the future or the past was mapped'
+    assert r.node.latency.last(r.node.latency.count).min() >= 0
+    r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=clock.advance(0.02)))
+    assert len(r.duties) == n + 1
+    level, message = r.node.status()
+    assert level == 1 and 'azimuth_commands: refused 2 of 13' in message, message
+    assert r.node.status_values()['azimuth_commands.future'] == 1
+
+
+def test_pwm_mapper_refuses_a_command_timeout_shorter_than_two_command_periods(
+        context, executor):
+    from support.saucer import SimClock
+    r = rig(context, executor)
+    clock = SimClock(r.node)
+    for _ in range(10):
+        r.pub.publish(azimuth_msg(THRUST, ANGLE, stamp_ns=clock.advance(0.02)))
+    result = r.node.set_parameters([Parameter('command_timeout', value=0.03)])[0]
+    assert not result.successful and 'command_timeout' in result.reason, result.reason
+    assert 'measured 0.02 s' in result.reason
+    assert r.node.watchdog.timeout_ns != 30_000_000
+    assert r.node.set_parameters([Parameter('command_timeout', value=0.25)])[0].successful

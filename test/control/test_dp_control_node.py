@@ -212,7 +212,8 @@ def test_a_reference_before_its_estimate_waits_for_it(context, executor, spin):
     to_automatic(h)
     ref_pub = h.probe.create_topic_publisher(topics.GUIDANCE_REFERENCE)
     h.guidance.law = None  # only this test's references from now on
-    t = h.t_odom + 20_000_000
+    t = h.clock.advance(0.02)  # the next estimate's time: its reference comes first
+    assert t == h.t_odom + 20_000_000
     ref = HoldPose(ETA0).reference(ETA0, 0.02)
     n_taus = len(h.taus)
     ref_pub.publish(reference_to_msg(ref, odometry_msg(t, ETA0).header))

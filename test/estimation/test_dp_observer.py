@@ -495,3 +495,23 @@ def test_far_poses_inconsistent_along_one_axis_never_reinitialize(axis):
         est = obs.step(far, (0.0, 0.0, 0.0), 0.125)
         assert est.rejected_jump and not est.reinitialized
     assert obs.reinitializations == 0
+
+
+def test_a_step_that_blows_the_state_up_resets_the_estimate_and_never_raises():
+    # Issue 8: one pose stamped 20 s ahead once gave the observer dt = 20 s. Heun over 20 s
+    # of this stiff model (yaw D_n / M = 61 1/s per rad/s) grows the state by ~1e4 per step:
+    # the next dead-reckoning steps overflowed to inf and math.cos(inf) raised
+    # ValueError('math domain error') in every callback after. Whatever dt the caller gives,
+    # a state that is no longer finite is dropped (counted) and the next pose starts over.
+    obs = PassiveObserver(observer_settings())
+    obs.initialize([0.0, 0.0, 0.0])
+    tau = [0.5, 0.0, 0.05]
+    obs.step([0.001, 0.0, 0.0], tau, 20.0)
+    estimates = [obs.step(None, tau, 0.1) for _ in range(10)]  # raised at the 4th before
+    lost = [e for e in estimates if e.diverged]
+    assert len(lost) == 1 and obs.divergences == 1 and not obs.initialized
+    assert lost[0].stale and lost[0].age == math.inf
+    for e in estimates:
+        assert np.all(np.isfinite(e.eta_hat)) and np.all(np.isfinite(e.nu_hat))
+    e = obs.step([1.0, 2.0, 0.5], tau, 0.02)  # the next pose initializes it again
+    assert obs.initialized and e.eta_hat == pytest.approx([1.0, 2.0, 0.5])

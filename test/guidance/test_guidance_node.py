@@ -127,3 +127,31 @@ def test_path_heading_is_checked_and_set_live(context, executor, spin):
     result = set_param(executor, spin, client, 'path.heading', 'course')
     assert result.successful, result.reason
     assert node.settings.heading == 'course'
+
+
+def test_a_future_estimate_costs_itself_and_is_reported(context, executor, spin):
+    # Issue 8: an estimate stamped 20 s ahead became the guidance's time base; the good
+    # estimates after it were "older" and got no reference.
+    from support.saucer import SimClock
+    h = Harness(context, executor, spin)
+    clock = SimClock(h.node, t0_ns=T0_NS + 20_000_000)
+    h.estimate([0.0, 0.0, 0.0])
+    h.mode(Mode.AUTOMATIC)
+    for _ in range(5):
+        clock.set(h.t + 20_000_000)
+        h.estimate([0.0, 0.0, 0.0])
+    n = len(h.refs)
+    h.odom_pub.publish(odometry_msg(clock.ns + 20_000_000_000, [0.0, 0.0, 0.0]))
+    for _ in range(10):
+        clock.set(h.t + 20_000_000)
+        h.estimate([0.0, 0.0, 0.0])
+    assert len(h.refs) == n + 10
+    assert max(convert.stamp_to_ns(r.header.stamp) for r in h.refs) <= clock.ns
+    level, message, values = h.node.diagnostic_status()
+    assert level == 1 and 'observer/odometry: refused 1 of' in message, message
+    assert values['observer/odometry.future'] == 1
+    h.node.diagnostic_status()
+    # The estimate period is measured: a max_future that could hide the next estimate is
+    # refused with it.
+    result = h.node.set_parameters([Parameter('max_future', value=0.05)])[0]
+    assert not result.successful and 'measured 0.02 s' in result.reason, result.reason

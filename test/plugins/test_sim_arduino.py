@@ -168,3 +168,26 @@ def test_sim_arduino_goes_neutral_when_duties_stop(context, executor, spin):
     assert len(r.applied) == 2 and r.node.neutral
     assert list(r.applied[-1].effort) == [c.duty_to_thrust(c.neutral_thrust_duty)] * 3 == [0.0] * 3
     assert list(r.applied[-1].position) == pytest.approx([0.0] * 3, abs=1e-12)
+
+
+def test_sim_arduino_refuses_a_command_timeout_shorter_than_two_duty_periods(
+        context, executor):
+    # Issue 8: a timeout inside its range but shorter than the input's period is harmful
+    # (the outputs go neutral between every two duty messages); refuse it, saying why.
+    from rclpy.parameter import Parameter
+    from support.saucer import SimClock
+    r = rig(context, executor)
+    clock = SimClock(r.node)
+    for _ in range(10):
+        clock.advance(0.02)
+        r.pub.publish(duty_msg(GOOD))
+    result = r.node.set_parameters([Parameter('command_timeout', value=0.03)])[0]
+    assert not result.successful, 'a timeout shorter than two duty periods was accepted'
+    assert 'command_timeout' in result.reason and 'measured 0.02 s' in result.reason
+    assert r.node.set_parameters([Parameter('command_timeout', value=0.25)])[0].successful
+    assert r.node.status()[0] == 0
+    r.node.set_parameters([Parameter('command_timeout', value=10.0)])
+    r.pub.publish(duty_msg([float('nan')] * len(GOOD)))  # refused inputs make it DEGRADED
+    r.pub.publish(duty_msg([float('nan')] * len(GOOD)))
+    level, message = r.node.status()
+    assert level == 1 and 'pwm/duty_cycle: refused 2 of 2' in message, message
