@@ -272,16 +272,19 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                     return 0
                 built = c.nodes
                 c.start()
+                orphaned = _notice_orphaning(c, group)
                 names = ', '.join(n.get_name() for n in c.nodes)
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
                          names)
                 deadline = None if duration is None else time.monotonic() + duration
-                while not stop.requested and c.context.ok():
+                while not stop.requested and not orphaned and c.context.ok():
                     if deadline is not None and time.monotonic() >= deadline:
                         break
                     c.executor.spin_once(timeout_sec=0.1)
                 if stop.requested:
                     log.info('%s received, stopping', signal.Signals(stop.signal).name)
+                elif orphaned:
+                    _outlive_the_others(c)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
     # After the shutdown (a recorder's last write fails at close): what went wrong.
@@ -291,6 +294,44 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                   f' [{group}]' if group else '', len(problems), '; '.join(problems))
         return EXIT_PROBLEMS
     return 0
+
+
+#: How long a recorder group whose supervisor died waits for the other groups to stop [s].
+ORPHAN_GRACE_SECONDS = 5.0
+#: The parent-death signal of a group made only of recorders (the others get SIGTERM).
+ORPHAN_SIGNAL = signal.SIGUSR1
+
+
+def _notice_orphaning(c: Composition, group: str | None) -> list[int]:
+    """For a supervised group of recorders only: the supervisor's death, as a flag.
+
+    Every group gets its parent-death signal at the same moment when the supervisor is
+    killed; the others then publish their safe state (thrusters neutral) on their way out.
+    To record it, a group of recorders gets ``ORPHAN_SIGNAL`` instead of SIGTERM (a plain
+    SIGTERM still stops it at once) and the returned list fills when it arrives.
+    """
+    orphaned: list[int] = []
+    if group is None or not c.nodes or not all(isinstance(n, Recorder) for n in c.nodes):
+        return orphaned
+    parent = os.getppid()
+    signal.signal(ORPHAN_SIGNAL, lambda signum, frame: orphaned.append(signum))
+    _die_with_parent(ORPHAN_SIGNAL)
+    if os.getppid() != parent:  # died before the signal was set
+        orphaned.append(ORPHAN_SIGNAL)
+    return orphaned
+
+
+def _outlive_the_others(c: Composition) -> None:
+    """Record until no other process publishes a recorded topic, or the grace has passed."""
+    recorders = [n for n in c.nodes if isinstance(n, Recorder)]
+    log.info('supervisor gone: recording until the other groups stop (at most %.0f s)',
+             ORPHAN_GRACE_SECONDS)
+    deadline = time.monotonic() + ORPHAN_GRACE_SECONDS
+    while c.context.ok() and time.monotonic() < deadline:
+        if not any(r.others_publishing() for r in recorders):
+            break
+        c.executor.spin_once(timeout_sec=0.1)
+    c.executor.spin_once(timeout_sec=0.1)  # what arrived with the last endpoint's removal
 
 
 #: Exit status of a run that went to its end but with faults it reported (``report_problem``).
@@ -366,12 +407,12 @@ def _stop_children(procs: dict[str, subprocess.Popen[bytes]]) -> None:
                 p.wait()
 
 
-def _die_with_parent() -> None:
-    """In the child: get SIGTERM if the supervisor dies (Linux), so no group is orphaned."""
+def _die_with_parent(signum: int = signal.SIGTERM) -> None:
+    """In the child: get ``signum`` if the supervisor dies (Linux), so no group is orphaned."""
     try:
         import ctypes
         libc = ctypes.CDLL('libc.so.6', use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        libc.prctl(1, int(signum))  # PR_SET_PDEATHSIG
     except OSError:
         pass
 

@@ -164,6 +164,14 @@ class RecorderNode(EnbarrNode, Recorder):
             self.create_subscription(cls, name, lambda data, n=name, t=types[0]: put(
                 (n, t, clock.now().nanoseconds, data)), _RAW_QOS, raw=True)
 
+    def others_publishing(self) -> bool:
+        """Whether a node other than this one publishes a topic it records (graph query)."""
+        me = (self.get_name(), self.get_namespace())
+        with self._lock:
+            names = sorted(self._subscribed)
+        return any((info.node_name, info.node_namespace) != me
+                   for name in names for info in self.get_publishers_info_by_topic(name))
+
     def _write_loop(self) -> None:
         while True:
             try:
