@@ -264,13 +264,13 @@ def composed(profile: Profile, group: str | None = None, *,
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
               check_only: bool = False) -> int:
     """Run the nodes of ``group`` (all when None) in this process until stopped."""
-    built: list[Node] = []
+    built: list[tuple[str, Node]] = []  # named now: a destroyed node has no name any more
     with _Stop() as stop:
         try:
             with composed(profile, group, check_only=check_only) as c:
                 if check_only:
                     return 0
-                built = c.nodes
+                built = [(n.get_name(), n) for n in c.nodes]
                 c.start()
                 orphaned = _notice_orphaning(c, group)
                 names = ', '.join(n.get_name() for n in c.nodes)
@@ -288,7 +288,8 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
     # After the shutdown (a recorder's last write fails at close): what went wrong.
-    problems = node_problems(built)
+    problems = [f'{name}: {p}' for name, n in built if isinstance(n, EnbarrNode)
+                for p in n.problems]
     if problems:
         log.error('%s%s ended with %d problem(s): %s', profile.name,
                   f' [{group}]' if group else '', len(problems), '; '.join(problems))
@@ -322,16 +323,19 @@ def _notice_orphaning(c: Composition, group: str | None) -> list[int]:
 
 
 def _outlive_the_others(c: Composition) -> None:
-    """Record until no other process publishes a recorded topic, or the grace has passed."""
+    """Record until nothing more comes from the other groups, or the grace has passed."""
     recorders = [n for n in c.nodes if isinstance(n, Recorder)]
     log.info('supervisor gone: recording until the other groups stop (at most %.0f s)',
              ORPHAN_GRACE_SECONDS)
-    deadline = time.monotonic() + ORPHAN_GRACE_SECONDS
-    while c.context.ok() and time.monotonic() < deadline:
-        if not any(r.others_publishing() for r in recorders):
+    start = time.monotonic()
+    while c.context.ok() and time.monotonic() < start + ORPHAN_GRACE_SECONDS:
+        if not any(r.still_receiving() for r in recorders):
+            log.info('the other groups stopped after %.1f s', time.monotonic() - start)
             break
-        c.executor.spin_once(timeout_sec=0.1)
-    c.executor.spin_once(timeout_sec=0.1)  # what arrived with the last endpoint's removal
+        c.executor.spin_once(timeout_sec=0.02)
+    else:
+        log.warning('the other groups still publish after %.0f s: closing the bag',
+                    ORPHAN_GRACE_SECONDS)
 
 
 #: Exit status of a run that went to its end but with faults it reported (``report_problem``).

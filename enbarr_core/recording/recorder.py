@@ -18,8 +18,8 @@ class Recorder(abc.ABC):
     def close(self) -> None:
         """Write what is queued and close the storage (idempotent)."""
 
-    def others_publishing(self) -> bool:
-        """Whether another node still publishes a recorded topic.
+    def still_receiving(self) -> bool:
+        """Whether other nodes still send it messages to record.
 
         A recorder group whose supervisor was killed records until this is False (or a
         bounded grace passed), so that the bag holds the other groups' safe state.

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import importlib
 import queue
 import threading
+import time
 from typing import Any
 
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -71,6 +72,8 @@ class RecorderSettings:
 _RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.BEST_EFFORT)
 _STOP = object()
+#: A recorder that got no message for this long, with no publisher left, has all [s].
+QUIET_SECONDS = 0.3
 
 
 def message_class(type_name: str) -> type:
@@ -100,6 +103,7 @@ class RecorderNode(EnbarrNode, Recorder):
         self.recording = True       # False once the storage failed: nothing is queued then
         self.failure: str | None = None
         self._overflow_seen = 0
+        self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._subscribed: set[str] = set()
         self._lock = threading.Lock()
@@ -118,6 +122,7 @@ class RecorderNode(EnbarrNode, Recorder):
         """
         if not self.recording:
             return
+        self._last_received = time.monotonic()
         if self._queue.qsize() >= self.settings.max_queued:
             self.overflow += 1
             return
@@ -164,8 +169,15 @@ class RecorderNode(EnbarrNode, Recorder):
             self.create_subscription(cls, name, lambda data, n=name, t=types[0]: put(
                 (n, t, clock.now().nanoseconds, data)), _RAW_QOS, raw=True)
 
-    def others_publishing(self) -> bool:
-        """Whether a node other than this one publishes a topic it records (graph query)."""
+    def still_receiving(self) -> bool:
+        """Whether messages still come to it from other nodes.
+
+        True when one came in the last ``QUIET_SECONDS`` or a topic it records has a
+        publisher in another node: the graph may lose a publisher before its last messages
+        are taken, and they count.
+        """
+        if time.monotonic() - self._last_received < QUIET_SECONDS:
+            return True
         me = (self.get_name(), self.get_namespace())
         with self._lock:
             names = sorted(self._subscribed)
