@@ -81,6 +81,21 @@ def test_a_full_disk_is_a_storage_error_and_the_bag_reads_to_its_last_flush(
 
 
 @pytest.mark.e2e
+def test_a_disk_that_fills_within_a_segment_drops_only_that_segment(tmp_path: Path) -> None:
+    with small_disk(tmp_path, '1m') as disk:
+        writer = SegmentedBagWriter(disk / 'bag', segment_seconds=3600.0)
+        for i in range(100):
+            writer.write('/imu', 'sensor_msgs/msg/Imu', i, IMU)
+        writer.flush()
+        with pytest.raises(BagStorageError, match=r'cannot write segment 1: No space left on '
+                                                  r'device; recording stopped'):
+            for i in range(100, 1_000_000):  # no flush: the segment's chunk hits the limit
+                writer.write('/imu', 'sensor_msgs/msg/Imu', i, IMU)
+        assert readable(disk / 'bag') == 100  # the unfinished segment is gone, not listed
+        writer.close()
+
+
+@pytest.mark.e2e
 def test_too_little_free_space_refuses_to_start(tmp_path: Path) -> None:
     with small_disk(tmp_path, '2m') as disk:
         with pytest.raises(RecorderError,
