@@ -277,13 +277,13 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
                          names)
                 deadline = None if duration is None else time.monotonic() + duration
-                while not stop.requested and not orphaned and c.context.ok():
+                while not stop.requested and not orphaned() and c.context.ok():
                     if deadline is not None and time.monotonic() >= deadline:
                         break
                     c.executor.spin_once(timeout_sec=0.1)
                 if stop.requested:
                     log.info('%s received, stopping', signal.Signals(stop.signal).name)
-                elif orphaned:
+                elif orphaned():
                     _outlive_the_others(c)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
@@ -299,27 +299,19 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
 
 #: How long a recorder group whose supervisor died waits for the other groups to stop [s].
 ORPHAN_GRACE_SECONDS = 5.0
-#: The parent-death signal of a group made only of recorders (the others get SIGTERM).
-ORPHAN_SIGNAL = signal.SIGUSR1
+def _notice_orphaning(c: Composition, group: str | None) -> Callable[[], bool]:
+    """For a supervised group of recorders only: whether the supervisor has died.
 
-
-def _notice_orphaning(c: Composition, group: str | None) -> list[int]:
-    """For a supervised group of recorders only: the supervisor's death, as a flag.
-
-    Every group gets its parent-death signal at the same moment when the supervisor is
-    killed; the others then publish their safe state (thrusters neutral) on their way out.
-    To record it, a group of recorders gets ``ORPHAN_SIGNAL`` instead of SIGTERM (a plain
-    SIGTERM still stops it at once) and the returned list fills when it arrives.
+    Every other group gets its parent-death signal (SIGTERM) when the supervisor is killed
+    and publishes its safe state (thrusters neutral) on its way out. A group of recorders
+    gets no signal (a signal landing on a middleware thread can cost the messages in
+    flight) and watches its parent instead: once it is reparented, the supervisor is gone.
     """
-    orphaned: list[int] = []
     if group is None or not c.nodes or not all(isinstance(n, Recorder) for n in c.nodes):
-        return orphaned
+        return lambda: False
     parent = os.getppid()
-    signal.signal(ORPHAN_SIGNAL, lambda signum, frame: orphaned.append(signum))
-    _die_with_parent(ORPHAN_SIGNAL)
-    if os.getppid() != parent:  # died before the signal was set
-        orphaned.append(ORPHAN_SIGNAL)
-    return orphaned
+    _die_with_parent(0)  # no parent-death signal: polled instead
+    return lambda: os.getppid() != parent
 
 
 def _outlive_the_others(c: Composition) -> None:
@@ -412,7 +404,7 @@ def _stop_children(procs: dict[str, subprocess.Popen[bytes]]) -> None:
 
 
 def _die_with_parent(signum: int = signal.SIGTERM) -> None:
-    """In the child: get ``signum`` if the supervisor dies (Linux), so no group is orphaned."""
+    """In the child: get ``signum`` if the supervisor dies (Linux; 0: no signal)."""
     try:
         import ctypes
         libc = ctypes.CDLL('libc.so.6', use_errno=True)
