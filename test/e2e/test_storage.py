@@ -26,7 +26,7 @@ MB = 1_000_000
 
 
 def pgrep(pattern: str) -> list[int]:
-    out = subprocess.run(['pgrep', '-f', pattern], capture_output=True, text=True).stdout
+    out = subprocess.run(['pgrep', '-f', '--', pattern], capture_output=True, text=True).stdout
     return [int(p) for p in out.split()]
 
 
