@@ -448,29 +448,33 @@ def _names(names: Sequence[str]) -> str:
 def run_group(profile: Profile, group: str | None = None, duration: float | None = None,
               check_only: bool = False) -> int:
     """Run the nodes of ``group`` (all when None) in this process until stopped."""
-    built: list[Node] = []
+    built: list[tuple[str, Node]] = []  # named now: a destroyed node has no name any more
     with _Stop() as stop:
         try:
             with composed(profile, group, check_only=check_only) as c:
                 if check_only:
                     return 0
-                built = c.nodes
+                built = [(n.get_name(), n) for n in c.nodes]
                 VesselGuard(c).check_start()  # one vessel per set of node names on a graph
                 c.start()
+                orphaned = _notice_orphaning(c, group)
                 names = ', '.join(n.get_name() for n in c.nodes)
                 log.info('%s%s running: %s', profile.name, f' [{group}]' if group else '',
                          names)
                 deadline = None if duration is None else time.monotonic() + duration
-                while not stop.requested and c.context.ok():
+                while not stop.requested and not orphaned() and c.context.ok():
                     if deadline is not None and time.monotonic() >= deadline:
                         break
                     c.executor.spin_once(timeout_sec=0.1)
                 if stop.requested:
                     log.info('%s received, stopping', signal.Signals(stop.signal).name)
+                elif orphaned():
+                    _outlive_the_others(c)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
     # After the shutdown (a recorder's last write fails at close): what went wrong.
-    problems = node_problems(built)
+    problems = [f'{name}: {p}' for name, n in built if isinstance(n, EnbarrNode)
+                for p in n.problems]
     if problems:
         log.error('%s%s ended with %d problem(s): %s', profile.name,
                   f' [{group}]' if group else '', len(problems), '; '.join(problems))
@@ -478,15 +482,43 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
     return 0
 
 
+#: How long a recorder group whose supervisor died waits for the other groups to stop [s].
+ORPHAN_GRACE_SECONDS = 5.0
+
+
+def _notice_orphaning(c: Composition, group: str | None) -> Callable[[], bool]:
+    """For a supervised group of recorders only: whether the supervisor has died.
+
+    Every other group gets its parent-death signal (SIGTERM) when the supervisor is killed
+    and publishes its safe state (thrusters neutral) on its way out. A group of recorders
+    gets no signal (a signal landing on a middleware thread can cost the messages in
+    flight) and watches its parent instead: once it is reparented, the supervisor is gone.
+    """
+    if group is None or not c.nodes or not all(isinstance(n, Recorder) for n in c.nodes):
+        return lambda: False
+    parent = os.getppid()
+    _die_with_parent(0)  # no parent-death signal: polled instead
+    return lambda: os.getppid() != parent
+
+
+def _outlive_the_others(c: Composition) -> None:
+    """Record until nothing more comes from the other groups, or the grace has passed."""
+    recorders = [n for n in c.nodes if isinstance(n, Recorder)]
+    log.info('supervisor gone: recording until the other groups stop (at most %.0f s)',
+             ORPHAN_GRACE_SECONDS)
+    start = time.monotonic()
+    while c.context.ok() and time.monotonic() < start + ORPHAN_GRACE_SECONDS:
+        if not any(r.still_receiving() for r in recorders):
+            log.info('the other groups stopped after %.1f s', time.monotonic() - start)
+            break
+        c.executor.spin_once(timeout_sec=0.02)
+    else:
+        log.warning('the other groups still publish after %.0f s: closing the bag',
+                    ORPHAN_GRACE_SECONDS)
+
+
 #: Exit status of a run that went to its end but with faults it reported (``report_problem``).
 EXIT_PROBLEMS = 3
-
-
-def node_problems(nodes: Sequence[Node]) -> list[str]:
-    """Every fault the nodes reported with ``report_problem``, as 'node: message'."""
-    # The logger's name, not get_name(): the nodes are destroyed by now.
-    return [f'{n.get_logger().name}: {p}' for n in nodes if isinstance(n, EnbarrNode)
-            for p in n.problems]
 
 
 def supervise(profile: Profile, child_args: Callable[[str], list[str]],
@@ -629,12 +661,12 @@ def _stop_children(procs: dict[str, subprocess.Popen[bytes]],
     return {g: p.returncode for g, p in procs.items()}
 
 
-def _die_with_parent() -> None:
-    """In the child: get SIGTERM if the supervisor dies (Linux), so no group is orphaned."""
+def _die_with_parent(signum: int = signal.SIGTERM) -> None:
+    """In the child: get ``signum`` if the supervisor dies (Linux; 0: no signal)."""
     try:
         import ctypes
         libc = ctypes.CDLL('libc.so.6', use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        libc.prctl(1, int(signum))  # PR_SET_PDEATHSIG
     except OSError:
         pass
 

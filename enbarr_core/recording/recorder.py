@@ -17,3 +17,11 @@ class Recorder(abc.ABC):
     @abc.abstractmethod
     def close(self) -> None:
         """Write what is queued and close the storage (idempotent)."""
+
+    def still_receiving(self) -> bool:
+        """Whether other nodes still send it messages to record.
+
+        A recorder group whose supervisor was killed records until this is False (or a
+        bounded grace passed), so that the bag holds the other groups' safe state.
+        """
+        return False

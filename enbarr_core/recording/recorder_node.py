@@ -5,6 +5,14 @@ themselves); every other topic seen in the ROS graph is subscribed raw (already 
 rediscovered every second. Serializing and writing happen on a writer thread, off the control
 path. ``topics`` selects topics by name (empty: all). The bag is flushed every
 ``segment_seconds`` and closed when the node is destroyed.
+
+Recording is not control: nothing here may slow or stop the chain. The queue to the writer
+holds at most ``max_queued`` messages (a slow disk drops the newest and counts them,
+``overflow``); a node with less than ``min_free_space`` free where the bag goes is refused at
+start, and the free space is checked again at every segment. When the storage fails or falls
+below the margin the recorder stops queueing, keeps the bag as last flushed, says so on
+``/diagnostics`` (ERROR) and the log, and reports a problem, so that bringup exits non-zero
+(``EXIT_PROBLEMS``) naming it at the end; the vehicle runs on.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from dataclasses import dataclass
 import importlib
 import queue
 import threading
+import time
 from typing import Any
 
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -24,7 +33,7 @@ from enbarr_interfaces.links import LinkPublisher
 from enbarr_core.framework.errors import ConfigurationError, RecorderError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.recording.bag import BagStorageError, free_bytes, MB, SegmentedBagWriter
 from enbarr_core.recording.recorder import Recorder
 
 SPECS = [
@@ -34,6 +43,11 @@ SPECS = [
               element=str),
     ParamSpec('segment_seconds', 1.0, 'Flush period: a kill loses at most this much', 's',
               0.01, 3600.0, read_only=True),
+    ParamSpec('min_free_space', 64.0, 'Free space below which recording is refused at start '
+              'and stopped during the run (checked at every segment)', 'MB', 0.0, 1.0e6,
+              read_only=True),
+    ParamSpec('max_queued', 20000, 'Messages waiting for the writer at most; more are '
+              'dropped and counted (overflow)', '', 100, 10_000_000, read_only=True),
 ]
 
 
@@ -44,17 +58,22 @@ class RecorderSettings:
     path: str                   # bag directory; empty: not set
     topics: frozenset[str]      # resolved topic names to record; empty: all
     segment_seconds: float      # [s]
+    min_free_space: float = 64.0  # [MB]
+    max_queued: int = 20000     # messages
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> RecorderSettings:
         """Build from the declared parameters' values (empty topic names are dropped)."""
         return cls(path=v['path'], topics=frozenset(t for t in v['topics'] if t),
-                   segment_seconds=v['segment_seconds'])
+                   segment_seconds=v['segment_seconds'], min_free_space=v['min_free_space'],
+                   max_queued=v['max_queued'])
 
 
 _RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.BEST_EFFORT)
 _STOP = object()
+#: A recorder that got no message for this long, with no publisher left, has all [s].
+QUIET_SECONDS = 0.3
 
 
 def message_class(type_name: str) -> type:
@@ -74,11 +93,17 @@ class RecorderNode(EnbarrNode, Recorder):
             raise ConfigurationError(f'node {node_name!r}: parameter path is not set',
                                      parameter='path')
         try:
-            self.writer = SegmentedBagWriter(self.settings.path, self.settings.segment_seconds)
+            self.writer = SegmentedBagWriter(self.settings.path, self.settings.segment_seconds,
+                                             round(self.settings.min_free_space * MB))
         except RecorderError as err:
             raise ConfigurationError(f'node {node_name!r}: {err}', parameter='path') from err
         self.written = 0
-        self.dropped = 0
+        self.dropped = 0            # messages the bag refused (bad bytes, a type change)
+        self.overflow = 0           # messages dropped because the queue was full
+        self.recording = True       # False once the storage failed: nothing is queued then
+        self.failure: str | None = None
+        self._overflow_seen = 0
+        self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._subscribed: set[str] = set()
         self._lock = threading.Lock()
@@ -87,6 +112,21 @@ class RecorderNode(EnbarrNode, Recorder):
         self._thread.start()
         self.link_bus.add_tap(self._on_link_publisher)
         self.create_timer(1.0, self._discover)
+        self.create_timer(1.0, self._report)
+
+    def _put(self, item: tuple[str, str, int, Any]) -> None:
+        """Queue one message for the writer; called on the publishers' threads, never waits.
+
+        SimpleQueue.qsize and put are single C calls: two threads may both pass the check,
+        so the bound can be passed by a message per publishing thread, never more.
+        """
+        if not self.recording:
+            return
+        self._last_received = time.monotonic()
+        if self._queue.qsize() >= self.settings.max_queued:
+            self.overflow += 1
+            return
+        self._queue.put(item)
 
     def _apply(self, settings: RecorderSettings) -> None:
         self.settings = settings
@@ -102,7 +142,7 @@ class RecorderNode(EnbarrNode, Recorder):
             self._subscribed.add(pub.name)
         type_name = pub.spec.type_name
         clock = self.get_clock()
-        put = self._queue.put
+        put = self._put
         self.create_topic_subscription(pub.spec, lambda msg, n=pub.name: put(
             (n, type_name, clock.now().nanoseconds, msg)))
 
@@ -125,28 +165,101 @@ class RecorderNode(EnbarrNode, Recorder):
             except (ImportError, AttributeError, ValueError):
                 continue
             clock = self.get_clock()
-            put = self._queue.put
+            put = self._put
             self.create_subscription(cls, name, lambda data, n=name, t=types[0]: put(
                 (n, t, clock.now().nanoseconds, data)), _RAW_QOS, raw=True)
+
+    def still_receiving(self) -> bool:
+        """Whether messages still come to it from other nodes.
+
+        True when one came in the last ``QUIET_SECONDS`` or a topic it records has a
+        publisher in another node: the graph may lose a publisher before its last messages
+        are taken, and they count.
+        """
+        if time.monotonic() - self._last_received < QUIET_SECONDS:
+            return True
+        me = (self.get_name(), self.get_namespace())
+        with self._lock:
+            names = sorted(self._subscribed)
+        return any((info.node_name, info.node_namespace) != me
+                   for name in names for info in self.get_publishers_info_by_topic(name))
 
     def _write_loop(self) -> None:
         while True:
             try:
                 item = self._queue.get(timeout=0.1)
             except queue.Empty:
-                self.writer.maybe_flush()
+                if self.recording:
+                    self._guarded(self.writer.maybe_flush)
                 continue
             if item is _STOP:
                 break
-            name, type_name, stamp, msg = item
-            data = msg if isinstance(msg, bytes) else serialize_message(msg)
+            if self.recording:
+                self._guarded(lambda item=item: self._write(*item))
+        if self.recording:
+            self._guarded(self.writer.close)
+
+    def _write(self, name: str, type_name: str, stamp: int, msg: Any) -> None:
+        data = msg if isinstance(msg, bytes) else serialize_message(msg)
+        try:
+            if self.writer.write(name, type_name, stamp, data):
+                self.written += 1
+        except BagStorageError:
+            raise
+        except RecorderError as err:
+            self.dropped += 1
+            self.get_logger().error(str(err), throttle_duration_sec=5.0)
+
+    def _guarded(self, step: Any) -> None:
+        """Run one writer step; a storage failure (or anything unforeseen) stops recording.
+
+        The writer thread never dies with a traceback: it stays to take ``_STOP``.
+        """
+        try:
+            step()
+        except BagStorageError as err:
+            self._stop_recording(str(err))
+        except Exception as err:  # noqa: BLE001 - recording must fail alone, never the run
+            self._stop_recording(f'{self.settings.path}: recording stopped by {err!r}')
+
+    def _stop_recording(self, why: str) -> None:
+        """No more queueing; what is queued is let go; the fault fails the run at its end."""
+        self.recording = False
+        self.failure = why
+        while True:
             try:
-                if self.writer.write(name, type_name, stamp, data):
-                    self.written += 1
-            except RecorderError as err:
-                self.dropped += 1
-                self.get_logger().error(str(err), throttle_duration_sec=5.0)
-        self.writer.close()
+                if self._queue.get_nowait() is _STOP:
+                    self._queue.put(_STOP)
+                    break
+            except queue.Empty:
+                break
+        if not self.writer.closed:
+            try:
+                self.writer.close()
+            except RecorderError:
+                pass  # already failing: the bag stays as last flushed
+        self.report_problem(f'recording failed: {why}')
+        try:
+            self._report()
+        except Exception as err:  # noqa: BLE001 - e.g. the context already shut down
+            self.get_logger().warn(f'cannot publish the recorder status: {err!r}')
+
+    def _report(self) -> None:
+        try:
+            free = f'{free_bytes(self.settings.path) / MB:.1f}'
+        except OSError as err:
+            free = f'unknown ({err.strerror})'
+        values = {'path': self.settings.path, 'written': self.written,
+                  'dropped': self.dropped, 'overflow': self.overflow,
+                  'queued': self._queue.qsize(), 'free_space': free}
+        overflowed, self._overflow_seen = self.overflow > self._overflow_seen, self.overflow
+        if not self.recording:
+            self.publish_diagnostics(2, f'not recording: {self.failure}', values)
+        elif overflowed:
+            self.publish_diagnostics(1, 'recording, but the writer falls behind: messages '
+                                     'dropped (overflow)', values)
+        else:
+            self.publish_diagnostics(0, 'recording', values)
 
     def close(self) -> None:
         """Write what is queued and close the bag (idempotent)."""

@@ -4,7 +4,6 @@ policy on estimates, references and the joystick, honest diagnostics, rate-aware
 
 from __future__ import annotations
 
-from typing import Any
 
 import numpy as np
 import pytest

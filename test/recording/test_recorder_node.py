@@ -107,5 +107,6 @@ def test_a_bag_directory_in_use_is_refused(context, tmp_path) -> None:
 
 def test_empty_topic_names_mean_all() -> None:
     settings = RecorderSettings.from_params({'path': 'bag', 'topics': [''],
-                                             'segment_seconds': 1.0})
+                                             'segment_seconds': 1.0, 'min_free_space': 64.0,
+                                             'max_queued': 20000})
     assert settings.topics == frozenset()
