@@ -49,6 +49,8 @@ SPECS = [
     ParamSpec('rate', 10.0, 'Rate at which the goal is republished', 'Hz', 1.0, 1000.0,
               read_only=True),
 ]
+#: Goal stamps that would repeat (or go back by at most this, [ns]) are bumped by 1 ns.
+_BUMP_NS = 1_000_000
 _EXECUTOR = re.compile(r'^[A-Za-z][A-Za-z0-9_/]*$')
 #: Window of the diagnostics report [s].
 REPORT_PERIOD = 1.0
@@ -83,6 +85,7 @@ class CommandReceiverNode(EnbarrNode):
         self.health = InputHealth()
         self.period = IntervalMeter()  # of accepted surface_command/twist stamps
         self._failsafe = True
+        self._last_goal_ns = -1
         self.settings: CommandReceiverSettings
         self.bind_settings(SPECS, self._build, self._apply)
         self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
@@ -168,8 +171,14 @@ class CommandReceiverNode(EnbarrNode):
         if failsafe and not self._failsafe:
             self.get_logger().warn('surface commands lost: velocity goal set to zero')
         self._failsafe = failsafe
+        # Goal stamps strictly increase: the controller's time policy refuses a repeat, and at
+        # a standing simulated clock the timer and an accepted command publish at one instant.
+        # A clock that went back (a restarted simulation) starts the stamps over.
+        last = self._last_goal_ns
+        stamp = last + 1 if last - _BUMP_NS <= now <= last else now
+        self._last_goal_ns = stamp
         msg = TwistStamped()
-        convert.ns_to_stamp(now, msg.header.stamp)
+        convert.ns_to_stamp(stamp, msg.header.stamp)
         msg.header.frame_id = topics.BODY_FRAME
         convert.set_twist(msg.twist, goal)
         self._goal_pub.publish(msg)

@@ -127,6 +127,10 @@ _PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', 'M': 'vessel.inertia',
               'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
 
 
+#: How far back a force's stamp may be and still be stamped after the last one sent [ns].
+_REORDER_NS = 1_000_000_000
+
+
 @dataclass(frozen=True)
 class DpControlNodeSettings:
     """Settings of ``DpControlNode`` (see ``SPECS``)."""
@@ -384,8 +388,10 @@ class DpControlNode(EnbarrNode):
     def _publish_tau(self, tau: np.ndarray, stamp: Any) -> None:
         with self._tau_lock:  # the chain thread and the executor both send forces
             t = convert.stamp_to_ns(stamp)
-            if self._tau_ns is not None and t <= self._tau_ns:
-                t = self._tau_ns + 1  # keep the stream ordered (see the module doc)
+            # Keep the stream ordered (see the module doc); a stamp more than a second back is
+            # a clock that went back (a restarted simulation): the stream starts over.
+            if self._tau_ns is not None and self._tau_ns - _REORDER_NS <= t <= self._tau_ns:
+                t = self._tau_ns + 1
                 stamp = convert.ns_to_stamp(t)
             self._tau_ns = t
             self.tau = tau

@@ -386,3 +386,14 @@ def test_goal_stamps_strictly_increase_at_a_standing_clock(context, executor, sp
     stamps = [t for t, _ in rig.goals[n:]]
     assert len(stamps) >= 2 and all(b > a for a, b in zip(stamps, stamps[1:])), stamps
     assert np.allclose(rig.goals[-1][1], WANTED)
+
+
+def test_goal_stamps_start_over_when_the_clock_goes_back(context, executor, spin):
+    """A restarted simulation: the goal is stamped on the new clock, not 1 ns after an old
+    stamp that every node on the new clock would refuse as from the future."""
+    rig = ClockedSurface(context, executor, spin)
+    rig.set_time(1_000 * 1_000_000_000)
+    rig.node._publish_goal()
+    rig.set_time(10 * 1_000_000_000)
+    rig.node._publish_goal()
+    assert rig.goals[-1][0] == 10 * 1_000_000_000

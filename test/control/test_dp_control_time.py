@@ -105,6 +105,19 @@ def test_force_stamps_never_go_back_when_the_source_changes(context, executor, s
     assert np.all(np.diff(h.tau_stamps) > 0), h.tau_stamps
 
 
+def test_force_stamps_start_over_when_the_clock_goes_back(context, executor, spin):
+    # A restarted simulation: forces are stamped on the new clock, not 1 ns after the old
+    # run's last force, which every node downstream would refuse as from the future.
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    h.estimate(ETA0)
+    h.joy(stamped(joy_msg(0.2), h.clock.ns))
+    h.clock.advance(60.0)
+    h.joy(stamped(joy_msg(0.3), h.clock.ns))
+    h.clock.set(h.clock.ns - 30_000_000_000)
+    h.joy(stamped(joy_msg(0.2), h.clock.ns))
+    assert h.tau_stamps[-1] == h.clock.ns, (h.tau_stamps[-3:], h.clock.ns)
+
+
 def test_rate_dependent_parameters_are_refused_with_the_measured_period(
         context, executor, spin):
     h = DpHarness(context, executor, spin)
