@@ -24,12 +24,13 @@ import difflib
 import json
 import logging
 import os
-import re
+from pathlib import Path
+import shutil
 import signal
 import socket
 import subprocess
 import sys
-import threading
+import tempfile
 import time
 from typing import Any
 
@@ -478,6 +479,7 @@ def run_group(profile: Profile, group: str | None = None, duration: float | None
     if problems:
         log.error('%s%s ended with %d problem(s): %s', profile.name,
                   f' [{group}]' if group else '', len(problems), '; '.join(problems))
+        _write_problems(problems)
         return EXIT_PROBLEMS
     return 0
 
@@ -532,14 +534,17 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
     """
     run_group(profile, None, check_only=True)  # validate every node before anything starts
     procs: dict[str, subprocess.Popen[bytes]] = {}
-    relays: list[_ProblemRelay] = []
     restarts = {g: 0 for g in profile.groups}
     exit_code = 0
+    # Each group writes the problems it ended with to its own file (``PROBLEMS_FILE_ENV``).
+    # Not through a pipe of its output: a group must keep its own stderr, which outlives a
+    # killed supervisor (the orphaned recorder's last words).
+    problem_dir = Path(tempfile.mkdtemp(prefix='enbarr-problems-'))
 
     def spawn(group: str) -> None:
+        env = {**os.environ, PROBLEMS_FILE_ENV: str(problem_dir / f'{group}.txt')}
         procs[group] = subprocess.Popen(child_args(group), preexec_fn=_die_with_parent,
-                                        start_new_session=True, stderr=subprocess.PIPE)
-        relays.append(_ProblemRelay(group, procs[group]))
+                                        start_new_session=True, env=env)
         log.info('group %s started (pid %d)', group, procs[group].pid)
 
     codes: dict[str, int | None] = {}
@@ -578,9 +583,9 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                 log.info('%s received, stopping', signal.Signals(stop.signal).name)
         finally:
             codes = _stop_children(procs, stop)
-            for relay in relays:
-                relay.join()
-    problems = [f'group {r.group}: {line}' for r in relays for line in r.problems]
+    problems = [f'group {g}: {line}' for g in profile.groups
+                for line in _read_problems(problem_dir / f'{g}.txt')]
+    shutil.rmtree(problem_dir, ignore_errors=True)
     if problems or EXIT_PROBLEMS in codes.values():
         log.error('%s ended with problems: %s', profile.name, '; '.join(problems) or ', '.join(
             f'group {g} exited with code {EXIT_PROBLEMS}' for g, c in codes.items()
@@ -589,47 +594,32 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
     return exit_code
 
 
-class _ProblemRelay:
-    """Copy a child's stderr to ours line by line; keep the problems it ended with.
-
-    ``run_group`` names them in one log line ('... ended with N problem(s): ...'); the
-    supervisor repeats them at its end, naming the group. Bounded: a line is cut at
-    ``MAX_RELAYED_LINE`` characters and at most ``MAX_PROBLEM_LINES`` lines are kept.
-    """
-
-    def __init__(self, group: str, proc: subprocess.Popen[bytes]) -> None:
-        self.group = group
-        self.problems: list[str] = []
-        self._stream = proc.stderr
-        self._thread = threading.Thread(target=self._run, name=f'relay_{group}', daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        assert self._stream is not None
-        out = sys.stderr.buffer if hasattr(sys.stderr, 'buffer') else None
-        for raw in iter(self._stream.readline, b''):
-            try:
-                if out is not None:
-                    out.write(raw)
-                    out.flush()
-                else:
-                    sys.stderr.write(raw.decode('utf-8', 'replace'))
-            except (OSError, ValueError):
-                pass  # our stderr is gone: keep draining so that the child never blocks
-            line = raw.decode('utf-8', 'replace').strip()
-            m = _PROBLEMS_LINE.search(line)
-            if m and len(self.problems) < MAX_PROBLEM_LINES:
-                self.problems.append(m.group(1)[:MAX_RELAYED_LINE])
-        self._stream.close()
-
-    def join(self) -> None:
-        """Wait until the child's stderr is closed and read (bounded)."""
-        self._thread.join(timeout=GRACE_SECONDS)
-
-
-_PROBLEMS_LINE = re.compile(r'ended with \d+ problem\(s\): (.*)$')
-MAX_RELAYED_LINE = 2000
+#: The environment variable that tells a supervised group where to write its problems.
+PROBLEMS_FILE_ENV = 'ENBARR_PROBLEMS_FILE'
+MAX_PROBLEM_BYTES = 64 << 10  # what the supervisor reads of a group's problems file
 MAX_PROBLEM_LINES = 20
+
+
+def _write_problems(problems: Sequence[str]) -> None:
+    """In a supervised group: append the problems it ended with to its problems file."""
+    path = os.environ.get(PROBLEMS_FILE_ENV)
+    if not path or not problems:
+        return
+    try:
+        with open(path, 'a', encoding='utf-8') as f:
+            f.write('; '.join(p.replace('\n', ' ') for p in problems) + '\n')
+    except OSError as err:  # the supervisor learns of it from the exit code alone
+        log.error('cannot tell the supervisor of the problems (%s): %s', path, err.strerror)
+
+
+def _read_problems(path: Path) -> list[str]:
+    """Read the problem lines a group wrote (bounded: a group is not trusted to be brief)."""
+    try:
+        with open(path, encoding='utf-8', errors='replace') as f:
+            text = f.read(MAX_PROBLEM_BYTES)
+    except OSError:
+        return []
+    return [line[:2000] for line in text.splitlines() if line][:MAX_PROBLEM_LINES]
 
 
 def _stop_children(procs: dict[str, subprocess.Popen[bytes]],
