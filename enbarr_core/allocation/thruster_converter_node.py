@@ -26,17 +26,18 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
 from enbarr_core.allocation.layout_params import THRUSTERS
-from enbarr_core.estimation.attitude_filter_node import MAX_FUTURE
 from enbarr_core.framework.errors import AllocationError
 from enbarr_core.framework.health import InputHealth
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import (
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 
 SPECS = [
     ParamSpec('controlled_dofs', list(DOF_NAMES),
               'Degrees of freedom the thrusters must produce', read_only=True),
-    ParamSpec('max_future', MAX_FUTURE, 'force_command stamped further ahead of the node clock '
+    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE,
+              'force_command stamped further ahead of the node clock '
               'is refused (time policy)', 's', 0.0, 1.0),
 ]
 #: Window of the diagnostics report [s].

@@ -37,13 +37,14 @@ from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.control.velocity_control import (
     VelocityControlSettings, VelocityController, VelocityReference)
-from enbarr_core.estimation.attitude_filter_node import GAP_PERIODS, MAX_FUTURE, gap_too_short
 from enbarr_core.framework.checks import floats
-from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
+from enbarr_core.framework.health import (
+    ERROR, future_tolerance_problem, InputHealth, IntervalMeter, too_short_for_rate, worst)
 from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import (
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 
 #: Window of the diagnostics report [s].
 REPORT_PERIOD = 1.0
@@ -73,7 +74,8 @@ SPECS = [
               0.01, 60.0),
     ParamSpec('max_gap', 0.5, 'IMU gaps longer than this reset the integrators', 's', 1e-3,
               60.0),
-    ParamSpec('max_future', MAX_FUTURE, 'imu/data and goals stamped further ahead of the node '
+    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE,
+              'imu/data and goals stamped further ahead of the node '
               'clock are refused (time policy)', 's', 0.0, 1.0),
     ParamSpec('velocity_topic', '', 'nav_msgs/Odometry source of linear body velocity; empty: '
               'feed-forward only on surge, sway, heave', read_only=True),
@@ -129,11 +131,14 @@ class VelocityControlNodeSettings:
 
     def check_rates(self, imu_period: float | None, goal_period: float | None) -> None:
         """Raise ValueError when a tolerance is too short for a measured input period [s]."""
-        if imu_period is not None and self.max_gap < GAP_PERIODS * imu_period:
-            raise ValueError(gap_too_short('max_gap', self.max_gap, 'imu/data', imu_period))
-        if goal_period is not None and self.goal_timeout < GAP_PERIODS * goal_period:
-            raise ValueError(gap_too_short('goal_timeout', self.goal_timeout,
-                                           'trajectory_request', goal_period))
+        for problem in (
+                too_short_for_rate('max_gap', self.max_gap, 'imu/data', imu_period,
+                                   'every lost sample, or every sample, would count as a gap'),
+                too_short_for_rate('goal_timeout', self.goal_timeout, 'trajectory_request',
+                                   goal_period, 'the goal would count as zero between goals'),
+                future_tolerance_problem(self.max_future, imu_period, 'imu/data')):
+            if problem:
+                raise ValueError(problem)
 
 
 class VelocityControlNode(EnbarrNode):

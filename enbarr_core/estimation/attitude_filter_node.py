@@ -27,19 +27,13 @@ from sensor_msgs.msg import Imu, MagneticField
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.attitude_filter import AttitudeFilter, AttitudeFilterSettings
-from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
+from enbarr_core.framework.health import (
+    ERROR, future_tolerance_problem, InputHealth, IntervalMeter, too_short_for_rate, worst)
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import (
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 
-#: Default time-policy tolerance of sensor stamps ahead of the node's clock [s]. In one
-#: process sender and receiver share the clock (a good stamp is never ahead); across machines
-#: chrony keeps clocks within a few milliseconds, so 50 ms is a wide margin, yet short against
-#: what a refused run of good samples after an accepted early one may cost (the thrusters'
-#: 0.25 s command watchdog, the 0.5 s gap tolerance).
-MAX_FUTURE = 0.05
-#: ``max_gap`` must cover this many measured sample periods (one lost sample is not a gap).
-GAP_PERIODS = 2.0
 #: Window of the diagnostics report [s].
 REPORT_PERIOD = 1.0
 
@@ -70,7 +64,8 @@ SPECS = [
     ParamSpec('gravity', _D.gravity, 'Magnitude of gravity', 'm/s^2', 1.0, 30.0),
     ParamSpec('max_gap', 0.5, 'A gap between samples longer than this re-initializes', 's',
               1e-3, 60.0),
-    ParamSpec('max_future', MAX_FUTURE, 'Samples stamped further ahead of the node clock are '
+    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE,
+              'Samples stamped further ahead of the node clock are '
               'refused (time policy; the clock offset tolerated between machines)', 's', 0.0,
               1.0),
     ParamSpec('mag_max_age', 0.05, 'Use imu/mag only when its stamp is this close to the '
@@ -98,15 +93,12 @@ class AttitudeFilterNodeSettings:
 
     def check_rate(self, period: float | None) -> None:
         """Raise ValueError when ``max_gap`` is too short for the measured ``period`` [s]."""
-        if period is not None and self.max_gap < GAP_PERIODS * period:
-            raise ValueError(gap_too_short('max_gap', self.max_gap, 'imu/data_raw', period))
-
-
-def gap_too_short(name: str, value: float, topic: str, period: float) -> str:
-    """Say why a gap tolerance ``value`` is too short for an input of period ``period``."""
-    return (f'{name} = {value:g} s is shorter than {GAP_PERIODS:g} sample periods of {topic} '
-            f'(measured period {period:.4g} s): every lost sample, or every sample, would '
-            'count as a gap')
+        for problem in (too_short_for_rate('max_gap', self.max_gap, 'imu/data_raw', period,
+                                           'every lost sample, or every sample, would count '
+                                           'as a gap'),
+                        future_tolerance_problem(self.max_future, period, 'imu/data_raw')):
+            if problem:
+                raise ValueError(problem)
 
 
 class AttitudeFilterNode(EnbarrNode):

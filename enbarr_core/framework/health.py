@@ -90,6 +90,36 @@ def worst(*statuses: tuple[int, str]) -> tuple[int, str]:
     return level, '; '.join(m for lv, m in statuses if lv != OK)
 
 
+#: A tolerance of lost input (a gap, a timeout) must cover this many measured input periods:
+#: one lost sample is not a gap.
+COVER_PERIODS = 2.0
+
+
+def too_short_for_rate(name: str, value: float, topic: str, period: float | None,
+                       consequence: str) -> str | None:
+    """Say why tolerance ``name`` [s] is too short for ``topic``'s measured ``period`` [s].
+
+    None when ``value`` covers ``COVER_PERIODS`` periods, or nothing is measured yet.
+    """
+    if period is None or value >= COVER_PERIODS * period:
+        return None
+    return (f'{name} = {value:g} s is shorter than {COVER_PERIODS:g} periods of {topic} '
+            f'(measured period {period:.4g} s): {consequence}')
+
+
+def future_tolerance_problem(max_future: float, period: float | None,
+                             topic: str) -> str | None:
+    """Say why ``max_future`` [s] is not under the period of ``topic`` (None when it is).
+
+    Under one period, a sample accepted early by up to ``max_future`` never hides the next
+    good one: a bad sample costs at most itself.
+    """
+    if period is None or max_future < period:
+        return None
+    return (f'max_future = {max_future:g} s is not under the period of {topic} (measured '
+            f'period {period:.4g} s): one early sample could hide the next')
+
+
 class IntervalMeter:
     """The period at which an input arrives: median of the last ``size`` stamp intervals."""
 

@@ -34,7 +34,7 @@ subscriber in this process and the bag observe:
     The control group SIGSTOPped (SIGCONT after the window) / SIGKILLed (the supervisor
     restarts it). Safe: actuators neutral within 0.5 s.
 ``disk``
-    A second run recording to a 64 MiB tmpfs in a private mount namespace (needs root,
+    A second run recording to a 160 MiB tmpfs in a private mount namespace (needs root,
     else skipped), filled to the last byte once control runs. Safe: control not disrupted
     while the disk is full, the recorder's memory bounded, the bag readable, and
     ``bringup`` exiting non-zero.
@@ -95,7 +95,7 @@ KINDS = ('stamps', 'compete', 'params', 'sigstop', 'sigkill', 'disk', 'superviso
 #: older than the last accepted sample.
 STAMP_OFFSETS = (('future+20s', 20.0), ('future+0.4s', 0.4), ('past-0.1s', -0.1))
 INTRUDER_SPEED = -0.21          # m/s: the intruder's twist, never the vehicle's own
-DISK_BYTES = 64 << 20           # the tmpfs of the disk fault, filled once control runs
+DISK_BYTES = 160 << 20          # the tmpfs of the disk fault (over the recorder's 64 MB margin)
 STAMP_BURST = 10                # bad-stamped samples per stamp fault, 10 ms apart
 RSS_GROWTH_LIMIT_MB = 3.0       # recorder memory growth allowed while the disk stays full
 RSS_SETTLE_S = 2.0              # ... counted from this long after the disk filled

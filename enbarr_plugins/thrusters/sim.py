@@ -31,19 +31,20 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from enbarr_core.estimation.attitude_filter_node import MAX_FUTURE
 from enbarr_core.framework.driver import REPORT_PERIOD, ActuatorDriver
 from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import (
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 from enbarr_core.allocation.layout_params import declare_thrusters
 from enbarr_interfaces import convert, topics
 
 SPECS = [
     ParamSpec('time_constant', 0.05, 'First-order thrust response time constant', 's', 0.0,
               5.0),
-    ParamSpec('max_future', MAX_FUTURE, 'Commands stamped further ahead of the node clock are '
+    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE,
+              'Commands stamped further ahead of the node clock are '
               'refused (time policy)', 's', 0.0, 1.0),
 ]
 

@@ -263,6 +263,17 @@ def test_a_max_gap_shorter_than_the_measured_period_is_refused_live(context, exe
     assert set_param(executor, spin, client, 'max_gap', 0.1).successful
 
 
+def test_a_max_future_not_under_the_measured_period_is_refused_live(context, executor, spin):
+    """At 400 Hz (2.5 ms) a tolerance of 2.5 ms could let one early sample hide the next."""
+    rig = ClockedImu(context, executor)
+    rig.run()
+    client = param_client(executor, spin, context, 'filtering')
+    result = set_param(executor, spin, client, 'max_future', 0.0025)
+    assert not result.successful
+    assert 'max_future' in result.reason and '0.0025' in result.reason, result.reason
+    assert set_param(executor, spin, client, 'max_future', 0.0024).successful
+
+
 def test_refused_samples_above_5_percent_make_the_node_degraded(context, executor):
     rig = ClockedImu(context, executor)
     rig.run(100)
