@@ -226,7 +226,9 @@ class DpControlNode(EnbarrNode):
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.GUIDANCE_REFERENCE, self._on_reference)
         self.create_topic_subscription(topics.GUIDANCE_PATH_AVAILABLE, self._on_path_available)
-        self._joy_sub = self.create_topic_subscription(topics.JOY, self._on_joy)
+        # Two arguments: rclpy passes the MessageInfo, whose sequence number the guard reads.
+        self._joy_sub = self.create_topic_subscription(
+            topics.JOY, lambda msg, info: self._on_joy(msg, info))
         self.joy_guard = SourceGuard(self, self._joy_sub)
         self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
@@ -291,8 +293,8 @@ class DpControlNode(EnbarrNode):
     def _on_path_available(self, msg: Bool) -> None:
         self.path_available = msg.data
 
-    def _on_joy(self, msg: Joy) -> None:
-        if self.joy_guard.contested():
+    def _on_joy(self, msg: Joy, info: Mapping[str, Any] | None = None) -> None:
+        if self.joy_guard.contested(info):
             self.health.refused('joy', 'contested')
             self.get_logger().error(self.joy_guard.status()[1], throttle_duration_sec=2.0)
             return  # as if it never arrived: the joystick-loss rule stops the vessel

@@ -16,16 +16,30 @@ writers it is matched with, and asks for nothing but a counter per message, so t
 costs nothing and cannot be fooled by messages that look alike. Stopping is also what an
 operator wants when someone else grabs the vessel: take the other publisher down to resume.
 
-Messages that arrive before discovery has matched the second publisher (the first few
-hundred milliseconds) cannot be caught; the graph check at ``report`` rate catches the rest.
+The matched count can lag the first message of a new writer by a moment, so the guard also
+reads each message's publication sequence number (``MessageInfo``): every writer numbers its
+messages 1, 2, 3 ... on its own, so while one source is active (a message within
+``QUIET_S``), a number that does not go up is another writer's message and is refused too.
+After ``QUIET_S`` of silence a restarted number is taken as the source restarting (an
+operator station started again), not as a second one. A second writer whose numbers happen
+to run above the first's, and whose first message beats the matched count, still gets that
+one message through.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+import time
+from typing import Any
 
 from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 from enbarr_core.framework.health import ERROR
+
+
+#: Silence after which a message numbered from the start again is a restarted source [s].
+QUIET_S = 0.5
 
 
 class SourceGuard:
@@ -36,12 +50,25 @@ class SourceGuard:
         self._sub = subscription
         self.topic = subscription.topic_name
         self.contested_count = 0
+        self._last_seq: int | None = None
+        self._last_seen = -float('inf')  # monotonic time of the last message taken [s]
 
-    def contested(self) -> bool:
-        """Return True (and count it) when more than one publisher is matched right now."""
-        if self._sub.get_publisher_count() > 1:
+    def contested(self, info: Mapping[str, Any] | None = None) -> bool:
+        """Return True (and count it) when a message must be refused as from a second source.
+
+        ``info``: the message's ``MessageInfo`` (a subscription callback of two arguments
+        gets it); without it only the matched count is judged.
+        """
+        now = time.monotonic()
+        seq = None if info is None else info.get('publication_sequence_number')
+        if self._sub.get_publisher_count() > 1 or (
+                seq is not None and self._last_seq is not None and seq <= self._last_seq
+                and now - self._last_seen < QUIET_S):
             self.contested_count += 1
             return True
+        if seq is not None:
+            self._last_seq = seq
+        self._last_seen = now
         return False
 
     def publishers(self) -> list[str]:

@@ -43,3 +43,32 @@ def test_a_second_publisher_contests_the_topic_until_it_goes(context: Any, execu
     second.destroy_publisher(pub2)
     assert spin(executor, lambda: sub.get_publisher_count() == 1)
     assert not guard.contested() and guard.status() == (OK, 'ok')
+
+
+class _OneWriter:
+    """A subscription whose DDS reader matches one writer (the count lags a new one)."""
+
+    topic_name = '/joy'
+
+    def get_publisher_count(self) -> int:
+        return 1
+
+
+def test_a_sequence_number_that_does_not_go_up_is_a_second_writer(monkeypatch: Any) -> None:
+    """The first message of a new writer can beat the matched count: its own numbering
+    (starting at 1) gives it away while the first source is active."""
+    clock = [100.0]
+    monkeypatch.setattr('enbarr_core.framework.sources.time.monotonic', lambda: clock[0])
+    guard = SourceGuard(None, _OneWriter())
+    taken = []
+    for seq in (1, 2, 3, 1, 4, 2, 5):
+        clock[0] += 0.05
+        taken.append(not guard.contested({'publication_sequence_number': seq}))
+    assert taken == [True, True, True, False, True, False, True]
+    assert guard.contested_count == 2
+    clock[0] += 0.49                                     # within QUIET_S of the last: refused
+    assert guard.contested({'publication_sequence_number': 1})
+    clock[0] += 0.51                                     # a restarted source after silence
+    assert not guard.contested({'publication_sequence_number': 1})
+    assert not guard.contested({'publication_sequence_number': 2})
+    assert not guard.contested(None)                     # no MessageInfo: the count alone
