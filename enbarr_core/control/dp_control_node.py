@@ -297,7 +297,12 @@ class DpControlNode(EnbarrNode):
         if self.joy_guard.contested(info):
             self.health.refused('joy', 'contested')
             self.get_logger().error(self.joy_guard.status()[1], throttle_duration_sec=2.0)
-            return  # as if it never arrived: the joystick-loss rule stops the vessel
+            # Stop now, not joy_timeout later: someone else is on the joystick topic.
+            tr = self.manager.joystick_contested()
+            if tr is not None:
+                self._transition(tr)
+                self._publish_tau(self.manager.tau_manual, self.get_clock().now().to_msg())
+            return
         now = self.get_clock().now()
         stamp = msg.header.stamp
         t = convert.stamp_to_ns(stamp)

@@ -122,6 +122,18 @@ class ModeManager:
         self.mode = mode
         return Transition(mode, previous, True, 'operator request')
 
+    def joystick_contested(self) -> Transition | None:
+        """Do what a joystick loss does, at once (manual, zero force): a second joystick.
+
+        None when that is already the state (no joystick held, manual, zero force).
+        """
+        if self._last_joy is None and self.mode is Mode.MANUAL and not self.tau_manual.any():
+            return None
+        self.tau_manual = np.zeros(3)
+        self._last_joy = None
+        previous, self.mode = self.mode, Mode.MANUAL
+        return Transition(Mode.MANUAL, previous, True, 'joystick contested')
+
     def check(self, now: float, estimate_fresh: bool,
               reference_fresh: bool = True) -> Transition | None:
         """Supervise: fall back to manual with zero force when that is the safe thing.

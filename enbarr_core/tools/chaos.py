@@ -24,7 +24,9 @@ subscriber in this process and the bag observe:
     A second publisher on every command topic the profile has (``surface_command/twist``,
     ``surface_command/io``, ``joy``), sending a distinctive command for the window. Safe:
     control not disrupted and the intruder's command never executed (never the velocity
-    goal, never an io request, never a mode change: the joystick intruder presses manual).
+    goal, never an io request, never a surge force in manual: the joystick intruder presses
+    manual and pushes surge, while manual with zero force is the safe outcome of a contested
+    joystick).
 ``params``
     A parameter storm: for every node, ``SetParameters`` calls as ``ros2 param set`` makes
     them (one parameter per call, all at once): each parameter set to its own value
@@ -94,6 +96,7 @@ KINDS = ('stamps', 'compete', 'params', 'sigstop', 'sigkill', 'disk', 'superviso
 #: Stamp offsets injected on every stamped input [s]: far future, just beyond a tolerance,
 #: older than the last accepted sample.
 STAMP_OFFSETS = (('future+20s', 20.0), ('future+0.4s', 0.4), ('past-0.1s', -0.1))
+INTRUDER_FORCE_MIN = 0.05      # [N] a surge force in manual above this is the joystick intruder's
 INTRUDER_SPEED = -0.21          # m/s: the intruder's twist, never the vehicle's own
 DISK_BYTES = 160 << 20          # the tmpfs of the disk fault (over the recorder's 64 MB margin)
 STAMP_BURST = 10                # bad-stamped samples per stamp fault, 10 ms apart
@@ -289,6 +292,10 @@ class Observer:
         self._watch('trajectory_request', lambda m: self.goals.append((time.time_ns(), m)))
         self._watch('io_request', lambda m: self.io.append((time.time_ns(), m)))
         self._watch('mode', lambda m: self.modes.append((time.time_ns(), m.data)))
+        self.forces: list[tuple[int, float]] = []      # force_command surge [N]
+        if 'force_command' in self.topics:
+            self._watch('force_command', lambda m: self.forces.append(
+                (time.time_ns(), m.wrench.force.x)))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -562,8 +569,15 @@ class Chaos:
             return sum(1 for t, m in list(self.obs.io) if start <= t <= end
                        and m.name == 'gpio_12' and m.value.bool_value)
         if topic == 'joy':
-            return sum(1 for t, mode in list(self.obs.modes) if start <= t <= end
-                       and mode != mode_before)
+            # The intruder presses manual and pushes surge. Manual with zero force is also the
+            # safe outcome (a contested joystick counts as lost), so what gives the intruder
+            # away is a surge force in manual.
+            modes = list(self.obs.modes)
+
+            def mode_at(t: int) -> str | None:
+                return next((m for tm, m in reversed(modes) if tm <= t), mode_before)
+            return sum(1 for t, surge in list(self.obs.forces) if start <= t <= end
+                       and mode_at(t) == 'manual' and abs(surge) > INTRUDER_FORCE_MIN)
         return 0
 
     def _mode(self) -> str | None:
