@@ -106,22 +106,31 @@ def judge_kept(fault: str, control_times: Sequence[int],
 
     ``control_times`` are receive times of the control output, ``outputs`` the actuator
     outputs ``(stamp ns, neutral)``; ``executed`` counts what the bad input made happen.
-    ``allow_neutral``: the actuators may go neutral (a command topic with a second publisher
-    is contested: refusing every source, hence the operator's command lost and the safe
-    state, is a safe answer; executing the intruder's command is not).
+    ``allow_neutral``: the safe state is a safe answer too (a command topic with a second
+    publisher is contested: refusing every source, hence the operator's command lost, is
+    safe; executing the intruder's command is not): then control may pause if the actuators
+    were neutral within ``SAFE_WITHIN_S`` of the fault.
     """
     gap = max_gap(control_times, start_ns, end_ns)
     neutral = [t for t, n in outputs if n and start_ns <= t <= end_ns]
+    safe_in_time = bool(neutral) and neutral[0] - start_ns <= SAFE_WITHIN_S * 1e9
     problems = []
-    if gap > gap_limit_s:
-        problems.append(f'control output paused {gap:.3f} s (> {gap_limit_s} s)')
+    if gap > gap_limit_s and not (allow_neutral and safe_in_time):
+        problems.append(f'control output paused {gap:.3f} s (> {gap_limit_s} s)'
+                        + (' and the actuators were not neutral within '
+                           f'{SAFE_WITHIN_S} s' if allow_neutral else ''))
     if neutral and not allow_neutral:
         problems.append(f'actuators put neutral {(neutral[0] - start_ns) * 1e-9:.3f} s '
                         'after the fault')
     if executed:
         problems.append(f'{executed} {executed_what}')
     figs = {'max_control_gap_s': round(gap, 3), **(figures or {})}
-    detail = '; '.join(problems) or f'control kept (longest pause {gap:.3f} s)'
+    if problems:
+        detail = '; '.join(problems)
+    elif gap > gap_limit_s:
+        detail = f'safe state after {(neutral[0] - start_ns) * 1e-9:.3f} s (contested)'
+    else:
+        detail = f'control kept (longest pause {gap:.3f} s)'
     return Verdict(fault, KEEPS_CONTROL, not problems, None, detail, figs)
 
 

@@ -97,6 +97,21 @@ def test_safe_state_is_allowed_on_a_contested_command_topic() -> None:
                                 executed=1, allow_neutral=True).passed
 
 
+def test_a_pause_on_a_contested_topic_needs_the_safe_state_within_0_5_s() -> None:
+    # A contested joystick stops the forces: control pauses, and that is safe only when the
+    # actuators were neutral within 0.5 s of the fault.
+    paused = steady(-1, 0) + steady(1.5, 3)
+    v = judge.judge_kept('compete:joy', paused, outputs([0.1, 0.5], 0.5), T0, T0 + 2 * S,
+                         allow_neutral=True)
+    assert v.passed and v.detail == 'safe state after 0.500 s (contested)', v.detail
+    late = judge.judge_kept('compete:joy', paused, outputs([0.1, 0.51], 0.51), T0,
+                            T0 + 2 * S, allow_neutral=True)
+    assert not late.passed and 'not neutral within 0.5 s' in late.detail, late.detail
+    # Not on an input that must cost at most itself.
+    assert not judge.judge_kept('future+20s:imu/data_raw', paused, outputs([0.1], 0.1), T0,
+                                T0 + 2 * S).passed
+
+
 def test_executed_intruder_fails() -> None:
     v = judge.judge_kept('compete:surface_command/twist', steady(-1, 3), [], T0, T0 + 2 * S,
                          executed=3, executed_what="of the intruder's commands executed")
