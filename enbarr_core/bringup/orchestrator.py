@@ -193,6 +193,10 @@ def declared_parameters(node: Node) -> list[str]:
     return list(node.list_parameters([], ListParameters.Request.DEPTH_RECURSIVE).names)
 
 
+#: How long a process keeps its publishers after publishing the safe state [s].
+SAFE_STATE_LINGER = 0.1
+
+
 def shutdown_nodes(nodes: Sequence[Node]) -> None:
     """Take nodes down: stop sources, safe state, then destroy (recorders last).
 
@@ -206,6 +210,11 @@ def shutdown_nodes(nodes: Sequence[Node]) -> None:
         if isinstance(n, EnbarrNode):
             _safely(n.safe_state, f'safe state of {n.get_name()}')
     recorders = [n for n in nodes if isinstance(n, Recorder)]
+    if len(recorders) < len(nodes):
+        # The safe state was published to other processes too (a recorder group, a thruster
+        # process): give DDS a moment to send it before the publishers are destroyed, without
+        # spinning (no command may be taken after the safe state).
+        time.sleep(SAFE_STATE_LINGER)
     for n in [*(n for n in nodes if n not in recorders), *recorders]:
         _safely(n.destroy_node, f'destroying {n.get_name()}')
 
