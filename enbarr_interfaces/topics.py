@@ -167,10 +167,15 @@ PWM_DUTY_LABEL = 'duty_cycle_percent'
 SIM_AZIMUTH_COMMAND = TopicSpec(
     'sim/azimuth_command', JointState, SENSOR_QOS, 'effort N, position rad', BODY_FRAME,
     'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)
+VESSEL_CLAIMS = TopicSpec(
+    '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
+    'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
+    'second run with the same node names refuses at start or, when they missed each other, '
+    'the later one stops (docs/architecture.md, Safety).')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
     GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, VESSEL_CLAIMS)

@@ -40,10 +40,10 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
+from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 
 from enbarr_core.framework import registry
@@ -346,9 +346,8 @@ def composed(profile: Profile, group: str | None = None, *,
 DISCOVERY_WAIT = 3.0
 #: Where every running group announces its node names and when it started (std_msgs/String,
 #: JSON). Latched: a process that joins later still gets every claim.
-CLAIM_TOPIC = '/enbarr/claims'
-CLAIM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLAIM_TOPIC = topics.VESSEL_CLAIMS.name
+CLAIM_QOS = topics.VESSEL_CLAIMS.qos
 MAX_CLAIM_BYTES = 1 << 16
 
 
