@@ -28,7 +28,8 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.allocation.azimuth import AzimuthAllocator
 from enbarr_core.allocation.layout_params import AZIMUTHS
 from enbarr_core.framework.errors import AllocationError
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, worst)
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
@@ -50,14 +51,6 @@ class AzimuthAllocationSettings:
 
 MAX_FUTURE = ParamSpec('max_future', 0.01, 'Forces stamped further ahead of the clock than '
                        "this are refused (at least the observer's)", 's', 0.0, 0.5)
-
-
-def stamp_rate_problem(max_future: float, period: float | None, what: str) -> str | None:
-    """Why ``max_future`` [s] does not fit an input arriving every ``period`` [s] (or None)."""
-    if period is not None and max_future >= period:
-        return (f'max_future {max_future:g} s is not under the {what} period: one early '
-                f'sample could hide the next ({what} period measured {period:.3g} s)')
-    return None
 
 
 class AzimuthAllocationNode(EnbarrNode):
@@ -91,7 +84,8 @@ class AzimuthAllocationNode(EnbarrNode):
         self.create_timer(1.0, self._report)
 
     def _build_max_future(self, v: Mapping[str, Any]) -> float:
-        problem = stamp_rate_problem(v['max_future'], self.force_period.period, 'force')
+        problem = future_tolerance_problem(v['max_future'], self.force_period.period,
+                                           topics.FORCE_COMMAND.name)
         if problem:
             raise ValueError(problem)
         return v['max_future']
@@ -136,8 +130,8 @@ class AzimuthAllocationNode(EnbarrNode):
         own = (DEGRADED, f'{self.infeasible} forces not achievable') if self.infeasible \
             else (OK, 'ok')
         level, message, totals = self.health.report(1.0)
-        problem = stamp_rate_problem(self._gate.policy.max_future, self.force_period.period,
-                                     'force')
+        problem = future_tolerance_problem(self._gate.policy.max_future,
+                                           self.force_period.period, topics.FORCE_COMMAND.name)
         rates = (OK, 'ok')
         if problem:
             rates = (DEGRADED, problem)

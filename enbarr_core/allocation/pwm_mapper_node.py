@@ -34,11 +34,13 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 
 from enbarr_core.allocation.azimuth import PwmCalibration
-from enbarr_core.allocation.azimuth_allocation_node import MAX_FUTURE, stamp_rate_problem
+from enbarr_core.allocation.azimuth_allocation_node import MAX_FUTURE
 from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
 from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.errors import ConfigurationError
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
+    worst)
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
@@ -61,18 +63,6 @@ class PwmMapperSettings:
     def channels(self) -> list[str]:
         """Channel names in the order of the duties: ``<azimuth>/motor, <azimuth>/servo``."""
         return [f'{a.name}/{k}' for a in self.azimuths for k in ('motor', 'servo')]
-
-
-def command_timeout_problem(timeout: float, period: float | None, what: str) -> str | None:
-    """Why ``command_timeout`` [s] does not fit messages arriving every ``period`` [s].
-
-    None when it fits or the period is not measured yet. It must cover two periods of the
-    ``what`` messages, or the outputs go neutral between them.
-    """
-    if period is not None and timeout < 2.0 * period:
-        return (f'command_timeout {timeout:g} s is under two {what} periods: the outputs would '
-                f'go neutral between messages ({what} period measured {period:.3g} s)')
-    return None
 
 
 def duty_message(duties: Sequence[float]) -> Float64MultiArray:
@@ -124,7 +114,8 @@ class PwmMapperNode(ActuatorDriver):
         self.connect()
 
     def _build_max_future(self, v: Mapping[str, Any]) -> float:
-        problem = stamp_rate_problem(v['max_future'], self.command_period.period, 'command')
+        problem = future_tolerance_problem(v['max_future'], self.command_period.period,
+                                           topics.AZIMUTH_COMMANDS.name)
         if problem:
             raise ValueError(problem)
         return v['max_future']
@@ -133,7 +124,9 @@ class PwmMapperNode(ActuatorDriver):
         self._gate.policy = StampPolicy(max_future=max_future)
 
     def _timeout_problem(self, timeout: float) -> str | None:
-        return command_timeout_problem(timeout, self.command_period.period, 'command')
+        return too_short_for_rate('command_timeout', timeout, topics.AZIMUTH_COMMANDS.name,
+                                  self.command_period.period,
+                                  'the outputs would go neutral between messages')
 
     def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
@@ -180,7 +173,8 @@ class PwmMapperNode(ActuatorDriver):
         level, message, self._totals = self.health.report(1.0)
         period = self.command_period.period
         problem = (self._timeout_problem(self.watchdog.timeout_ns * 1e-9)
-                   or stamp_rate_problem(self._gate.policy.max_future, period, 'command'))
+                   or future_tolerance_problem(self._gate.policy.max_future, period,
+                                               topics.AZIMUTH_COMMANDS.name))
         rates = (OK, 'ok')
         if problem:
             rates = (DEGRADED, problem)

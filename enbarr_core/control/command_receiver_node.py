@@ -31,7 +31,8 @@ from rcl_interfaces.msg import Parameter, ParameterType
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.command_gate import CommandGate, GateSettings, Verdict
-from enbarr_core.framework.health import ERROR, InputHealth, IntervalMeter, worst
+from enbarr_core.framework.health import (
+    ERROR, InputHealth, IntervalMeter, too_short_for_rate, worst)
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.sources import SourceGuard
@@ -108,12 +109,9 @@ class CommandReceiverNode(EnbarrNode):
 
     def _timeout_too_short(self, timeout: float) -> str | None:
         """Why ``timeout`` [s] is too short for the measured command period, or None."""
-        period = self.period.period
-        if period is None or timeout >= 2.0 * period:
-            return None
-        return (f'timeout = {timeout:g} s is shorter than 2 periods of '
-                f'{topics.SURFACE_TWIST.name} (measured period {period:.4g} s): the goal '
-                'would drop to zero between commands')
+        return too_short_for_rate('timeout', timeout, topics.SURFACE_TWIST.name,
+                                  self.period.period, 'the goal would drop to zero between '
+                                  'commands')
 
     def _apply(self, settings: CommandReceiverSettings) -> None:
         self.settings = settings

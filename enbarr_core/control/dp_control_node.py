@@ -76,7 +76,9 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.control.dp_control import DpControlSettings, DpController
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
 from enbarr_interfaces.modes import Mode
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
+    worst)
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.sources import SourceGuard
@@ -167,18 +169,13 @@ class DpControlNodeSettings:
     def rate_problem(self, estimate_period: float | None,
                      joy_period: float | None) -> str | None:
         """Why these settings do not fit the measured input periods [s] (None: fine)."""
-        for name, value, period, what in (
-                ('estimate_max_age', self.estimate_max_age, estimate_period, 'estimate'),
-                ('joy_timeout', self.joy_timeout, joy_period, 'joystick')):
-            if period is not None and value < 2.0 * period:
-                return (f'{name} {value:g} s is under two {what} periods: one lost sample '
-                        f'would return to manual ({what} period measured {period:.3g} s)')
-        for period, what in ((estimate_period, 'estimate'), (joy_period, 'joystick')):
-            if period is not None and self.max_future >= period:
-                return (f'max_future {self.max_future:g} s is not under the {what} period: one '
-                        f'early sample could hide the next ({what} period measured '
-                        f'{period:.3g} s)')
-        return None
+        estimates, joy = topics.OBSERVER_ODOMETRY.name, topics.JOY.name
+        lost = 'one lost sample would return to manual'
+        return (too_short_for_rate('estimate_max_age', self.estimate_max_age, estimates,
+                                   estimate_period, lost)
+                or too_short_for_rate('joy_timeout', self.joy_timeout, joy, joy_period, lost)
+                or future_tolerance_problem(self.max_future, estimate_period, estimates)
+                or future_tolerance_problem(self.max_future, joy_period, joy))
 
 
 @dataclass(frozen=True)

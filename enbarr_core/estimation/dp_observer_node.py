@@ -48,7 +48,9 @@ from std_msgs.msg import Float64
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
+    worst)
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
@@ -110,16 +112,11 @@ class DpObserverNodeSettings:
 
     def rate_problem(self, pose_period: float | None) -> str | None:
         """Why these settings do not fit poses arriving every ``pose_period`` [s] (or None)."""
-        if pose_period is None:
-            return None
-        measured = f'pose period measured {pose_period:.3g} s'
-        if self.observer.stale_after < 2.0 * pose_period:
-            return (f'stale_after {self.observer.stale_after:g} s is under two pose periods:'
-                    f' one lost pose would make the estimate stale ({measured})')
-        if self.max_future >= pose_period:
-            return (f'max_future {self.max_future:g} s is not under the pose period: one early '
-                    f'pose could hide the next good one ({measured})')
-        return None
+        return (too_short_for_rate('stale_after', self.observer.stale_after,
+                                   topics.MOCAP_POSE.name, pose_period,
+                                   'one lost pose would make the estimate stale')
+                or future_tolerance_problem(self.max_future, pose_period,
+                                            topics.MOCAP_POSE.name))
 
 
 _PARAMETER = {'K1': 'k1', 'K2': 'k2', 'K3': 'k3', 'T_b': 't_b', 'M': 'vessel.inertia',

@@ -40,7 +40,7 @@ from typing import Any, Iterator
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from enbarr_core.framework.errors import DeviceError
-from enbarr_core.framework.health import IntervalMeter
+from enbarr_core.framework.health import IntervalMeter, too_short_for_rate
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 
@@ -268,12 +268,9 @@ class ActuatorDriver(DeviceNode):
 
     def _timeout_too_short(self, timeout: float) -> str | None:
         """Why ``timeout`` [s] is too short for the measured command period, or None."""
-        period = self.watchdog.period.period
-        if period is None or timeout >= 2.0 * period:
-            return None
-        return (f'command_timeout = {timeout:g} s is shorter than 2 command periods (measured '
-                f'period {period:.4g} s): the watchdog would put the outputs neutral between '
-                'commands')
+        return too_short_for_rate('command_timeout', timeout, 'its commands',
+                                  self.watchdog.period.period, 'the watchdog would put the '
+                                  'outputs neutral between commands')
 
     def is_neutral(self) -> bool:
         """Whether the outputs are in their safe state now."""

@@ -103,8 +103,8 @@ def too_short_for_rate(name: str, value: float, topic: str, period: float | None
     """
     if period is None or value >= COVER_PERIODS * period:
         return None
-    return (f'{name} = {value:g} s is shorter than {COVER_PERIODS:g} periods of {topic} '
-            f'(measured period {period:.4g} s): {consequence}')
+    return (f'{name} {value:g} s is shorter than {COVER_PERIODS:g} periods of {topic} '
+            f'(period measured {period:.3g} s): {consequence}')
 
 
 def future_tolerance_problem(max_future: float, period: float | None,
@@ -116,8 +116,8 @@ def future_tolerance_problem(max_future: float, period: float | None,
     """
     if period is None or max_future < period:
         return None
-    return (f'max_future = {max_future:g} s is not under the period of {topic} (measured '
-            f'period {period:.4g} s): one early sample could hide the next')
+    return (f'max_future {max_future:g} s is not under the period of {topic} (period '
+            f'measured {period:.3g} s): one early sample could hide the next good one')
 
 
 class IntervalMeter:

@@ -35,7 +35,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 from enbarr_interfaces import convert, topics
 
 from enbarr_interfaces.modes import Mode
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, worst)
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
@@ -138,11 +139,8 @@ class GuidanceSettings:
 
     def rate_problem(self, estimate_period: float | None) -> str | None:
         """Why these settings do not fit estimates every ``estimate_period`` [s] (or None)."""
-        if estimate_period is not None and self.max_future >= estimate_period:
-            return (f'max_future {self.max_future:g} s is not under the estimate period: one '
-                    f'early estimate could hide the next (estimate period measured '
-                    f'{estimate_period:.3g} s)')
-        return None
+        return future_tolerance_problem(self.max_future, estimate_period,
+                                        topics.OBSERVER_ODOMETRY.name)
 
     def path_law(self) -> LosPath:
         """Line-of-sight following of the path (two or more waypoints)."""

@@ -34,7 +34,7 @@ from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
 from enbarr_core.framework.checks import floats
-from enbarr_core.framework.health import IntervalMeter
+from enbarr_core.framework.health import IntervalMeter, too_short_for_rate
 from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.allocation.layout_params import declare_thrusters
@@ -143,12 +143,11 @@ class RovSimulatorNode(EnbarrNode):
 
     def _build(self, v: Mapping[str, Any]) -> RovSimulatorSettings:
         settings = RovSimulatorSettings.from_params(v)
-        period = self.thrust_period.period
-        if period is not None and settings.thrust_timeout < 2.0 * period:
-            raise ValueError(
-                f'thrust_timeout = {settings.thrust_timeout:g} s is shorter than 2 periods of '
-                f'{topics.SIM_THRUST.name} (measured period {period:.4g} s): the thrust would '
-                'drop to zero between messages')
+        problem = too_short_for_rate('thrust_timeout', settings.thrust_timeout,
+                                     topics.SIM_THRUST.name, self.thrust_period.period,
+                                     'the thrust would drop to zero between messages')
+        if problem:
+            raise ValueError(problem)
         return settings
 
     def _apply(self, settings: RovSimulatorSettings) -> None:

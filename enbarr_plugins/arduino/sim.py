@@ -25,11 +25,14 @@ from std_msgs.msg import Float64MultiArray
 
 from enbarr_core.allocation.azimuth import PwmCalibration
 from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
-from enbarr_core.allocation.pwm_mapper_node import command_timeout_problem
 from enbarr_core.framework.driver import ActuatorDriver
-from enbarr_core.framework.health import DEGRADED, InputHealth, IntervalMeter, OK, worst
+from enbarr_core.framework.health import (
+    DEGRADED, InputHealth, IntervalMeter, OK, too_short_for_rate, worst)
 from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
+
+
+_BETWEEN = 'the outputs would go neutral between messages'
 
 
 @dataclass(frozen=True)
@@ -89,7 +92,8 @@ class SimArduinoNode(ActuatorDriver):
     def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
             if p.name == 'command_timeout' and isinstance(p.value, float):
-                problem = command_timeout_problem(p.value, self.duty_period.period, 'duty')
+                problem = too_short_for_rate('command_timeout', p.value, topics.PWM_DUTY.name,
+                                             self.duty_period.period, _BETWEEN)
                 if problem:
                     return SetParametersResult(successful=False, reason=problem)
         return SetParametersResult(successful=True)
@@ -97,8 +101,8 @@ class SimArduinoNode(ActuatorDriver):
     def status(self) -> tuple[int, str]:
         """Return the driver's status, DEGRADED when duties are refused or settings misfit."""
         level, message, _ = self.health.report(1.0)
-        problem = command_timeout_problem(self.watchdog.timeout_ns * 1e-9,
-                                          self.duty_period.period, 'duty')
+        problem = too_short_for_rate('command_timeout', self.watchdog.timeout_ns * 1e-9,
+                                     topics.PWM_DUTY.name, self.duty_period.period, _BETWEEN)
         rates = (OK, 'ok')
         if problem:
             rates = (DEGRADED, problem)

@@ -81,3 +81,21 @@ def test_interval_meter_measures_the_median_period() -> None:
     m.reset()
     m.add(0)                          # a new stream (clock restarted): no negative interval
     assert m.period == pytest.approx(0.0025)
+
+
+def test_a_tolerance_must_cover_two_measured_periods() -> None:
+    from enbarr_core.framework.health import too_short_for_rate
+    assert too_short_for_rate('max_gap', 0.005, 'imu/data', 0.0025, 'gaps') is None
+    assert too_short_for_rate('max_gap', 0.001, 'imu/data', None, 'gaps') is None  # unmeasured
+    assert too_short_for_rate('max_gap', 0.0049, 'imu/data', 0.0025, 'every sample a gap') == (
+        'max_gap 0.0049 s is shorter than 2 periods of imu/data (period measured 0.0025 s): '
+        'every sample a gap')
+
+
+def test_max_future_must_stay_under_one_measured_period() -> None:
+    from enbarr_core.framework.health import future_tolerance_problem
+    assert future_tolerance_problem(0.0199, 0.02, 'mocap/pose') is None
+    assert future_tolerance_problem(0.5, None, 'mocap/pose') is None
+    assert future_tolerance_problem(0.02, 0.02, 'mocap/pose') == (
+        'max_future 0.02 s is not under the period of mocap/pose (period measured 0.02 s): '
+        'one early sample could hide the next good one')
