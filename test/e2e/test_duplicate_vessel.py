@@ -7,13 +7,12 @@ fought over the same topics (a vehicle followed the other run's commands against
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 
+from support.processes import Output
 from support.cli import ENBARR
 
 SPLIT_PROFILE = """
@@ -25,32 +24,6 @@ nodes:
 groups:
   control: {restart_limit: 1, restart_delay: 0.2}
 """
-
-
-class Output:
-    """A child's merged output lines, read on a thread (as in test_groups)."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
-
-    def _read(self, proc: subprocess.Popen[str]) -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            self.lines.append(line)
-
-    @property
-    def text(self) -> str:
-        return ''.join(self.lines)
-
-    def wait_for(self, pattern: str, timeout: float, start: int = 0) -> re.Match[str]:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            m = re.search(pattern, ''.join(self.lines[start:]))
-            if m:
-                return m
-            time.sleep(0.1)
-        raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
 
 
 def start(*args: str) -> tuple[subprocess.Popen[str], Output]:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from support.processes import Output
 from support.bags import read_bag
 from support.cli import ENBARR
 
@@ -34,33 +35,6 @@ nodes:
 groups:
   control: {restart_limit: 1, restart_delay: 0.2}
 """
-
-
-class Output:
-    """Collects a child's merged output lines on a thread."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.lines: list[str] = []
-        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
-        self._thread.start()
-
-    def _read(self, proc: subprocess.Popen[str]) -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            self.lines.append(line)
-
-    @property
-    def text(self) -> str:
-        return ''.join(self.lines)
-
-    def wait_for(self, pattern: str, timeout: float, start: int = 0) -> re.Match[str]:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            m = re.search(pattern, ''.join(self.lines[start:]))
-            if m:
-                return m
-            time.sleep(0.1)
-        raise AssertionError(f'no {pattern!r} within {timeout} s; output:\n{self.text[-3000:]}')
 
 
 @dataclass(frozen=True)

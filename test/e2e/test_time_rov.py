@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-import re
 import signal
 import subprocess
 import threading
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from support.processes import Output
 from support.cli import ENBARR
 
 pytestmark = pytest.mark.e2e
@@ -43,27 +43,6 @@ nodes:
 groups:
   control: {restart_limit: 0}
 """
-
-
-class Output:
-    """A child's merged output lines, read on a thread."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
-
-    def _read(self, proc: subprocess.Popen[str]) -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            self.lines.append(line)
-
-    def wait_for(self, pattern: str, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if re.search(pattern, ''.join(self.lines)):
-                return
-            time.sleep(0.1)
-        raise AssertionError(f'no {pattern!r} within {timeout} s:\n{"".join(self.lines)[-3000:]}')
 
 
 class Listener:
