@@ -22,7 +22,8 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
-from sensor_msgs.msg import Imu, JointState, Joy, MagneticField
+from sensor_msgs.msg import (
+    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -167,6 +168,17 @@ PWM_DUTY_LABEL = 'duty_cycle_percent'
 SIM_AZIMUTH_COMMAND = TopicSpec(
     'sim/azimuth_command', JointState, SENSOR_QOS, 'effort N, position rad', BODY_FRAME,
     'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)
+# -- perception (issue 9 drivers) --
+SCAN = TopicSpec(
+    'scan', LaserScan, SENSOR_QOS, 'm, rad', BODY_FRAME,
+    "One lidar revolution in the vessel frame (the lidar's mounting pose applied): "
+    'angle_min..angle_max counter-clockwise from +x, inf where nothing returned.')
+CAMERA_IMAGE = TopicSpec(
+    'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', 'camera_optical_frame',
+    'Camera frames as captured (OpenCV, V4L2 or a video file).')
+CAMERA_INFO = TopicSpec(
+    'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', 'camera_optical_frame',
+    'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
 VESSEL_CLAIMS = TopicSpec(
     '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
     'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
@@ -178,4 +190,4 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
     GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, CAMERA_IMAGE, CAMERA_INFO, VESSEL_CLAIMS)

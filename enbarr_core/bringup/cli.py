@@ -84,6 +84,24 @@ def _list(args: argparse.Namespace, argv: Sequence[str]) -> int:
     return 0
 
 
+def _check_device(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_plugins.check import CheckTarget, checker
+    check_seconds('--timeout', args.timeout)
+    target = CheckTarget(port=args.port, bus=args.bus, address=args.address, host=args.host,
+                         device=args.device, name=args.name, timeout=args.timeout)
+    for line in checker(args.kind)(target):
+        print(line)
+    return 0
+
+
+def _address(text: str) -> int:
+    """Parse an I2C address as typed: 0x6b, 107."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not an address: {text!r} (e.g. 0x6b)') from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the ``enbarr`` argument parser and its subcommands."""
     parser = argparse.ArgumentParser(
@@ -111,6 +129,25 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_arguments(p)
     p.set_defaults(func=_scenario)
     __import__('enbarr_core.tools.chaos', fromlist=['register']).register(sub)
+    from enbarr_plugins.check import CHECKS
+    p = sub.add_parser('check-device', help='talk to one device and print what it found',
+                       description="Open one device with its driver's code, read its "
+                       'identity and a sample (or send a neutral command), print what was '
+                       'found and exit 0; exit 2 with the reason when it is absent, silent or '
+                       'not what it should be. "emulated" as the port, bus, host or device '
+                       "checks against this package's emulator. docs/hardware.md has a "
+                       'section per kind.')
+    p.add_argument('kind', choices=sorted(CHECKS), metavar='KIND',
+                   help=f'one of: {", ".join(sorted(CHECKS))}')
+    p.add_argument('--port', help='serial port (/dev/ttyUSB0) or emulated')
+    p.add_argument('--bus', help='I2C bus number (1 for /dev/i2c-1) or emulated')
+    p.add_argument('--address', type=_address, help="I2C address (default: the chip's)")
+    p.add_argument('--host', help='network host, HOST or HOST:PORT, or emulated')
+    p.add_argument('--device', help='V4L2 index, video file, /dev/input/eventN or emulated')
+    p.add_argument('--name', help='rigid body (motion capture) or pin (GPIO)')
+    p.add_argument('--timeout', type=float, default=2.0, metavar='S',
+                   help='longest wait for an answer (default 2 s)')
+    p.set_defaults(func=_check_device)
     p = sub.add_parser('list', help='list known nodes or installed profiles')
     p.add_argument('what', choices=('nodes', 'profiles'))
     p.set_defaults(func=_list)

@@ -48,6 +48,25 @@ BUILTIN: dict[str, str] = {
     'sim_arduino': 'enbarr_plugins.arduino.sim:SimArduinoNode',
     'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
     'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
+    # device drivers (issue 9), each with its emulator (docs/hardware.md)
+    'pca9685_thrusters': 'enbarr_plugins.thrusters.pca9685:Pca9685ThrustersNode',
+    'pca9685_emulator': 'enbarr_plugins.thrusters.pca9685_emulator:Pca9685EmulatorNode',
+    'lsm9ds1_imu': 'enbarr_plugins.imu.lsm9ds1:Lsm9ds1ImuNode',
+    'lsm9ds1_emulator': 'enbarr_plugins.imu.lsm9ds1_emulator:Lsm9ds1EmulatorNode',
+    'fxos8700_imu': 'enbarr_plugins.imu.fxos8700:Fxos8700ImuNode',
+    'fxos8700_emulator': 'enbarr_plugins.imu.fxos8700_emulator:Fxos8700EmulatorNode',
+    'arduino_pwm': 'enbarr_plugins.arduino.link:ArduinoPwmNode',
+    'arduino_emulator': 'enbarr_plugins.arduino.emulator:ArduinoEmulatorNode',
+    'rplidar': 'enbarr_plugins.lidar.rplidar:RplidarNode',
+    'rplidar_emulator': 'enbarr_plugins.lidar.rplidar_emulator:RplidarEmulatorNode',
+    'camera': 'enbarr_plugins.camera.opencv_camera:CameraNode',
+    'camera_emulator': 'enbarr_plugins.camera.emulator:CameraEmulatorNode',
+    'qualisys': 'enbarr_plugins.mocap.qualisys:QualisysNode',
+    'qtm_emulator': 'enbarr_plugins.mocap.qtm_emulator:QtmEmulatorNode',
+    'ds4_evdev': 'enbarr_plugins.joystick.ds4_evdev:Ds4EvdevNode',
+    'ds4_emulator': 'enbarr_plugins.joystick.ds4_emulator:Ds4EmulatorNode',
+    'gpio_lights': 'enbarr_plugins.io.gpio_lights:GpioLightsNode',
+    'stepper': 'enbarr_plugins.io.stepper:StepperNode',
 }
 
 

@@ -1,0 +1,47 @@
+"""``enbarr check-device KIND``: talk to one device, print what it is, without a vessel.
+
+Each device module offers ``check_device(target: CheckTarget) -> list[str]``: it opens the
+device named by ``target`` with the driver's own code, reads its identity and one sample (or
+sends one neutral command), closes it and returns the lines to print. A device that is absent,
+silent or not what it should be raises ``DeviceError`` naming the port, bus, address or host
+and what was found. ``emulated`` as the port, bus, host or device starts this package's
+emulator of that device in the process and checks against it (the command's own test).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import importlib
+from typing import Callable
+
+#: KIND -> 'module:function', the ``check_device`` of each device this package drives.
+CHECKS: dict[str, str] = {
+    'pca9685': 'enbarr_plugins.thrusters.pca9685:check_device',
+    'lsm9ds1': 'enbarr_plugins.imu.lsm9ds1:check_device',
+    'fxos8700': 'enbarr_plugins.imu.fxos8700:check_device',
+    'arduino': 'enbarr_plugins.arduino.link:check_device',
+    'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
+    'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
+    'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
+    'ds4': 'enbarr_plugins.joystick.ds4_evdev:check_device',
+    'gpio': 'enbarr_plugins.io.gpio_lights:check_device',
+}
+
+
+@dataclass(frozen=True)
+class CheckTarget:
+    """Which device to check; a device kind reads the fields it needs (None: its default)."""
+
+    port: str | None = None        # serial port (/dev/ttyACM0) or 'emulated'
+    bus: str | None = None         # I2C bus number (1) or 'emulated'
+    address: int | None = None     # I2C address
+    host: str | None = None        # network host or 'emulated' (port: the TCP port)
+    device: str | None = None      # V4L2 index, video file, /dev/input/eventN or 'emulated'
+    name: str | None = None        # a rigid body (motion capture), a pin (GPIO)
+    timeout: float = 2.0           # longest wait for any answer [s]
+
+
+def checker(kind: str) -> Callable[[CheckTarget], list[str]]:
+    """Return the ``check_device`` function of ``kind``; ``KeyError`` when there is none."""
+    module_name, _, attr = CHECKS[kind].partition(':')
+    return getattr(importlib.import_module(module_name), attr)

@@ -1,0 +1,92 @@
+"""Where a driver finds the emulator of its device when a profile runs with no hardware.
+
+Every real driver names its device with one parameter (``bus`` for I2C, ``port`` for serial,
+``host`` for the network, ``device`` for cameras and input devices). The value ``emulated``
+(or ``emulated:NAME`` when a process runs more than one emulator of a kind) makes the driver
+take the endpoint that an emulator node of this package registered in the same process: an
+in-memory I2C bus behind the smbus2 interface, the path of a pseudo-terminal the emulator
+serves, a loopback TCP port, an input-event pipe or a video file. From there on the driver
+runs exactly its hardware code path: the same bytes, the same faults.
+
+An emulator and the drivers that use it must run in one process (the same profile ``group``).
+A driver that starts before its emulator finds nothing, reports the device absent and
+retries with backoff like for a device that is not plugged in yet.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from enbarr_core.framework.errors import DeviceError
+
+#: Parameter value naming the emulator instead of a device.
+EMULATED = 'emulated'
+
+#: Kinds of endpoint: what ``lookup`` returns for each.
+KINDS = {
+    'i2c': 'an in-memory I2C bus (transport.i2c.FakeI2cBus)',
+    'serial': 'the path of a pseudo-terminal served by the emulator',
+    'tcp': 'a (host, port) on loopback',
+    'evdev': 'an input-event source (joystick emulator)',
+    'camera': 'the path of a video file the emulator wrote',
+}
+
+_lock = threading.Lock()
+_endpoints: dict[tuple[str, str], Any] = {}
+
+
+def is_emulated(value: Any) -> bool:
+    """Whether a device parameter's value names an emulator (``emulated`` or ``emulated:X``)."""
+    return isinstance(value, str) and (value == EMULATED or value.startswith(EMULATED + ':'))
+
+
+def emulator_name(value: str) -> str:
+    """Return the emulator's name in ``emulated:NAME`` (``default`` for a bare ``emulated``)."""
+    _, _, name = value.partition(':')
+    return name or 'default'
+
+
+def register(kind: str, name: str, endpoint: Any) -> None:
+    """Offer ``endpoint`` as the emulated device ``kind``/``name`` of this process."""
+    if kind not in KINDS:
+        raise ValueError(f'kind: one of {", ".join(KINDS)}, got {kind!r}')
+    with _lock:
+        _endpoints[(kind, name)] = endpoint
+
+
+def unregister(kind: str, name: str, endpoint: Any = None) -> None:
+    """Withdraw an endpoint (only ``endpoint`` itself when given: a newer one stays)."""
+    with _lock:
+        if endpoint is None or _endpoints.get((kind, name)) is endpoint:
+            _endpoints.pop((kind, name), None)
+
+
+def lookup(kind: str, value: str) -> Any:
+    """Return the endpoint that ``value`` (``emulated`` or ``emulated:NAME``) names.
+
+    ``DeviceError`` when no emulator of that kind and name runs in this process: the driver
+    treats it like an absent device and retries.
+    """
+    name = emulator_name(value)
+    with _lock:
+        endpoint = _endpoints.get((kind, name))
+    if endpoint is None:
+        with _lock:
+            known = sorted(n for k, n in _endpoints if k == kind)
+        raise DeviceError(
+            f'{value}: no {kind} emulator named {name!r} runs in this process (known: '
+            f'{", ".join(known) or "none"}); put its emulator node in the same profile group')
+    return endpoint
+
+
+def get_or_create(kind: str, name: str, factory: Any) -> Any:
+    """Return the endpoint ``kind``/``name``, made by ``factory()`` if there is none yet.
+
+    For shared I2C buses: several emulated chips sit on one bus.
+    """
+    with _lock:
+        endpoint = _endpoints.get((kind, name))
+        if endpoint is None:
+            endpoint = _endpoints[(kind, name)] = factory()
+        return endpoint
