@@ -87,10 +87,13 @@ def build_nodes(profile: Profile, context: Context,
     what it built and raises ``ProfileError``.
     """
     nodes: list[Node] = []
+    specs = [s for s in profile.nodes if group is None or s.group == group]
+    # Device emulators first: a driver opens its device in its constructor, and an emulated
+    # device is "plugged in" when its emulator node registers it (enbarr_plugins.emulation).
+    # They are destroyed last, so they still take the drivers' neutral commands.
+    specs.sort(key=lambda s: not _is_emulator(s.plugin))
     try:
-        for spec in profile.nodes:
-            if group is not None and spec.group != group:
-                continue
+        for spec in specs:
             nodes.append(_construct(profile, spec, context))
         _check_parameters(profile, nodes, group)
     except BaseException:
@@ -98,6 +101,14 @@ def build_nodes(profile: Profile, context: Context,
             _safely(n.destroy_node, f'destroying {n.get_name()}')
         raise
     return nodes
+
+
+def _is_emulator(plugin: str) -> bool:
+    """Whether ``plugin`` is a device emulator (its class sets ``device_emulator = True``)."""
+    try:
+        return bool(getattr(registry.resolve(plugin), 'device_emulator', False))
+    except EnbarrError:
+        return False  # _construct reports the unknown plugin, in profile order
 
 
 def _construct(profile: Profile, spec: NodeSpec, context: Context) -> Node:
@@ -198,10 +209,11 @@ SAFE_STATE_LINGER = 0.1
 
 
 def shutdown_nodes(nodes: Sequence[Node]) -> None:
-    """Take nodes down: stop sources, safe state, then destroy (recorders last).
+    """Take nodes down: stop sources, safe state, then destroy (emulators, recorders last).
 
     The one exit path of every run: recorders (``Recorder``) go after the other nodes so
-    that the bag holds their safe state.
+    that the bag holds their safe state, and device emulators after the drivers, which may
+    still write their neutral bytes while closing.
     """
     for n in nodes:
         if isinstance(n, EnbarrNode):
@@ -215,7 +227,9 @@ def shutdown_nodes(nodes: Sequence[Node]) -> None:
         # process): give DDS a moment to send it before the publishers are destroyed, without
         # spinning (no command may be taken after the safe state).
         time.sleep(SAFE_STATE_LINGER)
-    for n in [*(n for n in nodes if n not in recorders), *recorders]:
+    emulators = [n for n in nodes if getattr(n, 'device_emulator', False)]
+    for n in [*(n for n in nodes if n not in recorders and n not in emulators), *emulators,
+              *recorders]:
         _safely(n.destroy_node, f'destroying {n.get_name()}')
 
 

@@ -36,6 +36,36 @@ def test_recorders_are_destroyed_after_every_other_node() -> None:
     assert destroyed == ['imu', 'thrusters', 'recorder']
 
 
+class FakeEmulator(Plain):
+    device_emulator = True
+
+
+def test_emulators_go_after_the_drivers_and_before_the_recorders() -> None:
+    destroyed: list[str] = []
+    nodes = [FakeEmulator('imu_emulator', destroyed), FakeRecorder('recorder', destroyed),
+             Plain('imu', destroyed), Plain('thrusters', destroyed)]
+    shutdown_nodes(nodes)
+    assert destroyed == ['imu', 'thrusters', 'imu_emulator', 'recorder']
+
+
+def test_emulators_are_built_before_the_drivers(monkeypatch) -> None:
+    """A driver opens its device when built: its emulator must be registered by then."""
+    from enbarr_core.bringup import orchestrator
+    from enbarr_core.bringup.profile import NodeSpec
+    built: list[str] = []
+    kinds = {'drv': Plain, 'emu': FakeEmulator}
+    monkeypatch.setattr(orchestrator.registry, 'resolve', lambda plugin: kinds[plugin])
+    monkeypatch.setattr(orchestrator, '_construct',
+                        lambda profile, spec, context: built.append(spec.name) or spec.name)
+    monkeypatch.setattr(orchestrator, '_check_parameters', lambda *a: None)
+
+    class Prof:
+        nodes = [NodeSpec(name='imu', plugin='drv'), NodeSpec(name='imu_emulator', plugin='emu'),
+                 NodeSpec(name='pwm', plugin='drv'), NodeSpec(name='pwm_emulator', plugin='emu')]
+    assert orchestrator.build_nodes(Prof(), None) == [
+        'imu_emulator', 'pwm_emulator', 'imu', 'pwm']
+
+
 def test_a_node_with_a_writer_is_not_taken_for_a_recorder() -> None:
     destroyed: list[str] = []
     lookalike = Plain('lookalike', destroyed)
