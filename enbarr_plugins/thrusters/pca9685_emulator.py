@@ -79,6 +79,7 @@ class Pca9685Emulator:
 
     def __init__(self, oscillator: float = OSCILLATOR) -> None:
         self.oscillator = oscillator
+        self.clock = time.monotonic_ns   # [ns]; a test may replace it
         self.lock = threading.Lock()
         self.stall_time = 0.0
         self.corrupt = False
@@ -166,9 +167,9 @@ class Pca9685Emulator:
                 new |= RESTART
             self.running = False
         if old & SLEEP and not value & SLEEP:        # waking: oscillator starts
-            self._awake_ns = time.monotonic_ns()
+            self._awake_ns = self.clock()
         if value & RESTART and old & RESTART and not new & SLEEP:
-            if time.monotonic_ns() - self._awake_ns < WAKE_DELAY * 1e9:
+            if self.clock() - self._awake_ns < WAKE_DELAY * 1e9:
                 self.early_restart += 1
             else:
                 new &= ~RESTART & 0xFF
@@ -201,7 +202,7 @@ class Pca9685Emulator:
     def _oscillating(self) -> bool:
         # Outputs run once started after the last wake (RESTART or an LED write) or when
         # nothing ran before the sleep (a first configuration), 500 us after waking.
-        if time.monotonic_ns() - self._awake_ns < WAKE_DELAY * 1e9:
+        if self.clock() - self._awake_ns < WAKE_DELAY * 1e9:
             return False
         return self.running or not self.regs[MODE1] & RESTART
 
