@@ -109,3 +109,23 @@ def test_pins_must_differ(context):
     with pytest.raises(ConfigurationError, match='must differ'):
         StepperNode(context=context, parameter_overrides=overrides(
             {'pin_factory': 'mock', 'dir_pin': 18}))
+
+
+def test_safe_state_in_the_middle_of_a_step_does_not_step_back(executor, spin, rig):
+    node, pub, _ = rig
+    step = pin(node, STEP)
+    original = step._set_state
+    calls = [0]
+
+    def set_state(value: bool) -> None:      # safe_state lands while step 5 is being made
+        if value:
+            calls[0] += 1
+            if calls[0] == 5:
+                node.safe_state()
+        original(value)
+    step._set_state = set_state
+    pub.publish(io_msg('manipulator', 100))
+    assert spin(executor, lambda: calls[0] >= 5 and node.target == node.position, TIMEOUT)
+    assert spin(executor, lambda: node.position == 5, TIMEOUT)
+    assert rising_edges(step) == 5
+    assert all(s.state for s in pin(node, DIR).states[1:])   # never reversed
