@@ -33,7 +33,11 @@ What the driver does:
 - **writer thread**: the chain calls the subscription on its own thread; it only validates
   and hands the latest command over. A writer thread maps it to pulse counts and writes all
   mapped channels in one auto-increment block (8 channels = 32 bytes = one I2C transfer), at
-  most once per PWM period (an ESC reads one pulse per period; more would only load the bus).
+  most once per PWM period (an ESC reads one pulse per period) and at most ``write_rate``
+  times a second (the bus is shared with the IMU: at the Pi's default 100 kHz one block takes
+  3.3 ms). A higher ``frequency`` still helps: the pulse resolution is (prescale + 1) / 25 MHz,
+  4.9 us at 50 Hz (1.3 % of the 1100-1900 us range, enough to bias small commands, which sit
+  at the dead band's edge) and 1.2 us at 200 Hz.
   It reads MODE1 back every ``verify_period``: a chip that browned out or was replugged comes
   back asleep (MODE1 0x11), outputs off, and is a fault.
 - **faults**: an I2C error (NACK: unplugged; ETIMEDOUT: stalled), a readback that does not
@@ -320,6 +324,9 @@ SPECS = [
               read_only=True),
     ParamSpec('oscillator', OSCILLATOR, 'Oscillator frequency of this chip (calibration)',
               'Hz', 20e6, 30e6, read_only=True),
+    ParamSpec('write_rate', 50.0, 'Most channel-block writes per second (also at most one per '
+              'PWM period); each is a 33-byte I2C transfer, 3.3 ms at 100 kHz', 'Hz', 1.0,
+              1526.0),
     ParamSpec('arming_time', 2.0, 'Neutral held after (re)connecting before commands apply',
               's', 0.0, 30.0),
     ParamSpec('verify_period', 1.0, 'How often MODE1 is read back to catch a reset chip', 's',
@@ -337,6 +344,7 @@ class Pca9685Settings:
     address: int
     frequency: float       # [Hz]
     oscillator: float      # [Hz]
+    write_rate: float      # [Hz]
     arming_time: float     # [s]
     verify_period: float   # [s]
     max_future: float      # [s]
@@ -354,7 +362,8 @@ class Pca9685Settings:
         period_us = 1e6 / frequency_of(prescale, v['oscillator'])
         channels, pulses = pulses_from_params(names, v, period_us)
         return cls(bus=bus, address=v['address'], frequency=v['frequency'],
-                   oscillator=v['oscillator'], arming_time=v['arming_time'],
+                   oscillator=v['oscillator'], write_rate=v['write_rate'],
+                   arming_time=v['arming_time'],
                    verify_period=v['verify_period'], max_future=v['max_future'],
                    channels=channels, pulses=pulses, prescale=prescale)
 
@@ -485,8 +494,10 @@ class Pca9685ThrustersNode(ActuatorDriver):
                     cmd, self._pending = self._pending, None
                     stop = self._stop
                 if cmd is not None:
-                    # One write per PWM period at most: the ESC reads one pulse per period.
-                    wait = last_write + 1.0 / self.settings.frequency - time.monotonic()
+                    # One write per PWM period at most (the ESC reads one pulse per period),
+                    # and at most write_rate: the bus is shared with the IMU.
+                    s = self.settings
+                    wait = last_write + 1.0 / min(s.frequency, s.write_rate) - time.monotonic()
                     if wait > 0.0 and not stop:
                         time.sleep(wait)
                         with self._cond:   # a newer command came meanwhile: take it
