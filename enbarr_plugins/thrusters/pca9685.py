@@ -44,8 +44,9 @@ What the driver does:
   match, or a wrong device at open are ``DeviceError``s naming the bus, address and values;
   the node then reports ERROR on ``/diagnostics``, goes neutral (as far as the chip can still
   be written) and reopens with backoff; arming starts again once it is back. A stalled bus
-  blocks only the writer thread (and, bounded by the adapter timeout, a reconnect attempt on
-  the executor).
+  blocks only the writer thread, except a reconnect attempt: ``open_device`` runs on the
+  executor (the ``DeviceNode`` contract): about ten transfers, the first failure ends it, each
+  bounded by the 20 ms adapter timeout and one retry.
 - **neutral** at start, on every stop path (``safe_state``), when commands stop
   (``command_timeout``) and on faults. Note that the chip keeps generating the last pulses on
   its own: if the Pi dies without a stop path the ESCs keep their last command; wire the
@@ -385,9 +386,11 @@ def bus_number(text: str) -> int:
 def open_device(bus: str, address: int) -> tuple[I2cDevice, bool]:
     """Return the I2C device at ``address`` on ``bus`` and whether we own (close) the bus."""
     if emulation.is_emulated(bus):
-        return I2cDevice(emulation.lookup('i2c', bus), address, bus_name=bus), False
+        return I2cDevice(emulation.lookup('i2c', bus), address, bus_name=bus, retries=1), False
     n = bus_number(bus)
-    return I2cDevice(open_i2c(n), address, bus_name=f'i2c-{n}', retries=1), True
+    # 20 ms adapter timeout: a 33-byte block takes 3.3 ms at 100 kHz; a stalled bus then costs
+    # at most 2 x 20 ms per transfer (one retry).
+    return I2cDevice(open_i2c(n, timeout=0.02), address, bus_name=f'i2c-{n}', retries=1), True
 
 
 # -- the node ------------------------------------------------------------------------------
