@@ -463,9 +463,10 @@ class Pca9685ThrustersNode(ActuatorDriver):
                                f'arming for {s.arming_time} s')
 
     def close_device(self) -> None:
-        """Stop the writer after it wrote the pending (neutral) command; close the bus."""
+        """Stop the writer after it wrote neutral (whatever came last); close the bus."""
         with self._cond:
             self._stop = True
+            self._pending = np.zeros(len(self.names))
             self._cond.notify()
         thread, self._thread = self._thread, None
         if thread is not None and thread is not threading.current_thread():

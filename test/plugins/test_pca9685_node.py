@@ -192,6 +192,15 @@ def test_safe_state_writes_neutral(rig):
     assert rig.node.neutral
 
 
+def test_destroying_the_node_leaves_the_chip_neutral(rig):
+    rig.command(CMD)
+    assert rig.until(lambda: rig.wrote(expected_block(CMD)))
+    rig.executor.remove_node(rig.node)
+    rig.node.destroy_node()           # no safe_state first: the driver's own last word
+    assert rig.wrote(expected_block([0.0] * 8))
+    assert rig.chip.pulse_us(2) == pytest.approx(1500.0, abs=TICK_US)
+
+
 def test_unplugged_then_replugged(rig):
     rig.command(CMD)
     assert rig.until(lambda: rig.wrote(expected_block(CMD)))
