@@ -1,0 +1,641 @@
+"""Thrusters on ESCs driven by an NXP PCA9685 16-channel PWM controller over I2C.
+
+The real twin of ``sim_thrusters``: the same input (``thruster_commands``, -1..1 per named
+thruster, same validation, time policy, ``InputHealth`` and clipping counts) and output
+(``thruster_output``: what was written to the chip, neutral included), but the commands become
+ESC pulse widths on the chip's channels.
+
+Registers (NXP PCA9685 product data sheet, Rev. 4, 16 April 2015, section 7.3 "Register
+definitions", checked against Linux ``drivers/pwm/pwm-pca9685.c``):
+MODE1 0x00 (RESTART 0x80, AI 0x20 auto-increment, SLEEP 0x10, ALLCALL 0x01; power-on 0x11),
+MODE2 0x01 (OUTDRV 0x04 totem-pole outputs; power-on 0x04), LEDn_ON_L/ON_H/OFF_L/OFF_H at
+0x06 + 4n, bit 4 of ON_H = full on, bit 4 of OFF_H = full off (it wins), ALL_LED 0xFA-0xFD,
+PRE_SCALE 0xFE (power-on 0x1E), writable only while MODE1.SLEEP is set (7.3.5). The PWM period
+is 4096 counts of the oscillator divided by prescale + 1, so
+``prescale = round(osc / (4096 f)) - 1`` (equation 1, 3..255). Waking: clear SLEEP, wait
+500 us for the oscillator, then write 1 to RESTART if it reads 1 (7.3.1.1). The internal
+oscillator is 25 MHz nominal but varies between chips (``oscillator`` calibrates it: measure
+a pulse with a scope and scale).
+
+What the driver does:
+
+- **open** (``Pca9685.open``): read MODE1; sleep with AI set (SUB/ALLCALL off, as the Linux
+  driver does, against address collisions), MODE2 = OUTDRV, PRE_SCALE; write every channel to
+  its neutral pulse (unmapped channels full off) in auto-increment blocks while asleep; then
+  read back MODE1, MODE2, PRE_SCALE and the channel block. The PCA9685 has no identity
+  register: a device that does not hold what was written (another chip at 0x40, a bus that
+  returns garbage) is refused with the bus, address and values read. Then wake and restart.
+- **arming**: an ESC arms only after it saw its neutral pulse for a while (Blue Robotics:
+  1500 us for about a second before driving, and a new arming after the signal stopped for a
+  few seconds: discuss.bluerobotics.com threads 380 and 2214). After every connect or
+  reconnect the driver holds neutral for ``arming_time`` before applying any command
+  (commands in that time are published as neutral and counted as ``held_arming``).
+- **writer thread**: the chain calls the subscription on its own thread; it only validates
+  and hands the latest command over. A writer thread maps it to pulse counts and writes all
+  mapped channels in one auto-increment block (8 channels = 32 bytes = one I2C transfer), at
+  most once per PWM period (an ESC reads one pulse per period) and at most ``write_rate``
+  times a second (the bus is shared with the IMU: at the Pi's default 100 kHz one block takes
+  3.3 ms). A higher ``frequency`` still helps: the pulse resolution is (prescale + 1) / 25 MHz,
+  4.9 us at 50 Hz (1.3 % of the 1100-1900 us range, enough to bias small commands, which sit
+  at the dead band's edge) and 1.2 us at 200 Hz.
+  It reads MODE1 back every ``verify_period``: a chip that browned out or was replugged comes
+  back asleep (MODE1 0x11), outputs off, and is a fault.
+- **faults**: an I2C error (NACK: unplugged; ETIMEDOUT: stalled), a readback that does not
+  match, or a wrong device at open are ``DeviceError``s naming the bus, address and values;
+  the node then reports ERROR on ``/diagnostics``, goes neutral (as far as the chip can still
+  be written) and reopens with backoff; arming starts again once it is back. A stalled bus
+  blocks only the writer thread, except a reconnect attempt: ``open_device`` runs on the
+  executor (the ``DeviceNode`` contract): about ten transfers, the first failure ends it, each
+  bounded by the 20 ms adapter timeout and one retry.
+- **neutral** at start, on every stop path (``safe_state``), when commands stop
+  (``command_timeout``) and on faults. Note that the chip keeps generating the last pulses on
+  its own: if the Pi dies without a stop path the ESCs keep their last command; wire the
+  PCA9685's OE pin or the ESC power through a kill switch.
+
+Pulse calibration per thruster (``pca9685.pulse.<name>.*``, microseconds): ``neutral``,
+``min`` (full reverse), ``max`` (full forward), ``dead_band`` (half-width of the ESC's
+dead band around neutral; a non-zero command starts just outside it, so a small command
+produces thrust; Blue Robotics Basic ESC: 1100-1900 us, stopped 1500 us, +-25 us) and
+``reversed`` (propeller or motor wiring turns the other way). Channel map:
+``pca9685.channels.<name>`` (0..15), vessel data without default.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from enbarr_core.allocation.layout_params import declare_thrusters
+from enbarr_core.framework.driver import REPORT_PERIOD, ActuatorDriver
+from enbarr_core.framework.errors import DeviceError
+from enbarr_core.framework.health import InputHealth, worst
+from enbarr_core.framework.node import LatencyLog
+from enbarr_core.framework.params import ParamSpec, SettingsBinding
+from enbarr_core.framework.stamps import (
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
+from enbarr_interfaces import convert, topics
+from enbarr_plugins import emulation
+from enbarr_plugins.transport.i2c import MAX_BLOCK, I2cDevice, open_i2c
+
+# -- registers (data sheet Rev. 4, table 4 and 7.3) ---------------------------------------------
+MODE1 = 0x00
+MODE2 = 0x01
+LED0_ON_L = 0x06
+ALL_LED_ON_L = 0xFA
+PRE_SCALE = 0xFE
+RESTART = 0x80
+AI = 0x20
+SLEEP = 0x10
+ALLCALL = 0x01
+OUTDRV = 0x04
+FULL = 0x10            # bit 4 of LEDn_ON_H (full on) / LEDn_OFF_H (full off)
+COUNTS = 4096          # one PWM period
+CHANNELS = 16
+PRESCALE_MIN, PRESCALE_MAX = 3, 255
+OSCILLATOR = 25e6      # internal oscillator, nominal [Hz]
+WAKE_DELAY = 500e-6    # oscillator start-up after SLEEP is cleared [s]
+DEFAULT_ADDRESS = 0x40
+
+#: Channel registers of a channel that is off: ON = 0, OFF = full off.
+OFF_BYTES = bytes((0, 0, 0, FULL))
+
+
+def led_register(channel: int) -> int:
+    """Return the LEDn_ON_L register of ``channel`` (0..15)."""
+    return LED0_ON_L + 4 * channel
+
+
+def prescale_for(frequency: float, oscillator: float = OSCILLATOR) -> int:
+    """PRE_SCALE for a PWM ``frequency`` [Hz] (data sheet equation 1); ValueError outside."""
+    prescale = round(oscillator / (COUNTS * frequency)) - 1
+    if not PRESCALE_MIN <= prescale <= PRESCALE_MAX:
+        raise ValueError(f'frequency: {frequency} Hz needs prescale {prescale}, outside '
+                         f'{PRESCALE_MIN}..{PRESCALE_MAX} (with a {oscillator:.4g} Hz '
+                         'oscillator: about 24..1526 Hz)')
+    return prescale
+
+
+def frequency_of(prescale: int, oscillator: float = OSCILLATOR) -> float:
+    """PWM frequency [Hz] that ``prescale`` gives."""
+    return oscillator / (COUNTS * (prescale + 1))
+
+
+def counts_for(pulse_us: float, prescale: int, oscillator: float = OSCILLATOR) -> int:
+    """Return the counts of one period (0..4095) that make a ``pulse_us`` [us] pulse."""
+    return min(COUNTS - 1, max(0, round(pulse_us * 1e-6 * oscillator / (prescale + 1))))
+
+
+def pulse_of(counts: int, prescale: int, oscillator: float = OSCILLATOR) -> float:
+    """Pulse width [us] of ``counts``."""
+    return counts * (prescale + 1) / oscillator * 1e6
+
+
+def channel_bytes(counts: int | None) -> bytes:
+    """LEDn_ON_L..OFF_H of a pulse of ``counts`` starting at count 0 (None: full off)."""
+    if counts is None:
+        return OFF_BYTES
+    return bytes((0, 0, counts & 0xFF, (counts >> 8) & 0x0F))
+
+
+class Pca9685:
+    """The chip's registers, over one ``I2cDevice``; every failure is a ``DeviceError``."""
+
+    def __init__(self, device: I2cDevice, oscillator: float = OSCILLATOR) -> None:
+        self.device = device
+        self.oscillator = oscillator
+        self.prescale = 0
+        self.mode1_awake = AI
+        self.writes = 0
+        self.verified = 0
+
+    @property
+    def name(self) -> str:
+        """Bus and address (``i2c-1 0x40``)."""
+        return self.device.name
+
+    def open(self, frequency: float, counts: Mapping[int, int]) -> dict[str, Any]:
+        """Configure the chip, check it holds what was written, wake it; return its state.
+
+        ``counts``: channel -> pulse counts at start (neutral); other channels full off.
+        """
+        self.prescale = prescale_for(frequency, self.oscillator)
+        before = self.device.read_u8(MODE1)
+        asleep = AI | SLEEP
+        self.device.write_u8(MODE1, asleep)   # ALLCALL and SUBx off, RESTART not written
+        self.device.write_u8(MODE2, OUTDRV)
+        self.device.write_u8(PRE_SCALE, self.prescale)
+        block = self._block(counts)
+        self._write_channels(block)
+        got = {'MODE1': self.device.read_u8(MODE1), 'MODE2': self.device.read_u8(MODE2),
+               'PRE_SCALE': self.device.read_u8(PRE_SCALE)}
+        want = {'MODE1': asleep, 'MODE2': OUTDRV, 'PRE_SCALE': self.prescale}
+        wrong = {k: v for k, v in got.items() if (v & ~RESTART if k == 'MODE1' else v) != want[k]}
+        if wrong:
+            raise DeviceError(f'{self.name}: not a PCA9685 (or not answering like one): '
+                              + ', '.join(f'{k} read 0x{got[k]:02x}, wrote 0x{want[k]:02x}'
+                                          for k in wrong))
+        for start in range(0, len(block), MAX_BLOCK):
+            read = self.device.read_block(LED0_ON_L + start,
+                                          min(MAX_BLOCK, len(block) - start))
+            if read != block[start:start + len(read)]:
+                raise DeviceError(f'{self.name}: channel registers from 0x'
+                                  f'{LED0_ON_L + start:02x} read {read.hex(" ")}, wrote '
+                                  f'{block[start:start + len(read)].hex(" ")}')
+        self.device.write_u8(MODE1, AI)       # wake
+        time.sleep(WAKE_DELAY)
+        mode1 = self.device.read_u8(MODE1)
+        if mode1 & RESTART:                   # PWM was running before the sleep: restart it
+            self.device.write_u8(MODE1, AI | RESTART)
+        self.mode1_awake = AI
+        return {'mode1_before': before, 'prescale': self.prescale,
+                'frequency': frequency_of(self.prescale, self.oscillator)}
+
+    def _block(self, counts: Mapping[int, int | None]) -> bytes:
+        """LED registers of channels 0..max mapped channel (unmapped: full off)."""
+        last = max(counts) if counts else -1
+        return b''.join(channel_bytes(counts.get(c)) for c in range(last + 1))
+
+    def _write_channels(self, block: bytes, first: int = 0) -> None:
+        for start in range(0, len(block), MAX_BLOCK):
+            self.device.write_block(led_register(first) + start, block[start:start + MAX_BLOCK])
+
+    def write(self, counts: Mapping[int, int | None]) -> bytes:
+        """Write the pulses of ``counts`` (channel -> counts, None: off); return the bytes.
+
+        One auto-increment block from the lowest channel to the highest (32 bytes a transfer).
+        """
+        first, last = min(counts), max(counts)
+        block = b''.join(channel_bytes(counts.get(c)) for c in range(first, last + 1))
+        self._write_channels(block, first)
+        self.writes += 1
+        return block
+
+    def verify(self) -> None:
+        """Check the chip is still awake and configured (a replugged chip wakes asleep)."""
+        mode1 = self.device.read_u8(MODE1)
+        if mode1 & ~RESTART != self.mode1_awake:
+            raise DeviceError(f'{self.name}: MODE1 read 0x{mode1:02x}, expected '
+                              f'0x{self.mode1_awake:02x}: the chip was reset (power or '
+                              'replug) or the bus returns garbage')
+        self.verified += 1
+
+    def read_state(self, channel: int = 0) -> dict[str, Any]:
+        """MODE1, PRE_SCALE, frequency and the pulse of ``channel`` as the chip holds them."""
+        mode1 = self.device.read_u8(MODE1)
+        mode2 = self.device.read_u8(MODE2)
+        prescale = self.device.read_u8(PRE_SCALE)
+        on_l, on_h, off_l, off_h = self.device.read_block(led_register(channel), 4)
+        if off_h & FULL:
+            pulse = 0.0
+        elif on_h & FULL:
+            pulse = math.inf
+        else:
+            counts = ((((off_h & 0x0F) << 8) | off_l) - (((on_h & 0x0F) << 8) | on_l)) % COUNTS
+            pulse = pulse_of(counts, prescale, self.oscillator)
+        return {'mode1': mode1, 'mode2': mode2, 'prescale': prescale,
+                'frequency': frequency_of(max(prescale, 1), self.oscillator), 'pulse': pulse}
+
+    def close(self) -> None:
+        """Close the bus (when owned); never raises."""
+        self.device.close()
+
+
+# -- parameters ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Pulse:
+    """ESC pulse calibration of one thruster [us]."""
+
+    neutral: float
+    min: float
+    max: float
+    dead_band: float
+    reversed: bool
+
+    def width(self, command: float) -> float:
+        """Pulse width [us] for a command in -1..1 (0: exactly neutral)."""
+        c = -command if self.reversed else command
+        if c > 0.0:
+            low = self.neutral + self.dead_band
+            return low + c * (self.max - low)
+        if c < 0.0:
+            high = self.neutral - self.dead_band
+            return high + c * (high - self.min)
+        return self.neutral
+
+
+PULSE_FIELDS = (
+    ('neutral', 1500.0, 'Pulse width that stops the thruster'),
+    ('min', 1100.0, 'Pulse width of full reverse (command -1)'),
+    ('max', 1900.0, 'Pulse width of full forward (command +1)'),
+    ('dead_band', 25.0, 'Half-width of the ESC dead band around neutral (a non-zero '
+     'command starts outside it)'),
+)
+
+
+def pulse_specs(names: Sequence[str]) -> list[ParamSpec]:
+    """Per-thruster pulse calibration and channel parameters (read only)."""
+    specs = []
+    for n in names:
+        specs.append(ParamSpec(f'pca9685.channels.{n}', 0, f'PCA9685 channel of thruster {n}',
+                               '', 0, CHANNELS - 1, read_only=True, required=True))
+        for key, default, text in PULSE_FIELDS:
+            specs.append(ParamSpec(f'pca9685.pulse.{n}.{key}', default, f'{text} ({n})', 'us',
+                                   0.0, 1e5, read_only=True))
+        specs.append(ParamSpec(f'pca9685.pulse.{n}.reversed', False,
+                               f'Thruster {n} turns the other way for the same pulse',
+                               read_only=True))
+    return specs
+
+
+def pulses_from_params(names: Sequence[str], v: Mapping[str, Any],
+                       period_us: float) -> tuple[tuple[int, ...], tuple[Pulse, ...]]:
+    """Channels and pulses of ``names``; ValueError naming the parameter that does not fit."""
+    channels = tuple(v[f'pca9685.channels.{n}'] for n in names)
+    if len(set(channels)) != len(channels):
+        raise ValueError(f'pca9685.channels: two thrusters on one channel: '
+                         f'{dict(zip(names, channels))}')
+    pulses = []
+    for n in names:
+        p = Pulse(*(v[f'pca9685.pulse.{n}.{k}'] for k, _, _ in PULSE_FIELDS),
+                  reversed=v[f'pca9685.pulse.{n}.reversed'])
+        if not p.min < p.neutral - p.dead_band <= p.neutral + p.dead_band < p.max:
+            raise ValueError(f'pca9685.pulse.{n}: need min < neutral - dead_band <= neutral + '
+                             f'dead_band < max, got {p}')
+        if p.max >= period_us:
+            raise ValueError(f'pca9685.pulse.{n}.max: {p.max} us does not fit in the PWM '
+                             f'period of {period_us:.0f} us (lower frequency)')
+        pulses.append(p)
+    return channels, tuple(pulses)
+
+
+SPECS = [
+    ParamSpec('bus', '1', "I2C bus: '1' or '/dev/i2c-1', or 'emulated[:NAME]'",
+              read_only=True),
+    ParamSpec('address', DEFAULT_ADDRESS, 'I2C address of the PCA9685', '', 0x03, 0x77,
+              read_only=True),
+    ParamSpec('frequency', 50.0, 'PWM frequency (ESCs: 50..400)', 'Hz', 24.0, 1526.0,
+              read_only=True),
+    ParamSpec('oscillator', OSCILLATOR, 'Oscillator frequency of this chip (calibration)',
+              'Hz', 20e6, 30e6, read_only=True),
+    ParamSpec('write_rate', 50.0, 'Most channel-block writes per second (also at most one per '
+              'PWM period); each is a 33-byte I2C transfer, 3.3 ms at 100 kHz', 'Hz', 1.0,
+              1526.0),
+    ParamSpec('arming_time', 2.0, 'Neutral held after (re)connecting before commands apply',
+              's', 0.0, 30.0),
+    ParamSpec('verify_period', 1.0, 'How often MODE1 is read back to catch a reset chip', 's',
+              0.05, 60.0),
+    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE, 'Commands stamped further ahead of the '
+              'node clock are refused (time policy)', 's', 0.0, 1.0),
+]
+
+
+@dataclass(frozen=True)
+class Pca9685Settings:
+    """Settings of ``Pca9685ThrustersNode`` (see ``SPECS`` and ``pulse_specs``)."""
+
+    bus: str
+    address: int
+    frequency: float       # [Hz]
+    oscillator: float      # [Hz]
+    write_rate: float      # [Hz]
+    arming_time: float     # [s]
+    verify_period: float   # [s]
+    max_future: float      # [s]
+    channels: tuple[int, ...]
+    pulses: tuple[Pulse, ...]
+    prescale: int
+
+    @classmethod
+    def build(cls, names: Sequence[str], v: Mapping[str, Any]) -> Pca9685Settings:
+        """Build from the parameter values; ValueError names the parameter."""
+        bus = v['bus'].strip()
+        if not emulation.is_emulated(bus):
+            bus_number(bus)   # ValueError when it is no bus
+        prescale = prescale_for(v['frequency'], v['oscillator'])
+        period_us = 1e6 / frequency_of(prescale, v['oscillator'])
+        channels, pulses = pulses_from_params(names, v, period_us)
+        return cls(bus=bus, address=v['address'], frequency=v['frequency'],
+                   oscillator=v['oscillator'], write_rate=v['write_rate'],
+                   arming_time=v['arming_time'],
+                   verify_period=v['verify_period'], max_future=v['max_future'],
+                   channels=channels, pulses=pulses, prescale=prescale)
+
+    def counts(self, command: np.ndarray) -> dict[int, int]:
+        """Channel -> counts of a normalized command (one entry per thruster)."""
+        return {ch: counts_for(p.width(float(c)), self.prescale, self.oscillator)
+                for ch, p, c in zip(self.channels, self.pulses, command)}
+
+
+def bus_number(text: str) -> int:
+    """Return the bus number of ``'1'`` or ``'/dev/i2c-1'``; ValueError names the parameter."""
+    tail = text.removeprefix('/dev/i2c-')
+    if not tail.isdigit():
+        raise ValueError(f"bus: {text!r} is not an I2C bus ('1', '/dev/i2c-1') or "
+                         "'emulated[:NAME]'")
+    return int(tail)
+
+
+def open_device(bus: str, address: int) -> tuple[I2cDevice, bool]:
+    """Return the I2C device at ``address`` on ``bus`` and whether we own (close) the bus."""
+    if emulation.is_emulated(bus):
+        return I2cDevice(emulation.lookup('i2c', bus), address, bus_name=bus, retries=1), False
+    n = bus_number(bus)
+    # 20 ms adapter timeout: a 33-byte block takes 3.3 ms at 100 kHz; a stalled bus then costs
+    # at most 2 x 20 ms per transfer (one retry).
+    return I2cDevice(open_i2c(n, timeout=0.02), address, bus_name=f'i2c-{n}', retries=1), True
+
+
+# -- the node ------------------------------------------------------------------------------
+
+class Pca9685ThrustersNode(ActuatorDriver):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
+        self.neutral = True
+        self.gate = StampGate()
+        self.health = InputHealth()
+        self._health_values: dict[str, int] = {}
+        self.chip: Pca9685 | None = None
+        self._owns_bus = False
+        self._cond = threading.Condition()
+        self._pending: np.ndarray | None = None
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        self._fault: DeviceError | None = None
+        self._armed_ns = 0
+        super().__init__(node_name, timeout_message='thruster commands stopped: thrusters '
+                         'neutral', **kwargs)
+        self.thrusters = declare_thrusters(self)
+        self.names = [t.name for t in self.thrusters]
+        self._index = {n: i for i, n in enumerate(self.names)}
+        self.settings: Pca9685Settings
+        SettingsBinding(self, SPECS + pulse_specs(self.names),
+                        lambda v: Pca9685Settings.build(self.names, v), self._apply)
+        self.device = f'{self.settings.bus} 0x{self.settings.address:02x}'
+        self.latency = LatencyLog()
+        self.command = np.zeros(len(self.names))   # latest accepted, normalized
+        self.applied = np.zeros(len(self.names))   # last written to the chip
+        self.refused = 0
+        self.clipped = 0
+        self.held_arming = 0
+        self.written: bytes = b''                  # last channel block written
+        self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
+        self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
+        self.safe_state()
+        self.connect()
+
+    def _apply(self, settings: Pca9685Settings) -> None:
+        self.settings = settings
+        self.gate.policy = StampPolicy(settings.max_future)
+
+    # -- device ------------------------------------------------------------------------------
+    def open_device(self) -> None:
+        """Open the bus, configure and check the chip, start the writer (neutral, arming)."""
+        s = self.settings
+        device, self._owns_bus = open_device(s.bus, s.address)
+        chip = Pca9685(device, s.oscillator)
+        try:
+            chip.open(s.frequency, s.counts(np.zeros(len(self.names))))
+        except DeviceError:
+            if self._owns_bus:
+                chip.close()
+            raise
+        self.chip = chip
+        self.written = b''
+        self._fault = None
+        self._armed_ns = time.monotonic_ns() + int(s.arming_time * 1e9)
+        with self._cond:
+            self._stop = False
+            self._pending = np.zeros(len(self.names))
+        self._thread = threading.Thread(target=self._write_loop, name=f'{self.get_name()}_i2c',
+                                        daemon=True)
+        self._thread.start()
+        hz = frequency_of(s.prescale, s.oscillator)
+        self.get_logger().info(f'{chip.name}: PCA9685 at {hz:.1f} Hz (prescale {s.prescale}), '
+                               f'arming for {s.arming_time} s')
+
+    def close_device(self) -> None:
+        """Stop the writer after it wrote neutral (whatever came last); close the bus."""
+        with self._cond:
+            self._stop = True
+            self._pending = np.zeros(len(self.names))
+            self._cond.notify()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(1.0)
+        chip, self.chip = self.chip, None
+        if chip is not None and self._owns_bus:
+            chip.close()
+
+    @property
+    def armed(self) -> bool:
+        """Whether the arming time after the last connect is over."""
+        return self.connected and time.monotonic_ns() >= self._armed_ns
+
+    def _write_loop(self) -> None:
+        """Writer thread: the latest command to the chip, MODE1 checked every verify_period."""
+        chip = self.chip
+        if chip is None:
+            return
+        next_verify = time.monotonic() + self.settings.verify_period
+        last_write = 0.0
+        try:
+            while True:
+                with self._cond:
+                    while self._pending is None and not self._stop:
+                        timeout = next_verify - time.monotonic()
+                        if timeout <= 0.0:
+                            break
+                        self._cond.wait(timeout)
+                    cmd, self._pending = self._pending, None
+                    stop = self._stop
+                if cmd is not None:
+                    # One write per PWM period at most (the ESC reads one pulse per period),
+                    # and at most write_rate: the bus is shared with the IMU.
+                    s = self.settings
+                    wait = last_write + 1.0 / min(s.frequency, s.write_rate) - time.monotonic()
+                    if wait > 0.0 and not stop:
+                        time.sleep(wait)
+                        with self._cond:   # a newer command came meanwhile: take it
+                            if self._pending is not None:
+                                cmd, self._pending = self._pending, None
+                    self._write(chip, cmd)
+                    last_write = time.monotonic()
+                if stop:
+                    return
+                if time.monotonic() >= next_verify:
+                    chip.verify()
+                    next_verify = time.monotonic() + self.settings.verify_period
+        except DeviceError as err:
+            self._fault = err   # handled on the executor by supervise(): safe state, reconnect
+
+    def _write(self, chip: Pca9685, cmd: np.ndarray) -> None:
+        if np.any(cmd) and time.monotonic_ns() < self._armed_ns:
+            self.held_arming += 1
+            cmd = np.zeros(len(self.names))
+        self.written = chip.write(self.settings.counts(cmd))
+        self.applied = cmd
+        out = JointState(name=self.names, effort=cmd.tolist())
+        convert.ns_to_stamp(self.get_clock().now().nanoseconds, out.header.stamp)
+        out.header.frame_id = topics.BODY_FRAME
+        self._output_pub.publish(out)
+
+    def _hand_over(self, cmd: np.ndarray) -> None:
+        with self._cond:
+            self._pending = cmd
+            self._cond.notify()
+
+    def supervise(self) -> None:
+        """Run the command watchdog; turn a writer failure into a device fault."""
+        super().supervise()
+        fault = self._fault
+        if fault is not None and self.connected:
+            self._fault = None
+            self.device_fault(fault)
+
+    # -- commands ----------------------------------------------------------------------------
+    def _on_command(self, msg: JointState) -> None:
+        if len(msg.name) != len(msg.effort):
+            self.refused += 1
+            self.health.refused('thruster_commands', 'invalid')
+            return
+        cmd = np.zeros(len(self.names))
+        for name, value in zip(msg.name, msg.effort):
+            i = self._index.get(name)
+            if i is None or not math.isfinite(value):
+                self.refused += 1
+                self.health.refused('thruster_commands', 'invalid')
+                self.get_logger().warn(f'refused thruster command {name}={value}',
+                                       throttle_duration_sec=1.0)
+                return
+            cmd[i] = value
+        now_ns = self.get_clock().now().nanoseconds
+        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.gate.offer(stamp_ns, now_ns)
+        if verdict is not StampVerdict.ACCEPTED:
+            self.refused += 1
+            self.health.refused('thruster_commands', verdict.value)
+            return
+        self.health.accepted('thruster_commands')
+        if np.any(np.abs(cmd) > 1.0):
+            self.clipped += 1
+            np.clip(cmd, -1.0, 1.0, out=cmd)
+        with self.commanding():
+            self.command = cmd
+            self.neutral = not np.any(cmd)
+            self._hand_over(cmd)
+        self.latency.add(now_ns - stamp_ns)
+
+    def is_neutral(self) -> bool:
+        """Whether every thruster is commanded to neutral."""
+        return self.neutral
+
+    def write_neutral(self) -> None:
+        """Hand neutral to the writer (it writes within one PWM period when connected)."""
+        self.neutral = True
+        self.command = np.zeros(len(self.names))
+        self._hand_over(self.command)
+
+    def status(self) -> tuple[int, str]:
+        """Return the driver's status, degraded while commands are refused."""
+        level, message, self._health_values = self.health.report(REPORT_PERIOD)
+        return worst(super().status(), (level, message))
+
+    def status_values(self) -> dict[str, Any]:
+        """Return the driver counters."""
+        chip = self.chip
+        return {**super().status_values(), 'armed': self.armed, 'refused': self.refused,
+                'clipped': self.clipped, 'held_arming': self.held_arming,
+                'writes': chip.writes if chip else 0,
+                'i2c_errors': chip.device.errors if chip else 0, **self._health_values}
+
+
+# -- enbarr check-device pca9685 -------------------------------------------------------------
+
+def check_device(target: Any) -> list[str]:
+    """Open the PCA9685 named by ``target``, print MODE1, PRE_SCALE, frequency, channel 0.
+
+    Reads only: the chip is not reconfigured (a running vessel's thrusters keep their pulses).
+    ``emulated`` starts an emulator in this process. ``DeviceError`` when absent or wrong.
+    """
+    bus = target.bus or '1'
+    address = target.address if target.address is not None else DEFAULT_ADDRESS
+    emulator = None
+    if emulation.is_emulated(bus):
+        from enbarr_plugins.thrusters.pca9685_emulator import start_check_emulator
+        emulator = start_check_emulator(bus, address)
+    try:
+        try:
+            device, owned = open_device(bus, address)
+        except ValueError as err:
+            raise DeviceError(str(err)) from err
+        chip = Pca9685(device)
+        try:
+            state = chip.read_state(0)
+        finally:
+            if owned:
+                chip.close()
+        if state['mode2'] & 0xE0 or state['prescale'] < PRESCALE_MIN:
+            # MODE2 bits 7..5 are reserved (read 0); PRE_SCALE is never below 3.
+            raise DeviceError(f'{chip.name}: not a PCA9685: MODE2 0x{state["mode2"]:02x}, '
+                              f'PRE_SCALE 0x{state["prescale"]:02x}')
+        pulse = state['pulse']
+        pulse_text = ('full off' if pulse == 0.0 else 'full on' if math.isinf(pulse)
+                      else f'{pulse:.0f} us')
+        return [f'PCA9685 at {chip.name}',
+                f'MODE1 0x{state["mode1"]:02x} ({"asleep" if state["mode1"] & SLEEP else "awake"}'
+                f'{", auto-increment" if state["mode1"] & AI else ""})',
+                f'PRE_SCALE {state["prescale"]} -> {state["frequency"]:.1f} Hz (25 MHz '
+                'oscillator)',
+                f'channel 0: {pulse_text}']
+    finally:
+        if emulator is not None:
+            emulator()
