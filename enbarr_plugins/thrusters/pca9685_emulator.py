@@ -312,6 +312,8 @@ class EmulatorSettings:
 class Pca9685EmulatorNode(EnbarrNode):
     """See the module docstring."""
 
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+
     def __init__(self, node_name: str = 'pca9685_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.thrusters = declare_thrusters(self)

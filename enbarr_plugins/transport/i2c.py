@@ -18,6 +18,7 @@ Documentation/i2c/dev-interface.rst and include/uapi/linux/i2c-dev.h.
 
 from __future__ import annotations
 
+from collections import deque
 import errno
 import fcntl
 import time
@@ -28,6 +29,8 @@ from enbarr_core.framework.errors import DeviceError
 #: ioctl requests of linux/i2c-dev.h.
 I2C_RETRIES = 0x0701
 I2C_TIMEOUT = 0x0702
+#: Transfers kept in ``FakeI2cBus.log``.
+LOG_LENGTH = 10000
 #: Longest block of one SMBus/I2C block transfer in smbus2 [bytes].
 MAX_BLOCK = 32
 
@@ -194,7 +197,8 @@ class FakeI2cBus:
 
     def __init__(self) -> None:
         self.devices: dict[int, RegisterEmulator] = {}
-        self.log: list[tuple[str, int, int, bytes]] = []
+        #: The last ``LOG_LENGTH`` transfers (an emulated vessel's IMU reads 400 times a second).
+        self.log: deque[tuple[str, int, int, bytes]] = deque(maxlen=LOG_LENGTH)
         self.closed = False
         self._faults: dict[int, list[int]] = {}
 

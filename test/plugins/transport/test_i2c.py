@@ -25,7 +25,7 @@ def test_byte_registers_read_back_what_was_written(bus):
     dev.write_u8(0x00, 0x21)
     assert regs.registers[0x00] == 0x21
     assert dev.read_u8(0x00) == 0x21
-    assert bus.log == [('write', 0x40, 0x00, b'\x21'), ('read', 0x40, 0x00, b'\x21')]
+    assert list(bus.log) == [('write', 0x40, 0x00, b'\x21'), ('read', 0x40, 0x00, b'\x21')]
 
 
 def test_block_transfers_auto_increment(bus):
@@ -118,3 +118,14 @@ def test_close_closes_the_bus(bus):
     assert bus.closed
     with pytest.raises(DeviceError, match='EBADF'):
         dev.read_u8(0)
+
+
+def test_the_transfer_log_is_bounded() -> None:
+    """An emulated vessel reads its IMU 400 times a second for hours: the log must not grow."""
+    from enbarr_plugins.transport.i2c import LOG_LENGTH
+    bus = FakeI2cBus()
+    bus.attach(0x40)
+    for i in range(LOG_LENGTH + 5):
+        bus.write_byte_data(0x40, 0x00, i & 0xFF)
+    assert len(bus.log) == LOG_LENGTH
+    assert bus.log[-1] == ('write', 0x40, 0x00, bytes([(LOG_LENGTH + 4) & 0xFF]))
