@@ -4,25 +4,24 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any
 
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import Imu
 
 from enbarr_core.bringup import cli
 from enbarr_core.framework.driver import ERROR, OK
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
-from enbarr_core.framework.node import EnbarrNode
-from enbarr_interfaces import convert, topics
+from enbarr_interfaces import convert
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import lsm9ds1
 from enbarr_plugins.imu.common import Bus, G, Truth
+from enbarr_plugins.imu.lsm9ds1 import Lsm9ds1ImuNode
 from enbarr_plugins.imu.lsm9ds1_emulator import attach_lsm9ds1, Lsm9ds1EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
+from support.imu import Rig
 
 TIMEOUT = 10.0
 FIELD = np.array([0.0, 1.8e-5, -4.8e-5])
@@ -130,69 +129,8 @@ def test_check_device_command_line(capsys):
 
 # -- node: driver + emulator ----------------------------------------------------------------
 
-class Rig:
-    """Emulator node, driver node, and a probe that publishes truth and records samples."""
-
-    def __init__(self, context: Any, executor: Any, *, emulator: bool = True,
-                 **params: Any) -> None:
-        self.context, self.executor = context, executor
-        self.name = f'lsm-node-{next(_names)}'
-        self.raw: list[Imu] = []
-        self.mag: list[Any] = []
-        self.diag: list[Any] = []
-        self.probe = EnbarrNode('probe', context=context)
-        executor.add_node(self.probe)
-        self.truth_pub = self.probe.create_topic_publisher(topics.SIM_IMU)
-        self.probe.create_topic_subscription(topics.IMU_RAW, self.raw.append)
-        self.probe.create_topic_subscription(topics.IMU_MAG, self.mag.append)
-        self.emulator = self.add_emulator() if emulator else None
-        overrides = {'bus': f'emulated:{self.name}', 'rate': 100.0,
-                     'reconnect.initial_delay': 0.05, 'reconnect.max_delay': 0.2,
-                     'data_timeout': 0.3}
-        overrides.update(params)
-        self.driver = lsm9ds1.Lsm9ds1ImuNode(
-            context=context, parameter_overrides=[Parameter(k, value=v)
-                                                  for k, v in overrides.items()])
-        executor.add_node(self.driver)
-        self.driver.start()
-
-    def add_emulator(self) -> Lsm9ds1EmulatorNode:
-        node = Lsm9ds1EmulatorNode(context=self.context, parameter_overrides=[
-            Parameter('name', value=self.name),
-            Parameter('gyro_bias', value=[0.0, 0.0, 0.0])])
-        self.executor.add_node(node)
-        self.emulator = node
-        return node
-
-    @property
-    def bus(self) -> FakeI2cBus:
-        return self.emulator.bus
-
-    def spin_until(self, condition, timeout: float = TIMEOUT) -> bool:
-        import time
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return condition()
-
-    def publishing(self) -> bool:
-        """True once new samples arrive (waits for two)."""
-        n = len(self.raw)
-        return self.spin_until(lambda: len(self.raw) >= n + 2)
-
-    def truth(self, rpy, omega, f) -> None:
-        msg = Imu()
-        msg.header.frame_id = topics.IMU_FRAME
-        convert.set_quaternion(msg.orientation, quat_from_euler(*rpy))
-        convert.set_vector3(msg.angular_velocity, omega)
-        convert.set_vector3(msg.linear_acceleration, f)
-        self.truth_pub.publish(msg)
-
-
 def test_truth_reaches_imu_data_raw_in_flu_with_covariances(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     rpy = (0.1, math.pi / 2 - 0.05, 0.7)  # pitched nose down
     q = quat_from_euler(*rpy)
     f = quat_to_rotmat(q).T @ np.array([0.0, 0.0, G])   # specific force at rest, imu_link
@@ -219,7 +157,7 @@ def test_truth_reaches_imu_data_raw_in_flu_with_covariances(context, executor):
 
 
 def test_absent_at_start_reported_then_found_when_the_emulator_comes(context, executor):
-    rig = Rig(context, executor, emulator=False)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode, emulator=False)
     assert not rig.driver.connected and rig.driver.faults == 1
     assert 'no i2c emulator named' in rig.driver.last_fault
     assert rig.driver.status()[0] == ERROR
@@ -229,7 +167,7 @@ def test_absent_at_start_reported_then_found_when_the_emulator_comes(context, ex
 
 
 def test_unplugged_and_replugged_reconfigures_and_resumes(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     assert rig.publishing()
     ag = rig.emulator.accel_gyro
     rig.bus.detach(0x6B)
@@ -243,7 +181,7 @@ def test_unplugged_and_replugged_reconfigures_and_resumes(context, executor):
 
 
 def test_a_stalled_bus_is_a_fault_and_the_driver_resumes(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     assert rig.publishing()
     rig.bus.stall(0x6B, 4)
     assert rig.spin_until(lambda: rig.driver.faults >= 1)
@@ -252,7 +190,7 @@ def test_a_stalled_bus_is_a_fault_and_the_driver_resumes(context, executor):
 
 
 def test_wrong_identity_at_start_then_the_right_chip(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     assert rig.publishing()
     rig.emulator.magnetometer.set_identity(0x40)
     rig.bus.nack(0x6B, 2)                    # a glitch makes the driver open it again
@@ -264,7 +202,7 @@ def test_wrong_identity_at_start_then_the_right_chip(context, executor):
 
 
 def test_data_ready_stuck_is_a_stale_fault_then_resumes(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     assert rig.publishing()
     rig.emulator.accel_gyro.data_ready_stuck = True
     assert rig.spin_until(lambda: 'no new sample' in rig.driver.last_fault)
@@ -274,7 +212,7 @@ def test_data_ready_stuck_is_a_stale_fault_then_resumes(context, executor):
 
 
 def test_corrupted_reads_are_dropped_counted_and_a_fault(context, executor):
-    rig = Rig(context, executor)
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
     assert rig.publishing()
     rig.emulator.accel_gyro.corrupt = True
     assert rig.spin_until(lambda: 'corrupted reads' in rig.driver.last_fault)
