@@ -357,8 +357,9 @@ class ChipEmulator:
     chip's ``read``/``write`` rules. ``lock`` guards the registers (the bridge writes the truth
     from the executor thread while the driver reads on its loop thread).
 
-    Faults: ``identity`` (the WHO_AM_I value it answers), ``data_ready_stuck`` (no new sample
-    ever: the driver sees stale data), ``corrupt`` (reads return 0xff: SDA stuck high).
+    Faults: ``set_identity`` (the WHO_AM_I value it answers), ``data_ready_stuck`` (no new
+    sample ever: the driver sees stale data), ``corrupt`` (reads return 0xff: SDA stuck high),
+    ``truncate`` (a burst comes one byte short).
     NACKs, stalls and unplugging are faults of the bus (``FakeI2cBus.nack/stall/detach``).
     """
 
@@ -369,7 +370,9 @@ class ChipEmulator:
         self.truth = level_truth([0.0, 1.8e-5, -4.8e-5])
         self.data_ready_stuck = False
         self.corrupt = False
+        self.truncate = False
         self.reads = 0
+        self.errors = 0  # faulty replies given (corrupt, truncated)
         self.writes = 0
         self.samples = 0
         self._next_ns = 0
@@ -377,6 +380,34 @@ class ChipEmulator:
     def odr(self) -> float:
         """Return the configured output data rate [Hz] (0: powered down)."""
         raise NotImplementedError
+
+    def read_registers(self, register: int, length: int) -> bytes:
+        """Return ``length`` bytes from ``register`` by the chip's rules (lock held)."""
+        raise NotImplementedError
+
+    def write_registers(self, register: int, data: bytes) -> None:
+        """Take a write by the chip's rules (lock held)."""
+        raise NotImplementedError
+
+    def read(self, register: int, length: int) -> bytes:
+        """Answer a read (``RegisterEmulator``): faults first, then due samples, then data."""
+        with self.lock:
+            self.reads += 1
+            if self.corrupt:
+                self.errors += 1
+                return b'\xff' * length
+            self.update()
+            data = self.read_registers(register, length)
+            if self.truncate and length > 1:
+                self.errors += 1
+                return data[:-1]
+            return data
+
+    def write(self, register: int, data: bytes) -> None:
+        """Take a write (``RegisterEmulator``)."""
+        with self.lock:
+            self.writes += 1
+            self.write_registers(register, data)
 
     def sample(self) -> None:
         """Write one new sample of ``self.truth`` into the output registers (lock held)."""
@@ -454,7 +485,7 @@ class EmulatorNode(EnbarrNode):
             attached = self.bus.devices.get(address) is chip
             values[f'0x{address:02x}'] = (
                 f'{"attached" if attached else "unplugged"}, reads {chip.reads}, writes '
-                f'{chip.writes}, samples {chip.samples}')
+                f'{chip.writes}, samples {chip.samples}, faulty replies {chip.errors}')
         self.publish_diagnostics(0, 'emulating', values)
 
     def destroy_node(self) -> None:

@@ -86,38 +86,31 @@ class Fxos8700Emulator(ChipEmulator):
             return chip.M_OUT_X_MSB
         return (address + 1) & 0xFF
 
-    def read(self, register: int, length: int) -> bytes:
+    def read_registers(self, register: int, length: int) -> bytes:
         """Burst read (hybrid auto-increment); reading the outputs clears the status."""
-        with self.lock:
-            self.reads += 1
-            if self.corrupt:
-                return b'\xff' * length
-            self.update()
-            addresses = [register]
-            while len(addresses) < length:
-                addresses.append(self._next(addresses[-1]))
-            data = bytes(self.registers[a] for a in addresses)
-            if any(chip.OUT_X_MSB <= a < chip.OUT_X_MSB + 6 for a in addresses):
-                self.registers[chip.STATUS] = 0
-            if any(chip.M_OUT_X_MSB <= a < chip.M_OUT_X_MSB + 6 for a in addresses):
-                self.registers[chip.M_DR_STATUS] = 0
-            return data
+        addresses = [register]
+        while len(addresses) < length:
+            addresses.append(self._next(addresses[-1]))
+        data = bytes(self.registers[a] for a in addresses)
+        if any(chip.OUT_X_MSB <= a < chip.OUT_X_MSB + 6 for a in addresses):
+            self.registers[chip.STATUS] = 0
+        if any(chip.M_OUT_X_MSB <= a < chip.M_OUT_X_MSB + 6 for a in addresses):
+            self.registers[chip.M_DR_STATUS] = 0
+        return data
 
-    def write(self, register: int, data: bytes) -> None:
+    def write_registers(self, register: int, data: bytes) -> None:
         """Write; in active mode only CTRL_REG1.ACTIVE and the free registers change."""
-        with self.lock:
-            self.writes += 1
-            a = register
-            for value in data:
-                active = self.registers[chip.CTRL_REG1] & chip.ACTIVE
-                if a == chip.CTRL_REG1 and active:
-                    value = (self.registers[a] & ~chip.ACTIVE & 0xFF) | (value & chip.ACTIVE)
-                    self.registers[a] = value
-                elif a == chip.CTRL_REG2 and value & 0x40:  # RST
-                    self.power_on()
-                elif a not in self.READ_ONLY and not (active and a in self.STANDBY_ONLY):
-                    self.registers[a] = value
-                a = self._next(a)
+        a = register
+        for value in data:
+            active = self.registers[chip.CTRL_REG1] & chip.ACTIVE
+            if a == chip.CTRL_REG1 and active:
+                value = (self.registers[a] & ~chip.ACTIVE & 0xFF) | (value & chip.ACTIVE)
+                self.registers[a] = value
+            elif a == chip.CTRL_REG2 and value & 0x40:  # RST
+                self.power_on()
+            elif a not in self.READ_ONLY and not (active and a in self.STANDBY_ONLY):
+                self.registers[a] = value
+            a = self._next(a)
 
 
 class Fxas21002cEmulator(ChipEmulator):
@@ -160,38 +153,31 @@ class Fxas21002cEmulator(ChipEmulator):
         regs[chip.STATUS] |= chip.ZYXDR | 0x07
         regs[0x07] |= chip.ZYXDR | 0x07
 
-    def read(self, register: int, length: int) -> bytes:
+    def read_registers(self, register: int, length: int) -> bytes:
         """Burst read, wrapping from 0x06 to 0x00 (or 0x01: WRAPTOONE)."""
-        with self.lock:
-            self.reads += 1
-            if self.corrupt:
-                return b'\xff' * length
-            self.update()
-            wrap = 0x01 if self.registers[chip.G_CTRL_REG3] & chip.WRAPTOONE else 0x00
-            addresses = [register]
-            while len(addresses) < length:
-                last = addresses[-1]
-                addresses.append(wrap if last == 0x06 else (last + 1) & 0xFF)
-            data = bytes(self.registers[a] for a in addresses)
-            if any(chip.OUT_X_MSB <= a < chip.OUT_X_MSB + 6 for a in addresses):
-                self.registers[chip.STATUS] = self.registers[0x07] = 0
-            return data
+        wrap = 0x01 if self.registers[chip.G_CTRL_REG3] & chip.WRAPTOONE else 0x00
+        addresses = [register]
+        while len(addresses) < length:
+            last = addresses[-1]
+            addresses.append(wrap if last == 0x06 else (last + 1) & 0xFF)
+        data = bytes(self.registers[a] for a in addresses)
+        if any(chip.OUT_X_MSB <= a < chip.OUT_X_MSB + 6 for a in addresses):
+            self.registers[chip.STATUS] = self.registers[0x07] = 0
+        return data
 
-    def write(self, register: int, data: bytes) -> None:
+    def write_registers(self, register: int, data: bytes) -> None:
         """Write; turning ACTIVE on starts the turn-on delay; RST resets."""
-        with self.lock:
-            self.writes += 1
-            for i, value in enumerate(data):
-                a = (register + i) & 0xFF
-                if a in self.READ_ONLY:
+        for i, value in enumerate(data):
+            a = (register + i) & 0xFF
+            if a in self.READ_ONLY:
+                continue
+            if a == chip.G_CTRL_REG1:
+                if value & 0x40:  # RST
+                    self.power_on()
                     continue
-                if a == chip.G_CTRL_REG1:
-                    if value & 0x40:  # RST
-                        self.power_on()
-                        continue
-                    if value & chip.G_ACTIVE and not self.registers[a] & chip.G_ACTIVE:
-                        self._active_ns = time.monotonic_ns()
-                self.registers[a] = value
+                if value & chip.G_ACTIVE and not self.registers[a] & chip.G_ACTIVE:
+                    self._active_ns = time.monotonic_ns()
+            self.registers[a] = value
 
 
 def attach_fxos8700(bus: FakeI2cBus, address: int = chip.ADDRESS,

@@ -90,38 +90,31 @@ class Lsm9ds1AccelGyro(ChipEmulator):
         for status in (chip.STATUS_REG_G, chip.STATUS_REG):
             regs[status] |= ready
 
-    def read(self, register: int, length: int) -> bytes:
+    def read_registers(self, register: int, length: int) -> bytes:
         """Read with IF_ADD_INC auto-increment; reading an output clears its data-ready bit."""
-        with self.lock:
-            self.reads += 1
-            if self.corrupt:
-                return b'\xff' * length
-            self.update()
-            regs = self.registers
-            step = 1 if regs[chip.CTRL_REG8] & chip.IF_ADD_INC else 0
-            addresses = [(register + i * step) & 0xFF for i in range(length)]
-            data = bytes(regs[a] for a in addresses)
-            if any(chip.OUT_X_L_G <= a < chip.OUT_X_L_G + 6 for a in addresses):
-                regs[chip.STATUS_REG_G] &= ~chip.GDA & 0xFF
-                regs[chip.STATUS_REG] &= ~chip.GDA & 0xFF
-            if any(chip.OUT_X_L_XL <= a < chip.OUT_X_L_XL + 6 for a in addresses):
-                regs[chip.STATUS_REG_G] &= ~chip.XLDA & 0xFF
-                regs[chip.STATUS_REG] &= ~chip.XLDA & 0xFF
-            return data
+        regs = self.registers
+        step = 1 if regs[chip.CTRL_REG8] & chip.IF_ADD_INC else 0
+        addresses = [(register + i * step) & 0xFF for i in range(length)]
+        data = bytes(regs[a] for a in addresses)
+        if any(chip.OUT_X_L_G <= a < chip.OUT_X_L_G + 6 for a in addresses):
+            regs[chip.STATUS_REG_G] &= ~chip.GDA & 0xFF
+            regs[chip.STATUS_REG] &= ~chip.GDA & 0xFF
+        if any(chip.OUT_X_L_XL <= a < chip.OUT_X_L_XL + 6 for a in addresses):
+            regs[chip.STATUS_REG_G] &= ~chip.XLDA & 0xFF
+            regs[chip.STATUS_REG] &= ~chip.XLDA & 0xFF
+        return data
 
-    def write(self, register: int, data: bytes) -> None:
+    def write_registers(self, register: int, data: bytes) -> None:
         """Write control registers (read-only ones ignore writes); SW_RESET resets."""
-        with self.lock:
-            self.writes += 1
-            step = 1 if self.registers[chip.CTRL_REG8] & chip.IF_ADD_INC else 0
-            for i, value in enumerate(data):
-                a = (register + i * step) & 0xFF
-                if a in self.READ_ONLY:
-                    continue
-                if a == chip.CTRL_REG8 and value & 0x01:  # SW_RESET
-                    self.power_on()
-                    continue
-                self.registers[a] = value
+        step = 1 if self.registers[chip.CTRL_REG8] & chip.IF_ADD_INC else 0
+        for i, value in enumerate(data):
+            a = (register + i * step) & 0xFF
+            if a in self.READ_ONLY:
+                continue
+            if a == chip.CTRL_REG8 and value & 0x01:  # SW_RESET
+                self.power_on()
+                continue
+            self.registers[a] = value
 
 
 class Lsm9ds1Magnetometer(ChipEmulator):
@@ -161,30 +154,23 @@ class Lsm9ds1Magnetometer(ChipEmulator):
         regs[chip.OUT_X_L_M:chip.OUT_X_L_M + 6] = encode(m_chip, lsb, big_endian=False)
         regs[chip.STATUS_REG_M] |= chip.ZYXDA | 0x07
 
-    def read(self, register: int, length: int) -> bytes:
+    def read_registers(self, register: int, length: int) -> bytes:
         """Read; the sub-address MSB selects auto-increment; outputs read clear ZYXDA."""
-        with self.lock:
-            self.reads += 1
-            if self.corrupt:
-                return b'\xff' * length
-            self.update()
-            step = 1 if register & chip.AUTO_INCREMENT_M else 0
-            base = register & 0x7F
-            addresses = [(base + i * step) & 0x7F for i in range(length)]
-            data = bytes(self.registers[a] for a in addresses)
-            if any(chip.OUT_X_L_M <= a < chip.OUT_X_L_M + 6 for a in addresses):
-                self.registers[chip.STATUS_REG_M] = 0
-            return data
+        step = 1 if register & chip.AUTO_INCREMENT_M else 0
+        base = register & 0x7F
+        addresses = [(base + i * step) & 0x7F for i in range(length)]
+        data = bytes(self.registers[a] for a in addresses)
+        if any(chip.OUT_X_L_M <= a < chip.OUT_X_L_M + 6 for a in addresses):
+            self.registers[chip.STATUS_REG_M] = 0
+        return data
 
-    def write(self, register: int, data: bytes) -> None:
+    def write_registers(self, register: int, data: bytes) -> None:
         """Write control registers."""
-        with self.lock:
-            self.writes += 1
-            step = 1 if register & chip.AUTO_INCREMENT_M else 0
-            for i, value in enumerate(data):
-                a = ((register & 0x7F) + i * step) & 0x7F
-                if a not in self.READ_ONLY:
-                    self.registers[a] = value
+        step = 1 if register & chip.AUTO_INCREMENT_M else 0
+        for i, value in enumerate(data):
+            a = ((register & 0x7F) + i * step) & 0x7F
+            if a not in self.READ_ONLY:
+                self.registers[a] = value
 
 
 def attach_lsm9ds1(bus: FakeI2cBus, address: int = chip.ADDRESS_AG,

@@ -226,3 +226,12 @@ def test_a_bad_parameter_is_a_clear_error(context):
         lsm9ds1.Lsm9ds1ImuNode(context=context, parameter_overrides=[
             Parameter('odr', value=300.0), Parameter('bus', value='emulated:none')])
     assert info.value.parameter == 'odr'
+
+
+def test_a_truncated_burst_is_a_fault_and_the_driver_resumes(context, executor):
+    rig = Rig(context, executor, Lsm9ds1ImuNode, Lsm9ds1EmulatorNode)
+    assert rig.publishing()
+    rig.emulator.accel_gyro.truncate = True
+    assert rig.spin_until(lambda: 'expected 23 bytes, got 22' in rig.driver.last_fault)
+    rig.emulator.accel_gyro.truncate = False
+    assert rig.publishing()
