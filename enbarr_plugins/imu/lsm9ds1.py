@@ -38,8 +38,10 @@ or put the mounting rotation in the TF from base_link to imu_link. Accelerometer
 share those axes (chip -> FLU unchanged). The magnetometer's axes as the datasheet draws them
 differ: its X points the other way (the figure's X_M is opposite X_AG, Y and Z agree), so
 m_FLU = (-m_x, m_y, m_z). A left-handed triad, hence no rotation can express it; the same
-correction appears in Kris Winer's LSM9DS1 sketches and the ST forum threads on the LSM9DS1
-compass.
+reading is in kriswiner/LSM9DS1 LSM9DS1_BasicAHRS_Nano33.ino ("the magnetometer x-axis is
+aligned with the -x axis of the gyro and the magnetometer y axis is aligned with the y axis").
+The emulator uses the same mapping, so the node tests cannot prove it: check a real board
+by pointing +x north (m_x > 0 after the mapping) before trusting the heading.
 
 Noise (covariances): the LSM9DS1 datasheet states no noise density. The defaults below are
 assumptions typical of its class (comparable ST parts: gyro 0.015 dps/sqrt(Hz), accel

@@ -6,7 +6,9 @@ range and rate meaning, STATUS data-ready bits set by each new sample and cleare
 outputs are read, 16-bit little-endian outputs in the chip's axes (the magnetometer's X
 opposite the accelerometer's). Auto-increment as the chip does it: the accel/gyro device
 advances when CTRL_REG8.IF_ADD_INC is set (power-on default), the magnetometer only when
-the sub-address MSB is set (datasheet 6.1.1), otherwise a burst reads one register again.
+the sub-address MSB is set (datasheet 6.1.1, Linux st_magn ``multi_read_bit``), otherwise a
+burst reads one register again (the strict reading: hobby code that reads without the MSB
+suggests some parts are more lenient; the driver sets it either way).
 Power-on defaults: accel/gyro and magnetometer powered down (CTRL_REG1_G = 0,
 CTRL_REG3_M = 0x03), so a chip that lost its configuration produces no data.
 
