@@ -1,0 +1,364 @@
+"""Camera through OpenCV: ``camera/image_raw`` (bgr8) + ``camera/camera_info``.
+
+The ``device`` parameter names the source: a V4L2 index (``'0'``) or device
+(``'/dev/video0'``, opened with the V4L2 backend), a video file (any format the OpenCV FFmpeg
+backend reads), or ``'emulated[:NAME]'`` (the video file a ``camera_emulator`` node of this
+process wrote; from there the driver reads it exactly like a file). ``frame_rate``,
+``width``/``height`` are asked of a V4L2 device (the driver publishes what the device gives
+and warns when it differs); a file is read at ``frame_rate`` and starts over at its end
+(``loop``) or stops there. ``calibration_file`` is a ROS camera_info YAML file
+(``calibration``); without one CameraInfo carries only the image size (uncalibrated).
+
+Capture runs on the node's own loop thread (``cv2.VideoCapture.read`` blocks until a frame);
+opening the device too, once the node is started. Faults: a source that cannot be opened is
+a ``DeviceError`` (absent: retried with backoff); a read that fails (unplugged, a file that
+cannot be read again) is a device fault; no frame for ``stall_timeout`` while the source
+should deliver is a stall, reported as a device fault from the supervision timer; the
+capture is then released by the loop thread when its read returns and the device is opened
+again. Frames are stamped on the node clock when ``read`` returns.
+Reference: OpenCV 4 videoio (``cv::VideoCapture``, ``CAP_PROP_*``), REP-104 (CameraInfo).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+import os
+import threading
+import time
+from typing import Any
+
+import cv2
+from sensor_msgs.msg import CameraInfo, Image
+
+from enbarr_core.framework.driver import SensorDriver
+from enbarr_core.framework.errors import DeviceError
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import topics
+from enbarr_plugins import emulation
+from enbarr_plugins.camera.calibration import Calibration, load_calibration
+from enbarr_plugins.check import CheckTarget
+
+SPECS = [
+    ParamSpec('device', '0', "Source: V4L2 index ('0'), device ('/dev/video0'), a video file, "
+              "or 'emulated[:NAME]'", read_only=True),
+    ParamSpec('frame_rate', 15.0, 'Frames per second asked of the device; the read rate of '
+              'a file', 'Hz', 1.0, 120.0, read_only=True),
+    ParamSpec('width', 640, 'Image width asked of a V4L2 device (0: its default)', 'px', 0,
+              8192, read_only=True),
+    ParamSpec('height', 480, 'Image height asked of a V4L2 device (0: its default)', 'px', 0,
+              8192, read_only=True),
+    ParamSpec('calibration_file', '', 'ROS camera_info YAML file (empty: uncalibrated)',
+              read_only=True),
+    ParamSpec('loop', True, 'A video file starts over at its end (false: publishing stops '
+              'there)', read_only=True),
+    ParamSpec('stall_timeout', 2.0, 'No frame for this long is a stalled device (fault)', 's',
+              0.1, 60.0),
+]
+
+
+@dataclass(frozen=True)
+class Source:
+    """What ``device`` names: a V4L2 index, or a file path (emulated: the emulator's file)."""
+
+    index: int | None
+    path: str | None
+    emulated: bool
+
+    @property
+    def is_file(self) -> bool:
+        """Whether frames come from a video file."""
+        return self.index is None
+
+
+def parse_device(value: str) -> Source:
+    """Return the source ``device`` names; ``ValueError`` naming ``device`` when empty."""
+    text = value.strip()
+    if not text:
+        raise ValueError("device: empty; give a V4L2 index ('0'), '/dev/videoN', a video "
+                         "file or 'emulated'")
+    if emulation.is_emulated(text):
+        return Source(None, None, True)
+    if text.isdigit():
+        return Source(int(text), None, False)
+    if text.startswith('/dev/video') and text[len('/dev/video'):].isdigit():
+        return Source(int(text[len('/dev/video'):]), None, False)
+    return Source(None, text, False)
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """Settings of ``CameraNode``."""
+
+    device: str
+    source: Source
+    frame_rate: float              # [Hz]
+    width: int                     # [px], 0: the device's
+    height: int                    # [px]
+    calibration_file: str
+    calibration: Calibration | None
+    loop: bool
+    stall_timeout: float           # [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> CameraSettings:
+        """Build from the parameters; a malformed calibration file names file and key."""
+        calibration = None
+        if v['calibration_file']:
+            try:
+                calibration = load_calibration(v['calibration_file'])
+            except ValueError as err:
+                raise ValueError(f'calibration_file: {err}') from err
+        return cls(device=v['device'], source=parse_device(v['device']),
+                   frame_rate=v['frame_rate'], width=v['width'], height=v['height'],
+                   calibration_file=v['calibration_file'], calibration=calibration,
+                   loop=v['loop'], stall_timeout=v['stall_timeout'])
+
+
+def open_capture(source: Source, device: str, settings: CameraSettings | None = None) -> Any:
+    """Open the source with OpenCV; ``DeviceError`` naming it when it cannot."""
+    if source.emulated:
+        path = emulation.lookup('camera', device)
+        return _open_file(path, device)
+    if source.is_file:
+        return _open_file(source.path, device)
+    with quiet_opencv():  # OpenCV logs its own warning lines for an absent device
+        cap = cv2.VideoCapture(source.index, cv2.CAP_V4L2)
+    if not cap.isOpened():
+        cap.release()
+        raise DeviceError(f'camera /dev/video{source.index}: cannot open (absent, or in use '
+                          'by another program?)')
+    if settings is not None:
+        if settings.width and settings.height:
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, settings.width)
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, settings.height)
+        cap.set(cv2.CAP_PROP_FPS, settings.frame_rate)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the newest frame, not a queue of old ones
+    return cap
+
+
+@contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """Silence OpenCV's own log lines (the ``DeviceError`` says what went wrong)."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
+def _open_file(path: str, device: str) -> Any:
+    if not os.path.isfile(path):
+        raise DeviceError(f'camera {device}: no such video file {path}')
+    with quiet_opencv():
+        cap = cv2.VideoCapture(path)
+    if not cap.isOpened():
+        cap.release()
+        raise DeviceError(f'camera {device}: OpenCV cannot read {path} as a video')
+    return cap
+
+
+def describe(cap: Any) -> str:
+    """Return resolution, rate and backend of an open capture."""
+    w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+    h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    return f'{w}x{h} at {cap.get(cv2.CAP_PROP_FPS):g} fps ({cap.getBackendName()})'
+
+
+class CameraNode(SensorDriver):
+    """Publishes frames of an OpenCV source; see the module docstring."""
+
+    def __init__(self, node_name: str = 'camera', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: CameraSettings
+        self.bind_settings(SPECS, CameraSettings.from_params, self._apply)
+        s = self.settings
+        self.device = f'camera {s.device}'
+        self._image_pub = self.create_topic_publisher(topics.CAMERA_IMAGE)
+        self._info_pub = self.create_topic_publisher(topics.CAMERA_INFO)
+        self._cap: Any = None
+        self._cap_lock = threading.Lock()
+        self._reading = False
+        self._open_requested = False
+        self._last_frame_ns = 0
+        self._size_warned = False
+        self.ended = False
+        self.read_failures = 0
+        self.stalls = 0
+        self.description = ''
+        self._loop = self.create_rate_loop(s.frame_rate, self._tick)
+        self.connect()
+
+    def _apply(self, settings: CameraSettings) -> None:
+        self.settings = settings
+        self._stall_ns = int(settings.stall_timeout * 1e9)
+
+    # -- device lifecycle ---------------------------------------------------------------------
+    def connect(self) -> bool:
+        """Open the source on the capture thread once it runs (opening may block)."""
+        if self._loop.running and threading.current_thread().name != self._loop.name:
+            self._open_requested = True
+            return False
+        return super().connect()
+
+    def open_device(self) -> None:
+        """Open the source and note what it gives."""
+        s = self.settings
+        cap = open_capture(s.source, s.device, s)
+        self.description = describe(cap)
+        self.get_logger().info(f'{self.device}: {self.description}')
+        with self._cap_lock:
+            self._cap = cap
+        self.ended = False
+        self._last_frame_ns = time.monotonic_ns()
+
+    def close_device(self) -> None:
+        """Release the capture, or leave that to the capture thread while it reads."""
+        with self._cap_lock:
+            cap, self._cap = self._cap, None
+            if cap is not None and not self._reading:
+                cap.release()
+
+    def supervise(self) -> None:
+        """Report a stall: no frame for ``stall_timeout`` while the source should deliver."""
+        if not self.connected or self.ended:
+            return
+        idle = time.monotonic_ns() - self._last_frame_ns
+        if idle > self._stall_ns:
+            self.stalls += 1
+            self.device_fault(DeviceError(f'no frame for {idle * 1e-9:.1f} s (stalled)'))
+
+    # -- capture thread -----------------------------------------------------------------------
+    def _tick(self) -> None:
+        if not self.connected:
+            if self._open_requested:
+                self._open_requested = False
+                super().connect()
+            return
+        with self._cap_lock:
+            cap = self._cap
+            if cap is None or self.ended:
+                return
+            self._reading = True
+        try:
+            ok, frame = cap.read()
+        finally:
+            with self._cap_lock:
+                self._reading = False
+                closed = self._cap is not cap
+        if closed:
+            cap.release()  # faulted (stall) while this read blocked
+            return
+        if not ok:
+            self._read_failed(cap)
+            return
+        self._publish(frame)
+
+    def _read_failed(self, cap: Any) -> None:
+        s = self.settings
+        if s.source.is_file:
+            if not s.loop:
+                self.ended = True
+                self.get_logger().info(f'{self.device}: end of the video file')
+                return
+            try:  # start over: open the file again (it may have been replaced)
+                new = open_capture(s.source, s.device)
+            except DeviceError as err:
+                self.device_fault(err)
+                return
+            with self._cap_lock:
+                if self._cap is cap:
+                    self._cap = new
+                    new = None
+            cap.release()
+            if new is not None:
+                new.release()
+            return
+        self.read_failures += 1
+        self.device_fault(DeviceError('read failed (unplugged?)'))
+
+    def _publish(self, frame: Any) -> None:
+        stamp = self.get_clock().now().to_msg()
+        self._last_frame_ns = time.monotonic_ns()
+        h, w = frame.shape[:2]
+        s = self.settings
+        if not self._size_warned and not s.source.is_file and s.width and s.height and (
+                (w, h) != (s.width, s.height)):
+            self._size_warned = True
+            self.get_logger().warn(f'{self.device}: gives {w}x{h}, not the {s.width}x'
+                                   f'{s.height} asked')
+        img = Image()
+        img.header.stamp = stamp
+        img.header.frame_id = topics.CAMERA_IMAGE.frame
+        img.height, img.width = h, w
+        img.encoding = 'bgr8'
+        img.is_bigendian = 0
+        img.step = w * 3
+        img.data = frame.tobytes()
+        info = camera_info(s.calibration, w, h)
+        info.header = img.header
+        self._image_pub.publish(img)
+        self._info_pub.publish(info)
+        self.sample_received()
+
+    def status_values(self) -> dict[str, Any]:
+        """Return frame counts, stalls and what the source gives."""
+        values = super().status_values()
+        values.update({'source': self.description, 'stalls': self.stalls,
+                       'read_failures': self.read_failures, 'ended': self.ended,
+                       'overruns': self._loop.overruns})
+        return values
+
+    def destroy_node(self) -> None:
+        """Stop the capture thread, release the source, destroy the node."""
+        self.stop()
+        self.close_device()
+        super().destroy_node()
+
+
+def camera_info(cal: Calibration | None, width: int, height: int) -> CameraInfo:
+    """Return the CameraInfo of a frame (the calibration's when it has this size)."""
+    info = CameraInfo()
+    info.width, info.height = width, height
+    if cal is not None and (cal.width, cal.height) == (width, height):
+        info.distortion_model = cal.distortion_model
+        info.d = list(cal.d)
+        info.k = list(cal.k)
+        info.r = list(cal.r)
+        info.p = list(cal.p)
+    return info
+
+
+def check_device(target: CheckTarget) -> list[str]:
+    """``enbarr check-device camera``: open the source, read one frame, print its size/rate."""
+    value = target.device or '0'
+    try:
+        source = parse_device(value)
+    except ValueError as err:
+        raise DeviceError(str(err)) from err
+    emulator = None
+    if source.emulated:
+        from enbarr_plugins.camera.emulator import write_test_video
+        import tempfile
+        emulator = tempfile.TemporaryDirectory(prefix='enbarr-camera-check-')
+        source = Source(None, write_test_video(emulator.name, 640, 480, 15.0, 15), False)
+    try:
+        cap = open_capture(source, value)
+        try:
+            deadline = time.monotonic() + target.timeout
+            ok, frame = cap.read()
+            while not ok and time.monotonic() < deadline:
+                time.sleep(0.05)
+                ok, frame = cap.read()
+            if not ok:
+                raise DeviceError(f'camera {value}: opened, but no frame within '
+                                  f'{target.timeout:g} s')
+            h, w = frame.shape[:2]
+            return [f'camera {value}: {describe(cap)}', f'one frame: {w}x{h} bgr8']
+        finally:
+            cap.release()
+    finally:
+        if emulator is not None:
+            emulator.cleanup()

@@ -1,0 +1,205 @@
+"""OpenCV camera driver against the emulated camera (a test video): frames, calibration,
+absent source, stall and recovery, check-device.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from enbarr_core.bringup import cli
+from enbarr_core.framework.driver import ERROR
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_interfaces import topics
+from enbarr_plugins.camera import opencv_camera
+from enbarr_plugins.camera.calibration import load_calibration
+from enbarr_plugins.camera.emulator import CameraEmulatorNode, read_counter
+from enbarr_plugins.camera.opencv_camera import CameraNode
+from enbarr_plugins.check import CheckTarget
+
+TIMEOUT = 10.0
+_names = itertools.count()
+
+CALIBRATION = """\
+image_width: 320
+image_height: 240
+camera_name: hull_cam
+camera_matrix: {rows: 3, cols: 3, data: [300.0, 0.0, 160.0, 0.0, 300.0, 120.0, 0.0, 0.0, 1.0]}
+distortion_model: plumb_bob
+distortion_coefficients: {rows: 1, cols: 5, data: [-0.1, 0.01, 0.0, 0.0, 0.0]}
+rectification_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}
+projection_matrix: {rows: 3, cols: 4, data: [300, 0, 160, 0, 0, 300, 120, 0, 0, 0, 1, 0]}
+"""
+
+
+def test_calibration_file_is_read(tmp_path):
+    path = tmp_path / 'cam.yaml'
+    path.write_text(CALIBRATION)
+    cal = load_calibration(str(path))
+    assert (cal.width, cal.height, cal.camera_name) == (320, 240, 'hull_cam')
+    assert cal.k[0] == 300.0 and len(cal.d) == 5 and len(cal.p) == 12
+
+
+@pytest.mark.parametrize('change, key', [
+    (('camera_matrix: {rows: 3, cols: 3, data: [300.0', 'camera_matrix: {rows: 3, cols: 2, '
+      'data: [300.0'), 'camera_matrix'),
+    (('image_width: 320', 'image_width: wide'), 'image_width'),
+    (('projection_matrix: {rows: 3, cols: 4, data: [300, 0, 160, 0, ',
+      'projection_matrix: {rows: 3, cols: 4, data: ['), r'projection_matrix\.data'),
+    (('distortion_model: plumb_bob\n', ''), 'distortion_model'),
+])
+def test_a_malformed_calibration_names_file_and_key(tmp_path, change, key):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(CALIBRATION.replace(*change))
+    with pytest.raises(ValueError, match=rf'{path}: {key}'):
+        load_calibration(str(path))
+
+
+def test_check_device_and_command_line(capsys):
+    lines = opencv_camera.check_device(CheckTarget(device='emulated'))
+    assert lines == ['camera emulated: 640x480 at 15 fps (FFMPEG)', 'one frame: 640x480 bgr8']
+    assert cli.main(['check-device', 'camera', '--device', 'emulated']) == 0
+    assert '640x480' in capsys.readouterr().out
+    assert cli.main(['check-device', 'camera', '--device', '/nonexistent/video.avi']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['enbarr check-device: error: camera /nonexistent/video.avi: no such video '
+                   'file /nonexistent/video.avi']
+    with pytest.raises(DeviceError, match='/dev/video9: cannot open'):
+        opencv_camera.check_device(CheckTarget(device='/dev/video9'))
+
+
+class Rig:
+    def __init__(self, context, executor, *, emulator: bool = True, **params) -> None:
+        self.context, self.executor = context, executor
+        self.name = f'cam-{next(_names)}'
+        self.images, self.infos = [], []
+        probe = EnbarrNode('probe', context=context)
+        executor.add_node(probe)
+        probe.create_subscription(topics.CAMERA_IMAGE.msg_type, topics.CAMERA_IMAGE.name,
+                                  self.images.append, topics.CAMERA_IMAGE.qos)
+        probe.create_subscription(topics.CAMERA_INFO.msg_type, topics.CAMERA_INFO.name,
+                                  self.infos.append, topics.CAMERA_INFO.qos)
+        self.emulator = self.add_emulator() if emulator else None
+        overrides = {'device': f'emulated:{self.name}', 'frame_rate': 30.0,
+                     'reconnect.initial_delay': 0.05, 'reconnect.max_delay': 0.2}
+        overrides.update(params)
+        self.driver = CameraNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in overrides.items()])
+        executor.add_node(self.driver)
+        self.driver.start()
+
+    def add_emulator(self) -> CameraEmulatorNode:
+        node = CameraEmulatorNode(context=self.context, parameter_overrides=[
+            Parameter('name', value=self.name), Parameter('width', value=320),
+            Parameter('height', value=240), Parameter('duration', value=0.5)])
+        self.executor.add_node(node)
+        self.emulator = node
+        return node
+
+    def spin_until(self, condition, timeout: float = TIMEOUT) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if condition():
+                return True
+            self.executor.spin_once(timeout_sec=0.02)
+        return condition()
+
+    def frames_flow(self) -> bool:
+        n = self.driver.samples
+        return self.spin_until(lambda: self.driver.samples >= n + 3 and len(self.images) > 0)
+
+
+def test_frames_and_calibration_are_published_with_one_stamp(context, executor, tmp_path):
+    path = tmp_path / 'cam.yaml'
+    path.write_text(CALIBRATION)
+    rig = Rig(context, executor, calibration_file=str(path))
+    assert rig.spin_until(lambda: len(rig.images) >= 20 and len(rig.infos) >= 20)
+    img = rig.images[-1]
+    assert (img.width, img.height, img.encoding, img.step) == (320, 240, 'bgr8', 960)
+    assert img.header.frame_id == 'camera_optical_frame'
+    frame = np.frombuffer(bytes(img.data), np.uint8).reshape(240, 320, 3)
+    assert 0 <= read_counter(frame) < 15                    # a frame of the 15-frame video
+    counters = [read_counter(np.frombuffer(bytes(m.data), np.uint8).reshape(240, 320, 3))
+                for m in rig.images]
+    assert any(b < a for a, b in zip(counters, counters[1:]))  # the video looped
+    stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in rig.images}
+    assert any((i.header.stamp.sec, i.header.stamp.nanosec) in stamps for i in rig.infos)
+    info = rig.infos[-1]
+    assert info.k[0] == 300.0 and info.distortion_model == 'plumb_bob'
+
+
+def test_absent_source_is_an_error_then_found(context, executor):
+    rig = Rig(context, executor, emulator=False)
+    assert not rig.driver.connected and rig.driver.status()[0] == ERROR
+    assert 'no camera emulator named' in rig.driver.last_fault
+    rig.add_emulator()
+    assert rig.frames_flow()
+
+
+def test_a_camera_that_stops_is_a_fault_and_frames_return(context, executor):
+    rig = Rig(context, executor)
+    assert rig.frames_flow()
+    rig.emulator.stall()
+    assert rig.spin_until(lambda: 'cannot read' in rig.driver.last_fault)
+    assert not rig.driver.connected and rig.driver.status()[0] == ERROR
+    rig.emulator.resume()
+    assert rig.frames_flow() and rig.driver.connected
+
+
+class BlockingCapture:
+    """A capture whose read blocks like a stalled V4L2 device."""
+
+    def __init__(self) -> None:
+        self.unblock = threading.Event()
+        self.released = False
+
+    def read(self):
+        self.unblock.wait(TIMEOUT)
+        return False, None
+
+    def release(self) -> None:
+        self.released = True
+
+    def get(self, prop):
+        return 0.0
+
+    def getBackendName(self):  # noqa: N802 - OpenCV's name
+        return 'BLOCKING'
+
+
+def test_a_stalled_read_is_a_fault_without_blocking_the_executor(context, executor,
+                                                                    monkeypatch):
+    stalled = BlockingCapture()
+    real_open = opencv_camera.open_capture
+    monkeypatch.setattr(opencv_camera, 'open_capture', lambda *a, **k: stalled)
+    rig = Rig(context, executor, stall_timeout=0.3)
+    assert rig.driver.connected
+    assert rig.spin_until(lambda: 'stalled' in rig.driver.last_fault)  # the executor spins
+    assert rig.driver.stalls == 1 and not rig.driver.connected
+    monkeypatch.setattr(opencv_camera, 'open_capture', real_open)
+    stalled.unblock.set()
+    assert rig.spin_until(lambda: stalled.released)  # released by the capture thread
+    assert rig.frames_flow()
+
+
+def test_a_file_that_ends_stops_without_a_fault(context, executor):
+    rig = Rig(context, executor, loop=False)
+    assert rig.spin_until(lambda: rig.driver.ended)
+    assert rig.driver.samples == 8 and rig.driver.faults == 0   # 0.5 s at 15 fps
+
+
+def test_bad_parameters_name_the_parameter(context, tmp_path):
+    path = tmp_path / 'bad.yaml'
+    path.write_text('image_width: 320\n')
+    with pytest.raises(ConfigurationError, match=rf'calibration_file: {path}: image_height'):
+        CameraNode(context=context, parameter_overrides=[
+            Parameter('device', value='emulated:x'),
+            Parameter('calibration_file', value=str(path))])
+    with pytest.raises(ConfigurationError, match='device: empty'):
+        CameraNode(context=context, parameter_overrides=[Parameter('device', value=' ')])

@@ -1,0 +1,79 @@
+"""A driver node and its emulator node in one executor, with a probe (IMU node tests)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from typing import Any
+
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Imu
+
+from enbarr_core.framework.kinematics import quat_from_euler
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_interfaces import convert, topics
+from enbarr_plugins.transport.i2c import FakeI2cBus
+
+TIMEOUT = 10.0
+_names = itertools.count()
+
+
+class Rig:
+    """Emulator node, driver node, and a probe that publishes truth and records samples."""
+
+    def __init__(self, context: Any, executor: Any, driver: type, emulator_class: type, *,
+                 emulator: bool = True, **params: Any) -> None:
+        self.context, self.executor = context, executor
+        self.emulator_class = emulator_class
+        self.name = f'imu-node-{next(_names)}'
+        self.raw: list[Imu] = []
+        self.mag: list[Any] = []
+        self.diag: list[Any] = []
+        self.probe = EnbarrNode('probe', context=context)
+        executor.add_node(self.probe)
+        self.truth_pub = self.probe.create_topic_publisher(topics.SIM_IMU)
+        self.probe.create_topic_subscription(topics.IMU_RAW, self.raw.append)
+        self.probe.create_topic_subscription(topics.IMU_MAG, self.mag.append)
+        self.emulator = self.add_emulator() if emulator else None
+        overrides = {'bus': f'emulated:{self.name}', 'rate': 100.0,
+                     'reconnect.initial_delay': 0.05, 'reconnect.max_delay': 0.2,
+                     'data_timeout': 0.3}
+        overrides.update(params)
+        self.driver = driver(
+            context=context, parameter_overrides=[Parameter(k, value=v)
+                                                  for k, v in overrides.items()])
+        executor.add_node(self.driver)
+        self.driver.start()
+
+    def add_emulator(self) -> Any:
+        node = self.emulator_class(context=self.context, parameter_overrides=[
+            Parameter('name', value=self.name),
+            Parameter('gyro_bias', value=[0.0, 0.0, 0.0])])
+        self.executor.add_node(node)
+        self.emulator = node
+        return node
+
+    @property
+    def bus(self) -> FakeI2cBus:
+        return self.emulator.bus
+
+    def spin_until(self, condition, timeout: float = TIMEOUT) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if condition():
+                return True
+            self.executor.spin_once(timeout_sec=0.02)
+        return condition()
+
+    def publishing(self) -> bool:
+        """True once new samples arrive (waits for two)."""
+        n = len(self.raw)
+        return self.spin_until(lambda: len(self.raw) >= n + 2)
+
+    def truth(self, rpy, omega, f) -> None:
+        msg = Imu()
+        msg.header.frame_id = topics.IMU_FRAME
+        convert.set_quaternion(msg.orientation, quat_from_euler(*rpy))
+        convert.set_vector3(msg.angular_velocity, omega)
+        convert.set_vector3(msg.linear_acceleration, f)
+        self.truth_pub.publish(msg)
