@@ -440,6 +440,8 @@ class EmulatorNode(EnbarrNode):
     received (register reads and writes, samples made).
     """
 
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+
     def __init__(self, node_name: str, specs: Sequence[ParamSpec],
                  build: Callable[[dict[str, Any]], Any], **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

@@ -68,7 +68,9 @@ from enbarr_plugins.transport.i2c import FakeI2cBus
 #: What the emulated chip outputs, for end-to-end checks of the bytes it received.
 EMULATOR_PCA9685 = TopicSpec(
     'emulator/pca9685', JointState, SENSOR_QOS, 'us (position)', topics.BODY_FRAME,
-    'Pulse width each thruster channel of the emulated PCA9685 outputs (0: no pulse).')
+    'Pulse width each thruster channel of the emulated PCA9685 outputs (0: no pulse); the '
+    "last one is published when the emulator closes, after the drivers' safe state.",
+    fast=True)
 
 LAST_LED = LED0_ON_L + 4 * CHANNELS - 1   # 0x45
 POWER_ON = {MODE1: 0x11, MODE2: 0x04, PRE_SCALE: 0x1E}
@@ -99,6 +101,8 @@ class Pca9685Emulator:
                 self.regs[LED0_ON_L + 4 * c + 3] = FULL
             self.running = False        # PWM outputs active
             self._awake_ns = 0          # when SLEEP was cleared
+            self.outputs = [0.0] * CHANNELS            # pulse widths after the last write [us]
+            self.since_ns = [self.clock()] * CHANNELS  # when each began (clock) [ns]
 
     # -- the RegisterEmulator interface --------------------------------------------------------
     def read(self, register: int, length: int) -> bytes:
@@ -121,6 +125,20 @@ class Pca9685Emulator:
                 self._write_one(r, value)
             self.transfers += 1
             self.bytes += len(data)
+        self._note_outputs()
+
+    def _note_outputs(self) -> None:
+        """Note when each channel's pulse width changed.
+
+        The chip outputs a pulse from the write on, whether or not anyone samples it: an ESC
+        arms on the neutral it has seen since then.
+        """
+        now = self.clock()
+        for c in range(CHANNELS):
+            pulse = self.pulse_us(c)
+            if pulse != self.outputs[c]:
+                self.outputs[c] = pulse
+                self.since_ns[c] = now
 
     def _stall(self) -> None:
         if self.stall_time > 0.0:
@@ -246,8 +264,12 @@ class EscModel:
         self._neutral_since: float | None = None
         self._signal_at: float | None = None
 
-    def update(self, pulse_us: float, now: float) -> float:
-        """Thrust [N] at ``now`` [s] for ``pulse_us`` (0: no pulse)."""
+    def update(self, pulse_us: float, now: float, since: float | None = None) -> float:
+        """Thrust [N] at ``now`` [s] for ``pulse_us`` (0: no pulse), output since ``since``.
+
+        ``since`` [s, same clock]: when the chip began to output this pulse width (the ESC
+        saw it from then on, however rarely the emulator samples); None: from ``now``.
+        """
         s = self.spec
         if pulse_us <= 0.0:
             self._neutral_since = None
@@ -257,7 +279,7 @@ class EscModel:
         self._signal_at = now
         if abs(pulse_us - s.neutral) <= s.dead_band:
             if self._neutral_since is None:
-                self._neutral_since = now
+                self._neutral_since = now if since is None else min(since, now)
             if now - self._neutral_since >= s.arming_time:
                 self.armed = True
             return 0.0
@@ -333,8 +355,7 @@ class Pca9685EmulatorNode(EnbarrNode):
         self.thrust = np.zeros(len(self.names))
         self.pulses = np.zeros(len(self.names))
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
-        self._pulse_pub = self.create_publisher(EMULATOR_PCA9685.msg_type,
-                                                EMULATOR_PCA9685.name, EMULATOR_PCA9685.qos)
+        self._pulse_pub = self.create_topic_publisher(EMULATOR_PCA9685)
         self.loop = self.create_rate_loop(s.rate, self.tick)
         self.create_timer(1.0, self._report)
 
@@ -355,8 +376,11 @@ class Pca9685EmulatorNode(EnbarrNode):
     def tick(self) -> None:
         """Decode the pulses, run the ESCs, publish thrust and pulses (the bridge's source)."""
         now = time.monotonic()
-        self.pulses = np.array([self.chip.pulse_us(c) for c in self.settings.channels])
-        self.thrust = np.array([esc.update(p, now) for esc, p in zip(self.escs, self.pulses)])
+        channels = self.settings.channels
+        self.pulses = np.array([self.chip.pulse_us(c) for c in channels])
+        since = [self.chip.since_ns[c] * 1e-9 for c in channels]
+        self.thrust = np.array([esc.update(p, now, t)
+                                for esc, p, t in zip(self.escs, self.pulses, since)])
         stamp = convert.ns_to_stamp(self.get_clock().now().nanoseconds)
         thrust = JointState(name=self.names, effort=self.thrust.tolist())
         thrust.header.stamp = stamp
@@ -377,7 +401,16 @@ class Pca9685EmulatorNode(EnbarrNode):
             'pulses_us': ' '.join(f'{p:.0f}' for p in self.pulses)})
 
     def destroy_node(self) -> None:
-        """Unplug the chip; withdraw the bus when nothing else sits on it."""
+        """Publish the outputs once more, unplug the chip, withdraw the bus if it is empty.
+
+        The last report shows the drivers' safe state (bringup destroys emulators after the
+        drivers, before the recorders).
+        """
+        if not self.loop.running:
+            try:
+                self.tick()
+            except Exception as err:  # noqa: BLE001 - the unplugging must still happen
+                self.get_logger().warn(f'last output report failed: {err!r}')
         if self.bus.devices.get(self.settings.address) is self.chip:
             self.bus.detach(self.settings.address)
         if not self.bus.devices:

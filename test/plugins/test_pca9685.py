@@ -152,6 +152,29 @@ def test_esc_arms_after_neutral_and_beeps_before():
     assert esc.update(0.0, 5.0) == 0.0 and not esc.armed           # ... for 3 s: disarmed
 
 
+def test_esc_arms_on_the_neutral_the_chip_output_before_anyone_sampled_it():
+    """The chip outputs a pulse from the write on: the ESC saw the neutral a driver wrote at
+    connect even if the emulator's loop started later (bringup's discovery wait)."""
+    chip, dev = chip_on_bus()
+    now = [10_000_000_000]
+    chip.clock = lambda: now[0]
+    dev.write_u8(0x00, 0x30)
+    dev.write_u8(0xFE, 121)                                  # 50 Hz
+    dev.write_block(0x06, bytes([0, 0, 0x33, 0x01]))        # 307 counts: 1498.4 us, neutral
+    dev.write_u8(0x00, 0x20)
+    now[0] += 500_000
+    dev.write_u8(0x01, 0x04)                                 # any later write notes the output
+    since = chip.since_ns[0] * 1e-9
+    assert since == pytest.approx(10.0005)
+    spec = EscSpec(1500.0, 25.0, 1100.0, 1900.0, 1.0, 3.0, 50.0, 40.0, False)
+    sampled_late = EscModel(spec)
+    assert sampled_late.update(chip.pulse_us(0), 12.0, since) == 0.0 and sampled_late.armed
+    assert sampled_late.update(1900.0, 12.01, since) == pytest.approx(50.0)
+    no_history = EscModel(spec)                              # the same, counted from 12.0
+    no_history.update(chip.pulse_us(0), 12.0)
+    assert not no_history.armed
+
+
 # -- enbarr check-device pca9685 ------------------------------------------------------------------
 
 def test_check_device_reads_the_emulated_chip():
