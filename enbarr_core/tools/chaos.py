@@ -131,8 +131,9 @@ class Plan:
 
 
 def _joy_layout(params: dict[str, Any]) -> tuple[dict[str, int], tuple[str, ...]]:
-    """The profile's joystick indices (``axis_surge``, ``button_automatic`` ...) and, with a
-    named ``joy.layout``, its button names; empty when the profile has no joystick.
+    """Return the profile's joystick indices and, with a named ``joy.layout``, its buttons.
+
+    Indices as ``axis_surge``, ``button_automatic`` ...; empty without a joystick.
     """
     from enbarr_plugins.joystick.layouts import get_layout, INDEX_PARAMETERS, mapping_from_params
     if not any(k.startswith('joy.') for k in params):

@@ -144,7 +144,8 @@ def mapping_from_params(v: Mapping[str, Any], deadzone: float = 0.05) -> tuple[J
         for control in AXIS_CONTROLS + BUTTON_CONTROLS:
             spec = v.get(f'joy.{control}', '')
             if not spec:
-                raise ValueError(f'joy.{control}: required with joy.layout ({"an axis" if control in AXIS_CONTROLS else "a button"} of {name})')
+                kind = 'an axis' if control in AXIS_CONTROLS else 'a button'
+                raise ValueError(f'joy.{control}: required with joy.layout ({kind} of {name})')
             try:
                 if control in AXIS_CONTROLS:
                     index, sign = layout.axis(spec)

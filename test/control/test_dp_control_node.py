@@ -222,7 +222,7 @@ def test_a_reference_before_its_estimate_waits_for_it(context, executor, spin):
     assert h.t_odom == t and len(h.taus) == n_taus + 1 and h.tau_stamps[-1] == t
 
 
-@pytest.mark.parametrize('missing', ['vessel.inertia', 'kp', 'tau_max', 'joy.button_manual'])
+@pytest.mark.parametrize('missing', ['vessel.inertia', 'kp', 'tau_max'])
 def test_vessel_data_and_gains_are_required(context, missing):
     given = {k: v for k, v in node_parameters('dp_control').items() if k != missing}
     with pytest.raises(ConfigurationError,
@@ -231,6 +231,19 @@ def test_vessel_data_and_gains_are_required(context, missing):
         DpControlNode(node_name='dp_control', context=context,
                       parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
     assert 'Traceback' not in str(info.value)
+
+
+@pytest.mark.parametrize('change, match', [
+    ({'joy.manual': ''}, 'joy.manual: required with joy.layout'),
+    ({'joy.layout': 'xbox'}, "joy.layout: unknown layout 'xbox'"),
+    ({'joy.automatic': 'x'}, "joy.automatic: 'x' is no button of layout enbarr_ds4"),
+])
+def test_joystick_names_are_checked_naming_the_parameter(context, change, match):
+    given = {**node_parameters('dp_control'), **change}
+    with pytest.raises(ConfigurationError, match=match) as info:
+        DpControlNode(node_name='dp_control', context=context,
+                      parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
+    assert info.value.parameter == next(iter(change)) and 'Traceback' not in str(info.value)
 
 
 def test_dp_control_live_gains(context, executor, spin):
@@ -258,13 +271,13 @@ def test_dp_control_live_gains(context, executor, spin):
     assert not result.successful and 'kp' in result.reason
     result = set_('kp', [10.0, 10.0])
     assert not result.successful and 'kp' in result.reason
-    result = set_('joy.button_guidance', TRIANGLE)
+    result = set_('joy.guidance', 'triangle')
     assert not result.successful and 'buttons' in result.reason
     result = set_('kp', 'stiff')
     assert not result.successful and result.reason
     # Every refusal kept the old values, in the node and in its controller.
     assert get('kp') == list(kp0)
-    assert get('joy.button_guidance') == SQUARE
+    assert get('joy.guidance') == 'square'
     assert tuple(node.controller.settings.Kp) == kp0
     assert node.manager.mapping.button_guidance == SQUARE
     assert not node.controller.ramping
