@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
 from support.nodes import TIMEOUT, add, call, probe
 from support.saucer import (
     CROSS, DpHarness, SQUARE, TRIANGLE, joy_msg, node_parameters, odometry_msg, overrides)
@@ -296,3 +297,87 @@ def test_dp_control_live_gains(context, executor, spin):
     result = set_('joy_timeout', 0.3)
     assert result.successful, result.reason
     assert node.manager.joy_timeout == 0.3
+
+
+# -- the joystick-loss rule (issue 9): connection state, not the message rate -------------------
+
+def hold_automatic(h: DpHarness, seconds: float, heartbeat_every: int = 4) -> None:
+    """Estimates every 20 ms for ``seconds`` of simulated time; a heartbeat every few, no
+    joystick sample at all (a driver that publishes only on change, sticks at rest).
+    """
+    for k in range(round(seconds / 0.02)):
+        h.estimate(ETA0)
+        if k % heartbeat_every == 0:
+            h.heartbeat()
+
+
+def test_resting_stick_in_automatic_stays_automatic_for_many_timeouts(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    assert h.node.manager.loss_rule == 'connection'  # the Saucer's layout, enbarr_ds4
+    to_automatic(h)
+    n_modes = len(h.modes)
+    hold_automatic(h, 3.0)  # 15 joy_timeouts without a joystick sample
+    assert h.node.mode is Mode.AUTOMATIC and h.modes[n_modes - 1:] == ['automatic']
+
+
+def test_held_stick_keeps_its_force_without_new_samples(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    h.joy(joy_msg(*STICKS))
+    for _ in range(15):  # 1.5 s, 7 timeouts: heartbeats only
+        h.clock.advance(0.1)
+        h.heartbeat()
+    spin(executor, lambda: False, 0.3)  # the supervisor runs
+    assert h.node.mode is Mode.MANUAL
+    np.testing.assert_allclose(h.node.manager.tau_manual, manual_force())
+    assert not any(np.array_equal(t, np.zeros(3)) for t in h.taus[-3:])
+
+
+def test_disconnect_is_manual_with_zero_force_at_once(context, executor, spin):
+    h = DpHarness(context, executor, spin)
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.heartbeat(False)  # no clock advance: at once, not joy_timeout later
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+    # Samples while disconnected drive nothing.
+    h.joy_pub.publish(joy_msg(*STICKS))
+    spin(executor, lambda: h.node.manager.unconnected_samples > 0, TIMEOUT)
+    assert h.node.manager.tau_manual.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_heartbeat_loss_is_manual_with_zero_force(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.clock.advance(0.3)
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_steady_rate_driver_keeps_the_timeout_rule(context, executor, spin):
+    """joy.loss timeout (a steady-rate driver): heartbeats do not keep the joystick."""
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2, 'joy.loss': 'timeout'})
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.connected_pub.publish(Bool(data=True))
+    h.clock.advance(0.3)
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+
+
+def test_a_republished_sample_is_a_sign_of_life_not_a_stale_one(context, executor, spin):
+    """ds4_driver's autorepeat republishes the last Joy with its old stamp."""
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2, 'joy.loss': 'timeout'})
+    msg = joy_msg(*STICKS)
+    msg.header.stamp = convert.ns_to_stamp(h.clock.advance(0.01))
+    h.joy(msg)
+    repeats = []
+    real = h.node.manager.on_repeat
+    h.node.manager.on_repeat = lambda now: (repeats.append(now), real(now))
+    for k in range(10):  # 1 s, 5 timeouts
+        h.clock.advance(0.1)
+        h.joy_pub.publish(msg)
+        assert spin(executor, lambda: len(repeats) > k, TIMEOUT)
+    spin(executor, lambda: False, 0.3)
+    assert h.node.mode is Mode.MANUAL and h.node.manager.tau_manual.any()
+    totals = h.node.health.report(1.0)[2]
+    assert not {k: n for k, n in totals.items() if k.startswith('joy.') and k != 'joy.accepted'}

@@ -286,3 +286,34 @@ def test_emulator_unregisters_on_destroy(context):
     node.destroy_node()
     with pytest.raises(DeviceError):
         emulation.lookup('evdev', 'emulated:x')
+
+
+@pytest.mark.node
+def test_the_emulated_saucer_joystick_drives_the_modes(context, executor, spin):
+    """ds4_emulator -> ds4_evdev -> dp_control with the Saucer's profile (enbarr_ds4 layout,
+    connection rule): triangle through the event pipe is automatic, the sticks are the
+    manual force, unplugging is manual with zero force at once.
+    """
+    from support.saucer import DpHarness
+    h = DpHarness(context, executor, spin)
+    h.probe.destroy_publisher(h.joy_pub)  # one joystick: the driver's
+    h.probe.destroy_publisher(h.connected_pub)
+    r = Rig(context, executor, spin)
+    r.node.get_clock()._set_ros_time_is_active(True)
+    h.clock.clocks.append(r.node.get_clock())  # the driver stamps on the vessel's clock
+    h.clock.set(h.clock.ns)
+    assert r.until(lambda: h.node.manager.connected)
+    # The simulated clock stands still between steps: each new state gets a new stamp.
+    h.clock.advance(0.05)
+    r.emu.sticks({'left_y': 0.5})
+    assert r.until(lambda: bool(h.taus) and h.taus[-1][0] > 0.1)
+    eta = [0.2, 0.1, 0.3]
+    h.estimate(eta)
+    h.clock.advance(0.05)
+    r.emu.press('triangle')
+    h.wait_mode('automatic')
+    h.estimate(eta)
+    n_modes = len(h.modes)
+    r.emu.unplug()
+    assert r.until(lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual')
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
