@@ -254,7 +254,7 @@ class Ds4EmulatorNode(EnbarrNode):
         self._next = 0
         self._start_ns: int | None = None
         self._release_ns: int | None = None
-        self.create_timer(0.02, self._tick)
+        self.create_timer(0.05, self._tick)  # the script's resolution (20 Hz)
         self.create_timer(1.0, self._report)
 
     def start(self) -> None:
