@@ -317,3 +317,30 @@ def test_the_emulated_saucer_joystick_drives_the_modes(context, executor, spin):
     r.emu.unplug()
     assert r.until(lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual')
     assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.unit
+def test_auto_picks_the_gamepad_node_not_the_motion_sensors(monkeypatch):
+    import evdev
+    sensors, pad = Ds4Emulator(), Ds4Emulator()
+    sensors.wrong_identity = True
+    nodes = {'/dev/input/event3': sensors, '/dev/input/event4': pad}
+
+    def fake_open(path: str) -> Any:
+        if path not in nodes:
+            raise DeviceError(f'{path}: cannot open: Permission denied')
+        h = nodes[path].open()
+        h.path = path
+        return h
+
+    monkeypatch.setattr(ds4_evdev, 'open_input', fake_open)
+    monkeypatch.setattr(evdev, 'list_devices', lambda: ['/dev/input/event4',
+                                                        '/dev/input/event2',
+                                                        '/dev/input/event3'])
+    h = ds4_evdev.open_device('auto')
+    assert h.path == '/dev/input/event4'
+    h.close()
+    del nodes['/dev/input/event4']
+    with pytest.raises(DeviceError, match=r'auto: no DualShock 4 gamepad .*event2: cannot open: '
+                       r'Permission denied; /dev/input/event3 \(.*Motion Sensors\)'):
+        ds4_evdev.open_device('auto')
