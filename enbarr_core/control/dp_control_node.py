@@ -317,9 +317,17 @@ class DpControlNode(EnbarrNode):
                 return
             self._joy_last = (t, tuple(msg.axes), tuple(msg.buttons))
         before = self.manager.rejected_samples
+        unconnected = self.manager.unconnected_samples
         transitions = self.manager.on_joy(list(msg.axes), list(msg.buttons),
                                           now.nanoseconds * 1e-9, self._fresh(),
                                           self.path_available)
+        if self.manager.unconnected_samples > unconnected:
+            self.health.refused('joy', 'not_connected')
+            self.get_logger().warn(
+                f'joystick sample not taken: the driver is not connected (loss rule '
+                f'connection: {topics.JOY_CONNECTED.name} False or silent for joy_timeout)',
+                throttle_duration_sec=2.0)
+            return
         if self.manager.rejected_samples > before:
             self.health.refused('joy', 'malformed')
             self.get_logger().warn('joystick sample refused (non-finite or out-of-range axes, '

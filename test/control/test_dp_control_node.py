@@ -343,6 +343,23 @@ def test_disconnect_is_manual_with_zero_force_at_once(context, executor, spin):
     h.joy_pub.publish(joy_msg(*STICKS))
     spin(executor, lambda: h.node.manager.unconnected_samples > 0, TIMEOUT)
     assert h.node.manager.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert h.node.health.totals[('joy', 'not_connected')] >= 1
+
+
+def test_joy_timeout_is_judged_against_the_heartbeat_not_rare_samples(context, executor, spin):
+    """Samples 1 s apart (sticks moved now and then), heartbeats every 0.1 s: joy_timeout
+    0.3 s covers two heartbeats and is fine; 0.15 s is refused with the heartbeat's period.
+    """
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.3})
+    for k in range(12):
+        h.clock.advance(0.1)
+        h.heartbeat()
+        if k % 10 == 0:
+            h.joy(joy_msg(0.1 * k / 10))
+    node = h.node
+    assert node.settings.rate_problem(None, node.joy_period.period) is None
+    result = node.set_parameters([Parameter('joy_timeout', value=0.15)])[0]
+    assert not result.successful and 'measured 0.1 s' in result.reason, result.reason
 
 
 def test_heartbeat_loss_is_manual_with_zero_force(context, executor, spin):
