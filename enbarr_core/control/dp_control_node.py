@@ -13,13 +13,16 @@ arrive here anyway) falls back to manual; and the manual force and the controlle
 leave on ``force_command`` from one publisher, so nothing downstream has to choose between
 two force sources. The guidance node only follows the ``mode`` published here.
 
-Mode rules (buttons from the profile's ``joy.*``): the sticks command surge, sway and yaw
+Mode rules (buttons named in the profile's ``joy.*`` in the layout of its joystick driver,
+``enbarr_plugins.joystick.layouts``): the sticks command surge, sway and yaw
 force in manual; the automatic button holds the pose where the vessel is; the guidance button
 follows the path (refused while the guidance node announces no path on
 ``guidance/path_available``); the manual button returns to manual. Every mode change is
 published on ``mode`` (latched) and logged; a refused request is logged with its reason.
-Losing the joystick, the observer dead-reckoning longer than ``estimate_max_age`` while
-automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
+Losing the joystick (loss rule ``timeout``: no ``joy`` sample for ``joy_timeout``; rule
+``connection``, for drivers that publish only on change: ``joy/connected`` False, or no True
+heartbeat for ``joy_timeout``; see ``control.modes``), the observer dead-reckoning longer
+than ``estimate_max_age`` while automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
 or one that cannot make a reference), returns to manual with zero force.
 
 Ordering: this node owns the modes and switches at once; the guidance node learns the new
@@ -108,8 +111,8 @@ SPECS = [
               'N, N m', 0.0, 1e4, required=True),
     ParamSpec('estimate_max_age', 1.5, 'Automatic needs a pose accepted within this time', 's',
               0.01, 60.0),
-    ParamSpec('joy_timeout', 0.5, 'No joystick sample for this long: manual, zero force', 's',
-              0.01, 60.0),
+    ParamSpec('joy_timeout', 0.5, 'No joystick sample (loss rule timeout) or joy/connected '
+              'heartbeat (rule connection) for this long: manual, zero force', 's', 0.01, 60.0),
     ParamSpec('max_future', 0.01, 'Estimates, references and joystick samples stamped further '
               "ahead of the clock than this are refused (at least the observer's)", 's',
               0.0, 0.5),
