@@ -22,8 +22,9 @@ published on ``mode`` (latched) and logged; a refused request is logged with its
 Losing the joystick (loss rule ``timeout``: no ``joy`` sample for ``joy_timeout``; rule
 ``connection``, for drivers that publish only on change: ``joy/connected`` False, or no True
 heartbeat for ``joy_timeout``; see ``control.modes``), the observer dead-reckoning longer
-than ``estimate_max_age`` while automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
-or one that cannot make a reference), returns to manual with zero force.
+than ``estimate_max_age`` while automatic, or no reference applied for ``estimate_max_age``
+outside manual (no guidance node, or one that cannot make a reference), returns to manual
+with zero force.
 
 Ordering: this node owns the modes and switches at once; the guidance node learns the new
 mode through the executor while estimates and references travel over the in-process link bus,
