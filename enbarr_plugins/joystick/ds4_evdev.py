@@ -386,6 +386,8 @@ class Ds4EvdevNode(SensorDriver):
             except OSError as err:
                 if self._stop.is_set():
                     return
+                if err.errno in (errno.EAGAIN, errno.EINTR):  # python-evdev's fd is O_NONBLOCK
+                    continue
                 what = ('unplugged (ENODEV)' if err.errno == errno.ENODEV
                         else f'read failed: {err.strerror or err}')
                 self._lost(h, decoder, what)
