@@ -124,7 +124,8 @@ MOCAP_POSE = TopicSpec(
     'Pose of base_link from motion capture (the manual\'s Qualisys "GPS").', fast=True)
 JOY = TopicSpec(
     'joy', Joy, SENSOR_QOS, 'normalized -1..1 axes, 0/1 buttons', '',
-    'Operator joystick (DualShock 4 through ds4_driver or joy, standard messages).')
+    'Operator joystick, in the layout the profile names (joy.layout: enbarr_plugins.joystick.'
+    'layouts).')
 OBSERVER_ODOMETRY = TopicSpec(
     'observer/odometry', Odometry, SENSOR_QOS, 'm, rad; m/s, rad/s', WORLD_FRAME,
     'Observer estimate: pose eta_hat in odom, body velocity nu_hat (child base_link).',
@@ -136,6 +137,11 @@ OBSERVER_BIAS = TopicSpec(
 OBSERVER_AGE = TopicSpec(
     'observer/measurement_age', Float64, SENSOR_QOS, 's', '',
     'Time since the observer last accepted a pose; grows while it dead-reckons.', fast=True)
+JOY_CONNECTED = TopicSpec(
+    'joy/connected', Bool, LATCHED_QOS, '', '',
+    "Joystick driver's connection state (latched), republished as a heartbeat at least "
+    'every joy_timeout/2 while connected; False at once on disconnect. The joystick-loss rule '
+    "'connection' of dp_control listens to it (drivers that publish joy only on change).")
 MODE = TopicSpec(
     'mode', String, LATCHED_QOS, '', '',
     'Operator mode: manual, automatic or guidance (latched), from the controller.')
@@ -188,6 +194,7 @@ VESSEL_CLAIMS = TopicSpec(
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
-    DIAGNOSTICS, MOCAP_POSE, JOY, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE, MODE,
+    DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
+    MODE,
     GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, CAMERA_IMAGE, CAMERA_INFO, VESSEL_CLAIMS)

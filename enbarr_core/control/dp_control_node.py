@@ -13,14 +13,18 @@ arrive here anyway) falls back to manual; and the manual force and the controlle
 leave on ``force_command`` from one publisher, so nothing downstream has to choose between
 two force sources. The guidance node only follows the ``mode`` published here.
 
-Mode rules (buttons from the profile's ``joy.*``): the sticks command surge, sway and yaw
+Mode rules (buttons named in the profile's ``joy.*`` in the layout of its joystick driver,
+``enbarr_plugins.joystick.layouts``): the sticks command surge, sway and yaw
 force in manual; the automatic button holds the pose where the vessel is; the guidance button
 follows the path (refused while the guidance node announces no path on
 ``guidance/path_available``); the manual button returns to manual. Every mode change is
 published on ``mode`` (latched) and logged; a refused request is logged with its reason.
-Losing the joystick, the observer dead-reckoning longer than ``estimate_max_age`` while
-automatic, or no reference applied for ``estimate_max_age`` outside manual (no guidance node,
-or one that cannot make a reference), returns to manual with zero force.
+Losing the joystick (loss rule ``timeout``: no ``joy`` sample for ``joy_timeout``; rule
+``connection``, for drivers that publish only on change: ``joy/connected`` False, or no True
+heartbeat for ``joy_timeout``; see ``control.modes``), the observer dead-reckoning longer
+than ``estimate_max_age`` while automatic, or no reference applied for ``estimate_max_age``
+outside manual (no guidance node, or one that cannot make a reference), returns to manual
+with zero force.
 
 Ordering: this node owns the modes and switches at once; the guidance node learns the new
 mode through the executor while estimates and references travel over the in-process link bus,
@@ -75,6 +79,7 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.dp_control import DpControlSettings, DpController
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
+from enbarr_plugins.joystick.layouts import INDEX_PARAMETERS, LAYOUTS, mapping_from_params
 from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
@@ -107,24 +112,24 @@ SPECS = [
               'N, N m', 0.0, 1e4, required=True),
     ParamSpec('estimate_max_age', 1.5, 'Automatic needs a pose accepted within this time', 's',
               0.01, 60.0),
-    ParamSpec('joy_timeout', 0.5, 'No joystick sample for this long: manual, zero force', 's',
-              0.01, 60.0),
+    ParamSpec('joy_timeout', 0.5, 'No joystick sample (loss rule timeout) or joy/connected '
+              'heartbeat (rule connection) for this long: manual, zero force', 's', 0.01, 60.0),
     ParamSpec('max_future', 0.01, 'Estimates, references and joystick samples stamped further '
               "ahead of the clock than this are refused (at least the observer's)", 's',
               0.0, 0.5),
-    ParamSpec('joy.axis_surge', 0, 'Joy axis for surge (up = +1)', '', 0, 64, required=True),
-    ParamSpec('joy.axis_sway', 0, 'Joy axis for sway (left = +1)', '', 0, 64, required=True),
-    ParamSpec('joy.axis_yaw', 0, 'Joy axis for yaw (left = +1)', '', 0,
-              64, required=True),
-    ParamSpec('joy.button_automatic', 0, 'Button to automatic', '', 0,
-              64, required=True),
-    ParamSpec('joy.button_guidance', 0, 'Button to guidance', '', 0,
-              64, required=True),
-    ParamSpec('joy.button_manual', 0, 'Button to manual', '', 0, 64, required=True),
+    ParamSpec('joy.layout', '', 'Joystick driver layout: ' + ', '.join(LAYOUTS)
+              + ' (empty: the joy.axis_*/joy.button_* indices)', read_only=True),
+    *(ParamSpec(f'joy.{dof}', '', f'Axis name for {dof} in joy.layout ({sense}; '
+                "'-name' flips it)") for dof, sense in (
+        ('surge', 'up = ahead'), ('sway', 'left = port'), ('yaw', 'left = counter-clockwise'))),
+    *(ParamSpec(f'joy.{mode}', '', f'Button name to {mode} in joy.layout')
+      for mode in ('automatic', 'guidance', 'manual')),
+    ParamSpec('joy.loss', '', 'Joystick-loss rule: timeout (no sample for joy_timeout) or '
+              "connection (joy/connected heartbeat); empty: the layout's", read_only=True),
+    *(ParamSpec(f'joy.{name}', -1, f'Joy index of {name} without joy.layout (-1: unset)', '',
+                -1, 64) for name in INDEX_PARAMETERS),
     ParamSpec('joy.deadzone', 0.05, 'Stick dead zone', '', 0.0, 0.99),
 ]
-_JOY = ('axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
-        'button_manual')
 _PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', 'M': 'vessel.inertia',
               'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
 
@@ -139,6 +144,7 @@ class DpControlNodeSettings:
 
     control: DpControlSettings              # gains, limits, model
     mapping: JoyMapping                     # joystick axes and buttons
+    loss_rule: str                          # joystick-loss rule (modes.LOSS_RULES)
     manual_tau_max: tuple[float, ...]       # force at full stick [N, N, N m]
     estimate_max_age: float                 # [s]
     joy_timeout: float                      # [s]
@@ -158,12 +164,8 @@ class DpControlNodeSettings:
         except ValueError as err:
             field = str(err).split(':')[0]
             raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
-        mapping = JoyMapping(*(v[f'joy.{name}'] for name in _JOY), v['joy.deadzone'])
-        try:
-            mapping.validate()
-        except ValueError as err:
-            raise ValueError(f'joy: {err}') from err
-        return cls(control, mapping, vector3(v, 'manual_tau_max'),
+        mapping, loss_rule = mapping_from_params(v, v['joy.deadzone'])
+        return cls(control, mapping, loss_rule, vector3(v, 'manual_tau_max'),
                    v['estimate_max_age'], v['joy_timeout'], v['max_future'])
 
     def rate_problem(self, estimate_period: float | None,
@@ -227,6 +229,8 @@ class DpControlNode(EnbarrNode):
         self._joy_sub = self.create_topic_subscription(
             topics.JOY, lambda msg, info: self._on_joy(msg, info))
         self.joy_guard = SourceGuard(self, self._joy_sub)
+        self.create_topic_subscription(topics.JOY_CONNECTED, self._on_joy_connected)
+        self._joy_last: tuple[int, tuple[float, ...], tuple[int, ...]] | None = None
         self.create_timer(WATCHDOG_PERIOD, self._supervise)
         self.create_timer(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))
@@ -244,7 +248,7 @@ class DpControlNode(EnbarrNode):
             gate.policy = StampPolicy(max_future=s.max_future)
         if self.controller is None:
             self.controller = DpController(s.control)
-            self.manager = ModeManager(s.mapping, s.manual_tau_max, s.joy_timeout)
+            self.manager = ModeManager(s.mapping, s.manual_tau_max, s.joy_timeout, s.loss_rule)
         else:
             self.controller.settings = s.control  # ramped by the controller
             self.manager.mapping = s.mapping
@@ -305,23 +309,52 @@ class DpControlNode(EnbarrNode):
         t = convert.stamp_to_ns(stamp)
         if t == 0:  # not stamped: timed by its arrival
             t, stamp = now.nanoseconds, now.to_msg()
-        elif not self._admit('joy', t, count_accepted=False):
-            return
+        else:
+            last = self._joy_last
+            if (last is not None and t == last[0] and tuple(msg.axes) == last[1]
+                    and tuple(msg.buttons) == last[2]):
+                # The last sample republished with its stamp (ds4_driver's autorepeat): a sign
+                # of life, not a new sample (nor a stale one).
+                self.manager.on_repeat(now.nanoseconds * 1e-9)
+                return
+            if not self._admit('joy', t, count_accepted=False):
+                return
+            self._joy_last = (t, tuple(msg.axes), tuple(msg.buttons))
         before = self.manager.rejected_samples
+        unconnected = self.manager.unconnected_samples
         transitions = self.manager.on_joy(list(msg.axes), list(msg.buttons),
                                           now.nanoseconds * 1e-9, self._fresh(),
                                           self.path_available)
+        if self.manager.unconnected_samples > unconnected:
+            self.health.refused('joy', 'not_connected')
+            self.get_logger().warn(
+                f'joystick sample not taken: the driver is not connected (loss rule '
+                f'connection: {topics.JOY_CONNECTED.name} False or silent for joy_timeout)',
+                throttle_duration_sec=2.0)
+            return
         if self.manager.rejected_samples > before:
             self.health.refused('joy', 'malformed')
             self.get_logger().warn('joystick sample refused (non-finite or out-of-range axes, '
                                    'or too few axes/buttons)', throttle_duration_sec=1.0)
             return  # as if it never arrived: no force republished on its behalf
         self.health.accepted('joy')
-        self.joy_period.add(t)
+        if self.manager.loss_rule == 'timeout':  # the rate that joy_timeout must cover
+            self.joy_period.add(t)
         for tr in transitions:
             self._transition(tr)
         if self.manager.mode is Mode.MANUAL:
             self._publish_tau(self.manager.tau_manual, stamp)
+
+    def _on_joy_connected(self, msg: Bool) -> None:
+        """Take the joystick driver's connection state (the heartbeat of the connection rule)."""
+        now = self.get_clock().now()
+        if self.manager.loss_rule == 'connection' and msg.data:
+            self.joy_period.add(now.nanoseconds)  # the heartbeat's period: joy_timeout's rate
+        tr = self.manager.on_connection(msg.data, now.nanoseconds * 1e-9)
+        if tr is not None:
+            self.get_logger().error('joystick disconnected: manual, zero force')
+            self._transition(tr)
+            self._publish_tau(self.manager.tau_manual, now.to_msg())
 
     def _reference_fresh(self) -> bool:
         """Tell whether a reference was applied (or the mode entered) recently."""
@@ -418,6 +451,8 @@ class DpControlNode(EnbarrNode):
         return level, (self.manager.mode.value if level == OK else message), {
             'mode': self.manager.mode.value, 'refusals': self.refusals,
             'joy_rejected': self.manager.rejected_samples,
+            'joy_loss_rule': self.manager.loss_rule, 'joy_connected': self.manager.connected,
+            'joy_unconnected_samples': self.manager.unconnected_samples,
             'bad_references': self.bad_references, **totals}
 
     def _report(self) -> None:

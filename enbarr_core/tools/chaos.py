@@ -130,6 +130,23 @@ class Plan:
     joy_buttons: dict[str, int] = field(default_factory=dict)
 
 
+def _joy_layout(params: dict[str, Any]) -> tuple[dict[str, int], tuple[str, ...]]:
+    """Return the profile's joystick indices and, with a named ``joy.layout``, its buttons.
+
+    Indices as ``axis_surge``, ``button_automatic`` ...; empty without a joystick.
+    """
+    from enbarr_plugins.joystick.layouts import get_layout, INDEX_PARAMETERS, mapping_from_params
+    if not any(k.startswith('joy.') for k in params):
+        return {}, ()
+    try:
+        mapping, _ = mapping_from_params(params)
+    except ValueError:
+        return {}, ()
+    layout = params.get('joy.layout')
+    return ({k: getattr(mapping, k) for k in INDEX_PARAMETERS},
+            get_layout(layout).buttons if layout else ())
+
+
 def write_split_profile(ref: str, out: Path) -> Plan:
     """Write ``out/chaos.yaml``: ``ref`` with its core nodes in group ``control``."""
     from enbarr_core.bringup import profile as profiles
@@ -140,12 +157,11 @@ def write_split_profile(ref: str, out: Path) -> Plan:
         raise EnbarrError(f'{prof.path}: chaos needs core nodes ({core}) and plugins beside '
                           'them to split the profile')
     nodes: dict[str, Any] = {n: {'group': CONTROL_GROUP} for n in control}
-    buttons = {k.split('.', 1)[1]: v for k, v in prof.parameters.items()
-               if k.startswith('joy.') and isinstance(v, int)}
+    buttons, names = _joy_layout(prof.parameters)
     for n in prof.nodes:
         if n.plugin in STEADY_SCRIPTS:
             script = list(STEADY_SCRIPTS[n.plugin])
-            names = n.parameters.get('joy.buttons', ())
+            names = names or n.parameters.get('joy.buttons', ())
             auto = buttons.get('button_automatic')
             if n.plugin == 'scripted_joy' and auto is not None and auto < len(names):
                 # Pressed again every few seconds: a control group restarted after a fault

@@ -4,13 +4,15 @@ A run without a person exercises every mode this way. Lines, times in seconds fr
 
     '0.0  sticks 0.5 0.0 0.0'   # surge, sway, yaw stick positions (-1..1), held
     '5.0  press triangle'       # press and release a button named in ``buttons``
-    '20.0 stop'                 # stop publishing: the joystick is lost
+    '20.0 stop'                 # joy/connected False, then silence: the joystick is lost
 
-The layout is the profile's: ``joy.buttons`` names the button at each index (a DualShock 4
-in the kernel's joydev order: cross, circle, triangle, square; a pad through the ROS ``joy``
-game-controller layout: cross, circle, square, triangle) and ``joy.axis_surge``,
-``joy.axis_sway`` and ``joy.axis_yaw`` (shared with the controller, given once in the
-profile) say where the sticks go.
+It publishes in the profile's layout, shared with the controller (given once in the
+profile): ``joy.layout`` names a preset of ``layouts`` (its button names, axis count and
+rest values) and ``joy.surge``, ``joy.sway``, ``joy.yaw`` name the sticks (``-name``: the
+other way). Without ``joy.layout``, ``joy.buttons`` names the button at each index and
+``joy.axis_surge``, ``joy.axis_sway``, ``joy.axis_yaw`` give the stick indices. Like a
+driver, it keeps ``joy/connected`` (latched) True with every sample, so the controller's
+``connection`` loss rule works against it too.
 """
 
 from __future__ import annotations
@@ -20,13 +22,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from sensor_msgs.msg import Joy
+from std_msgs.msg import Bool
 
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
+from enbarr_plugins.joystick.layouts import AXIS_CONTROLS, get_layout, LAYOUTS
 from enbarr_plugins.operator.script import no_arguments, numbers, parse_script, Step
 
-N_AXES, N_BUTTONS = 8, 13  # at least this many, as ds4_driver's standard messages
+N_AXES, N_BUTTONS = 8, 13  # without joy.layout: at least this many (a DS4 via joydev)
 
 
 def parse_joy_script(lines: Sequence[str], buttons: Mapping[str, int]) -> tuple[Step, ...]:
@@ -51,14 +55,14 @@ SPECS = [
     ParamSpec('script', [''], 'Timed joystick lines (see the module doc)', read_only=True,
               element=str),
     ParamSpec('rate', 20.0, 'Publication rate', 'Hz', 1.0, 1000.0, read_only=True),
-    ParamSpec('joy.buttons', [''], 'Name of the button at each index', read_only=True,
-              element=str, required=True),
-    ParamSpec('joy.axis_surge', 0, 'Axis of the surge stick (up = +1)', '', 0, 64,
-              read_only=True, required=True),
-    ParamSpec('joy.axis_sway', 0, 'Axis of the sway stick (left = +1)', '', 0, 64,
-              read_only=True, required=True),
-    ParamSpec('joy.axis_yaw', 0, 'Axis of the yaw stick (left = +1)', '', 0, 64,
-              read_only=True, required=True),
+    ParamSpec('joy.layout', '', 'Layout to publish in: ' + ', '.join(LAYOUTS)
+              + ' (empty: joy.buttons and joy.axis_*)', read_only=True),
+    *(ParamSpec(f'joy.{dof}', '', f'Axis name of the {dof} stick in joy.layout',
+                read_only=True) for dof in AXIS_CONTROLS),
+    ParamSpec('joy.buttons', [''], 'Name of the button at each index (without joy.layout)',
+              read_only=True, element=str),
+    *(ParamSpec(f'joy.axis_{dof}', -1, f'Axis of the {dof} stick (without joy.layout)', '',
+                -1, 64, read_only=True) for dof in AXIS_CONTROLS),
 ]
 
 
@@ -70,14 +74,38 @@ class ScriptedJoySettings:
     rate: float                                 # [Hz]
     buttons: tuple[str, ...]                    # name of each button index
     axes: tuple[int, int, int]                  # surge, sway, yaw axis indices
+    signs: tuple[float, float, float]           # +1/-1: stick value -> axis value
+    rest: tuple[float, ...]                     # every axis at rest (its length: the count)
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> ScriptedJoySettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
-        names = list(v['joy.buttons'])
-        if any(not n for n in names) or len(set(names)) != len(names):
-            raise ValueError(f'joy.buttons: expected distinct non-empty names, got {names}')
-        axes = [v[name] for name in ('joy.axis_surge', 'joy.axis_sway', 'joy.axis_yaw')]
+        if v['joy.layout']:
+            try:
+                layout = get_layout(v['joy.layout'])
+            except ValueError as err:
+                raise ValueError(f'joy.layout: {err}') from err
+            axes, signs = [], []
+            for dof in AXIS_CONTROLS:
+                try:
+                    index, sign = layout.axis(v[f'joy.{dof}'])
+                except ValueError as err:
+                    raise ValueError(f'joy.{dof}: {err}') from err
+                axes.append(index)
+                signs.append(sign)
+            names, rest = list(layout.buttons), layout.rest
+        else:
+            names = [n for n in v['joy.buttons'] if n]
+            if not names:
+                raise ValueError('joy.layout: name a layout, or give joy.buttons and joy.axis_*')
+            if len(names) != len(v['joy.buttons']) or len(set(names)) != len(names):
+                raise ValueError(f'joy.buttons: expected distinct non-empty names, got '
+                                 f'{list(v["joy.buttons"])}')
+            axes = [v[f'joy.axis_{dof}'] for dof in AXIS_CONTROLS]
+            for dof, index in zip(AXIS_CONTROLS, axes):
+                if index < 0:
+                    raise ValueError(f'joy.axis_{dof}: required without joy.layout')
+            signs, rest = [1.0] * 3, (0.0,) * max(N_AXES, max(axes) + 1)
         if len(set(axes)) != 3:
             raise ValueError(f'joy.axis_surge, joy.axis_sway, joy.axis_yaw: expected 3 '
                              f'different axes, got {axes}')
@@ -86,7 +114,8 @@ class ScriptedJoySettings:
                                       {n: i for i, n in enumerate(names)})
         except ValueError as err:
             raise ValueError(f'script: {err}') from err
-        return cls(script, v['rate'], tuple(names), tuple(axes))  # type: ignore
+        return cls(script, v['rate'], tuple(names), tuple(axes),  # type: ignore[arg-type]
+                   tuple(signs), tuple(rest))  # type: ignore[arg-type]
 
 
 class ScriptedJoyNode(EnbarrNode):
@@ -98,7 +127,6 @@ class ScriptedJoyNode(EnbarrNode):
         self.bind_settings(SPECS, ScriptedJoySettings.from_params, self._apply)
         s = self.settings
         self.script = list(s.script)
-        self._n_axes = max(N_AXES, max(s.axes) + 1)
         self._n_buttons = max(N_BUTTONS, len(s.buttons))
         self._next = 0
         self._sticks = (0.0, 0.0, 0.0)
@@ -106,6 +134,7 @@ class ScriptedJoyNode(EnbarrNode):
         self._stopped = False
         self._start_ns: int | None = None
         self._pub = self.create_topic_publisher(topics.JOY)
+        self._connected_pub = self.create_topic_publisher(topics.JOY_CONNECTED)
         self.create_timer(1.0 / s.rate, self._tick)
 
     def _apply(self, settings: ScriptedJoySettings) -> None:
@@ -131,12 +160,14 @@ class ScriptedJoyNode(EnbarrNode):
                 press = step.value
             else:
                 self._stopped = True
+                self._connected_pub.publish(Bool(data=False))
                 return
+        self._connected_pub.publish(Bool(data=True))
         msg = Joy()
         convert.ns_to_stamp(now, msg.header.stamp)
-        axes = [0.0] * self._n_axes
-        for i, value in zip(self.settings.axes, self._sticks):
-            axes[i] = value
+        axes = list(self.settings.rest)
+        for i, sign, value in zip(self.settings.axes, self.settings.signs, self._sticks):
+            axes[i] = sign * value
         msg.axes = axes
         buttons = [0] * self._n_buttons
         if press is not None:

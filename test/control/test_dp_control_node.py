@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
 from support.nodes import TIMEOUT, add, call, probe
 from support.saucer import (
     CROSS, DpHarness, SQUARE, TRIANGLE, joy_msg, node_parameters, odometry_msg, overrides)
@@ -222,7 +223,7 @@ def test_a_reference_before_its_estimate_waits_for_it(context, executor, spin):
     assert h.t_odom == t and len(h.taus) == n_taus + 1 and h.tau_stamps[-1] == t
 
 
-@pytest.mark.parametrize('missing', ['vessel.inertia', 'kp', 'tau_max', 'joy.button_manual'])
+@pytest.mark.parametrize('missing', ['vessel.inertia', 'kp', 'tau_max'])
 def test_vessel_data_and_gains_are_required(context, missing):
     given = {k: v for k, v in node_parameters('dp_control').items() if k != missing}
     with pytest.raises(ConfigurationError,
@@ -231,6 +232,19 @@ def test_vessel_data_and_gains_are_required(context, missing):
         DpControlNode(node_name='dp_control', context=context,
                       parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
     assert 'Traceback' not in str(info.value)
+
+
+@pytest.mark.parametrize('change, match', [
+    ({'joy.manual': ''}, 'joy.manual: required with joy.layout'),
+    ({'joy.layout': 'xbox'}, "joy.layout: unknown layout 'xbox'"),
+    ({'joy.automatic': 'x'}, "joy.automatic: 'x' is no button of layout enbarr_ds4"),
+])
+def test_joystick_names_are_checked_naming_the_parameter(context, change, match):
+    given = {**node_parameters('dp_control'), **change}
+    with pytest.raises(ConfigurationError, match=match) as info:
+        DpControlNode(node_name='dp_control', context=context,
+                      parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
+    assert info.value.parameter == next(iter(change)) and 'Traceback' not in str(info.value)
 
 
 def test_dp_control_live_gains(context, executor, spin):
@@ -258,13 +272,13 @@ def test_dp_control_live_gains(context, executor, spin):
     assert not result.successful and 'kp' in result.reason
     result = set_('kp', [10.0, 10.0])
     assert not result.successful and 'kp' in result.reason
-    result = set_('joy.button_guidance', TRIANGLE)
+    result = set_('joy.guidance', 'triangle')
     assert not result.successful and 'buttons' in result.reason
     result = set_('kp', 'stiff')
     assert not result.successful and result.reason
     # Every refusal kept the old values, in the node and in its controller.
     assert get('kp') == list(kp0)
-    assert get('joy.button_guidance') == SQUARE
+    assert get('joy.guidance') == 'square'
     assert tuple(node.controller.settings.Kp) == kp0
     assert node.manager.mapping.button_guidance == SQUARE
     assert not node.controller.ramping
@@ -283,3 +297,104 @@ def test_dp_control_live_gains(context, executor, spin):
     result = set_('joy_timeout', 0.3)
     assert result.successful, result.reason
     assert node.manager.joy_timeout == 0.3
+
+
+# -- the joystick-loss rule (issue 9): connection state, not the message rate -------------------
+
+def hold_automatic(h: DpHarness, seconds: float, heartbeat_every: int = 4) -> None:
+    """Estimates every 20 ms for ``seconds`` of simulated time; a heartbeat every few, no
+    joystick sample at all (a driver that publishes only on change, sticks at rest).
+    """
+    for k in range(round(seconds / 0.02)):
+        h.estimate(ETA0)
+        if k % heartbeat_every == 0:
+            h.heartbeat()
+
+
+def test_resting_stick_in_automatic_stays_automatic_for_many_timeouts(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    assert h.node.manager.loss_rule == 'connection'  # the Saucer's layout, enbarr_ds4
+    to_automatic(h)
+    n_modes = len(h.modes)
+    hold_automatic(h, 3.0)  # 15 joy_timeouts without a joystick sample
+    assert h.node.mode is Mode.AUTOMATIC and h.modes[n_modes - 1:] == ['automatic']
+
+
+def test_held_stick_keeps_its_force_without_new_samples(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    h.joy(joy_msg(*STICKS))
+    for _ in range(15):  # 1.5 s, 7 timeouts: heartbeats only
+        h.clock.advance(0.1)
+        h.heartbeat()
+    spin(executor, lambda: False, 0.3)  # the supervisor runs
+    assert h.node.mode is Mode.MANUAL
+    np.testing.assert_allclose(h.node.manager.tau_manual, manual_force())
+    assert not any(np.array_equal(t, np.zeros(3)) for t in h.taus[-3:])
+
+
+def test_disconnect_is_manual_with_zero_force_at_once(context, executor, spin):
+    h = DpHarness(context, executor, spin)
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.heartbeat(False)  # no clock advance: at once, not joy_timeout later
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+    # Samples while disconnected drive nothing.
+    h.joy_pub.publish(joy_msg(*STICKS))
+    spin(executor, lambda: h.node.manager.unconnected_samples > 0, TIMEOUT)
+    assert h.node.manager.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert h.node.health.totals[('joy', 'not_connected')] >= 1
+
+
+def test_joy_timeout_is_judged_against_the_heartbeat_not_rare_samples(context, executor, spin):
+    """Samples 1 s apart (sticks moved now and then), heartbeats every 0.1 s: joy_timeout
+    0.3 s covers two heartbeats and is fine; 0.15 s is refused with the heartbeat's period.
+    """
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.3})
+    for k in range(12):
+        h.clock.advance(0.1)
+        h.heartbeat()
+        if k % 10 == 0:
+            h.joy(joy_msg(0.1 * k / 10))
+    node = h.node
+    assert node.settings.rate_problem(None, node.joy_period.period) is None
+    result = node.set_parameters([Parameter('joy_timeout', value=0.15)])[0]
+    assert not result.successful and 'measured 0.1 s' in result.reason, result.reason
+
+
+def test_heartbeat_loss_is_manual_with_zero_force(context, executor, spin):
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.clock.advance(0.3)
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+    assert h.taus[-1].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_steady_rate_driver_keeps_the_timeout_rule(context, executor, spin):
+    """joy.loss timeout (a steady-rate driver): heartbeats do not keep the joystick."""
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2, 'joy.loss': 'timeout'})
+    to_automatic(h)
+    n_modes = len(h.modes)
+    h.connected_pub.publish(Bool(data=True))
+    h.clock.advance(0.3)
+    assert spin(executor, lambda: len(h.modes) > n_modes and h.modes[-1] == 'manual', TIMEOUT)
+
+
+def test_a_republished_sample_is_a_sign_of_life_not_a_stale_one(context, executor, spin):
+    """ds4_driver's autorepeat republishes the last Joy with its old stamp."""
+    h = DpHarness(context, executor, spin, {'joy_timeout': 0.2, 'joy.loss': 'timeout'})
+    msg = joy_msg(*STICKS)
+    msg.header.stamp = convert.ns_to_stamp(h.clock.advance(0.01))
+    h.joy(msg)
+    repeats = []
+    real = h.node.manager.on_repeat
+    h.node.manager.on_repeat = lambda now: (repeats.append(now), real(now))
+    for k in range(10):  # 1 s, 5 timeouts
+        h.clock.advance(0.1)
+        h.joy_pub.publish(msg)
+        assert spin(executor, lambda: len(repeats) > k, TIMEOUT)
+    spin(executor, lambda: False, 0.3)
+    assert h.node.mode is Mode.MANUAL and h.node.manager.tau_manual.any()
+    totals = h.node.health.report(1.0)[2]
+    assert not {k: n for k, n in totals.items() if k.startswith('joy.') and k != 'joy.accepted'}

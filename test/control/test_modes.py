@@ -1,6 +1,7 @@
-"""Operator modes (``enbarr_core.control.modes``) with the CS Saucer's DualShock 4 layout
-(from its profile): the mode rules as pure functions of joystick samples, time and estimator
-health (no ROS).
+"""Operator modes (``enbarr_core.control.modes``) with a DualShock 4 in the kernel joydev
+layout and the manual's buttons (triangle automatic, square guidance, cross manual): the mode
+rules as pure functions of joystick samples, time and estimator health (no ROS). Each layout
+preset is pressed button by button in test/plugins/test_joy_layouts.py.
 """
 
 from __future__ import annotations
@@ -14,14 +15,14 @@ import pytest
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
 from enbarr_interfaces.modes import Mode
+from enbarr_plugins.joystick.layouts import mapping_from_params
 
-_JOY = load_profile('saucer_core').parameters
-DS4 = JoyMapping(*(_JOY[f'joy.{k}'] for k in (
-    'axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
-    'button_manual')))
+SAUCER_JOY = {k: v for k, v in load_profile('saucer_core').parameters.items()
+              if k.startswith('joy.')}
+DS4, _ = mapping_from_params({**SAUCER_JOY, 'joy.layout': 'joydev'})
 TAU_MAX = (1.0, 2.0, 0.5)
-N_AXES, N_BUTTONS = 8, 13          # ds4_driver standard Joy
-TRIANGLE, SQUARE, CROSS = 2, 3, 0  # the DualShock 4 layout (ds4_driver)
+N_AXES, N_BUTTONS = 8, 13          # a DS4 through joydev
+TRIANGLE, SQUARE, CROSS = 2, 3, 0  # the DualShock 4 through joydev
 assert (DS4.button_automatic, DS4.button_guidance, DS4.button_manual) == (2, 3, 0)
 assert (DS4.axis_surge, DS4.axis_sway, DS4.axis_yaw) == (1, 0, 3)
 
@@ -333,3 +334,118 @@ def test_fallback_transitions_name_the_mode_left(mode_button, path, mode):
         press(m, mode_button, 0.05, path=path)
         t = m.check(0.1, fresh, reference_fresh=reference)
         assert t == Transition(Mode.MANUAL, mode, True, reason)
+
+
+# -- the joystick-loss rule of a driver that publishes only on change ----------------------------
+
+def connected_manager(joy_timeout: float = 0.5) -> ModeManager:
+    return ModeManager(DS4, TAU_MAX, joy_timeout, loss_rule='connection')
+
+
+def test_connection_rule_resting_stick_stays_automatic_for_many_timeouts():
+    """ds4_driver sends nothing while the sticks rest: with heartbeats, automatic stays."""
+    m = connected_manager(joy_timeout=0.5)
+    assert m.on_connection(True, 0.0) is None
+    m.on_joy(*sample(), 0.0, True, False)
+    press(m, TRIANGLE, 0.1)
+    assert m.mode is Mode.AUTOMATIC
+    # 20 s without a joystick sample (40 timeouts), heartbeats every 0.2 s.
+    for k in range(1, 101):
+        now = 0.2 + 0.2 * k
+        assert m.on_connection(True, now) is None
+        assert m.check(now + 0.1, True) is None
+    assert m.mode is Mode.AUTOMATIC
+
+
+def test_connection_rule_held_stick_keeps_its_force():
+    m = connected_manager()
+    m.on_connection(True, 0.0)
+    m.on_joy(*sample(surge=0.8, yaw=-0.4), 0.0, True, False)
+    for k in range(1, 51):  # held still for 10 s: no sample, heartbeats only
+        m.on_connection(True, 0.2 * k)
+        assert m.check(0.2 * k + 0.1, True) is None
+    assert m.tau_manual == pytest.approx([0.8, 0.0, -0.2])
+
+
+def test_connection_rule_disconnect_is_manual_zero_force_at_once():
+    m = connected_manager()
+    m.on_connection(True, 0.0)
+    m.on_joy(*sample(sway=0.5), 0.0, True, False)
+    press(m, TRIANGLE, 0.1)
+    t = m.on_connection(False, 0.15)
+    assert t == Transition(Mode.MANUAL, Mode.AUTOMATIC, True, 'joystick disconnected')
+    assert m.mode is Mode.MANUAL and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    assert m.on_connection(False, 0.2) is None  # reported once
+    # Samples while disconnected are not taken (a stale driver must not drive).
+    assert m.on_joy(*sample(surge=1.0, pressed=(TRIANGLE,)), 0.3, True, False) == []
+    assert m.unconnected_samples == 1 and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+    # Reconnected: the sticks act again, the mode is the operator's to ask for again.
+    m.on_connection(True, 1.0)
+    m.on_joy(*sample(surge=0.3), 1.0, True, False)
+    assert m.tau_manual == pytest.approx([0.3, 0.0, 0.0]) and m.mode is Mode.MANUAL
+
+
+def test_connection_rule_heartbeat_loss_is_manual_zero_force():
+    m = connected_manager(joy_timeout=0.5)
+    m.on_connection(True, 10.0)
+    m.on_joy(*sample(surge=0.6), 10.0, True, False)
+    press(m, TRIANGLE, 10.05)
+    assert m.check(10.5, True) is None          # exactly joy_timeout: not yet
+    t = m.check(10.51, True)
+    assert t == Transition(Mode.MANUAL, Mode.AUTOMATIC, True, 'joystick heartbeat lost')
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0] and not m.connected
+    assert m.check(20.0, True) is None
+
+
+def test_connection_rule_loss_in_manual_with_a_held_stick_zeroes_it():
+    m = connected_manager()
+    m.on_connection(True, 0.0)
+    m.on_joy(*sample(surge=0.6), 0.0, True, False)
+    t = m.check(0.6, True)
+    assert t is not None and t.previous is Mode.MANUAL and t.reason == 'joystick heartbeat lost'
+    assert m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_timeout_rule_still_judges_by_the_sample_rate():
+    """A steady-rate driver keeps the old rule: heartbeats are ignored, silence is loss."""
+    m = manager(joy_timeout=0.5)
+    m.on_joy(*sample(surge=0.6), 0.0, True, False)
+    press(m, TRIANGLE, 0.05)
+    assert m.on_connection(True, 0.5) is None   # not listened to
+    assert m.on_connection(False, 0.5) is None  # nor this
+    assert m.mode is Mode.AUTOMATIC
+    t = m.check(0.57, True)  # the release at 0.06 s was the last sample
+    assert t is not None and t.reason == 'joystick lost'
+
+
+def test_timeout_rule_a_republished_sample_is_a_sign_of_life():
+    m = manager(joy_timeout=0.5)
+    m.on_joy(*sample(surge=0.6), 0.0, True, False)
+    for k in range(1, 20):
+        m.on_repeat(0.1 * k)
+        assert m.check(0.1 * k + 0.05, True) is None
+    assert m.tau_manual == pytest.approx([0.6, 0.0, 0.0])
+    assert m.check(1.9 + 0.51, True) is not None
+
+
+def test_contested_joystick_is_manual_zero_force_under_either_rule():
+    for m in (manager(), connected_manager()):
+        m.on_connection(True, 0.0)
+        m.on_joy(*sample(surge=0.6), 0.0, True, False)
+        press(m, TRIANGLE, 0.05)
+        t = m.joystick_contested()
+        assert t is not None and t.reason == 'joystick contested'
+        assert m.mode is Mode.MANUAL and m.tau_manual.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_unknown_loss_rule_is_refused():
+    with pytest.raises(ValueError, match='loss_rule'):
+        ModeManager(DS4, TAU_MAX, loss_rule='rate')
+
+
+def test_signs_flip_an_axis():
+    m = ModeManager(dataclasses.replace(DS4, signs=(1.0, -1.0, -1.0)), TAU_MAX)
+    m.on_joy(*sample(surge=0.5, sway=0.5, yaw=0.5), 0.0, True, False)
+    assert m.tau_manual == pytest.approx([0.5, -1.0, -0.25])
+    with pytest.raises(ValueError, match='signs'):
+        dataclasses.replace(DS4, signs=(1.0, 0.5, 1.0)).validate()

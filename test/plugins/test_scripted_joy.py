@@ -42,13 +42,67 @@ def test_presses_and_sticks_land_where_the_layout_says(context, executor, spin):
     assert first.axes[4] == 0.5 and first.axes[3] == -0.25 and first.axes[0] == 0.75
 
 
-@pytest.mark.parametrize('missing', ['joy.buttons', 'joy.axis_yaw'])
-def test_the_layout_is_required(context, missing):
+@pytest.mark.parametrize('missing, match', [
+    ('joy.buttons', 'joy.layout: name a layout, or give joy.buttons'),
+    ('joy.axis_yaw', 'joy.axis_yaw: required without joy.layout')])
+def test_the_layout_is_required(context, missing, match):
     params = {'joy.buttons': ROS_JOY, 'joy.axis_surge': 1, 'joy.axis_sway': 0,
               'joy.axis_yaw': 3}
     params.pop(missing)
-    with pytest.raises(ConfigurationError, match=f"parameter '{missing}' is not set"):
+    with pytest.raises(ConfigurationError, match=match) as info:
         joystick(context, **params)
+    assert info.value.parameter == match.split(':')[0]
+
+
+@pytest.mark.parametrize('layout', ['enbarr_ds4', 'ds4_driver', 'joy', 'joydev'])
+def test_a_named_layout_places_buttons_and_signed_sticks(context, executor, spin, layout):
+    """The profile's named layout: triangle where that driver puts it, the sticks where
+    its axis names say (with the sign), the other axes at rest; joy/connected True with it.
+    """
+    from std_msgs.msg import Bool
+
+    from enbarr_plugins.joystick.layouts import get_layout
+    lay = get_layout(layout)
+    node = add(executor, joystick(context, **{
+        'script': ['0.0 sticks 0.5 -0.25 0.75', '0.0 press triangle'], 'joy.layout': layout,
+        'joy.surge': 'left_y', 'joy.sway': 'left_x', 'joy.yaw': '-right_x'}))
+    clock = SimClock(node)
+    got: list[Joy] = []
+    connected: list[bool] = []
+    p = probe(context, executor, 'listener')
+    p.create_subscription(Joy, topics.JOY.name, got.append, topics.JOY.qos)
+    p.create_subscription(Bool, topics.JOY_CONNECTED.name, lambda m: connected.append(m.data),
+                          topics.JOY_CONNECTED.qos)
+    node.start()
+    for _ in range(3):
+        clock.advance(0.05)
+        spin(executor, lambda: bool(got), 0.2)
+    assert spin(executor, lambda: bool(got) and bool(connected), TIMEOUT)
+    first = got[0]
+    assert [lay.buttons[i] for i, b in enumerate(first.buttons) if b] == ['triangle']
+    assert len(first.axes) == len(lay.axes)
+    want = dict(zip(lay.axes, lay.rest))
+    want.update(left_y=0.5, left_x=-0.25, right_x=-0.75)
+    assert list(first.axes) == [want[name] for name in lay.axes]
+    assert connected[0] is True
+
+
+def test_stop_says_the_joystick_is_disconnected(context, executor, spin):
+    from std_msgs.msg import Bool
+    node = add(executor, joystick(context, **{
+        'script': ['0.0 sticks 0.5 0.0 0.0', '0.1 stop'], 'joy.layout': 'enbarr_ds4',
+        'joy.surge': 'left_y', 'joy.sway': 'left_x', 'joy.yaw': 'right_x'}))
+    clock = SimClock(node)
+    connected: list[bool] = []
+    p = probe(context, executor, 'listener')
+    p.create_subscription(Bool, topics.JOY_CONNECTED.name, lambda m: connected.append(m.data),
+                          topics.JOY_CONNECTED.qos)
+    node.start()
+    for _ in range(6):
+        clock.advance(0.05)
+        spin(executor, lambda: False in connected, 0.2)
+    assert spin(executor, lambda: False in connected, TIMEOUT)
+    assert connected[0] is True and connected[-1] is False
 
 
 def test_a_button_the_layout_lacks_is_refused(context):

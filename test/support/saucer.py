@@ -13,13 +13,13 @@ from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from rclpy.time import Time
 from sensor_msgs.msg import JointState, Joy
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.dp_control_node import DpControlNode
-from enbarr_core.control.modes import JoyMapping
+from enbarr_plugins.joystick.layouts import mapping_from_params
 from enbarr_interfaces.modes import Mode
 from enbarr_core.guidance.guidance_node import GuidanceNode
 from enbarr_interfaces import convert, topics
@@ -66,9 +66,7 @@ DUTY_MIN, DUTY_MAX = 4.3, 9.4
 NEUTRAL_DUTY = 6.85  # middle of the 6.7 .. 7.0 % dead band; servo 0 rad at 6.85 %
 
 
-MAPPING = JoyMapping(*(COMMON[f'joy.{k}'] for k in (
-    'axis_surge', 'axis_sway', 'axis_yaw', 'button_automatic', 'button_guidance',
-    'button_manual')))
+MAPPING, LOSS_RULE = mapping_from_params(COMMON)  # the profile's named layout, as indices
 TRIANGLE, SQUARE, CROSS = (MAPPING.button_automatic, MAPPING.button_guidance,
                            MAPPING.button_manual)
 
@@ -106,9 +104,9 @@ class SimClock:
 def joy_msg(surge: float = 0.0, sway: float = 0.0, yaw: float = 0.0,
             pressed: tuple[int, ...] = ()) -> Joy:
     axes = [0.0] * 8
-    axes[MAPPING.axis_surge], axes[MAPPING.axis_sway], axes[MAPPING.axis_yaw] = \
-        surge, sway, yaw  # the profile's layout
-    buttons = [0] * 13
+    axes[MAPPING.axis_surge], axes[MAPPING.axis_sway], axes[MAPPING.axis_yaw] = (
+        s * v for s, v in zip(MAPPING.signs, (surge, sway, yaw)))  # the profile's layout
+    buttons = [0] * 18
     for b in pressed:
         buttons[b] = 1
     return Joy(axes=axes, buttons=buttons)
@@ -173,6 +171,7 @@ class DpHarness:
         p = probe(context, executor, 'operator')
         self.probe = p
         self.joy_pub = p.create_publisher(Joy, topics.JOY.name, topics.JOY.qos)
+        self.connected_pub = p.create_topic_publisher(topics.JOY_CONNECTED)
         self.modes: list[str] = []
         p.create_subscription(String, topics.MODE.name, lambda m: self.modes.append(m.data),
                               topics.MODE.qos)
@@ -203,10 +202,21 @@ class DpHarness:
         self.taus.append(convert.wrench_to_tau3(msg.wrench))
         self.tau_stamps.append(convert.stamp_to_ns(msg.header.stamp))
 
+    def heartbeat(self, connected: bool = True) -> None:
+        """Publish the joystick's connection state and wait until the node took it now."""
+        now = self.clock.ns * 1e-9
+        m = self.node.manager
+        self.connected_pub.publish(Bool(data=connected))
+        assert self.spin(self.executor, lambda: m.connected == connected and (
+            not connected or m.heartbeat_at == now), TIMEOUT), 'joy/connected not taken'
+
     def joy(self, msg: Joy) -> None:
         """Publish ``msg`` until the node has handled it (the joystick topic is best effort;
-        a repeated sample is harmless: held buttons do not trigger again).
+        a repeated sample is harmless: held buttons do not trigger again). Under the
+        profile's ``connection`` loss rule a heartbeat goes first, as a driver's would.
         """
+        if self.node.manager.loss_rule == 'connection':
+            self.heartbeat()
         seen = self.joy_seen
         deadline = time.monotonic() + TIMEOUT
         while self.joy_seen == seen and time.monotonic() < deadline:

@@ -166,8 +166,8 @@ def test_split_profile_puts_the_core_in_the_control_group(tmp_path: Path) -> Non
 def test_split_profile_of_the_saucer_knows_its_buttons(tmp_path: Path) -> None:
     plan = chaos.write_split_profile('saucer_sim', tmp_path)
     assert {'observer', 'dp_control', 'pwm'} <= plan.control_nodes
-    assert plan.joy_buttons['button_automatic'] == 2
-    # It holds its pose in automatic (the profile's name of button 2), the observer in the loop.
+    assert plan.joy_buttons['button_automatic'] == 1  # triangle in the enbarr_ds4 layout
+    # It holds its pose in automatic (the profile's name of button 1), the observer in the loop.
     script = load_profile(str(plan.path)).node('joystick').parameters['script']
     assert script[:3] == ['0.0 sticks 0.0 0.0 0.0', '1.0 press triangle',
                           '4.0 press triangle']
