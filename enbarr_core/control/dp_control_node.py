@@ -14,7 +14,7 @@ leave on ``force_command`` from one publisher, so nothing downstream has to choo
 two force sources. The guidance node only follows the ``mode`` published here.
 
 Mode rules (buttons named in the profile's ``joy.*`` in the layout of its joystick driver,
-``enbarr_plugins.joystick.layouts``): the sticks command surge, sway and yaw
+``enbarr_core.control.joy_layouts``): the sticks command surge, sway and yaw
 force in manual; the automatic button holds the pose where the vessel is; the guidance button
 follows the path (refused while the guidance node announces no path on
 ``guidance/path_available``); the manual button returns to manual. Every mode change is
@@ -79,7 +79,7 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.dp_control import DpControlSettings, DpController
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
-from enbarr_plugins.joystick.layouts import INDEX_PARAMETERS, LAYOUTS, mapping_from_params
+from enbarr_core.control.joy_layouts import INDEX_PARAMETERS, LAYOUTS, mapping_from_params
 from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,

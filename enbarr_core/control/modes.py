@@ -21,7 +21,7 @@ The joystick-loss rule (``LOSS_RULES``) follows how the driver publishes:
   they rest; samples that arrive while not connected are not taken.
 
 Which axis and button does what is the vessel profile's (``JoyMapping``, built from the
-named layouts of ``enbarr_plugins.joystick.layouts``): joystick drivers number their buttons
+named layouts of ``enbarr_core.control.joy_layouts``): joystick drivers number their buttons
 differently. The modes themselves are ``enbarr_interfaces.modes.Mode``, the vocabulary of
 the ``mode`` topic. Joystick conventions are those of ``sensor_msgs/Joy``: sticks in -1..1,
 up and left positive, which matches REP-103 FLU: stick up = surge ahead, stick left = sway

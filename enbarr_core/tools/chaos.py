@@ -135,7 +135,7 @@ def _joy_layout(params: dict[str, Any]) -> tuple[dict[str, int], tuple[str, ...]
 
     Indices as ``axis_surge``, ``button_automatic`` ...; empty without a joystick.
     """
-    from enbarr_plugins.joystick.layouts import get_layout, INDEX_PARAMETERS, mapping_from_params
+    from enbarr_core.control.joy_layouts import get_layout, INDEX_PARAMETERS, mapping_from_params
     if not any(k.startswith('joy.') for k in params):
         return {}, ()
     try:

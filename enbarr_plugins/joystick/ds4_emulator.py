@@ -39,7 +39,7 @@ from enbarr_plugins import emulation
 from enbarr_plugins.joystick.ds4_evdev import (
     ABS_HAT0X, ABS_HAT0Y, ABS_RX, ABS_RY, ABS_RZ, ABS_X, ABS_Y, ABS_Z, AbsInfo, BUTTON_CODES,
     EV_ABS, EV_KEY, EV_SYN, EVENT, InputHandle, SYN_DROPPED, SYN_REPORT)
-from enbarr_plugins.joystick.layouts import AXIS_CONTROLS
+from enbarr_core.control.joy_layouts import AXIS_CONTROLS
 from enbarr_plugins.joystick.scripted import parse_joy_script
 from enbarr_plugins.operator.script import Step
 
@@ -243,6 +243,8 @@ class Ds4EmulatorSettings:
 
 class Ds4EmulatorNode(EnbarrNode):
     """See the module docstring."""
+
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
 
     def __init__(self, node_name: str = 'ds4_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

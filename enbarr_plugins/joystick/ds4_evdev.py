@@ -60,7 +60,7 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.joystick.layouts import get_layout
+from enbarr_core.control.joy_layouts import get_layout
 
 if TYPE_CHECKING:
     from enbarr_plugins.check import CheckTarget

@@ -27,7 +27,7 @@ from std_msgs.msg import Bool
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
-from enbarr_plugins.joystick.layouts import AXIS_CONTROLS, get_layout, LAYOUTS
+from enbarr_core.control.joy_layouts import AXIS_CONTROLS, get_layout, LAYOUTS
 from enbarr_plugins.operator.script import no_arguments, numbers, parse_script, Step
 
 N_AXES, N_BUTTONS = 8, 13  # without joy.layout: at least this many (a DS4 via joydev)

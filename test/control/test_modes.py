@@ -15,7 +15,7 @@ import pytest
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
 from enbarr_interfaces.modes import Mode
-from enbarr_plugins.joystick.layouts import mapping_from_params
+from enbarr_core.control.joy_layouts import mapping_from_params
 
 SAUCER_JOY = {k: v for k, v in load_profile('saucer_core').parameters.items()
               if k.startswith('joy.')}

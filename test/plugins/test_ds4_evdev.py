@@ -22,7 +22,7 @@ from enbarr_plugins.joystick.ds4_emulator import ABSINFO, Ds4Emulator, Ds4Emulat
 from enbarr_plugins.joystick.ds4_evdev import (
     BUTTON_CODES, check_device, Ds4EvdevNode, EV_ABS, EV_KEY, EV_SYN, EVENT, EventDecoder,
     SYN_REPORT)
-from enbarr_plugins.joystick.layouts import get_layout
+from enbarr_core.control.joy_layouts import get_layout
 
 LAYOUT = get_layout('enbarr_ds4')
 TRIANGLE = LAYOUT.buttons.index('triangle')

@@ -1,4 +1,4 @@
-"""Joystick layout presets (``enbarr_plugins.joystick.layouts``): for every preset, every
+"""Joystick layout presets (``enbarr_core.control.joy_layouts``): for every preset, every
 button pressed in that layout and every stick moved, through the mode manager with the CS
 Saucer's named controls (manual section 3.2.5: triangle automatic, square guidance, cross
 manual; left stick surge/sway, right stick yaw). No ROS.
@@ -11,7 +11,7 @@ import pytest
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.modes import ModeManager
 from enbarr_interfaces.modes import Mode
-from enbarr_plugins.joystick.layouts import get_layout, LAYOUTS, mapping_from_params
+from enbarr_core.control.joy_layouts import get_layout, LAYOUTS, mapping_from_params
 
 SAUCER = {k: v for k, v in load_profile('saucer_core').parameters.items()
           if k.startswith('joy.')}

@@ -61,7 +61,7 @@ def test_a_named_layout_places_buttons_and_signed_sticks(context, executor, spin
     """
     from std_msgs.msg import Bool
 
-    from enbarr_plugins.joystick.layouts import get_layout
+    from enbarr_core.control.joy_layouts import get_layout
     lay = get_layout(layout)
     node = add(executor, joystick(context, **{
         'script': ['0.0 sticks 0.5 -0.25 0.75', '0.0 press triangle'], 'joy.layout': layout,

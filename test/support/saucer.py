@@ -19,7 +19,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from enbarr_core.allocation.pwm_mapper_node import duty_message
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control.dp_control_node import DpControlNode
-from enbarr_plugins.joystick.layouts import mapping_from_params
+from enbarr_core.control.joy_layouts import mapping_from_params
 from enbarr_interfaces.modes import Mode
 from enbarr_core.guidance.guidance_node import GuidanceNode
 from enbarr_interfaces import convert, topics
