@@ -69,7 +69,8 @@ class ArduinoEmulator:
     """
 
     def __init__(self, *, reset_on_open: bool = True, boot_delay: float = 0.05,
-                 on_output: Callable[[list[float]], None] | None = None) -> None:
+                 on_output: Callable[[list[float]], None] | None = None,
+                 record: bool = False) -> None:
         self.reset_on_open = reset_on_open
         self.boot_delay = boot_delay
         self.on_output = on_output
@@ -81,6 +82,8 @@ class ArduinoEmulator:
         self.frames_out = 0
         self.resets = 0
         self.lost_bytes = 0  # received while booting or stalled
+        #: Every byte received from the driver (when ``record``): the bytes on the wire.
+        self.received: bytearray | None = bytearray() if record else None
         self._lock = threading.RLock()
         self._master: int | None = None
         self._port_open = False
@@ -180,6 +183,13 @@ class ArduinoEmulator:
         with self._lock:
             self._replay += n
 
+    def clear_faults(self) -> None:
+        """Stop every injected reply fault (corruption, truncation, replay, stall, identity)."""
+        with self._lock:
+            self._corrupt = self._truncate = self._replay = 0
+            self._stalled = False
+            self._identity = None
+
     def stall(self) -> None:
         """Stop passing bytes in either direction (a hung USB-serial bridge)."""
         with self._lock:
@@ -276,6 +286,8 @@ class ArduinoEmulator:
         except OSError:
             return
         self.bytes_in += len(data)
+        if self.received is not None:
+            self.received += data
         if self._stalled or now < self._booting_until:
             self.lost_bytes += len(data)
             return
