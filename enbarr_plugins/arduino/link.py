@@ -487,6 +487,8 @@ LINK_SPECS = [
 ]
 
 _BETWEEN = 'the outputs would go neutral between messages'
+#: How long link errors keep the status at WARN [s].
+ERROR_MEMORY = 5.0
 
 
 @dataclass(frozen=True)
@@ -537,8 +539,8 @@ class ArduinoPwmNode(ActuatorDriver):
         self._neutral: tuple[int, ...] = ()
         self._fault: DeviceError | None = None
         self._fault_lock = threading.Lock()
-        self._errors_reported = 0
-        self._errors_new = 0
+        self._errors_seen = 0
+        self._last_error_ns: int | None = None
         super().__init__(node_name, timeout_message='PWM input stopped: outputs neutral',
                          **kwargs)
         names = AZIMUTHS.names(self)
@@ -573,6 +575,7 @@ class ArduinoPwmNode(ActuatorDriver):
             self._fault = None
         session = BoardSession(link, self.settings.link, name, self._on_fault)
         session.set_command(self._command or self._neutral)
+        self._errors_seen = 0
         self._session = session
         self.sessions += 1
         session.start()
@@ -593,6 +596,14 @@ class ArduinoPwmNode(ActuatorDriver):
             fault, self._fault = self._fault, None
         if fault is not None:
             self.device_fault(fault)
+        session = self._session
+        if session is not None:
+            errors = session.error_count()
+            if errors > self._errors_seen:
+                self._errors_seen = errors
+                self._last_error_ns = time.monotonic_ns()
+                self.get_logger().warn(f'{self.device}: link errors: {session.counters()}',
+                                       throttle_duration_sec=5.0)
         super().supervise()
 
     # -- commands -----------------------------------------------------------------------------
@@ -644,14 +655,10 @@ class ArduinoPwmNode(ActuatorDriver):
         link = (OK, 'ok')
         if session is not None and not session.ready.is_set():
             link = (WARN, "waiting for the board's HELLO")
-        elif session is not None:
-            errors = session.error_count()
-            new, self._errors_reported = errors - self._errors_reported, errors
-            self._errors_new = max(new, 0)
-            if new > 0:
-                link = (WARN, f'{new} link errors in the last report period (counters)')
-                self.get_logger().warn(f'{self.device}: {new} link errors: '
-                                       f'{session.counters()}', throttle_duration_sec=5.0)
+        elif (self._last_error_ns is not None
+              and time.monotonic_ns() - self._last_error_ns < ERROR_MEMORY * 1e9):
+            link = (WARN, f'link errors in the last {ERROR_MEMORY:g} s (corrupted, truncated, '
+                    'out-of-order frames or a board reset: see the counters)')
         h_level, h_message, _ = self.health.report(1.0)
         problem = too_short_for_rate('command_timeout', self.watchdog.timeout_ns * 1e-9,
                                      topics.PWM_DUTY.name, self.duty_period.period, _BETWEEN)
