@@ -84,8 +84,13 @@ def build(src: Path | None = None) -> Path:
     if out.is_file():
         return out
     cc = compiler()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix='.so', dir=out.parent)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix='.so', dir=out.parent)
+    except OSError as err:
+        raise FirmwareBuildError(f'{out.parent}: cannot write the firmware build there '
+                                 f'({err.strerror}); set ENBARR_CACHE to a writable '
+                                 'directory') from err
     os.close(fd)
     cmd = [cc, '-shared', '-fPIC', '-O2', '-std=c99', '-Wall', '-Wextra', '-o', tmp,
            str(src / 'link.c')]
