@@ -55,6 +55,7 @@ EMULATOR_OUTPUT = TopicSpec(
     '<azimuth>/servo; position: duty %), every PWM period (50 Hz) while powered.')
 
 PWM_PERIOD = 0.02  # [s] 50 Hz
+SKETCH_CHUNK = 32  # bytes the sketch's loop() takes from Serial before it sends the replies
 
 
 def _now_ms() -> int:
@@ -82,6 +83,7 @@ class ArduinoEmulator:
         self.frames_out = 0
         self.resets = 0
         self.lost_bytes = 0  # received while booting or stalled
+        self.dropped_bytes = 0  # sent while the driver did not read (the line buffer full)
         #: Every byte received from the driver (when ``record``): the bytes on the wire.
         self.received: bytearray | None = bytearray() if record else None
         self._lock = threading.RLock()
@@ -124,6 +126,7 @@ class ArduinoEmulator:
         tty.setraw(master)
         self.path = os.ttyname(slave)
         os.close(slave)  # the master sees POLLHUP until a driver opens the slave
+        os.set_blocking(master, False)  # a driver that stops reading must not hang the board
         self._master = master
         self._poll = select.poll()
         self._poll.register(master, select.POLLIN)
@@ -232,7 +235,8 @@ class ArduinoEmulator:
         with self._lock:
             return {**self.board.counters(), 'bytes_out': self.bytes_out,
                     'frames_out': self.frames_out, 'resets': self.resets,
-                    'lost_bytes': self.lost_bytes, 'boot_count': self.boot_count}
+                    'lost_bytes': self.lost_bytes, 'dropped_bytes': self.dropped_bytes,
+                    'boot_count': self.boot_count}
 
     # -- the serving thread -------------------------------------------------------------------
     def _run(self) -> None:
@@ -291,7 +295,10 @@ class ArduinoEmulator:
         if self._stalled or now < self._booting_until:
             self.lost_bytes += len(data)
             return
-        self.board.rx(data, now)
+        for i in range(0, len(data), SKETCH_CHUNK):  # as the sketch's loop() does
+            self.board.rx(data[i:i + SKETCH_CHUNK], now)
+            if self._port_open:
+                self._write(master, self.board.tx())
 
     def _write(self, master: int, data: bytes) -> None:
         out = bytearray()
@@ -303,10 +310,13 @@ class ArduinoEmulator:
         if not out:
             return
         try:
-            os.write(master, bytes(out))
-            self.bytes_out += len(out)
+            n = os.write(master, bytes(out))
+        except BlockingIOError:
+            n = 0
         except OSError:
-            pass
+            return
+        self.bytes_out += n
+        self.dropped_bytes += len(out) - n
 
     def _fault(self, frame: bytes) -> bytes:
         self.frames_out += 1
