@@ -541,6 +541,7 @@ class ArduinoPwmNode(ActuatorDriver):
         self._fault_lock = threading.Lock()
         self._errors_seen = 0
         self._last_error_ns: int | None = None
+        self._unready_faults = 0  # sessions in a row that failed before the board answered
         super().__init__(node_name, timeout_message='PWM input stopped: outputs neutral',
                          **kwargs)
         names = AZIMUTHS.names(self)
@@ -586,6 +587,18 @@ class ArduinoPwmNode(ActuatorDriver):
         if session is not None:
             session.stop()
 
+    def connect(self) -> bool:
+        """Open the port; the backoff keeps growing while sessions fail before the HELLO.
+
+        The port opening is not the board answering (a wrong board, no firmware): without
+        this, every retry would start again from ``reconnect.initial_delay``.
+        """
+        delay = self._backoff.delay
+        ok = super().connect()
+        if ok and self._unready_faults:
+            self._backoff.delay = delay
+        return ok
+
     def _on_fault(self, err: DeviceError) -> None:
         with self._fault_lock:  # on an I/O thread: the executor handles it in supervise()
             self._fault = err
@@ -594,9 +607,15 @@ class ArduinoPwmNode(ActuatorDriver):
         """Hand a fault of the I/O threads to ``device_fault``; run the command watchdog."""
         with self._fault_lock:
             fault, self._fault = self._fault, None
+        session = self._session
         if fault is not None:
+            if session is not None and not session.ready.is_set():
+                self._unready_faults += 1
             self.device_fault(fault)
         session = self._session
+        if session is not None and session.ready.is_set() and self._unready_faults:
+            self._unready_faults = 0
+            self._backoff.reset()
         if session is not None:
             errors = session.error_count()
             if errors > self._errors_seen:

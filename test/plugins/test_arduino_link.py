@@ -260,8 +260,12 @@ def test_wrong_identity_is_refused_naming_port_and_value(context, executor, spin
     assert not ready(r.node)
     emu.board.wrong_identity(board_id=proto.BOARD_ID, version=9)
     assert spin(executor, lambda: 'protocol 9' in r.node.last_fault, TIMEOUT)
+    # The port opens each time, the board does not fit: the retries still back off.
+    assert spin(executor, lambda: r.node.faults >= 4, TIMEOUT)
+    assert r.node._backoff.delay == pytest.approx(0.2)  # 0.05, 0.1, 0.2 (max_delay)
     emu.board.right_identity()
     drive(spin, executor, r, emu, GOOD)
+    assert spin(executor, lambda: r.node._backoff.delay == pytest.approx(0.05), TIMEOUT)
 
 
 def test_board_reset_is_detected_and_the_command_restored(context, executor, spin, emu):
