@@ -13,6 +13,7 @@ import struct
 from typing import Any
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from support.nodes import add, probe, TIMEOUT
@@ -116,12 +117,22 @@ def test_duties_reach_the_board_as_set_duty_frames(context, executor, spin, emu)
 
 def test_heartbeats_keep_the_board_alive_without_commands(context, executor, spin, emu):
     r = driver(context, executor, emu.port)
+    diag = statuses(context, executor)
     drive(spin, executor, r, emu, GOOD)
     sent = r.node._session.sent
     assert spin(executor, lambda: r.node._session.sent >= sent + 10, TIMEOUT)
     kinds = [p[0] for p in FrameDecoder().feed(bytes(emu.board.received))]
     assert kinds[-5:] == [proto.HEARTBEAT] * 5
     assert emu.applied(GOOD) and emu.board.counters()['watchdog_trips'] == 0
+    # /diagnostics carries the link counters of both ends.
+    assert spin(executor, lambda: diag and diag[-1].level == DiagnosticStatus.OK
+                and int({v.key: v.value for v in diag[-1].values}.get('acked', 0)) > 0,
+                TIMEOUT)
+    values = {v.key: v.value for v in diag[-1].values}
+    for key in ('sent', 'crc_errors', 'out_of_order', 'board_watchdog_trips',
+                'board_crc_errors', 'board_seq_errors', 'board_resets'):
+        assert key in values, key
+    assert values['device'] == f'{emu.port} ({emu.board.path})'
 
 
 def test_the_board_goes_neutral_on_its_own_when_the_driver_dies(context, executor, spin, emu):
@@ -187,8 +198,17 @@ def test_absent_at_start_then_plugged_in(context, executor, spin):
         board.stop()
 
 
+def statuses(context: Any, executor: Any) -> list[DiagnosticStatus]:
+    out: list[DiagnosticStatus] = []
+    probe(context, executor, 'diag').create_subscription(
+        DiagnosticArray, topics.DIAGNOSTICS.name, lambda m: out.extend(
+            s for s in m.status if s.hardware_id == 'arduino'), topics.DIAGNOSTICS.qos)
+    return out
+
+
 def test_unplugged_and_replugged(context, executor, spin, emu):
     r = driver(context, executor, emu.port)
+    diag = statuses(context, executor)
     drive(spin, executor, r, emu, GOOD)
     first_path = emu.board.path
     emu.unplug()
@@ -197,6 +217,10 @@ def test_unplugged_and_replugged(context, executor, spin, emu):
     assert first_path in r.node.last_fault and 'failed' in r.node.last_fault, r.node.last_fault
     spin(executor, lambda: r.node.faults >= 3, TIMEOUT)  # retries meanwhile, backing off
     assert r.node.status()[0] == 2
+    assert spin(executor, lambda: any(
+        s.level == DiagnosticStatus.ERROR and emu.port in s.message for s in diag), TIMEOUT)
+    values = {v.key: v.value for v in diag[-1].values}
+    assert values['connected'] == 'False' and values['neutral'] == 'True'
     spare = os.openpty()  # holds the old pty number: the board comes back under another
     try:
         emu.replug()  # a new pty: the driver must look the path up again
