@@ -27,7 +27,8 @@ board's counters on ``/diagnostics``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 import os
 import select
 import threading
@@ -37,11 +38,13 @@ from typing import Any
 
 from sensor_msgs.msg import JointState
 
+from enbarr_core.allocation.azimuth import PwmCalibration
 from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
 from enbarr_core.framework.driver import REPORT_PERIOD
 from enbarr_core.framework.health import OK, DEGRADED
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
 from enbarr_interfaces.topics import SENSOR_QOS, TopicSpec
 from enbarr_plugins import emulation
@@ -344,34 +347,57 @@ class ArduinoEmulator:
         return frame + extra
 
 
+EMULATOR_SPECS = [
+    ParamSpec('name', 'default', "Name under which the driver finds it: port 'emulated' "
+              "(default) or 'emulated:NAME'", read_only=True),
+    ParamSpec('boot_delay', 0.05, 'The board answers this long after the port opens (a Mega '
+              'boots in 1-2 s)', 's', 0.0, 10.0, read_only=True),
+    ParamSpec('reset_on_open', True, 'Reset the board when the port opens (DTR)',
+              read_only=True),
+]
+
+
+@dataclass(frozen=True)
+class ArduinoEmulatorSettings:
+    """Settings of ``ArduinoEmulatorNode`` (read only)."""
+
+    azimuths: tuple[AzimuthSpec, ...]
+    calibration: PwmCalibration
+    name: str
+    boot_delay: float   # [s]
+    reset_on_open: bool
+
+    @classmethod
+    def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> ArduinoEmulatorSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        azimuths = AZIMUTHS.from_params(names, v)
+        if 2 * len(azimuths) != proto.CHANNELS:
+            raise ValueError(f'azimuth_names: the board drives {proto.CHANNELS // 2} '
+                             f'azimuths (motor and servo each), got {len(azimuths)}')
+        if not v['name'] or ':' in v['name']:
+            raise ValueError(f"name: a word without ':', got {v['name']!r}")
+        return cls(azimuths, pwm_from_params(v), v['name'], v['boot_delay'],
+                   v['reset_on_open'])
+
+
 class ArduinoEmulatorNode(EnbarrNode):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'arduino_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         names = AZIMUTHS.names(self)
-        specs = AZIMUTHS.specs(self, names) + pwm_specs(self) + [
-            ParamSpec('name', 'default', "Name under which the driver finds it: port "
-                      "'emulated' (default) or 'emulated:NAME'", read_only=True),
-            ParamSpec('boot_delay', 0.05, 'The board answers this long after the port opens '
-                      '(a Mega boots in 1-2 s)', 's', 0.0, 10.0, read_only=True),
-            ParamSpec('reset_on_open', True, 'Reset the board when the port opens (DTR)',
-                      read_only=True)]
-        settings = self.bind_settings(specs, lambda v: (AZIMUTHS.from_params(names, v),
-                                                        pwm_from_params(v), v['name'],
-                                                        v['boot_delay'], v['reset_on_open']),
-                                      lambda _: None).settings
-        _, self.calibration, self.name, boot_delay, reset_on_open = settings
-        if not self.name or ':' in self.name:
-            raise ValueError(f'name: a word without ":", got {self.name!r}')
+        self.settings: ArduinoEmulatorSettings = self.bind_settings(
+            AZIMUTHS.specs(self, names) + pwm_specs(self) + EMULATOR_SPECS,
+            lambda v: ArduinoEmulatorSettings.from_params(names, v),
+            lambda _: None).settings  # every parameter is read only
+        self.calibration = self.settings.calibration
+        self.name = self.settings.name
         self.names = list(names)
         self.channel_names = [f'{n}/{k}' for n in names for k in ('motor', 'servo')]
-        if len(self.channel_names) != proto.CHANNELS:
-            raise ValueError(f'azimuth_names: the board drives {proto.CHANNELS // 2} '
-                             f'azimuths, got {len(names)}')
         self._sim_pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self._out_pub = self.create_topic_publisher(EMULATOR_OUTPUT)
-        self.emulator = ArduinoEmulator(reset_on_open=reset_on_open, boot_delay=boot_delay,
+        self.emulator = ArduinoEmulator(reset_on_open=self.settings.reset_on_open,
+                                        boot_delay=self.settings.boot_delay,
                                         on_output=self._on_output)
         self._registered: str | None = None
         self._register(self.emulator.start())

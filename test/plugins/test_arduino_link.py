@@ -340,6 +340,16 @@ def test_bad_parameters_are_refused_naming_them(context, extra, name):
                        parameter_overrides=overrides({'port': 'emulated:none', **extra}))
 
 
+@pytest.mark.parametrize('extra, name', [
+    ({'name': 'a:b'}, 'name'),
+    ({'azimuth_names': ['az_bow', 'az_port_aft']}, 'azimuth_names'),
+])
+def test_emulator_node_bad_parameters_are_refused_naming_them(context, extra, name):
+    with pytest.raises(ConfigurationError, match=name):
+        ArduinoEmulatorNode(node_name='arduino_emulator', context=context,
+                            parameter_overrides=overrides(extra))
+
+
 def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor, spin):
     name = f'node{next(_names)}'
     emu_node = add(executor, ArduinoEmulatorNode(
@@ -351,6 +361,10 @@ def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor
     out: list[JointState] = []
     p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, sim.append)
     p.create_subscription(JointState, EMULATOR_OUTPUT.name, out.append, EMULATOR_OUTPUT.qos)
+    reports: list[dict[str, str]] = []
+    p.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, lambda m: reports.extend(
+        {'level': s.level, 'message': s.message, **{v.key: v.value for v in s.values}}
+        for s in m.status if s.hardware_id == 'arduino_emulator'), topics.DIAGNOSTICS.qos)
     LinkBus.of(context).connect()
     drive(spin, executor, r, Emu(emu_node.emulator, name), GOOD)
     n = len(sim)
@@ -361,6 +375,11 @@ def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor
     assert list(sim[-1].position) == pytest.approx([1.98968] * 3, abs=1e-12)
     assert list(out[-1].name) == [f'{a}/{k}' for a in NAMES for k in ('motor', 'servo')]
     assert out[-1].header.stamp.sec > 0 or out[-1].header.stamp.nanosec > 0
+    # The emulator reports what it received on /diagnostics.
+    assert spin(executor, lambda: reports and int(reports[-1]['frames']) > 3, TIMEOUT)
+    assert reports[-1]['path'] == emu_node.emulator.path
+    assert reports[-1]['duties'] == ' '.join(f'{d:.2f}' for d in GOOD)
+    assert int(reports[-1]['bytes_in']) > 0 and reports[-1]['crc_errors'] == '0'
     emu_node.unplug()  # the board loses power: no pulses, the simulator's timeout acts
     assert spin(executor, lambda: not r.node.connected, TIMEOUT)
     emu_node.replug()
