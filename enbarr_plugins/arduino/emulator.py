@@ -87,7 +87,7 @@ class ArduinoEmulator:
         self.resets = 0
         self.lost_bytes = 0  # received while booting or stalled
         self.dropped_bytes = 0  # sent while the driver did not read (the line buffer full)
-        #: Every byte received from the driver (when ``record``): the bytes on the wire.
+        #: Every byte received from the driver (when ``record``, for tests: it only grows).
         self.received: bytearray | None = bytearray() if record else None
         self._lock = threading.RLock()
         self._master: int | None = None

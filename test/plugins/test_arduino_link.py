@@ -148,6 +148,7 @@ def test_the_board_goes_neutral_on_its_own_when_the_driver_dies(context, executo
         session._cond.notify_all()
     assert spin(executor, lambda: emu.board.neutral, TIMEOUT)
     assert emu.board.counters()['watchdog_trips'] == 1
+    type(session.link.serial).close(session.link.serial)
 
 
 def test_host_watchdog_sends_neutral_when_duties_stop(context, executor, spin, emu):
