@@ -240,7 +240,8 @@ def test_occasional_corrupted_truncated_and_replayed_replies_are_counted(
     s = r.node._session
     d = s.link.decoder
     emu.board.corrupt_replies(3)
-    assert spin(executor, lambda: d.crc_errors == 3, TIMEOUT), s.counters()
+    # (at least 3: a corrupted frame's bytes may hold a 0xA5 that starts a second bad one)
+    assert spin(executor, lambda: d.crc_errors >= 3, TIMEOUT), s.counters()
     emu.board.truncate_replies(2)  # cut frames: the next frame completes them, CRC fails
     assert spin(executor, lambda: d.crc_errors + d.truncated >= 5, TIMEOUT), s.counters()
     emu.board.replay_replies(2)
