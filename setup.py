@@ -21,6 +21,10 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/params', glob('params/*.yaml')),
         ('share/' + package_name + '/params/scenarios', glob('params/scenarios/*.yaml')),
+        # The Arduino board's firmware: the emulator compiles link.c for the host.
+        ('share/' + package_name + '/firmware', ['firmware/Makefile']),
+        ('share/' + package_name + '/firmware/enbarr_arduino',
+         glob('firmware/enbarr_arduino/*.[ch]') + glob('firmware/enbarr_arduino/*.ino')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
