@@ -383,6 +383,8 @@ class ArduinoEmulatorSettings:
 class ArduinoEmulatorNode(EnbarrNode):
     """See the module docstring."""
 
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+
     def __init__(self, node_name: str = 'arduino_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         names = AZIMUTHS.names(self)
