@@ -97,6 +97,11 @@ def test_revolutions_start_at_a_start_flag():
                    np.ones(5), 300)
     assert len(revs) == 1 and revs[0].angle_deg.tolist() == [60.0, 120.0, 10.0]
     assert asm.false_starts == 1 and asm.invalid == 1
+    # a start read with 3 samples after it was taken 3 sample periods before the read
+    revs = asm.add(np.array([0, 0, 0, 1, 0, 0, 0], bool), np.zeros(7), np.ones(7), 10_000, 1000)
+    assert revs[0].stamp_ns == 300 and revs[0].duration == pytest.approx((7000 - 300) * 1e-9)
+    revs = asm.add(np.array([1, 0], bool), np.zeros(2), np.ones(2), 20_000, 1000)
+    assert revs[0].stamp_ns == 7000 and revs[0].duration == pytest.approx(12_000e-9)
 
 
 def test_the_emulator_answers_with_the_documented_bytes():
