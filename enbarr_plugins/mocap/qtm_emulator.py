@@ -113,6 +113,7 @@ class QtmEmulator:
         self._server: asyncio.AbstractServer | None = None
         self._thread: threading.Thread | None = None
         self._writers: set[asyncio.StreamWriter] = set()
+        self._clients: set[asyncio.Task[Any]] = set()
         self._t0 = time.monotonic()
         self._ready = threading.Event()
 
@@ -171,6 +172,13 @@ class QtmEmulator:
     async def _shutdown(self) -> None:
         await self._drop_all()
         await self._unlisten()
+        if self._clients:  # closed above: each handler ends on its own, its stream with it
+            await asyncio.wait(list(self._clients), timeout=1.0)
+        streams = [t for t in asyncio.all_tasks()
+                   if t is not asyncio.current_task() and t not in self._clients]
+        for task in streams:
+            task.cancel()
+        await asyncio.gather(*streams, return_exceptions=True)
 
     # -- faults --------------------------------------------------------------------------------
     def refuse(self, on: bool) -> None:
@@ -208,6 +216,8 @@ class QtmEmulator:
                       writer: asyncio.StreamWriter) -> None:
         self.connections += 1
         self._writers.add(writer)
+        task = asyncio.current_task()
+        self._clients.add(task)
         state: dict[str, Any] = {'version': VERSIONS[1], 'stream': None}
         writer.write(text_packet(PACKET_COMMAND, WELCOME))
         try:
@@ -227,6 +237,7 @@ class QtmEmulator:
             if state['stream'] is not None:
                 state['stream'].cancel()
             self._writers.discard(writer)
+            self._clients.discard(task)
             writer.close()
 
     def _error(self, writer: asyncio.StreamWriter, text: str) -> None:

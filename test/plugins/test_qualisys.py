@@ -62,8 +62,19 @@ def test_the_emulator_speaks_qtm_rt_bytes():
             _command(sock, 'GetParameters 6D')
             ptype, xml_text = _recv_packet(sock)[1:]
             assert ptype == 2 and body_names(xml_text) == ['saucer', 'buoy']
+            _command(sock, 'GetState')
+            assert _recv_packet(sock)[1:] == (6, b'\x01')  # event: connected
+            _command(sock, 'GetCurrentFrame 6DEuler')
+            euler = _recv_packet(sock)[2]
             _command(sock, 'GetCurrentFrame 6D')
             ptype, data = _recv_packet(sock)[1:]
+        with socket.create_connection((host, port), timeout=TIMEOUT) as sock:
+            _recv_packet(sock)
+            _command(sock, 'StreamFrames Frequency:20 6D')
+            assert [_recv_packet(sock)[1] for _ in range(3)] == [3, 3, 3]
+            _command(sock, 'StreamFrames Stop')
+        _, bodies = QRTPacket(euler).get_6d_euler()
+        assert bodies[0][1].a3 == pytest.approx(90.0, abs=1e-4)  # yaw [deg]
         assert ptype == 3
         _, frame, count = struct.unpack_from('<qII', data)
         csize, ctype = struct.unpack_from('<II', data, 16)
@@ -155,6 +166,16 @@ def test_poses_from_the_simulated_vessel(context, executor, spin):
     v = mocap.status_values()
     assert v['state'] == 'streaming' and v['bodies'] == 'saucer' and v['lost'] == 0
     assert emu.emulator.commands['version'] == 1 and emu.emulator.commands['streamframes'] == 1
+    # the emulator reports what it received and sent
+    statuses = []
+    probe(context, executor, 'listener').create_subscription(
+        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
+        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'qtm_default'),
+        topics.DIAGNOSTICS.qos)
+    assert spin(executor, lambda: statuses, TIMEOUT)
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert 'getparameters=1' in values['commands'] and int(values['frames_sent']) > 0
+    assert int(values['poses']) == 1
 
 
 def test_lost_body_out_of_order_dropped_stalled_refused(context, executor, spin):

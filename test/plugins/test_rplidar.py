@@ -197,6 +197,15 @@ def test_scans_in_the_vessel_frame(context, executor, spin):
     v = lidar.status_values()
     assert v['model'] == 'A1M8' and v['state'] == 'scanning' and v['sync_losses'] == 0
     assert emu.emulator.commands['GET_INFO'] == 1 and emu.emulator.commands['SCAN'] == 1
+    # the emulator reports what it received and sent
+    statuses = []
+    probe(context, executor, 'listener').create_subscription(
+        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
+        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'emu_default'),
+        topics.DIAGNOSTICS.qos)
+    assert spin(executor, lambda: statuses, TIMEOUT)
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert 'GET_INFO=1' in values['commands'] and int(values['samples_sent']) > 700
 
 
 def test_the_motor_runs_through_dtr(context, executor, spin, monkeypatch):
