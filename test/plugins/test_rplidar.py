@@ -268,6 +268,7 @@ def test_unplug_replug_stall_and_corruption(context, executor, spin):
     e.replug()  # a new pty (the kernel may give it the old number)
     assert spin(executor, lambda: lidar.connected and lidar.state == 'scanning', TIMEOUT)
     assert more_scans(spin, executor, scans, 2)
+    assert lidar.status_values()['sync_losses'] >= 2  # totals since start survive reconnects
     # stalled: a fault, reconnect with STOP / SCAN again, resume when it speaks again
     scans_before = e.commands['SCAN']
     e.stall(True)
