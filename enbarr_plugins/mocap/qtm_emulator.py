@@ -104,6 +104,8 @@ class QtmEmulator:
         self.commands: dict[str, int] = {}
         self.frames_sent = 0
         self.errors_sent = 0
+        self.bytes_in = 0
+        self.bytes_out = 0
         # faults
         self.wrong_version = False
         self._stalled = False
@@ -219,13 +221,14 @@ class QtmEmulator:
         task = asyncio.current_task()
         self._clients.add(task)
         state: dict[str, Any] = {'version': VERSIONS[1], 'stream': None}
-        writer.write(text_packet(PACKET_COMMAND, WELCOME))
+        self._write(writer, text_packet(PACKET_COMMAND, WELCOME))
         try:
             while True:
                 size, ptype = _HEADER.unpack(await reader.readexactly(_HEADER.size))
                 if size < _HEADER.size or size > 1 << 20:
                     break  # not QTM RT framing: hang up as QTM would
                 body = await reader.readexactly(size - _HEADER.size)
+                self.bytes_in += size
                 if ptype == PACKET_COMMAND:
                     self._command(body.rstrip(b'\0').decode(errors='replace'), writer, state)
                 else:
@@ -240,9 +243,13 @@ class QtmEmulator:
             self._clients.discard(task)
             writer.close()
 
+    def _write(self, writer: asyncio.StreamWriter, data: bytes) -> None:
+        self.bytes_out += len(data)
+        writer.write(data)
+
     def _error(self, writer: asyncio.StreamWriter, text: str) -> None:
         self.errors_sent += 1
-        writer.write(text_packet(PACKET_ERROR, text))
+        self._write(writer, text_packet(PACKET_ERROR, text))
 
     def _command(self, text: str, writer: asyncio.StreamWriter, state: dict[str, Any]) -> None:
         words = text.split()
@@ -252,7 +259,7 @@ class QtmEmulator:
         if name == 'version':
             if not args:
                 major, minor = state['version']
-                writer.write(text_packet(PACKET_COMMAND, f'Version is {major}.{minor}'))
+                self._write(writer, text_packet(PACKET_COMMAND, f'Version is {major}.{minor}'))
                 return
             major, _, minor = args[0].partition('.')
             ok = major.isdigit() and minor.isdigit() and (
@@ -261,17 +268,17 @@ class QtmEmulator:
                 self._error(writer, 'Version NOT supported')
                 return
             state['version'] = (int(major), int(minor))
-            writer.write(text_packet(PACKET_COMMAND, f'Version set to {words[1]}'))
+            self._write(writer, text_packet(PACKET_COMMAND, f'Version set to {words[1]}'))
         elif name == 'qtmversion':
-            writer.write(text_packet(PACKET_COMMAND, 'QTM Version is 2024.1 (emulated)'))
+            self._write(writer, text_packet(PACKET_COMMAND, 'QTM Version is 2024.1 (emulated)'))
         elif name == 'byteorder':
-            writer.write(text_packet(PACKET_COMMAND, 'Byte order is little endian'))
+            self._write(writer, text_packet(PACKET_COMMAND, 'Byte order is little endian'))
         elif name == 'getstate':
-            writer.write(packet(PACKET_EVENT, bytes((EVENT_CONNECTED,))))
+            self._write(writer, packet(PACKET_EVENT, bytes((EVENT_CONNECTED,))))
         elif name == 'getparameters' and args and set(args) <= {'6d', 'all'}:
-            writer.write(text_packet(PACKET_XML, self.parameters_xml(state['version'])))
+            self._write(writer, text_packet(PACKET_XML, self.parameters_xml(state['version'])))
         elif name == 'getcurrentframe' and args and set(args) <= {'6d', '6deuler'}:
-            writer.write(self.data_packet(COMPONENT_6D_EULER if '6deuler' in args
+            self._write(writer, self.data_packet(COMPONENT_6D_EULER if '6deuler' in args
                                           else COMPONENT_6D))
         elif name == 'streamframes' and args == ['stop']:
             if state['stream'] is not None:
@@ -307,7 +314,7 @@ class QtmEmulator:
         deadline = time.monotonic()
         while not writer.is_closing():
             if not self._stalled:
-                writer.write(self.data_packet(component))
+                self._write(writer, self.data_packet(component))
                 self.frames_sent += 1
             deadline += period
             await asyncio.sleep(max(0.0, deadline - time.monotonic()))
@@ -432,7 +439,8 @@ class QtmEmulatorNode(EnbarrNode):
         self.publish_diagnostics(OK, f'serving tcp://{e.address[0]}:{e.address[1]}', {
             'connections': e.connections, 'open': len(e._writers),
             'commands': ' '.join(f'{k}={v}' for k, v in sorted(e.commands.items())),
-            'frames_sent': e.frames_sent, 'errors_sent': e.errors_sent, 'poses': self.poses})
+            'frames_sent': e.frames_sent, 'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in,
+            'bytes_out': e.bytes_out, 'poses': self.poses})
 
     def destroy_node(self) -> None:
         """Stop the server and withdraw it from the emulator registry."""
