@@ -84,13 +84,19 @@ class Basin:
 
 
 class RplidarEmulator:
-    """See the module docstring. ``on_path(path)`` is called after every (re)plug."""
+    """See the module docstring.
+
+    ``on_path(path)`` is called after every (re)plug, ``on_gone(path)`` when the pty closes
+    (a stale path must not be opened again: the kernel gives its number to the next pty,
+    possibly another program's).
+    """
 
     def __init__(self, *, basin: Basin = Basin(), mount: Mount = Mount(),
                  rotation_hz: float = 5.5, sample_rate: float = 2000.0, model: int = 0x18,
                  firmware: tuple[int, int] = (1, 29), hardware: int = 7,
                  serial_number: bytes = bytes(range(0xA0, 0xB0)),
-                 on_path: Callable[[str], None] | None = None) -> None:
+                 on_path: Callable[[str], None] | None = None,
+                 on_gone: Callable[[str], None] | None = None) -> None:
         self.basin = basin
         self.mount = mount
         self.rotation_hz = rotation_hz
@@ -102,6 +108,7 @@ class RplidarEmulator:
         self.health = (STATUS_OK, 0)
         self.health_sticky = False
         self.on_path = on_path
+        self.on_gone = on_gone
         self.pose = (0.0, 0.0, 0.0)  # vessel x, y [m], psi [rad] in odom
         self.path: str | None = None
         # counters
@@ -157,6 +164,9 @@ class RplidarEmulator:
                     pass
         self._master = self._slave = -1
         self._scanning = False
+        path, self.path = self.path, None
+        if path and self.on_gone is not None:
+            self.on_gone(path)  # the device node disappears, as /dev/ttyUSB0 does
 
     def unplug(self) -> None:
         """Pull the USB cable: the pty disappears."""
@@ -376,7 +386,8 @@ class RplidarEmulatorNode(EnbarrNode):
         s = self.settings
         self.emulator = RplidarEmulator(basin=s.basin, mount=s.mount,
                                         rotation_hz=s.rotation_hz, sample_rate=s.sample_rate,
-                                        model=s.model, on_path=self._register)
+                                        model=s.model, on_path=self._register,
+                                        on_gone=self._unregister)
         self.poses = 0
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
         self.create_timer(1.0, self._report)
@@ -391,6 +402,9 @@ class RplidarEmulatorNode(EnbarrNode):
     def _register(self, path: str) -> None:
         emulation.register('serial', self.settings.name, path)
         self.get_logger().info(f'RPLidar A1 emulator {self.settings.name!r} on {path}')
+
+    def _unregister(self, path: str) -> None:
+        emulation.unregister('serial', self.settings.name, path)
 
     def _on_truth(self, msg: Odometry) -> None:
         eta = convert.pose_to_eta(msg.pose.pose)
@@ -408,8 +422,5 @@ class RplidarEmulatorNode(EnbarrNode):
     def destroy_node(self) -> None:
         """Close the pty and withdraw it from the emulator registry."""
         if self.emulator is not None:
-            path = self.emulator.path
-            self.emulator.stop()
-            if path:
-                emulation.unregister('serial', self.settings.name, path)
+            self.emulator.stop()  # unregisters the pty (on_gone)
         super().destroy_node()

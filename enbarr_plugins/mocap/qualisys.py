@@ -372,7 +372,8 @@ class QualisysNode(SensorDriver):
                                       + (f': {reason}' if reason is not True else ''))
                 quiet = time.monotonic() - self._last_packet
                 if quiet > s.stall_timeout:
-                    raise DeviceError(f'{where}: no frame for {quiet:.2g} s (stalled)')
+                    raise DeviceError(f'{where}: no frame for {quiet:.2g} s (stalled; is QTM '
+                                      'measuring?)')
         finally:
             try:
                 conn.disconnect()
