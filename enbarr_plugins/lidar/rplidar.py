@@ -23,15 +23,16 @@ vendor SDK, github.com/Slamtec/rplidar_sdk: ``sdk/include/sl_lidar_cmd.h``,
   (``setMotorSpeed``: speed 0 -> ``setDTR(true)``, otherwise ``setDTR(false)``; pyserial
   asserts DTR on open, so the motor is off until the driver clears it).
 
-A1 figures (Slamtec RPLIDAR A1M8 datasheet): range 0.15-12 m, 5.5 Hz typical rotation,
-2000 samples/s with the legacy SCAN command (about 360 per revolution), clockwise rotation
-seen from above.
+A1 figures (Slamtec, "RPLIDAR A1 ... Introduction and Datasheet", model A1M8, measurement
+performance table): distance range 0.15-12 m, scan rate 1-10 Hz (5.5 Hz typical, 360 samples
+a scan, 1 deg resolution), sample duration 0.5 ms (2000 samples/s; up to 8000 in the express
+modes this driver does not use); angles grow clockwise seen from above (a left-handed frame).
 
 Frames: the lidar reports angles clockwise from its own 0 deg mark; ``mount`` (x, y [m], yaw
 [rad] of the 0 deg mark in ``base_link``) and ``flip`` (mounted upside down: the rotation
 looks counter-clockwise from above) put each return in ``base_link`` (FLU), and the returns
-of one revolution are binned by their bearing from the ``base_link`` origin into a fixed
-``angle_increment`` (the nearest return wins, ``inf`` where none). The scan's stamp is the
+of one revolution are binned by their bearing from the ``base_link`` origin into ``bins``
+rays of a fixed increment (the nearest return wins, ``inf`` where none). The scan's stamp is the
 node-clock time at which the revolution's first sample arrived (the read's time less one
 sample period per sample read after it); ``scan_time`` the measured revolution;
 ``time_increment`` is 0 (rays re-binned in the vessel frame have no order).
@@ -42,7 +43,8 @@ status, motor on, SCAN) and then streams. Every wait is bounded (``response_time
 ``stall_timeout``); a failure ends the thread with a ``DeviceError`` naming the port and
 what was read, which the supervision timer hands to ``device_fault`` (close, backoff,
 reconnect: STOP and SCAN again, the port looked up again, so a re-plugged device or a new
-emulator pty is found). Nothing runs on the executor but the publish of a finished scan.
+emulator pty is found). Scans are published from the reader thread; the executor only runs
+the supervision timer.
 """
 
 from __future__ import annotations
