@@ -95,6 +95,9 @@ RANGE_MAX = 12.0
 BAUDRATE = 115200
 #: A1 sample period with SCAN (2000 samples/s) [ns], until a revolution measures it.
 SAMPLE_PERIOD_NS = 500_000
+#: Extra wait for the first sample after SCAN [s]: the motor, started with SCAN, must reach
+#: its speed first (the SDK's examples start the motor and scan at once, then wait for data).
+MOTOR_SPINUP = 2.0
 #: The reader sleeps this long between reads [s] and then takes what arrived (100 samples
 #: at 2000 samples/s; the stamps are corrected by the sample period, so only the scan's
 #: publication waits): here a read per 20 ms cost 2.4 % of a core, per 50 ms 1.2 %.
@@ -640,7 +643,7 @@ class RplidarNode(SensorDriver):
                 self._error = DeviceError(f'{name}: reader failed: {err!r}')
 
     def _stream(self, ser: Any, name: str) -> None:
-        last = time.monotonic()
+        last = time.monotonic() + MOTOR_SPINUP  # the first sample waits for the motor
         clock = self.get_clock()
         period_ns = SAMPLE_PERIOD_NS
         while not self._stop.is_set():
