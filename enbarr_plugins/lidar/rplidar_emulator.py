@@ -1,0 +1,426 @@
+"""An RPLidar A1 on a pseudo-terminal: the real byte protocol, ranges ray-cast in a basin.
+
+``RplidarEmulator`` serves the master side of a pty (``os.openpty``, raw) on its own thread;
+a driver opens the slave path with pyserial exactly like ``/dev/ttyUSB0``. It answers STOP,
+RESET, SCAN, GET_INFO and GET_HEALTH with the descriptors and payloads of the Slamtec
+protocol document (see ``enbarr_plugins.lidar.rplidar`` for the layout and its sources): an
+A1M8 (model ``0x18``), firmware 1.29, hardware 7; SCAN streams 5-byte samples at
+``sample_rate`` (2000 samples/s, the A1's legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so
+about 364 samples a revolution), the start flag on the first sample of each revolution.
+
+Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, usually from
+``sim/odometry``, and the mounting pose, the same convention as the driver's ``mount`` and
+``flip``) against a basin: the walls of a rectangle and circular obstacles. No return
+(distance 0, quality 0) beyond 12 m or nearer than 0.15 m.
+
+Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
+under the same registered name, opens), ``corrupt(n)`` (the next n samples with S == !S),
+``truncate(n)`` (the next n samples cut to 3 bytes), ``stall(True)`` (silent: no answer, no
+sample), ``model`` (GET_INFO reports another model, e.g. ``0x61`` an S-series), ``health``
+(GET_HEALTH reports an error; a RESET clears it unless ``health_sticky``).
+
+A pty carries no modem lines: the emulator cannot see DTR, so its motor always "runs"; the
+driver's DTR calls are tested on its pyserial object instead.
+
+``RplidarEmulatorNode`` wraps it for profiles: registers the pty as the ``serial`` emulator
+``name`` (``port: emulated`` or ``emulated:NAME`` in the driver), follows ``sim/odometry`` and
+reports what it received and sent on ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+import math
+import os
+import select
+import struct
+import threading
+import time
+import tty
+from typing import Any
+
+from nav_msgs.msg import Odometry
+import numpy as np
+
+from enbarr_core.framework.driver import OK
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import convert, topics
+from enbarr_plugins import emulation
+from enbarr_plugins.lidar.rplidar import (
+    ANS_TYPE_DEVHEALTH, ANS_TYPE_DEVINFO, ANS_TYPE_MEASUREMENT, CMD_GET_HEALTH, CMD_GET_INFO,
+    CMD_RESET, CMD_SCAN, CMD_STOP, CMDFLAG_HAS_PAYLOAD, encode_descriptor, encode_sample,
+    MODE_MULTI, MODE_SINGLE, Mount, RANGE_MAX, RANGE_MIN, STATUS_ERROR, STATUS_OK, SYNC)
+
+#: FORCE_SCAN (answered like SCAN).
+CMD_FORCE_SCAN = 0x21
+
+
+@dataclass(frozen=True)
+class Basin:
+    """Walls ``(x_min, y_min, x_max, y_max)`` [m] in odom and circles ``(x, y, r)`` [m]."""
+
+    walls: tuple[float, float, float, float] = (-20.0, -3.225, 20.0, 3.225)
+    circles: tuple[tuple[float, float, float], ...] = ()
+
+    def raycast(self, ox: float, oy: float, bearing: np.ndarray) -> np.ndarray:
+        """Distance [m] from (ox, oy) along each bearing [rad] to the first surface."""
+        dx, dy = np.cos(bearing), np.sin(bearing)
+        x0, y0, x1, y1 = self.walls
+        with np.errstate(divide='ignore', invalid='ignore'):
+            tx = np.where(dx > 0, (x1 - ox) / dx, np.where(dx < 0, (x0 - ox) / dx, np.inf))
+            ty = np.where(dy > 0, (y1 - oy) / dy, np.where(dy < 0, (y0 - oy) / dy, np.inf))
+        t = np.minimum(tx, ty)
+        t = np.where(t > 0, t, np.inf)
+        for cx, cy, r in self.circles:
+            ocx, ocy = ox - cx, oy - cy
+            b = ocx * dx + ocy * dy
+            disc = b * b - (ocx * ocx + ocy * ocy - r * r)
+            with np.errstate(invalid='ignore'):
+                tc = -b - np.sqrt(disc)
+            t = np.where((disc >= 0) & (tc > 0), np.minimum(t, tc), t)
+        return t
+
+
+class RplidarEmulator:
+    """See the module docstring.
+
+    ``on_path(path)`` is called after every (re)plug, ``on_gone(path)`` when the pty closes
+    (a stale path must not be opened again: the kernel gives its number to the next pty,
+    possibly another program's).
+    """
+
+    def __init__(self, *, basin: Basin = Basin(), mount: Mount = Mount(),
+                 rotation_hz: float = 5.5, sample_rate: float = 2000.0, model: int = 0x18,
+                 firmware: tuple[int, int] = (1, 29), hardware: int = 7,
+                 serial_number: bytes = bytes(range(0xA0, 0xB0)),
+                 on_path: Callable[[str], None] | None = None,
+                 on_gone: Callable[[str], None] | None = None) -> None:
+        self.basin = basin
+        self.mount = mount
+        self.rotation_hz = rotation_hz
+        self.sample_rate = sample_rate
+        self.model = model
+        self.firmware = firmware
+        self.hardware = hardware
+        self.serial_number = serial_number
+        self.health = (STATUS_OK, 0)
+        self.health_sticky = False
+        self.on_path = on_path
+        self.on_gone = on_gone
+        self.pose = (0.0, 0.0, 0.0)  # vessel x, y [m], psi [rad] in odom
+        self.path: str | None = None
+        # counters
+        self.commands: dict[str, int] = {}
+        self.bad_requests = 0
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.samples_sent = 0
+        self.overflows = 0
+        # faults
+        self._corrupt = 0
+        self._truncate = 0
+        self._stalled = False
+        self._lock = threading.Lock()
+        self._master = self._slave = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._scanning = False
+        self._scan_t0 = 0.0
+        self._scan_index = 0
+        self._rx = bytearray()
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def start(self) -> str:
+        """Open a new pty and serve it; return its path."""
+        if self._thread is not None:
+            return self.path or ''
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._rx.clear()
+        self._scanning = False
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name='rplidar_emulator',
+                                        daemon=True)
+        self._thread.start()
+        if self.on_path is not None:
+            self.on_path(self.path)
+        return self.path
+
+    def stop(self) -> None:
+        """Stop serving and close the pty (the driver's reads then fail)."""
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(2.0)
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = -1
+        self._scanning = False
+        path, self.path = self.path, None
+        if path and self.on_gone is not None:
+            self.on_gone(path)  # the device node disappears, as /dev/ttyUSB0 does
+
+    def unplug(self) -> None:
+        """Pull the USB cable: the pty disappears."""
+        self.stop()
+
+    def replug(self) -> str:
+        """Plugged in again: a new pty (a new path under the same registered name)."""
+        return self.start()
+
+    # -- faults --------------------------------------------------------------------------------
+    def corrupt(self, n: int) -> None:
+        """Break the start-flag pair (S == !S) of the next ``n`` samples."""
+        with self._lock:
+            self._corrupt += n
+
+    def truncate(self, n: int) -> None:
+        """Send only the first 3 bytes of the next ``n`` samples."""
+        with self._lock:
+            self._truncate += n
+
+    def stall(self, on: bool) -> None:
+        """Go silent (no answers, no samples) or speak again."""
+        self._stalled = on
+
+    def set_pose(self, x: float, y: float, psi: float) -> None:
+        """Set the vessel's pose in odom [m, m, rad] (from the simulator)."""
+        self.pose = (x, y, psi)
+
+    # -- serving -------------------------------------------------------------------------------
+    def _serve(self) -> None:
+        period = 0.01
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self._master], [], [], period)
+                if ready:
+                    try:
+                        data = os.read(self._master, 4096)
+                    except BlockingIOError:
+                        data = b''
+                    if data:
+                        self.bytes_in += len(data)
+                        self._rx += data
+                        self._handle_requests()
+                if self._scanning and not self._stalled:
+                    self._stream()
+            except OSError:
+                if self._stop.is_set():
+                    return
+                time.sleep(period)  # no reader on the slave side yet (EIO): keep serving
+
+    def _send(self, data: bytes) -> None:
+        if self._stalled or not data:
+            return
+        try:
+            n = os.write(self._master, data)
+        except BlockingIOError:
+            n = 0
+        if n < len(data):
+            self.overflows += 1  # nobody reads: bytes lost, as on a real line
+        self.bytes_out += n
+
+    def _count(self, name: str) -> None:
+        self.commands[name] = self.commands.get(name, 0) + 1
+
+    def _handle_requests(self) -> None:
+        rx = self._rx
+        while rx:
+            start = rx.find(SYNC)
+            if start < 0:
+                self.bad_requests += 1
+                rx.clear()
+                return
+            if start:
+                self.bad_requests += 1
+                del rx[:start]
+            if len(rx) < 2:
+                return
+            cmd = rx[1]
+            if cmd & CMDFLAG_HAS_PAYLOAD:
+                if len(rx) < 3 or len(rx) < 4 + rx[2]:
+                    return
+                size = rx[2]
+                frame = bytes(rx[:4 + size])
+                checksum = 0
+                for b in frame[:-1]:
+                    checksum ^= b
+                del rx[:4 + size]
+                if checksum != frame[-1]:
+                    self.bad_requests += 1
+                    continue
+                self._count(f'0x{cmd:02X}')  # express scan and friends: not an A1 SCAN
+                continue
+            del rx[:2]
+            if not self._stalled:
+                self._command(cmd)
+
+    def _command(self, cmd: int) -> None:
+        if cmd == CMD_STOP:
+            self._count('STOP')
+            self._scanning = False
+        elif cmd == CMD_RESET:
+            self._count('RESET')
+            self._scanning = False
+            if self.health[0] == STATUS_ERROR and not self.health_sticky:
+                self.health = (STATUS_OK, 0)
+        elif cmd in (CMD_SCAN, CMD_FORCE_SCAN):
+            self._count('SCAN')
+            self._send(encode_descriptor(5, MODE_MULTI, ANS_TYPE_MEASUREMENT))
+            self._scanning = True
+            self._scan_t0 = time.monotonic()
+            self._scan_index = 0
+        elif cmd == CMD_GET_INFO:
+            self._count('GET_INFO')
+            self._send(encode_descriptor(20, MODE_SINGLE, ANS_TYPE_DEVINFO) + struct.pack(
+                '<4B', self.model, self.firmware[1], self.firmware[0], self.hardware)
+                + self.serial_number[:16].ljust(16, b'\0'))
+        elif cmd == CMD_GET_HEALTH:
+            self._count('GET_HEALTH')
+            self._send(encode_descriptor(3, MODE_SINGLE, ANS_TYPE_DEVHEALTH)
+                       + struct.pack('<BH', *self.health))
+        else:
+            self._count(f'0x{cmd:02X}')
+
+    def ranges_mm(self, angle_deg: np.ndarray) -> np.ndarray:
+        """Distances [mm] the lidar measures at its clockwise angles (0: no return)."""
+        x, y, psi = self.pose
+        m = self.mount
+        c, s = math.cos(psi), math.sin(psi)
+        ox, oy = x + c * m.x - s * m.y, y + s * m.x + c * m.y
+        r = self.basin.raycast(ox, oy, psi + m.world_angles(angle_deg))
+        return np.where((r >= RANGE_MIN) & (r <= RANGE_MAX), r * 1000.0, 0.0)
+
+    def _stream(self) -> None:
+        due = int((time.monotonic() - self._scan_t0) * self.sample_rate)
+        n = min(due - self._scan_index, 400)
+        if n <= 0:
+            return
+        per_rev = max(1, round(self.sample_rate / self.rotation_hz))
+        j = np.arange(self._scan_index, self._scan_index + n)
+        rev, i = j // per_rev, j % per_rev
+        step = 360.0 / per_rev
+        angles = (i * step + (rev * 0.37) % step) % 360.0  # angles drift between revolutions
+        dist = self.ranges_mm(angles)
+        out = bytearray()
+        with self._lock:
+            for k in range(n):
+                sample = encode_sample(bool(i[k] == 0), 47 if dist[k] > 0 else 0,
+                                       float(angles[k]), float(dist[k]))
+                if self._corrupt:
+                    self._corrupt -= 1
+                    sample = bytes((sample[0] & 0xFC,)) + sample[1:]
+                elif self._truncate:
+                    self._truncate -= 1
+                    sample = sample[:3]
+                out += sample
+        self._scan_index += n
+        self.samples_sent += n
+        self._send(bytes(out))
+
+
+# -- the node ------------------------------------------------------------------------------
+SPECS = [
+    ParamSpec('name', 'default', "Emulator name: the driver's port emulated:NAME",
+              read_only=True),
+    ParamSpec('basin.walls', [-20.0, -3.225, 20.0, 3.225], 'Basin rectangle x_min, y_min, '
+              'x_max, y_max in odom (default: the NTNU MC-lab, 40 x 6.45 m, centred)', 'm'),
+    ParamSpec('basin.circles', [0.0], 'Circular obstacles x, y, r, x, y, r, ... in odom; '
+              '[0.0]: none', 'm'),
+    ParamSpec('mount.x', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
+    ParamSpec('mount.y', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
+    ParamSpec('mount.yaw', 0.0, "Lidar mount, as the driver's", 'rad', -math.pi, math.pi),
+    ParamSpec('flip', False, "Mounted upside down, as the driver's"),
+    ParamSpec('rotation_hz', 5.5, 'Rotation rate (A1: about 5.5 Hz)', 'Hz', 1.0, 15.0,
+              read_only=True),
+    ParamSpec('sample_rate', 2000.0, 'Samples per second (A1 SCAN: 2000)', '1/s', 100.0,
+              8000.0, read_only=True),
+    ParamSpec('model', 0x18, 'GET_INFO model byte (0x18: A1M8)', '', 0, 255),
+]
+
+
+@dataclass(frozen=True)
+class RplidarEmulatorSettings:
+    """Settings of ``RplidarEmulatorNode`` (see ``SPECS``)."""
+
+    name: str
+    basin: Basin
+    mount: Mount
+    rotation_hz: float
+    sample_rate: float
+    model: int
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> RplidarEmulatorSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        w = [float(a) for a in v['basin.walls']]
+        if len(w) != 4 or not (w[0] < w[2] and w[1] < w[3]):
+            raise ValueError('basin.walls: expected x_min, y_min, x_max, y_max with min < max')
+        c = [float(a) for a in v['basin.circles']]
+        circles: tuple[tuple[float, float, float], ...] = ()
+        if c != [0.0]:
+            if len(c) % 3 or any(r <= 0.0 for r in c[2::3]):
+                raise ValueError('basin.circles: expected x, y, r triples with r > 0')
+            circles = tuple(zip(c[0::3], c[1::3], c[2::3]))
+        return cls(v['name'], Basin((w[0], w[1], w[2], w[3]), circles),
+                   Mount(v['mount.x'], v['mount.y'], v['mount.yaw'], bool(v['flip'])),
+                   v['rotation_hz'], v['sample_rate'], int(v['model']))
+
+
+class RplidarEmulatorNode(EnbarrNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'rplidar_emulator', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: RplidarEmulatorSettings
+        self.emulator: RplidarEmulator | None = None
+        self.bind_settings(SPECS, RplidarEmulatorSettings.from_params, self._apply)
+        s = self.settings
+        self.emulator = RplidarEmulator(basin=s.basin, mount=s.mount,
+                                        rotation_hz=s.rotation_hz, sample_rate=s.sample_rate,
+                                        model=s.model, on_path=self._register,
+                                        on_gone=self._unregister)
+        self.poses = 0
+        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
+        self.create_timer(1.0, self._report)
+        self.emulator.start()
+
+    def _apply(self, s: RplidarEmulatorSettings) -> None:
+        self.settings = s
+        if self.emulator is not None:
+            self.emulator.basin, self.emulator.mount, self.emulator.model = (
+                s.basin, s.mount, s.model)
+
+    def _register(self, path: str) -> None:
+        emulation.register('serial', self.settings.name, path)
+        self.get_logger().info(f'RPLidar A1 emulator {self.settings.name!r} on {path}')
+
+    def _unregister(self, path: str) -> None:
+        emulation.unregister('serial', self.settings.name, path)
+
+    def _on_truth(self, msg: Odometry) -> None:
+        eta = convert.pose_to_eta(msg.pose.pose)
+        self.emulator.set_pose(float(eta[0]), float(eta[1]), float(eta[2]))
+        self.poses += 1
+
+    def _report(self) -> None:
+        e = self.emulator
+        self.publish_diagnostics(OK, f'serving {e.path}' if e.path else 'unplugged', {
+            'path': e.path or '', 'commands': ' '.join(f'{k}={v}' for k, v in
+                                                       sorted(e.commands.items())),
+            'bad_requests': e.bad_requests, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out,
+            'samples_sent': e.samples_sent, 'overflows': e.overflows, 'poses': self.poses})
+
+    def destroy_node(self) -> None:
+        """Close the pty and withdraw it from the emulator registry."""
+        if self.emulator is not None:
+            self.emulator.stop()  # unregisters the pty (on_gone)
+        super().destroy_node()

@@ -1,0 +1,265 @@
+"""Qualisys (QTM RT) driver against its loopback emulator: framing, poses, faults, resume.
+
+Unit tests read the emulator's bytes by hand (the QTM RT protocol document's layout) and
+through qtm-rt's own parser; node tests run the driver on the emulator.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+
+import numpy as np
+import pytest
+from qtm_rt.packet import QRTPacket
+from rclpy.parameter import Parameter
+from support.nodes import add, probe, TIMEOUT
+from support.saucer import odometry_msg
+
+from enbarr_core.bringup.cli import main
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
+from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
+from enbarr_interfaces import convert, topics
+from enbarr_interfaces.links import LinkBus
+from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.mocap.qtm_emulator import QtmEmulator, QtmEmulatorNode
+from enbarr_plugins.mocap.qualisys import (
+    body_index, body_names, check_device, QtmFrame, QualisysNode, rotmat_to_quat)
+
+# -- unit ---------------------------------------------------------------------------------
+
+
+def _recv_packet(sock):
+    header = b''
+    while len(header) < 8:
+        header += sock.recv(8 - len(header))
+    size, ptype = struct.unpack('<II', header)
+    body = b''
+    while len(body) < size - 8:
+        body += sock.recv(size - 8 - len(body))
+    return header, ptype, body
+
+
+def _command(sock, text):
+    data = text.encode() + b'\0'
+    sock.sendall(struct.pack('<II', 8 + len(data), 1) + data)
+
+
+def test_the_emulator_speaks_qtm_rt_bytes():
+    emu = QtmEmulator(bodies=('saucer', 'buoy'))
+    host, port = emu.start()
+    emu.set_pose(1.0, 2.0, math.pi / 2)
+    try:
+        with socket.create_connection((host, port), timeout=TIMEOUT) as sock:
+            header, ptype, body = _recv_packet(sock)  # the welcome: 8 + 26 + NUL = 35 bytes
+            assert header == bytes.fromhex('23000000 01000000')
+            assert body == b'QTM RT Interface connected\0'
+            _command(sock, 'Version 1.25')
+            assert _recv_packet(sock)[1:] == (1, b'Version set to 1.25\0')
+            _command(sock, 'Version 1.99')
+            assert _recv_packet(sock)[1] == 0  # an error packet
+            _command(sock, 'GetParameters 6D')
+            ptype, xml_text = _recv_packet(sock)[1:]
+            assert ptype == 2 and body_names(xml_text) == ['saucer', 'buoy']
+            _command(sock, 'GetState')
+            assert _recv_packet(sock)[1:] == (6, b'\x01')  # event: connected
+            _command(sock, 'GetCurrentFrame 6DEuler')
+            euler = _recv_packet(sock)[2]
+            _command(sock, 'GetCurrentFrame 6D')
+            ptype, data = _recv_packet(sock)[1:]
+        with socket.create_connection((host, port), timeout=TIMEOUT) as sock:
+            _recv_packet(sock)
+            _command(sock, 'StreamFrames Frequency:20 6D')
+            assert [_recv_packet(sock)[1] for _ in range(3)] == [3, 3, 3]
+            _command(sock, 'StreamFrames Stop')
+        _, bodies = QRTPacket(euler).get_6d_euler()
+        assert bodies[0][1].a3 == pytest.approx(90.0, abs=1e-4)  # yaw [deg]
+        assert ptype == 3
+        _, frame, count = struct.unpack_from('<qII', data)
+        csize, ctype = struct.unpack_from('<II', data, 16)
+        assert count == 1 and ctype == 5 and csize == 8 + 8 + 2 * 48
+        assert struct.unpack_from('<ihh', data, 24) == (2, 0, 0)
+        body = struct.unpack_from('<12f', data, 32)
+        assert body[:3] == pytest.approx((1000.0, 2000.0, 0.0), abs=1e-3)
+        # R = Rz(90 deg), column-major: first column (0, 1, 0), second (-1, 0, 0)
+        assert body[3:] == pytest.approx((0, 1, 0, -1, 0, 0, 0, 0, 1), abs=1e-6)
+        # and qtm-rt's own parser reads the same
+        _, bodies = QRTPacket(data).get_6d()
+        assert len(bodies) == 2 and bodies[0][0].x == pytest.approx(1000.0)
+    finally:
+        emu.stop()
+
+
+def test_frames_rotations_and_body_names():
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        r = quat_to_rotmat(quat_from_euler(*rng.uniform(-math.pi, math.pi, 3)))
+        q = rotmat_to_quat(r)
+        assert quat_to_rotmat(q) == pytest.approx(r, abs=1e-9)
+        frame = QtmFrame(yaw=rng.uniform(-3, 3), x=1.5, y=-2.0, up=rng.choice(['z', 'y']))
+        p, rr = frame.to_odom(*frame.from_odom([3.0, 4.0, 0.5], r))
+        assert p == pytest.approx([3.0, 4.0, 0.5]) and rr == pytest.approx(r)
+    # y up: QTM's +y is odom's +z, QTM's +z is odom's -y; a yaw of 90 deg turns x into y
+    p, _ = QtmFrame(up='y').to_odom([0.0, 1000.0, 2000.0], np.eye(3))
+    assert p == pytest.approx([0.0, -2.0, 1.0])
+    p, _ = QtmFrame(yaw=math.pi / 2, x=10.0).to_odom([1000.0, 0.0, 0.0], np.eye(3))
+    assert p == pytest.approx([10.0, 1.0, 0.0])
+    with pytest.raises(ValueError, match='frame.up'):
+        QtmFrame(up='x')
+    with pytest.raises(DeviceError, match=r"'boat' is not in .*known: 'saucer', 'buoy'"):
+        body_index(['saucer', 'buoy'], 'boat', 'tcp://qtm:22223')
+
+
+def test_check_device_against_the_emulator_and_failures():
+    lines = check_device(CheckTarget(host='emulated'))
+    assert '6D bodies: saucer' in lines[0] and "'saucer' in frame" in lines[1]
+    with pytest.raises(DeviceError, match="'boat' is not in the 6D parameters"):
+        check_device(CheckTarget(host='emulated', name='boat'))
+    with pytest.raises(DeviceError, match='127.0.0.1:1: cannot connect'):
+        check_device(CheckTarget(host='127.0.0.1:1', timeout=1.0))
+
+
+def test_check_device_command_line(capsys):
+    assert main(['check-device', 'qualisys', '--host', 'emulated', '--name', 'saucer']) == 0
+    assert '6D bodies: saucer' in capsys.readouterr().out
+    assert main(['check-device', 'qualisys', '--host', '127.0.0.1:1']) == 2
+    err = capsys.readouterr().err.strip()
+    assert '127.0.0.1:1' in err and len(err.splitlines()) == 1
+
+
+# -- node tests -----------------------------------------------------------------------------
+FAST = [Parameter('reconnect.initial_delay', value=0.05),
+        Parameter('reconnect.max_delay', value=0.2), Parameter('timeout', value=1.0)]
+
+
+def mocap_pair(context, executor, name='default', body='saucer', **driver):
+    emu = add(executor, QtmEmulatorNode(node_name=f'qtm_{name}', context=context,
+                                        parameter_overrides=[Parameter('name', value=name)]))
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value=f'emulated:{name}'), Parameter('body', value=body), *FAST,
+        *[Parameter(k, value=v) for k, v in driver.items()]]))
+    p = probe(context, executor, 'simulator')
+    poses = []
+    p.create_topic_subscription(topics.MOCAP_POSE, poses.append)
+    truth = p.create_topic_publisher(topics.SIM_ODOMETRY)
+    LinkBus.of(context).connect()
+    return emu, mocap, poses, truth
+
+
+def record_faults(driver):
+    """Every fault message of ``driver`` from now on, in order (retries included)."""
+    seen: list[str] = []
+    fail = driver._fail
+
+    def recording(err):
+        seen.append(str(err))
+        fail(err)
+    driver._fail = recording
+    return seen
+
+
+def more(spin, executor, poses, n=5):
+    target = len(poses) + n
+    return spin(executor, lambda: len(poses) >= target, TIMEOUT)
+
+
+def test_poses_from_the_simulated_vessel(context, executor, spin):
+    emu, mocap, poses, truth = mocap_pair(context, executor, **{'frame.yaw': 0.5,
+                                                                'frame.x': 2.0})
+    emu.set_parameters([Parameter('frame.yaw', value=0.5), Parameter('frame.x', value=2.0)])
+    truth.publish(odometry_msg(1, [3.0, -1.0, 0.3]))  # the simulator's truth, via the emulator
+    assert more(spin, executor, poses, 5), mocap.last_fault
+    eta = convert.pose_to_eta(poses[-1].pose)
+    assert eta == pytest.approx([3.0, -1.0, 0.3], abs=1e-4)
+    assert poses[-1].header.frame_id == 'odom'
+    stamps = [convert.stamp_to_ns(p.header.stamp) for p in poses]
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    v = mocap.status_values()
+    assert v['state'] == 'streaming' and v['bodies'] == 'saucer' and v['lost'] == 0
+    assert emu.emulator.commands['version'] >= 1 and emu.emulator.commands['streamframes'] >= 1
+    # the emulator reports what it received and sent
+    statuses = []
+    probe(context, executor, 'listener').create_subscription(
+        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
+        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'qtm_default'),
+        topics.DIAGNOSTICS.qos)
+    assert spin(executor, lambda: statuses, TIMEOUT)
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert 'getparameters=' in values['commands'] and int(values['frames_sent']) > 0
+    assert int(values['poses']) == 1
+
+
+def test_lost_body_out_of_order_dropped_stalled_refused(context, executor, spin):
+    emu, mocap, poses, _ = mocap_pair(context, executor, stall_timeout=0.3)
+    e = emu.emulator
+    assert more(spin, executor, poses)
+    # NaN: counted, not published, WARN; found again: published again
+    e.nan(True)
+    assert spin(executor, lambda: mocap.lost >= 5, TIMEOUT)
+    n = len(poses)
+    level, message = mocap.status()
+    assert level == 1 and 'not tracked' in message and len(poses) <= n + 1
+    e.nan(False)
+    assert more(spin, executor, poses) and mocap.faults == 0
+    # an older frame number: dropped and counted
+    e.send_old_frame()
+    assert spin(executor, lambda: mocap.out_of_order == 1, TIMEOUT)
+    # dropped connection: a fault, reconnected, resumed
+    seen = record_faults(mocap)
+    e.drop()
+    assert spin(executor, lambda: seen, TIMEOUT)
+    assert 'connection lost' in seen[0] and 'emulated:default' in mocap.device
+    assert more(spin, executor, poses) and e.connections >= 2
+    # stalled stream: a fault, resumed after
+    seen.clear()
+    e.stall(True)
+    assert spin(executor, lambda: seen, TIMEOUT)
+    assert 'stalled' in seen[0]
+    e.stall(False)
+    assert more(spin, executor, poses), mocap.last_fault
+    # refused connections: faults that say so, until QTM listens again
+    e.refuse(True)
+    e.drop()
+    assert spin(executor, lambda: 'cannot connect' in mocap.last_fault, TIMEOUT)
+    e.refuse(False)
+    assert more(spin, executor, poses), mocap.last_fault
+
+
+def test_wrong_version_and_unknown_body(context, executor, spin):
+    emu, mocap, poses, _ = mocap_pair(context, executor, body='boat')
+    assert spin(executor, lambda: mocap.faults >= 1, TIMEOUT)
+    assert "'boat' is not in the 6D parameters" in mocap.last_fault
+    assert "known: 'saucer'" in mocap.last_fault
+    assert not poses
+    emu.emulator.bodies = ('saucer', 'boat')  # the body defined in QTM: found on a retry
+    assert more(spin, executor, poses, 3), mocap.last_fault
+    emu.emulator.wrong_version = True
+    emu.emulator.drop()
+    assert spin(executor, lambda: 'Version NOT supported' in mocap.last_fault, TIMEOUT)
+    assert 'version 1.25 refused' in mocap.last_fault
+    emu.emulator.wrong_version = False
+    assert more(spin, executor, poses, 3), mocap.last_fault
+
+
+def test_absent_at_start_then_started(context, executor, spin):
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value='emulated:late'), Parameter('body', value='saucer'), *FAST]))
+    assert spin(executor, lambda: mocap.faults >= 1, TIMEOUT)
+    assert "no tcp emulator named 'late'" in mocap.last_fault
+    add(executor, QtmEmulatorNode(node_name='qtm_late', context=context,
+                                  parameter_overrides=[Parameter('name', value='late')]))
+    assert spin(executor, lambda: mocap.samples >= 3, TIMEOUT), mocap.last_fault
+
+
+def test_bad_parameters_are_named(context):
+    with pytest.raises(ConfigurationError, match='body'):
+        QualisysNode(context=context, parameter_overrides=[Parameter('host', value='qtm')])
+    with pytest.raises(ConfigurationError, match='frame.up'):
+        QualisysNode(context=context, parameter_overrides=[
+            Parameter('host', value='qtm'), Parameter('body', value='saucer'),
+            Parameter('frame.up', value='x')])
+    with pytest.raises(ConfigurationError, match='protocol_version'):
+        QualisysNode(context=context, parameter_overrides=[
+            Parameter('host', value='qtm'), Parameter('body', value='saucer'),
+            Parameter('protocol_version', value='1.2')])
