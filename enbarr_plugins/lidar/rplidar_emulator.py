@@ -378,6 +378,8 @@ class RplidarEmulatorSettings:
 class RplidarEmulatorNode(EnbarrNode):
     """See the module docstring."""
 
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+
     def __init__(self, node_name: str = 'rplidar_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.settings: RplidarEmulatorSettings

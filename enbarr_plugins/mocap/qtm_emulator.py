@@ -406,6 +406,8 @@ class QtmEmulatorSettings:
 class QtmEmulatorNode(EnbarrNode):
     """See the module docstring."""
 
+    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+
     def __init__(self, node_name: str = 'qtm_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.settings: QtmEmulatorSettings
