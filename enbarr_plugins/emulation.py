@@ -18,7 +18,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from enbarr_core.framework.errors import DeviceError
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
 
 #: Parameter value naming the emulator instead of a device.
 EMULATED = 'emulated'
@@ -34,6 +34,7 @@ KINDS = {
 
 _lock = threading.Lock()
 _endpoints: dict[tuple[str, str], Any] = {}
+_owners: dict[tuple[str, str], Any] = {}
 
 
 def is_emulated(value: Any) -> bool:
@@ -47,12 +48,31 @@ def emulator_name(value: str) -> str:
     return name or 'default'
 
 
-def register(kind: str, name: str, endpoint: Any) -> None:
-    """Offer ``endpoint`` as the emulated device ``kind``/``name`` of this process."""
+def register(kind: str, name: str, endpoint: Any, owner: Any = None) -> None:
+    """Offer ``endpoint`` as the emulated device ``kind``/``name`` of this process.
+
+    ``owner`` (the emulator node) may register again under its name (a replugged device);
+    another owner of the same kind and name is a ``ConfigurationError``: two emulators of
+    one kind in a profile need different ``name`` parameters, else both drivers would open
+    the same device.
+    """
     if kind not in KINDS:
         raise ValueError(f'kind: one of {", ".join(KINDS)}, got {kind!r}')
     with _lock:
+        held = _owners.get((kind, name))
+        if owner is not None and held is not None and held is not owner:
+            raise ConfigurationError(
+                f'name: {_describe(held)} already emulates the {kind} device {name!r} in '
+                f'this process; give {_describe(owner)} another name (and its driver '
+                f'emulated:<name>)', parameter='name')
         _endpoints[(kind, name)] = endpoint
+        if owner is not None:
+            _owners[(kind, name)] = owner
+
+
+def _describe(owner: Any) -> str:
+    get_name = getattr(owner, 'get_name', None)
+    return f'node {get_name()!r}' if callable(get_name) else repr(owner)
 
 
 def unregister(kind: str, name: str, endpoint: Any = None) -> None:
@@ -60,6 +80,7 @@ def unregister(kind: str, name: str, endpoint: Any = None) -> None:
     with _lock:
         if endpoint is None or _endpoints.get((kind, name)) is endpoint:
             _endpoints.pop((kind, name), None)
+            _owners.pop((kind, name), None)
 
 
 def lookup(kind: str, value: str) -> Any:

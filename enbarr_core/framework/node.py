@@ -203,6 +203,16 @@ class EnbarrNode(Node):
         """The rate loops of this node, in creation order (read only: a copy of the list)."""
         return tuple(self._loops)
 
+    @property
+    def started(self) -> bool:
+        """Whether the node's sources run: between ``start`` and ``stop``.
+
+        A driver whose own thread publishes samples (not a ``RateLoop``) publishes only
+        then: nothing goes out before bringup has checked the graph, and nothing drives the
+        chain once the safe state is being put in place.
+        """
+        return self._started
+
     def start(self) -> None:
         """Start the node's sources. Called by bringup after every node exists and is wired."""
         self._started = True

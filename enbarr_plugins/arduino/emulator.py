@@ -55,7 +55,9 @@ from enbarr_plugins.arduino.firmware import Board
 EMULATOR_OUTPUT = TopicSpec(
     'emulator/arduino', JointState, SENSOR_QOS, 'duty cycle %', '',
     'Duty cycle the emulated Arduino outputs on each channel (name: <azimuth>/motor, '
-    '<azimuth>/servo; position: duty %), every PWM period (50 Hz) while powered.')
+    '<azimuth>/servo; position: duty %), every PWM period (50 Hz) while powered. A link '
+    "topic: a recorder in the process takes it at once, the drivers' safe state included.",
+    fast=True)
 
 PWM_PERIOD = 0.02  # [s] 50 Hz
 SKETCH_CHUNK = 32  # bytes the sketch's loop() takes from Serial before it sends the replies
@@ -408,7 +410,7 @@ class ArduinoEmulatorNode(EnbarrNode):
 
     def _register(self, path: str) -> None:
         self._registered = path
-        emulation.register('serial', self.name, path)
+        emulation.register('serial', self.name, path, owner=self)
 
     def unplug(self) -> None:
         """Pull the cable (the registered path goes away)."""

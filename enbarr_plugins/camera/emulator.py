@@ -121,7 +121,7 @@ class CameraEmulatorNode(EnbarrNode):
         self.directory = tempfile.mkdtemp(prefix='enbarr-camera-')
         self.stalled = False
         self.path = self._write()
-        emulation.register('camera', self.settings.name, self.path)
+        emulation.register('camera', self.settings.name, self.path, owner=self)
         self.create_timer(1.0, self._report)
 
     def _apply(self, settings: CameraEmulatorSettings) -> None:

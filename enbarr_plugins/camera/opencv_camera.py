@@ -280,6 +280,8 @@ class CameraNode(SensorDriver):
         self.device_fault(DeviceError('read failed (unplugged?)'))
 
     def _publish(self, frame: Any) -> None:
+        if not self.started:  # a source: silent before start and after stop
+            return
         stamp = self.get_clock().now().to_msg()
         self._last_frame_ns = time.monotonic_ns()
         h, w = frame.shape[:2]

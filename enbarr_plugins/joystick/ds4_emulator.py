@@ -251,7 +251,7 @@ class Ds4EmulatorNode(EnbarrNode):
         self.settings: Ds4EmulatorSettings = self.bind_settings(
             SPECS, Ds4EmulatorSettings.from_params, lambda s: None).settings
         self.emulator = Ds4Emulator()
-        emulation.register('evdev', self.settings.name, self.emulator)
+        emulation.register('evdev', self.settings.name, self.emulator, owner=self)
         self._names = list(BUTTON_CODES)
         self._next = 0
         self._start_ns: int | None = None

@@ -423,6 +423,8 @@ class Ds4EvdevNode(SensorDriver):
         self.device_fault(DeviceError(f'{h.path} ({h.name}): {what}'))
 
     def _publish(self, decoder: EventDecoder) -> None:
+        if not self.started:  # a source: silent before start and after stop
+            return
         with self._lock:
             axes, buttons = decoder.joy()
         msg = Joy()

@@ -670,6 +670,8 @@ class RplidarNode(SensorDriver):
                     period_ns = min(5_000_000, max(100_000, round(rev.duration * 1e9 / n)))
 
     def _publish(self, rev: RevolutionAssembler.Revolution) -> None:
+        if not self.started:  # a source: silent before start and after stop
+            return
         s = self.settings
         msg = LaserScan()
         convert.ns_to_stamp(rev.stamp_ns, msg.header.stamp)

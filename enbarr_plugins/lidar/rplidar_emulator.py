@@ -402,7 +402,7 @@ class RplidarEmulatorNode(EnbarrNode):
                 s.basin, s.mount, s.model)
 
     def _register(self, path: str) -> None:
-        emulation.register('serial', self.settings.name, path)
+        emulation.register('serial', self.settings.name, path, owner=self)
         self.get_logger().info(f'RPLidar A1 emulator {self.settings.name!r} on {path}')
 
     def _unregister(self, path: str) -> None:

@@ -427,7 +427,7 @@ class QtmEmulatorNode(EnbarrNode):
             self.emulator.frame = s.frame
 
     def _register(self, address: tuple[str, int]) -> None:
-        emulation.register('tcp', self.settings.name, address)
+        emulation.register('tcp', self.settings.name, address, owner=self)
         self.get_logger().info(f'QTM RT emulator {self.settings.name!r} on '
                                f'tcp://{address[0]}:{address[1]}')
 

@@ -393,6 +393,8 @@ class QualisysNode(SensorDriver):
         if pose is None:
             self.lost += 1
             return
+        if not self.started:  # the chain's source: silent before start and after stop
+            return
         p, r = self.settings.frame.to_odom(*pose)
         stamp = max(stamp, self._last_stamp + 1)
         self._last_stamp = stamp

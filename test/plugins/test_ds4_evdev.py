@@ -162,6 +162,7 @@ class Rig:
         self.node = add(executor, Ds4EvdevNode(
             node_name='joystick', context=context,
             parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()]))
+        self.node.start()
 
     def until(self, condition: Any, timeout: float = TIMEOUT) -> bool:
         return self.spin(self.executor, condition, timeout)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from enbarr_core.framework.errors import DeviceError
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_plugins import check, emulation
 
 
@@ -65,3 +65,25 @@ def test_get_or_create_shares_one_endpoint() -> None:
 @pytest.mark.parametrize('kind', sorted(check.CHECKS))
 def test_every_check_kind_has_its_function(kind: str) -> None:
     assert callable(check.checker(kind))
+
+
+def test_two_emulators_cannot_share_a_kind_and_name() -> None:
+    """Two serial emulators both named 'default' would hand both drivers one pty."""
+    class Node:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def get_name(self) -> str:
+            return self.name
+
+    arduino, lidar = Node('arduino_emulator'), Node('lidar_emulator')
+    emulation.register('serial', 'test_default', '/dev/pts/1', owner=arduino)
+    emulation.register('serial', 'test_default', '/dev/pts/2', owner=arduino)  # replugged
+    with pytest.raises(ConfigurationError, match="node 'arduino_emulator' already emulates "
+                       "the serial device 'test_default'.*give node 'lidar_emulator' another "
+                       'name') as err:
+        emulation.register('serial', 'test_default', '/dev/pts/3', owner=lidar)
+    assert err.value.parameter == 'name'
+    assert emulation.lookup('serial', 'emulated:test_default') == '/dev/pts/2'
+    emulation.unregister('serial', 'test_default', '/dev/pts/2')      # unplugged: free again
+    emulation.register('serial', 'test_default', '/dev/pts/3', owner=lidar)

@@ -139,6 +139,7 @@ def mocap_pair(context, executor, name='default', body='saucer', **driver):
     mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
         Parameter('host', value=f'emulated:{name}'), Parameter('body', value=body), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
+    mocap.start()
     p = probe(context, executor, 'simulator')
     poses = []
     p.create_topic_subscription(topics.MOCAP_POSE, poses.append)
@@ -162,6 +163,22 @@ def record_faults(driver):
 def more(spin, executor, poses, n=5):
     target = len(poses) + n
     return spin(executor, lambda: len(poses) >= target, TIMEOUT)
+
+
+def test_silent_between_stop_and_start(context, executor, spin):
+    """The chain's source: after bringup stops the sources (before the safe state), no pose
+    may drive observer -> controller -> thrusters again, though QTM keeps streaming."""
+    emu, mocap, poses, truth = mocap_pair(context, executor)
+    truth.publish(odometry_msg(1, [1.0, 0.0, 0.0]))
+    assert more(spin, executor, poses, 5), mocap.last_fault
+    mocap.stop()
+    spin(executor, lambda: False, 0.3)          # frames in flight
+    count, frames = len(poses), emu.emulator.frames_sent
+    spin(executor, lambda: False, 0.5)
+    assert len(poses) == count
+    assert emu.emulator.frames_sent > frames    # QTM streamed on meanwhile
+    mocap.start()
+    assert more(spin, executor, poses, 5)
 
 
 def test_poses_from_the_simulated_vessel(context, executor, spin):
@@ -245,6 +262,7 @@ def test_wrong_version_and_unknown_body(context, executor, spin):
 def test_absent_at_start_then_started(context, executor, spin):
     mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
         Parameter('host', value='emulated:late'), Parameter('body', value='saucer'), *FAST]))
+    mocap.start()
     assert spin(executor, lambda: mocap.faults >= 1, TIMEOUT)
     assert "no tcp emulator named 'late'" in mocap.last_fault
     add(executor, QtmEmulatorNode(node_name='qtm_late', context=context,

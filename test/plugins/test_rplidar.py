@@ -166,6 +166,7 @@ def lidar_pair(context, executor, name='default', **driver):
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value=f'emulated:{name}'), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
+    lidar.start()
     scans: list[LaserScan] = []
     probe(context, executor).create_subscription(LaserScan, topics.SCAN.name, scans.append,
                                                  topics.SCAN.qos)
@@ -250,6 +251,7 @@ def test_the_motor_runs_through_dtr(context, executor, spin, monkeypatch):
 def test_absent_at_start_then_plugged_in(context, executor, spin):
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value='emulated:late'), *FAST]))
+    lidar.start()
     statuses = []
     probe(context, executor).create_subscription(
         topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
