@@ -1,7 +1,7 @@
 """The Arduino PWM board's firmware logic, compiled for the host and loaded with ctypes.
 
 The board's protocol and watchdog are portable C (``firmware/enbarr_arduino/link.c`` and
-``link.h``; the protocol is documented there and in ``docs/hw/arduino.md``). The emulator
+``link.h``; the protocol is documented there and in ``docs/hardware.md``). The emulator
 runs that very code: ``load()`` compiles it with the host's C compiler
 (``cc -shared -fPIC -O2``) into a cache directory keyed by the sources' hash
 (``$XDG_CACHE_HOME/enbarr/firmware`` or ``~/.cache/enbarr/firmware``; ``ENBARR_CACHE``

@@ -7,7 +7,7 @@ three azimuth motor drives (Torpedo 800) and the three azimuth servos at 4.3-9.4
 the profile's duty limits, the command-rate rule) and sends them to the board's firmware
 (``firmware/enbarr_arduino``) in the framed protocol of ``firmware/enbarr_arduino/link.h``
 (frame of ``transport/serial_link.py``: 0xA5 | LEN | TYPE SEQ BODY | CRC-16/CCITT-FALSE),
-documented again in ``docs/hw/arduino.md``.
+documented again in ``docs/hardware.md``.
 
 The device is named by ``port`` (``/dev/ttyACM0``, or ``emulated[:NAME]`` for the
 emulator of ``arduino/emulator.py``, looked up again at every reconnection). Device I/O runs
@@ -99,7 +99,7 @@ class Hello(NamedTuple):
                                                             CHANNELS):
             return (f'not an Enbarr PWM board: read {self.describe()}; expected protocol '
                     f'{PROTOCOL_VERSION}, board id 0x{BOARD_ID:04X}, {CHANNELS} channels '
-                    '(flash firmware/enbarr_arduino, docs/hw/arduino.md)')
+                    '(flash firmware/enbarr_arduino, docs/hardware.md)')
         return None
 
 
@@ -306,7 +306,7 @@ class BoardSession:
                 raise DeviceError(
                     f'{self.name}: no HELLO from the board within {s.hello_timeout:g} s '
                     f'({d.frames} frames, {d.garbage} stray bytes, {d.crc_errors} CRC errors '
-                    'received); is the Enbarr firmware flashed (docs/hw/arduino.md)?')
+                    'received); is the Enbarr firmware flashed (docs/hardware.md)?')
         raise DeviceError(f'{self.name}: stopped')
 
     def _request(self, kind: int, body: bytes, what: str) -> Status:
