@@ -196,8 +196,10 @@ class DeviceNode(EnbarrNode):
         except Exception as close_err:  # noqa: BLE001 - a dying device may raise anything
             self.get_logger().warn(f'{self.device}: close failed: {close_err!r}')
         delay = self._backoff.schedule(time.monotonic_ns())
-        self.get_logger().error(f'{self.device}: {err} (fault {self.faults}; retry in '
-                                f'{delay:.2g} s)', throttle_duration_sec=1.0)
+        text = str(err)  # transport errors name the device already: say it once
+        where = '' if text.startswith(self.device) else f'{self.device}: '
+        self.get_logger().error(f'{where}{text} (fault {self.faults}; retry in {delay:.2g} s)',
+                                throttle_duration_sec=1.0)
 
     def _supervise(self) -> None:
         now = time.monotonic_ns()

@@ -297,7 +297,7 @@ def test_missing_plugin_lists_known_names(tmp_path: Path) -> None:
         """)
     err = load_error(path)
     assert str(err).startswith(f'{path}: nodes.imu.plugin: every node needs a plugin')
-    assert 'known: attitude_filter, azimuth_allocation, command_receiver,' in str(err)
+    assert 'known: arduino_emulator, arduino_pwm, attitude_filter, azimuth_allocation,' in str(err)
     assert 'sim_imu' in str(err)
 
 

@@ -171,6 +171,20 @@ def test_run_time_fault_puts_outputs_in_safe_state(context, clock):
     node.destroy_node()
 
 
+@pytest.mark.parametrize('error, logged', [
+    ('fake0: unplugged', 'fake0: unplugged (fault 1; retry in 0.5 s)'),
+    ('no answer from the bus', 'fake0: no answer from the bus (fault 1; retry in 0.5 s)')])
+def test_the_fault_log_names_the_device_once(context, clock, error, logged):
+    node = actuator(context)
+    lines: list[str] = []
+    node.get_logger = lambda: type('Log', (), {'error': lambda self, m, **k: lines.append(m),
+                                               'warn': lambda self, m, **k: None,
+                                               'info': lambda self, m, **k: None})()
+    node.device_fault(DeviceError(error))
+    assert lines == [logged]
+    node.destroy_node()
+
+
 def test_run_time_fault_is_reported_as_error(context, clock):
     node = actuator(context)
     reports = Reports(node)
