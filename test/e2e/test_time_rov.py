@@ -148,7 +148,7 @@ def test_one_early_imu_sample_from_another_process_does_not_stop_control(tmp_pat
             assert listener.value('/thruster_control', 'timeouts') == timeouts, \
                 f'+{ahead} s: the watchdog fired'
         # The filter refused both (and said so on /diagnostics).
-        wait(lambda: (listener.value('/filtering', 'imu/data_raw.future') or 0) >= 2, 5,
+        wait(lambda: (listener.value('/filtering', 'imu/data_raw.future') or 0) >= 2, 15,
              'the filter did not report the two future samples')
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=60) == 0, ''.join(out.lines)[-3000:]
