@@ -526,3 +526,41 @@ def sample_lines(sample: ImuSample) -> list[str]:
     if sample.mag is not None:
         lines.append(f'mag [uT] (FLU): {fmt(sample.mag, 1e6)}')
     return lines
+
+
+def check_imu(target: Any, default_settings: Callable[..., Any],
+              make_chips: Callable[[Bus, Any], ImuChips],
+              attach: Callable[[FakeI2cBus, Any], None]) -> list[str]:
+    """``enbarr check-device`` of an I2C IMU: identities, configuration, one sample in SI.
+
+    ``default_settings(**changes)`` builds the driver's settings, ``make_chips(bus, s)`` its
+    chips, ``attach(fake_bus, s)`` puts the emulated chips on a fake bus (``--bus emulated``:
+    a private emulated bus for the check, withdrawn afterwards).
+    """
+    value = target.bus or '1'
+    changes: dict[str, Any] = {'bus': value}
+    if target.address is not None:
+        changes['address'] = target.address
+    try:
+        s = default_settings(**changes)
+    except ValueError as err:
+        raise DeviceError(str(err)) from err
+    name = None
+    if emulation.is_emulated(value):
+        name = f'check-device-{time.monotonic_ns()}'
+        fake = FakeI2cBus()
+        attach(fake, s)
+        emulation.register('i2c', name, fake)
+        s = default_settings(**{**changes, 'bus': f'emulated:{name}'})
+    try:
+        bus = Bus(s.bus, min(target.timeout, 1.0))
+        try:
+            chips = make_chips(bus, s)
+            lines = chips.open()
+            sample = wait_sample(chips, target.timeout)
+        finally:
+            bus.close()
+    finally:
+        if name is not None:
+            emulation.unregister('i2c', name)
+    return lines + sample_lines(sample)

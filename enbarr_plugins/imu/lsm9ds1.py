@@ -55,7 +55,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -64,8 +63,8 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu.common import (
-    Bus, check_address, check_identity, choice, DEG, G, I2cImuNode, ImuChips, ImuSample,
-    Noise, parse_bus, sample_lines, wait_sample)
+    Bus, check_address, check_identity, check_imu, choice, DEG, G, I2cImuNode, ImuChips,
+    ImuSample, Noise, parse_bus)
 
 # accelerometer + gyroscope
 WHO_AM_I = 0x0F
@@ -275,33 +274,6 @@ class Lsm9ds1ImuNode(I2cImuNode):
 
 def check_device(target: CheckTarget) -> list[str]:
     """``enbarr check-device lsm9ds1``: identities, configuration and one sample in SI units."""
-    from enbarr_plugins import emulation
     from enbarr_plugins.imu.lsm9ds1_emulator import attach_lsm9ds1
-    from enbarr_plugins.transport.i2c import FakeI2cBus
-    value = target.bus or '1'
-    changes: dict[str, Any] = {'bus': value}
-    if target.address is not None:
-        changes['address'] = target.address
-    try:
-        s = default_settings(**changes)
-    except ValueError as err:
-        raise DeviceError(str(err)) from err
-    name = None
-    if emulation.is_emulated(value):
-        name = f'check-device-{time.monotonic_ns()}'
-        fake = FakeI2cBus()
-        attach_lsm9ds1(fake, s.address, s.mag_address)
-        emulation.register('i2c', name, fake)
-        s = default_settings(**{**changes, 'bus': f'emulated:{name}'})
-    try:
-        bus = Bus(s.bus, min(target.timeout, 1.0))
-        try:
-            chips = Lsm9ds1Chips(bus, s)
-            lines = chips.open()
-            sample = wait_sample(chips, target.timeout)
-        finally:
-            bus.close()
-    finally:
-        if name is not None:
-            emulation.unregister('i2c', name)
-    return lines + sample_lines(sample)
+    return check_imu(target, default_settings, Lsm9ds1Chips,
+                     lambda fake, s: attach_lsm9ds1(fake, s.address, s.mag_address))

@@ -15,7 +15,7 @@ from enbarr_interfaces import convert
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import fxos8700
-from enbarr_plugins.imu.common import Bus, G, Truth
+from enbarr_plugins.imu.common import Bus, G, Truth, wait_sample
 from enbarr_plugins.imu.fxos8700 import Fxos8700ImuNode
 from enbarr_plugins.imu.fxos8700_emulator import attach_fxos8700, Fxos8700EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
@@ -98,7 +98,7 @@ def test_big_endian_14_bit_accel_and_si_values(fake_bus):
     g.set_truth(truth)
     chips = fxos8700.Fxos8700Chips(Bus(value, 0.05), fxos8700.default_settings(bus=value))
     chips.open()
-    sample = fxos8700.wait_sample(chips, 3.0)
+    sample = wait_sample(chips, 3.0)
     word = int.from_bytes(am.registers[0x01:0x03], 'big', signed=True)
     assert word & 0x3 == 0                                   # left-justified 14 bits
     assert word >> 2 == pytest.approx(-1 / 0.488e-3, abs=60)  # -1 g at +-4 g

@@ -17,7 +17,7 @@ from enbarr_interfaces import convert
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import lsm9ds1
-from enbarr_plugins.imu.common import Bus, G, Truth
+from enbarr_plugins.imu.common import Bus, G, Truth, wait_sample
 from enbarr_plugins.imu.lsm9ds1 import Lsm9ds1ImuNode
 from enbarr_plugins.imu.lsm9ds1_emulator import attach_lsm9ds1, Lsm9ds1EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
@@ -94,7 +94,7 @@ def test_registers_hold_chip_axes_and_the_driver_returns_flu(fake_bus):
     m.set_truth(truth)
     chips = lsm9ds1.Lsm9ds1Chips(Bus(value, 0.05), s)
     chips.open()
-    sample = lsm9ds1.wait_sample(chips, 2.0)
+    sample = wait_sample(chips, 2.0)
     accel_x = int.from_bytes(ag.registers[0x28:0x2A], 'little', signed=True)
     assert accel_x == pytest.approx(-G / (0.122e-3 * G), abs=200)  # chip X register, LSB
     mag_x = int.from_bytes(m.registers[0x28:0x2A], 'little', signed=True)
