@@ -79,9 +79,10 @@ from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
 from enbarr_core.framework.stamps import (
-    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
+    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy)
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
+from enbarr_plugins.thrusters.sim import accept_command
 from enbarr_plugins.transport.i2c import MAX_BLOCK, I2cDevice, open_i2c
 
 # -- registers (data sheet Rev. 4, table 4 and 7.3) ---------------------------------------------
@@ -543,31 +544,11 @@ class Pca9685ThrustersNode(ActuatorDriver):
 
     # -- commands ----------------------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
-        if len(msg.name) != len(msg.effort):
-            self.refused += 1
-            self.health.refused('thruster_commands', 'invalid')
-            return
-        cmd = np.zeros(len(self.names))
-        for name, value in zip(msg.name, msg.effort):
-            i = self._index.get(name)
-            if i is None or not math.isfinite(value):
-                self.refused += 1
-                self.health.refused('thruster_commands', 'invalid')
-                self.get_logger().warn(f'refused thruster command {name}={value}',
-                                       throttle_duration_sec=1.0)
-                return
-            cmd[i] = value
         now_ns = self.get_clock().now().nanoseconds
-        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
-        verdict = self.gate.offer(stamp_ns, now_ns)
-        if verdict is not StampVerdict.ACCEPTED:
-            self.refused += 1
-            self.health.refused('thruster_commands', verdict.value)
+        taken = accept_command(self, msg, now_ns)  # the checks of every thruster plugin
+        if taken is None:
             return
-        self.health.accepted('thruster_commands')
-        if np.any(np.abs(cmd) > 1.0):
-            self.clipped += 1
-            np.clip(cmd, -1.0, 1.0, out=cmd)
+        cmd, stamp_ns = taken
         with self.commanding():
             self.command = cmd
             self.neutral = not np.any(cmd)

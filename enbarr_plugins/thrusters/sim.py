@@ -96,31 +96,11 @@ class SimThrustersNode(ActuatorDriver):
         self.gate.policy = StampPolicy(settings.max_future)
 
     def _on_command(self, msg: JointState) -> None:
-        if len(msg.name) != len(msg.effort):
-            self.refused += 1
-            self.health.refused('thruster_commands', 'invalid')
-            return
-        cmd = np.zeros(len(self.names))
-        for name, value in zip(msg.name, msg.effort):
-            i = self._index.get(name)
-            if i is None or not math.isfinite(value):
-                self.refused += 1
-                self.health.refused('thruster_commands', 'invalid')
-                self.get_logger().warn(f'refused thruster command {name}={value}',
-                                       throttle_duration_sec=1.0)
-                return
-            cmd[i] = value
         now_ns = self.get_clock().now().nanoseconds
-        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
-        verdict = self.gate.offer(stamp_ns, now_ns)
-        if verdict is not StampVerdict.ACCEPTED:
-            self.refused += 1
-            self.health.refused('thruster_commands', verdict.value)
+        taken = accept_command(self, msg, now_ns)
+        if taken is None:
             return
-        self.health.accepted('thruster_commands')
-        if np.any(np.abs(cmd) > 1.0):
-            self.clipped += 1
-            np.clip(cmd, -1.0, 1.0, out=cmd)
+        cmd, stamp_ns = taken
         with self.commanding():
             self._output(cmd, now_ns)
         self.latency.add(now_ns - stamp_ns)
@@ -177,3 +157,38 @@ class SimThrustersNode(ActuatorDriver):
         """Return the driver counters plus refused and clipped commands."""
         return {**super().status_values(), 'refused': self.refused, 'clipped': self.clipped,
                 **self._health_values}
+
+def accept_command(node: Any, msg: JointState, now_ns: int) -> tuple[np.ndarray, int] | None:
+    """Apply the checks of ``thruster_commands`` that every thruster plugin makes.
+
+    ``node`` has ``names``, ``_index`` (name -> position), ``gate`` (``StampGate``), ``health``
+    (``InputHealth``) and the counters ``refused`` and ``clipped``. Returns the command
+    (normalized, in ``names`` order, clipped to -1..1) and its stamp [ns], or None when it is
+    refused (unknown name, non-finite value, a name without a value, or the time policy),
+    counted in ``refused`` and ``health`` by reason.
+    """
+    if len(msg.name) != len(msg.effort):
+        node.refused += 1
+        node.health.refused('thruster_commands', 'invalid')
+        return None
+    cmd = np.zeros(len(node.names))
+    for name, value in zip(msg.name, msg.effort):
+        i = node._index.get(name)
+        if i is None or not math.isfinite(value):
+            node.refused += 1
+            node.health.refused('thruster_commands', 'invalid')
+            node.get_logger().warn(f'refused thruster command {name}={value}',
+                                   throttle_duration_sec=1.0)
+            return None
+        cmd[i] = value
+    stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+    verdict = node.gate.offer(stamp_ns, now_ns)
+    if verdict is not StampVerdict.ACCEPTED:
+        node.refused += 1
+        node.health.refused('thruster_commands', verdict.value)
+        return None
+    node.health.accepted('thruster_commands')
+    if np.any(np.abs(cmd) > 1.0):
+        node.clipped += 1
+        np.clip(cmd, -1.0, 1.0, out=cmd)
+    return cmd, stamp_ns
