@@ -51,11 +51,12 @@ from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_
 from enbarr_core.framework.driver import ActuatorDriver, WARN
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.health import (
-    DEGRADED, InputHealth, IntervalMeter, OK, too_short_for_rate, worst)
+    InputHealth, IntervalMeter, OK, worst)
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
 from enbarr_plugins import emulation
+from enbarr_plugins.arduino.sim import accept_duties, check_command_timeout, rate_status
 from enbarr_plugins.transport.serial_link import encode_frame, open_serial, SerialLink
 
 # -- the protocol (firmware/enbarr_arduino/link.h; a test checks that the values agree) ------
@@ -486,7 +487,6 @@ LINK_SPECS = [
               0.05, 60.0, read_only=True),
 ]
 
-_BETWEEN = 'the outputs would go neutral between messages'
 #: How long link errors keep the status at WARN [s].
 ERROR_MEMORY = 5.0
 
@@ -627,17 +627,8 @@ class ArduinoPwmNode(ActuatorDriver):
 
     # -- commands -----------------------------------------------------------------------------
     def _on_duty(self, msg: Float64MultiArray) -> None:
-        c = self.calibration
-        dim = msg.layout.dim
-        n = self.channels
-        if (len(dim) != 1 or dim[0].label != topics.PWM_DUTY_LABEL or dim[0].size != n
-                or dim[0].stride != n or len(msg.data) != n
-                or not all(c.accepts(d) for d in msg.data)):
-            self.refused += 1
-            self.health.refused('pwm/duty_cycle', 'malformed')
+        if not accept_duties(self, msg):  # the checks of sim_arduino
             return
-        self.health.accepted('pwm/duty_cycle')
-        self.duty_period.add(self.get_clock().now().nanoseconds)
         with self.commanding():
             self._set(tuple(to_units(d) for d in msg.data))
 
@@ -657,13 +648,7 @@ class ArduinoPwmNode(ActuatorDriver):
 
     # -- status -------------------------------------------------------------------------------
     def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
-        for p in params:
-            if p.name == 'command_timeout' and isinstance(p.value, float):
-                problem = too_short_for_rate('command_timeout', p.value, topics.PWM_DUTY.name,
-                                             self.duty_period.period, _BETWEEN)
-                if problem:
-                    return SetParametersResult(successful=False, reason=problem)
-        return SetParametersResult(successful=True)
+        return check_command_timeout(self, params)
 
     def status(self) -> tuple[int, str]:
         """Return ERROR while faulted; WARN during the handshake, on link errors or refusals."""
@@ -679,13 +664,7 @@ class ArduinoPwmNode(ActuatorDriver):
             link = (WARN, f'link errors in the last {ERROR_MEMORY:g} s (corrupted, truncated, '
                     'out-of-order frames or a board reset: see the counters)')
         h_level, h_message, _ = self.health.report(1.0)
-        problem = too_short_for_rate('command_timeout', self.watchdog.timeout_ns * 1e-9,
-                                     topics.PWM_DUTY.name, self.duty_period.period, _BETWEEN)
-        rates = (OK, 'ok')
-        if problem:
-            rates = (DEGRADED, problem)
-            self.report_problem(f'parameter {problem}')
-        return worst((level, message), link, (h_level, h_message), rates)
+        return worst((level, message), link, (h_level, h_message), rate_status(self))
 
     def status_values(self) -> dict[str, Any]:
         """Return the link and board counters."""

@@ -72,17 +72,9 @@ class SimArduinoNode(ActuatorDriver):
         self.connect()
 
     def _on_duty(self, msg: Float64MultiArray) -> None:
-        c = self.calibration
-        dim = msg.layout.dim
-        n = self.channels
-        if (len(dim) != 1 or dim[0].label != topics.PWM_DUTY_LABEL or dim[0].size != n
-                or dim[0].stride != n or len(msg.data) != n
-                or not all(c.accepts(d) for d in msg.data)):
-            self.refused += 1
-            self.health.refused('pwm/duty_cycle', 'malformed')
+        if not accept_duties(self, msg):
             return
-        self.health.accepted('pwm/duty_cycle')
-        self.duty_period.add(self.get_clock().now().nanoseconds)
+        c = self.calibration
         thrust = [c.duty_to_thrust(d) for d in msg.data[0::2]]
         angle = [c.duty_to_angle(d) for d in msg.data[1::2]]
         with self.commanding():
@@ -90,24 +82,12 @@ class SimArduinoNode(ActuatorDriver):
             self._send(thrust, angle)
 
     def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
-        for p in params:
-            if p.name == 'command_timeout' and isinstance(p.value, float):
-                problem = too_short_for_rate('command_timeout', p.value, topics.PWM_DUTY.name,
-                                             self.duty_period.period, _BETWEEN)
-                if problem:
-                    return SetParametersResult(successful=False, reason=problem)
-        return SetParametersResult(successful=True)
+        return check_command_timeout(self, params)
 
     def status(self) -> tuple[int, str]:
         """Return the driver's status, DEGRADED when duties are refused or settings misfit."""
         level, message, _ = self.health.report(1.0)
-        problem = too_short_for_rate('command_timeout', self.watchdog.timeout_ns * 1e-9,
-                                     topics.PWM_DUTY.name, self.duty_period.period, _BETWEEN)
-        rates = (OK, 'ok')
-        if problem:
-            rates = (DEGRADED, problem)
-            self.report_problem(f'parameter {problem}')
-        return worst(super().status(), (level, message), rates)
+        return worst(super().status(), (level, message), rate_status(self))
 
     def _send(self, thrust: list[float], angle: list[float]) -> None:
         out = JointState(name=self.names, effort=thrust, position=angle)
@@ -124,3 +104,49 @@ class SimArduinoNode(ActuatorDriver):
         c = self.calibration
         self._send([c.duty_to_thrust(c.neutral_thrust_duty)] * len(self.names),
                    [c.duty_to_angle(c.neutral_angle_duty)] * len(self.names))
+
+
+# -- the checks of pwm/duty_cycle that every Arduino plugin makes ------------------------------
+# ``node`` has ``channels``, ``calibration`` (PwmCalibration), ``health`` (InputHealth),
+# ``duty_period`` (IntervalMeter, on arrival: the duty message has no stamp), ``refused`` and
+# the ``watchdog`` of an ActuatorDriver.
+
+def accept_duties(node: Any, msg: Float64MultiArray) -> bool:
+    """Whether ``msg`` is a duty message for ``node``'s channels within the calibrated limits.
+
+    A message with another label or size, or a duty outside ``pwm.duty_min_percent ..
+    pwm.duty_max_percent`` or not finite, is refused and counted; an accepted one is timed.
+    """
+    c = node.calibration
+    dim = msg.layout.dim
+    n = node.channels
+    if (len(dim) != 1 or dim[0].label != topics.PWM_DUTY_LABEL or dim[0].size != n
+            or dim[0].stride != n or len(msg.data) != n
+            or not all(c.accepts(d) for d in msg.data)):
+        node.refused += 1
+        node.health.refused('pwm/duty_cycle', 'malformed')
+        return False
+    node.health.accepted('pwm/duty_cycle')
+    node.duty_period.add(node.get_clock().now().nanoseconds)
+    return True
+
+
+def check_command_timeout(node: Any, params: list[Parameter]) -> SetParametersResult:
+    """Refuse a live ``command_timeout`` under two measured duty periods."""
+    for p in params:
+        if p.name == 'command_timeout' and isinstance(p.value, float):
+            problem = too_short_for_rate('command_timeout', p.value, topics.PWM_DUTY.name,
+                                         node.duty_period.period, _BETWEEN)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
+    return SetParametersResult(successful=True)
+
+
+def rate_status(node: Any) -> tuple[int, str]:
+    """DEGRADED (and a reported problem) while ``command_timeout`` misfits the duty rate."""
+    problem = too_short_for_rate('command_timeout', node.watchdog.timeout_ns * 1e-9,
+                                 topics.PWM_DUTY.name, node.duty_period.period, _BETWEEN)
+    if problem:
+        node.report_problem(f'parameter {problem}')
+        return DEGRADED, problem
+    return OK, 'ok'
