@@ -87,7 +87,8 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     bag = tmp_path_factory.mktemp('e2e') / 'bag'
     script = '[' + ', '.join(f"'{line}'" for line in SCRIPT) + ']'
     proc = subprocess.run(
-        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '21', '--record',
+        # 24 s: the script (17 s) starts once its listeners are matched, up to 2.5 s late
+        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '24', '--record',
          str(bag), '--set', f'surface.script={script}',
          '--set', f'simulator.initial.rpy=[0.0, 0.0, {INITIAL_YAW}]'],
         capture_output=True, text=True, timeout=120)
