@@ -8,12 +8,6 @@ The ``script`` parameter is a list of timed lines, times in seconds from the sta
 
 The current velocity goal is sent at ``rate`` with a fresh stamp, as a surface station does;
 after ``stop`` nothing more is sent, so the command receiver's failsafe takes over.
-
-The script's clock starts when the node is started and every subscriber the graph shows for
-``surface_command/twist`` (at least one) is matched by its publisher, or ``listen_timeout``
-after the start (with a warning): a command sent before the middleware has matched the
-receiver is lost, and the first seconds of a script (a dive) would be cut by however long
-discovery took (0.2 to 2.5 s here).
 """
 
 from __future__ import annotations
@@ -66,13 +60,11 @@ class ScriptedCommandsSettings:
 
     script: tuple[Step, ...]  # parsed, in time order
     rate: float               # rate of the velocity goal [Hz]
-    listen_timeout: float     # longest wait for the subscribers at start [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> ScriptedCommandsSettings:
         """Build from the declared parameters' values; ``ValueError`` names the line."""
-        return cls(script=parse_script(v['script'], VERBS), rate=v['rate'],
-                   listen_timeout=v['listen_timeout'])
+        return cls(script=parse_script(v['script'], VERBS), rate=v['rate'])
 
 
 SPECS = [
@@ -80,9 +72,6 @@ SPECS = [
               element=str),
     ParamSpec('rate', 10.0, 'Rate at which the current velocity goal is sent', 'Hz', 0.1,
               1000.0, read_only=True),
-    ParamSpec('listen_timeout', 5.0, 'At start, wait up to this long for the twist '
-              "topic's subscribers to be matched before the script clock starts (0: no wait)",
-              's', 0.0, 60.0, read_only=True),
 ]
 
 
@@ -96,8 +85,7 @@ class ScriptedCommandsNode(EnbarrNode):
         self.script = self.settings.script
         self._next = 0
         self._nu: tuple[float, ...] | None = None
-        self._start_ns: int | None = None     # the script's time zero
-        self._started_ns: int | None = None   # when the node was started
+        self._start_ns: int | None = None
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
         self.create_timer(1.0 / self.settings.rate, self._tick)
@@ -111,28 +99,14 @@ class ScriptedCommandsNode(EnbarrNode):
         return self._next >= len(self.script) and self._nu is None
 
     def start(self) -> None:
-        """Start the script clock once the receivers listen (see the module docstring)."""
+        """Start the script clock."""
         super().start()
-        self._started_ns = self.get_clock().now().nanoseconds
-
-    def listeners_matched(self) -> bool:
-        """Whether every subscriber of the twist topic in the graph (at least one) is matched."""
-        matched = self._twist_pub.get_subscription_count()
-        return matched >= 1 and matched >= self.count_subscribers(self._twist_pub.topic_name)
+        self._start_ns = self.get_clock().now().nanoseconds
 
     def _tick(self) -> None:
-        now = self.get_clock().now().nanoseconds
         if self._start_ns is None:
-            if self._started_ns is None:
-                return
-            waited = (now - self._started_ns) * 1e-9
-            if not self.listeners_matched():
-                if waited < self.settings.listen_timeout:
-                    return
-                self.get_logger().warn(
-                    f'nobody matched on {self._twist_pub.topic_name} after {waited:.1f} s: '
-                    'the script starts anyway')
-            self._start_ns = now
+            return
+        now = self.get_clock().now().nanoseconds
         elapsed = (now - self._start_ns) * 1e-9
         while self._next < len(self.script) and self.script[self._next].time <= elapsed:
             step = self.script[self._next]

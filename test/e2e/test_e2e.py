@@ -87,7 +87,7 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     bag = tmp_path_factory.mktemp('e2e') / 'bag'
     script = '[' + ', '.join(f"'{line}'" for line in SCRIPT) + ']'
     proc = subprocess.run(
-        # 24 s: the script (17 s) starts once its listeners are matched, up to 2.5 s late
+        # 24 s: the script takes 17 s; the rest is margin for a slow start
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '24', '--record',
          str(bag), '--set', f'surface.script={script}',
          '--set', f'simulator.initial.rpy=[0.0, 0.0, {INITIAL_YAW}]'],
@@ -246,8 +246,9 @@ def test_rov_stays_upright(sim_run: dict[str, Any]) -> None:
 
 def test_rov_dives(sim_run: dict[str, Any]) -> None:
     """4 s at 0.2 m/s down: about 0.75 m. Heave is not measured (no depth sensor): the dive
-    runs on the reference model and feed-forward, and ends 0.5-0.9 m deeper from run to run
-    here (the velocity windows above judge its accuracy); 0.3 m says it dove."""
+    runs on the reference model and feed-forward, and the first commands can be lost while
+    the middleware matches the receiver, so the depth reached varies from run to run (0.2 to
+    0.9 m seen here); the velocity windows above judge its accuracy. 0.3 m says it dove."""
     odom = [m for _, m in sim_run['msgs']['/sim/odometry']]
     assert odom[-1].pose.pose.position.z < odom[0].pose.pose.position.z - 0.3
 

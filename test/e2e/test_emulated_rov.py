@@ -25,7 +25,7 @@ VERTICAL = ('vert_front_right', 'vert_front_left', 'vert_rear_right', 'vert_rear
 FRONT = ('front_right', 'front_left', 'rear_right', 'rear_left')
 NEUTRAL = 1500.0   # [us], the ESC's stop pulse (pca9685_emulator esc.neutral)
 DEAD_BAND = 25.0   # [us] half width
-DURATION = 21.0    # [s]: the script ends at 16 s after its listeners matched (up to 2.5 s)
+DURATION = 21.0    # [s]: the script ends at 16 s; the rest is margin for a slow start
 
 
 @pytest.fixture(scope='module')

@@ -58,6 +58,5 @@ def test_numbers_within_bounds():
 
 
 def test_settings_parse_the_script_once():
-    settings = ScriptedCommandsSettings.from_params({'script': LINES, 'rate': 10.0,
-                                                     'listen_timeout': 5.0})
+    settings = ScriptedCommandsSettings.from_params({'script': LINES, 'rate': 10.0})
     assert len(settings.script) == 4 and settings.rate == 10.0

@@ -60,29 +60,3 @@ def test_a_bad_line_is_a_configuration_error_naming_it(context):
     with pytest.raises(ConfigurationError, match=r"script\[1\] '2.0 twist 1 2': twist takes 6"):
         ScriptedCommandsNode(context=context, parameter_overrides=[
             Parameter('script', value=['0.0 stop', '2.0 twist 1 2'])])
-
-
-def test_the_script_clock_waits_for_its_listeners(context, executor, spin):
-    """A command sent before the middleware matched the receiver is lost: a dive scripted
-    for 4 s would last 4 s minus discovery. The clock starts once every subscriber is matched."""
-    node = add(executor, ScriptedCommandsNode(context=context, parameter_overrides=[
-        Parameter('script', value=['0.0 twist 0.1 0 0 0 0 0']),
-        Parameter('rate', value=50.0), Parameter('listen_timeout', value=30.0)]))
-    node.start()
-    spin(executor, lambda: False, 0.5)
-    assert node._start_ns is None and not node.listeners_matched()   # nobody listens yet
-    twists: list[object] = []
-    probe(context, executor, 'receiver').create_topic_subscription(topics.SURFACE_TWIST,
-                                                                    twists.append)
-    assert spin(executor, lambda: node._start_ns is not None, TIMEOUT)
-    assert node.listeners_matched()
-    assert spin(executor, lambda: len(twists) >= 3, TIMEOUT)
-
-
-def test_the_script_starts_anyway_after_listen_timeout(context, executor, spin):
-    node = add(executor, ScriptedCommandsNode(context=context, parameter_overrides=[
-        Parameter('script', value=['0.0 twist 0.1 0 0 0 0 0']),
-        Parameter('rate', value=50.0), Parameter('listen_timeout', value=0.2)]))
-    node.start()
-    assert spin(executor, lambda: node._start_ns is not None, TIMEOUT)
-    assert (node._start_ns - node._started_ns) * 1e-9 >= 0.2
