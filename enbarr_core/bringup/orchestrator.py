@@ -1,11 +1,12 @@
 """The orchestrator: builds a profile's nodes, runs them, and always leaves thrusters neutral.
 
 One process group (the default, every node in ``main``): all nodes are built in this process
-on one ``SingleThreadedExecutor`` and share one link bus, so the IMU -> thruster chain runs as
-direct calls (``docs/architecture.md``). Several groups: this process becomes a supervisor that
-first builds every node once to validate the profile, then runs each group as a child process
-(``enbarr bringup --group NAME``), reports a group that dies, restarts it up to the group's
-``restart_limit``, and stops them all with SIGINT (SIGKILL after a grace period).
+on one executor (rclpy's ``EventsExecutor``, ``make_executor``) and share one link bus, so
+the IMU -> thruster chain runs as direct calls (``docs/architecture.md``). Several groups:
+this process becomes a supervisor that first builds every node once to validate the profile,
+then runs each group as a child process (``enbarr bringup --group NAME``), reports a group
+that dies, restarts it up to the group's ``restart_limit``, and stops them all with SIGINT
+(SIGKILL after a grace period).
 
 Every exit path of a group (SIGINT, SIGTERM, the end of ``--duration``, an exception) runs the
 same ``finally``: stop the sources, ``safe_state()`` on every node (thrusters neutral, while
@@ -37,7 +38,8 @@ from typing import Any
 from rcl_interfaces.srv import ListParameters
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
@@ -300,12 +302,24 @@ def configure_process() -> None:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
 
 
+def make_executor(context: Context) -> Executor:
+    """Return the executor of a composed process: rclpy's ``EventsExecutor``.
+
+    The ``SingleThreadedExecutor`` rebuilds its wait set in Python at every wake-up, walking
+    every entity of every node (parameter services, timers, subscriptions): measured on
+    ``saucer_sim`` composed with nothing started, 20.6 % of a core against 2.7 % for the
+    ``EventsExecutor``, which queues events from the middleware in C++. Its ``spin()`` cannot
+    be stopped cleanly, so it is driven with ``spin_once`` like the other.
+    """
+    return EventsExecutor(context=context)
+
+
 @dataclass(frozen=True)
 class Composition:
     """The nodes of one process, on one executor, their link bus connected."""
 
     context: Context
-    executor: SingleThreadedExecutor
+    executor: Executor
     nodes: list[Node]
 
     def node(self, name: str) -> Node:
@@ -320,8 +334,9 @@ class Composition:
 
 
 @contextmanager
-def composed(profile: Profile, group: str | None = None, *,
-             check_only: bool = False) -> Iterator[Composition]:
+def composed(profile: Profile, group: str | None = None, *, check_only: bool = False,
+             executor: Callable[[Context], Executor] = make_executor,
+             ) -> Iterator[Composition]:
     """Build the nodes of ``group`` (all when None) in a fresh context; always take them down.
 
     On leaving: ``shutdown_nodes`` (safe state first), or, when nothing was started
@@ -330,16 +345,16 @@ def composed(profile: Profile, group: str | None = None, *,
     configure_process()
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = SingleThreadedExecutor(context=context)
+    spinner = executor(context)
     nodes: list[Node] = []
     quiet = check_only
     try:
         nodes.extend(build_nodes(profile, context, group))
         if not check_only:
             for n in nodes:
-                executor.add_node(n)
+                spinner.add_node(n)
             LinkBus.of(context).connect()
-        yield Composition(context, executor, nodes)
+        yield Composition(context, spinner, nodes)
     except DuplicateVesselError as err:
         quiet = quiet or not err.started  # never publish into another vessel's graph
         raise
@@ -349,7 +364,7 @@ def composed(profile: Profile, group: str | None = None, *,
                 _safely(n.destroy_node, f'destroying {n.get_name()}')
         else:
             shutdown_nodes(nodes)
-        executor.shutdown()
+        spinner.shutdown()
         rclpy.try_shutdown(context=context)
 
 

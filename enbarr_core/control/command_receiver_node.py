@@ -91,12 +91,12 @@ class CommandReceiverNode(EnbarrNode):
         self.bind_settings(SPECS, self._build, self._apply)
         self._goal_pub = self.create_topic_publisher(topics.TRAJECTORY_REQUEST)
         self._io_pub = self.create_topic_publisher(topics.IO_REQUEST)
-        # Two-argument callbacks: rclpy then passes each message's MessageInfo (the guard
-        # reads its publication sequence number).
+        # One-argument callbacks: the EventsExecutor of bringup (rclpy 7.1) passes no
+        # MessageInfo, so the guards judge by the matched publisher count (framework.sources).
         self.twist_guard = SourceGuard(self, self.create_topic_subscription(
-            topics.SURFACE_TWIST, lambda msg, info: self._on_twist(msg, info)))
+            topics.SURFACE_TWIST, self._on_twist))
         self.io_guard = SourceGuard(self, self.create_topic_subscription(
-            topics.SURFACE_IO, lambda msg, info: self._on_io(msg, info)))
+            topics.SURFACE_IO, self._on_io))
         self.create_timer(1.0 / self.settings.rate, self._publish_goal)
         self.create_timer(REPORT_PERIOD, self._report)
 
@@ -120,8 +120,8 @@ class CommandReceiverNode(EnbarrNode):
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def _on_twist(self, msg: TwistStamped, info: Mapping[str, Any] | None = None) -> None:
-        if self.twist_guard.contested(info):
+    def _on_twist(self, msg: TwistStamped) -> None:
+        if self.twist_guard.contested():
             self.gate.withdraw(Verdict.CONTESTED)  # zero goal now, not after the timeout
             self.health.refused('surface_command/twist', Verdict.CONTESTED.value)
             self.get_logger().error(self.twist_guard.status()[1], throttle_duration_sec=1.0)
@@ -142,9 +142,9 @@ class CommandReceiverNode(EnbarrNode):
         self.period.add(convert.stamp_to_ns(msg.header.stamp))
         self._publish_goal()
 
-    def _on_io(self, msg: Parameter, info: Mapping[str, Any] | None = None) -> None:
+    def _on_io(self, msg: Parameter) -> None:
         reason = None
-        if self.io_guard.contested(info):
+        if self.io_guard.contested():
             self.io_contested += 1
             self.health.refused('surface_command/io', 'contested')
             self.get_logger().error(self.io_guard.status()[1], throttle_duration_sec=1.0)

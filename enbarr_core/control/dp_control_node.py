@@ -225,9 +225,8 @@ class DpControlNode(EnbarrNode):
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.GUIDANCE_REFERENCE, self._on_reference)
         self.create_topic_subscription(topics.GUIDANCE_PATH_AVAILABLE, self._on_path_available)
-        # Two arguments: rclpy passes the MessageInfo, whose sequence number the guard reads.
-        self._joy_sub = self.create_topic_subscription(
-            topics.JOY, lambda msg, info: self._on_joy(msg, info))
+        # One argument: the EventsExecutor of bringup (rclpy 7.1) passes no MessageInfo.
+        self._joy_sub = self.create_topic_subscription(topics.JOY, self._on_joy)
         self.joy_guard = SourceGuard(self, self._joy_sub)
         self.create_topic_subscription(topics.JOY_CONNECTED, self._on_joy_connected)
         self._joy_last: tuple[int, tuple[float, ...], tuple[int, ...]] | None = None
@@ -294,8 +293,8 @@ class DpControlNode(EnbarrNode):
     def _on_path_available(self, msg: Bool) -> None:
         self.path_available = msg.data
 
-    def _on_joy(self, msg: Joy, info: Mapping[str, Any] | None = None) -> None:
-        if self.joy_guard.contested(info):
+    def _on_joy(self, msg: Joy) -> None:
+        if self.joy_guard.contested():
             self.health.refused('joy', 'contested')
             self.get_logger().error(self.joy_guard.status()[1], throttle_duration_sec=2.0)
             # Stop now, not joy_timeout later: someone else is on the joystick topic.

@@ -17,13 +17,16 @@ costs nothing and cannot be fooled by messages that look alike. Stopping is also
 operator wants when someone else grabs the vessel: take the other publisher down to resume.
 
 The matched count can lag the first message of a new writer by a moment, so the guard also
-reads each message's publication sequence number (``MessageInfo``): every writer numbers its
-messages 1, 2, 3 ... on its own, so while one source is active (a message within
-``QUIET_S``), a number that does not go up is another writer's message and is refused too.
-After ``QUIET_S`` of silence a restarted number is taken as the source restarting (an
-operator station started again), not as a second one. A second writer whose numbers happen
-to run above the first's, and whose first message beats the matched count, still gets that
-one message through.
+reads each message's publication sequence number (``MessageInfo``) when it is given one:
+every writer numbers its messages 1, 2, 3 ... on its own, so while one source is active
+(a message within ``QUIET_S``), a number that does not go up is another writer's message
+and is refused too. After ``QUIET_S`` of silence a restarted number is taken as the source
+restarting (an operator station started again), not as a second one. A second writer whose
+numbers happen to run above the first's, and whose first message beats the matched count,
+still gets that one message through. Bringup's ``EventsExecutor`` (rclpy 7.1) hands
+callbacks no ``MessageInfo`` at all, so there the nodes' guards judge by the matched count
+alone: a second writer's messages that arrive before the count has caught up (a moment
+after its discovery) are taken.
 """
 
 from __future__ import annotations

@@ -191,7 +191,10 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     profile = add_recorder(with_record(profile, str(bag)))
     apply_environment(profile)
     wall0, cpu0 = time.monotonic(), time.process_time()
-    with composed(profile) as c:
+    # Stepped one ready callback at a time (_spin_ready): the SingleThreadedExecutor's
+    # wait_for_ready_callbacks, which the EventsExecutor of bringup does not have.
+    from rclpy.executors import SingleThreadedExecutor
+    with composed(profile, executor=lambda ctx: SingleThreadedExecutor(context=ctx)) as c:
         sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)
