@@ -81,7 +81,7 @@ class AzimuthAllocationNode(EnbarrNode):
         self._pub = self.create_topic_publisher(topics.AZIMUTH_COMMANDS)
         self._delivered_pub = self.create_topic_publisher(topics.ALLOCATION_DELIVERED)
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def _build_max_future(self, v: Mapping[str, Any]) -> float:
         problem = future_tolerance_problem(v['max_future'], self.force_period.period,

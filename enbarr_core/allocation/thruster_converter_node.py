@@ -87,7 +87,7 @@ class ThrusterConverterNode(EnbarrNode):
         self._names = [t.name for t in s.thrusters]
         self._pub = self.create_topic_publisher(topics.THRUSTER_COMMANDS)
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_wrench)
-        self.create_timer(REPORT_PERIOD, self._report)
+        self.create_periodic(REPORT_PERIOD, self._report)
 
     def _apply(self, settings: ThrusterConverterSettings) -> None:
         self.settings = settings

@@ -98,7 +98,7 @@ class CommandReceiverNode(EnbarrNode):
         self.io_guard = SourceGuard(self, self.create_topic_subscription(
             topics.SURFACE_IO, self._on_io))
         self.create_timer(1.0 / self.settings.rate, self._publish_goal)
-        self.create_timer(REPORT_PERIOD, self._report)
+        self.create_periodic(REPORT_PERIOD, self._report)
 
     def _build(self, v: Mapping[str, Any]) -> CommandReceiverSettings:
         settings = CommandReceiverSettings.from_params(v)

@@ -230,8 +230,8 @@ class DpControlNode(EnbarrNode):
         self.joy_guard = SourceGuard(self, self._joy_sub)
         self.create_topic_subscription(topics.JOY_CONNECTED, self._on_joy_connected)
         self._joy_last: tuple[int, tuple[float, ...], tuple[int, ...]] | None = None
-        self.create_timer(WATCHDOG_PERIOD, self._supervise)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(WATCHDOG_PERIOD, self._supervise)
+        self.create_periodic(1.0, self._report)
         self._mode_pub.publish(String(data=self.manager.mode.value))
 
     def _build(self, v: Mapping[str, Any]) -> DpControlNodeSettings:

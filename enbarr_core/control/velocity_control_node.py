@@ -164,7 +164,7 @@ class VelocityControlNode(EnbarrNode):
         self._pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self.create_topic_subscription(topics.TRAJECTORY_REQUEST, self._on_goal)
         self.create_topic_subscription(topics.IMU, self._on_imu)
-        self.create_timer(REPORT_PERIOD, self._report)
+        self.create_periodic(REPORT_PERIOD, self._report)
         velocity_topic = self.settings.velocity_topic
         if velocity_topic:
             self.create_topic_subscription(TopicSpec(

@@ -121,7 +121,7 @@ class AttitudeFilterNode(EnbarrNode):
         self._pub = self.create_topic_publisher(topics.IMU)
         self.create_topic_subscription(topics.IMU_MAG, self._on_mag)
         self.create_topic_subscription(topics.IMU_RAW, self._on_imu)
-        self.create_timer(REPORT_PERIOD, self._report)
+        self.create_periodic(REPORT_PERIOD, self._report)
 
     def _build(self, v: Mapping[str, Any]) -> AttitudeFilterNodeSettings:
         settings = AttitudeFilterNodeSettings.from_params(v)

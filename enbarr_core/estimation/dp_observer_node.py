@@ -146,8 +146,8 @@ class DpObserverNode(EnbarrNode):
         self._age_pub = self.create_topic_publisher(topics.OBSERVER_AGE)
         self.create_topic_subscription(topics.ALLOCATION_DELIVERED, self._on_tau)
         self.create_topic_subscription(topics.MOCAP_POSE, self._on_pose)
-        self.create_timer(WATCHDOG_PERIOD, self._dead_reckon)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(WATCHDOG_PERIOD, self._dead_reckon)
+        self.create_periodic(1.0, self._report)
 
     def _build(self, v: Mapping[str, Any]) -> DpObserverNodeSettings:
         """Build the settings and refuse those that do not fit the measured pose period."""

@@ -147,7 +147,7 @@ class DeviceNode(EnbarrNode):
         self._report_ns = 0
         self._backoff = self.bind_settings(RECONNECT_SPECS, self._build_backoff,
                                            self._apply_backoff).settings
-        self.create_timer(self.supervision_period, self._supervise)
+        self.create_periodic(self.supervision_period, self._supervise)
 
     #: Period of the supervision timer [s].
     supervision_period = SUPERVISION_PERIOD

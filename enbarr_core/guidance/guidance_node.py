@@ -168,7 +168,7 @@ class GuidanceNode(EnbarrNode):
         self.bind_settings(SPECS, self._build, self._apply)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.MODE, self._on_mode)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def _build(self, v: Mapping[str, Any]) -> GuidanceSettings:
         """Build the settings and refuse those that do not fit the measured estimate period."""

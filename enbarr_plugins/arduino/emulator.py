@@ -406,7 +406,7 @@ class ArduinoEmulatorNode(EnbarrNode):
         self._registered: str | None = None
         self._register(self.emulator.start())
         self._last_trips = 0
-        self.create_timer(REPORT_PERIOD, self._report)
+        self.create_periodic(REPORT_PERIOD, self._report)
 
     def _register(self, path: str) -> None:
         self._registered = path

@@ -122,7 +122,7 @@ class CameraEmulatorNode(EnbarrNode):
         self.stalled = False
         self.path = self._write()
         emulation.register('camera', self.settings.name, self.path, owner=self)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def _apply(self, settings: CameraEmulatorSettings) -> None:
         self.settings = settings

@@ -463,7 +463,7 @@ class EmulatorNode(EnbarrNode):
         for chip in self.chips.values():
             chip.set_truth(level_truth(s.magnetic_field))
         self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def _apply(self, settings: Any) -> None:
         self.settings = settings

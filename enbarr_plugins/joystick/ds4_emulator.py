@@ -257,7 +257,7 @@ class Ds4EmulatorNode(EnbarrNode):
         self._start_ns: int | None = None
         self._release_ns: int | None = None
         self.create_timer(0.05, self._tick)  # the script's resolution (20 Hz)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def start(self) -> None:
         """Start the script's clock now."""

@@ -392,7 +392,7 @@ class RplidarEmulatorNode(EnbarrNode):
                                         on_gone=self._unregister)
         self.poses = 0
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
         self.emulator.start()
 
     def _apply(self, s: RplidarEmulatorSettings) -> None:

@@ -418,7 +418,7 @@ class QtmEmulatorNode(EnbarrNode):
                                     frame=s.frame, on_address=self._register)
         self.poses = 0
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
         self.emulator.start()
 
     def _apply(self, s: QtmEmulatorSettings) -> None:

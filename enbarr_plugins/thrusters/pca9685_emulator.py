@@ -357,7 +357,7 @@ class Pca9685EmulatorNode(EnbarrNode):
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
         self._pulse_pub = self.create_topic_publisher(EMULATOR_PCA9685)
         self.loop = self.create_rate_loop(s.rate, self.tick)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._report)
 
     def _build(self, v: dict[str, Any]) -> EmulatorSettings:
         channels = tuple(v[f'pca9685.channels.{n}'] for n in self.names)

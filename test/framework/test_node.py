@@ -17,3 +17,106 @@ def test_rate_loops_are_listed_in_creation_order_read_only(context):
     finally:
         node.stop()
         node.destroy_node()
+
+
+# -- the process's one supervision timer (Ticker) ------------------------------------------------
+import pytest  # noqa: E402
+
+from enbarr_core.framework.node import Ticker, TICK  # noqa: E402
+
+
+def _timers(*nodes):
+    return sum(len(list(n.timers)) for n in nodes)
+
+
+def test_checks_of_every_node_share_one_timer_and_run_at_their_periods(context):
+    a, b = EnbarrNode('ticker_a', context=context), EnbarrNode('ticker_b', context=context)
+    try:
+        calls = []
+        a.create_periodic(TICK, lambda: calls.append('a'))
+        b.create_periodic(3 * TICK, lambda: calls.append('b'))
+        b.create_periodic(1.0, lambda: calls.append('b1'))
+        assert _timers(a, b) == 1          # one executor timer for the whole process
+        ticker = Ticker.of(context)
+        for _ in range(10):
+            ticker.tick()
+        assert calls.count('a') == 10 and calls.count('b') == 3 and calls.count('b1') == 1
+        assert calls[:3] == ['a', 'a', 'a'] and calls[3] == 'b'  # first call after a period
+    finally:
+        b.destroy_node()
+        a.destroy_node()
+
+
+def test_a_failing_check_is_counted_and_the_others_still_run(context):
+    a, b = EnbarrNode('ticker_fail', context=context), EnbarrNode('ticker_ok', context=context)
+    try:
+        ran = []
+        bad = a.create_periodic(TICK, lambda: 1 / 0)
+        b.create_periodic(TICK, lambda: ran.append(1))
+        for _ in range(3):
+            Ticker.of(context).tick()
+        assert bad.errors == 3 and len(ran) == 3
+    finally:
+        b.destroy_node()
+        a.destroy_node()
+
+
+def test_the_timer_moves_when_its_host_node_is_destroyed(context):
+    a, b = EnbarrNode('ticker_host', context=context), EnbarrNode('ticker_next', context=context)
+    ran = []
+    try:
+        a.create_periodic(TICK, lambda: ran.append('a'))
+        b.create_periodic(TICK, lambda: ran.append('b'))
+        ticker = Ticker.of(context)
+        assert ticker.host is a and _timers(a, b) == 1
+        a.destroy_node()
+        assert ticker.host is b and _timers(b) == 1
+        ticker.tick()
+        assert ran == ['b']                # the destroyed node's check is gone with it
+    finally:
+        b.destroy_node()
+    assert ticker.host is None
+
+
+def test_the_timer_really_drives_the_checks(context, executor):
+    from test.conftest import spin_until
+    node = EnbarrNode('ticker_spun', context=context)
+    executor.add_node(node)
+    ran = []
+    node.create_periodic(TICK, lambda: ran.append(1))
+    assert spin_until(executor, lambda: len(ran) >= 3, timeout=10.0)
+
+
+@pytest.mark.parametrize('period', [0.0, 0.05, 0.25, -1.0])
+def test_a_period_off_the_tick_is_refused(context, period):
+    node = EnbarrNode('ticker_bad', context=context)
+    try:
+        with pytest.raises(ValueError, match='whole multiple'):
+            node.create_periodic(period, lambda: None)
+    finally:
+        node.destroy_node()
+
+
+def test_a_cancelled_check_is_not_called(context):
+    node = EnbarrNode('ticker_cancel', context=context)
+    try:
+        ran = []
+        node.create_periodic(TICK, lambda: ran.append(1)).cancel()
+        Ticker.of(context).tick()
+        assert ran == []
+    finally:
+        node.destroy_node()
+
+
+def test_a_check_added_later_counts_its_period_from_then(context):
+    node = EnbarrNode('ticker_late', context=context)
+    try:
+        ticker, calls = Ticker.of(context), []
+        node.create_periodic(TICK, lambda: None)
+        ticker.tick()                              # tick 1
+        node.create_periodic(2 * TICK, lambda: calls.append(ticker.count))
+        for _ in range(4):
+            ticker.tick()                          # ticks 2..5
+        assert calls == [3, 5]                     # 2 ticks after it was added, not at even ticks
+    finally:
+        node.destroy_node()
