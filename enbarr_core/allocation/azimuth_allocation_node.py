@@ -100,7 +100,7 @@ class AzimuthAllocationNode(EnbarrNode):
             self.health.refused('force_command', 'non_finite')
             return
         t = convert.stamp_to_ns(msg.header.stamp)
-        verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+        verdict = self._gate.offer(t, self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self.rejected += 1
             self.health.refused('force_command', verdict.value)

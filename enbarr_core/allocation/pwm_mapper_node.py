@@ -146,7 +146,7 @@ class PwmMapperNode(ActuatorDriver):
             return
         t = convert.stamp_to_ns(msg.header.stamp)
         if t:  # a zero stamp carries no time: nothing to judge
-            verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+            verdict = self._gate.offer(t, self.now_ns())
             if verdict is not StampVerdict.ACCEPTED:
                 self._refuse(verdict.value)
                 self.get_logger().warn(f'azimuth_commands refused ({verdict.value})',
@@ -166,7 +166,7 @@ class PwmMapperNode(ActuatorDriver):
             self._publish(duty, neutral=False)
         if t:
             self.command_period.add(t)
-            self.latency.add(self.get_clock().now().nanoseconds - t)
+            self.latency.add(self.now_ns() - t)
 
     def status(self) -> tuple[int, str]:
         """Return the driver's status, DEGRADED when commands are refused or settings misfit."""

@@ -100,7 +100,7 @@ class ThrusterConverterNode(EnbarrNode):
             self.health.refused('force_command', 'non_finite')
             return
         verdict = self.gate.offer(convert.stamp_to_ns(msg.header.stamp),
-                                  self.get_clock().now().nanoseconds)
+                                  self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self.rejected += 1
             self.health.refused('force_command', verdict.value)

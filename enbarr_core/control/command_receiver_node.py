@@ -118,7 +118,7 @@ class CommandReceiverNode(EnbarrNode):
         self.gate.settings = settings.gate
 
     def _now(self) -> int:
-        return self.get_clock().now().nanoseconds
+        return self.now_ns()
 
     def _on_twist(self, msg: TwistStamped) -> None:
         if self.twist_guard.contested():

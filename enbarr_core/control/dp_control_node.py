@@ -264,14 +264,14 @@ class DpControlNode(EnbarrNode):
         """Tell whether a pose was accepted recently and the observer still publishes."""
         limit = self.settings.estimate_max_age
         return (self._eta is not None and self._age <= limit and self._estimate_ns is not None
-                and self.get_clock().now().nanoseconds - self._estimate_ns <= limit * 1e9)
+                and self.now_ns() - self._estimate_ns <= limit * 1e9)
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.now_ns() * 1e-9
 
     def _admit(self, name: str, stamp_ns: int, count_accepted: bool = True) -> bool:
         """Offer a sample of input ``name`` to its time gate; count a refusal (and a take)."""
-        verdict = self._gates[name].offer(stamp_ns, self.get_clock().now().nanoseconds)
+        verdict = self._gates[name].offer(stamp_ns, self.now_ns())
         if verdict is StampVerdict.ACCEPTED:
             if count_accepted:
                 self.health.accepted(name)
@@ -357,7 +357,7 @@ class DpControlNode(EnbarrNode):
 
     def _reference_fresh(self) -> bool:
         """Tell whether a reference was applied (or the mode entered) recently."""
-        return (self._reference_ns is not None and self.get_clock().now().nanoseconds
+        return (self._reference_ns is not None and self.now_ns()
                 - self._reference_ns <= self.settings.estimate_max_age * 1e9)
 
     def _supervise(self) -> None:
@@ -372,7 +372,7 @@ class DpControlNode(EnbarrNode):
             self.get_logger().warn(f'{t.requested.value} mode refused: {t.reason}')
             return
         self._pending = None
-        self._reference_ns = self.get_clock().now().nanoseconds  # the guidance node's grace
+        self._reference_ns = self.now_ns()  # the guidance node's grace
         if t.requested is not Mode.MANUAL:
             self.controller.reset(tau_now=self.tau)  # bumpless: continue from the force now
         self.get_logger().info(f'mode {t.previous.value} -> {t.requested.value} ({t.reason})')
@@ -385,7 +385,7 @@ class DpControlNode(EnbarrNode):
         self.estimate_period.add(t)
         last, self._last_ns = self._last_ns, t
         self._eta = eta = convert.pose_to_eta(msg.pose.pose)
-        self._estimate_ns = self.get_clock().now().nanoseconds
+        self._estimate_ns = self.now_ns()
         self._estimates.append(_Estimate(t, last, eta, convert.twist_to_nu3(msg.twist.twist),
                                          msg.header.stamp))
         if self._pending is not None and self._pending[0] == t:
@@ -416,7 +416,7 @@ class DpControlNode(EnbarrNode):
         if estimate.last_ns is None or t <= estimate.last_ns:
             return
         self.reference = ref
-        self._reference_ns = self.get_clock().now().nanoseconds
+        self._reference_ns = self.now_ns()
         self.tau = self.controller.step(estimate.eta, estimate.nu, self._bias, ref,
                                         (t - estimate.last_ns) * 1e-9).tau
         self._publish_tau(self.tau, estimate.stamp)

@@ -191,7 +191,7 @@ class VelocityControlNode(EnbarrNode):
         return settings
 
     def _now(self) -> int:
-        return self.get_clock().now().nanoseconds
+        return self.now_ns()
 
     def _on_goal(self, msg: TwistStamped) -> None:
         nu = convert.twist_to_nu(msg.twist)

@@ -137,7 +137,7 @@ class AttitudeFilterNode(EnbarrNode):
         self.raw_gate.policy = self.mag_gate.policy = policy
 
     def _now(self) -> int:
-        return self.get_clock().now().nanoseconds
+        return self.now_ns()
 
     def _on_mag(self, msg: MagneticField) -> None:
         m = convert.vector3_to_array(msg.magnetic_field)

@@ -172,7 +172,7 @@ class DpObserverNode(EnbarrNode):
             self.health.refused('allocation/delivered', 'non_finite')
             return
         verdict = self._tau_gate.offer(convert.stamp_to_ns(msg.header.stamp),
-                                       self.get_clock().now().nanoseconds)
+                                       self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self.health.refused('allocation/delivered', verdict.value)
             return
@@ -190,7 +190,7 @@ class DpObserverNode(EnbarrNode):
         if not np.all(np.isfinite(y)):
             self._refuse_pose('non_finite')
             return
-        verdict = self._pose_gate.offer(t, self.get_clock().now().nanoseconds)
+        verdict = self._pose_gate.offer(t, self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self._refuse_pose(verdict.value)
             return
@@ -211,7 +211,7 @@ class DpObserverNode(EnbarrNode):
         # Up to max_latency behind the clock: a pose on its way is not overtaken. The age
         # published is still the clock's: the time since the last pose taken.
         lag = round(self.settings.max_latency * 1e9)
-        now = self.get_clock().now().nanoseconds - lag
+        now = self.now_ns() - lag
         if now - self._last_ns > 1.5 * self._period_ns:
             # Poses stopped: integrate up to now in steps of 1/rate, publish the newest.
             n = -(-(now - self._last_ns) // self._period_ns)

@@ -216,7 +216,7 @@ class GuidanceNode(EnbarrNode):
 
     def _on_estimate(self, msg: Odometry) -> None:
         t = convert.stamp_to_ns(msg.header.stamp)
-        verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+        verdict = self._gate.offer(t, self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self.health.refused('observer/odometry', verdict.value)
             self.get_logger().warn(f'observer/odometry refused ({verdict.value})',

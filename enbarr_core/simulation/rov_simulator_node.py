@@ -164,14 +164,14 @@ class RovSimulatorNode(EnbarrNode):
             if i is not None and np.isfinite(f):
                 thrust[i] = f
         self._thrust = thrust
-        self._thrust_ns = self.get_clock().now().nanoseconds
+        self._thrust_ns = self.now_ns()
         self.thrust_period.add(self._thrust_ns)
 
     @property
     def tau(self) -> np.ndarray:
         """Generalized force of the thrusters now [N, N m] (zero when their signal is stale)."""
         last = self._thrust_ns
-        if last is None or self.get_clock().now().nanoseconds - last > self._thrust_timeout_ns:
+        if last is None or self.now_ns() - last > self._thrust_timeout_ns:
             return np.zeros(6)
         return self._B @ self._thrust
 
@@ -182,7 +182,7 @@ class RovSimulatorNode(EnbarrNode):
         about 1/rate (up to ``MAX_CATCH_UP``, beyond that time is skipped and counted in
         ``time_skips``). The truth is stamped with the time it is true at.
         """
-        now = self.get_clock().now().nanoseconds
+        now = self.now_ns()
         if self.time_ns == 0:
             self.time_ns = now - self._dt_ns
         n, dt, skipped = sim_steps(self.time_ns, now, self._dt_ns, MAX_CATCH_UP)

@@ -116,7 +116,7 @@ class Vessel3DofSimulatorNode(EnbarrNode):
                 return
             thrust[i], angle[i] = f, a
         self._cmd_thrust, self._cmd_angle = thrust, angle
-        self._cmd_ns = self.get_clock().now().nanoseconds
+        self._cmd_ns = self.now_ns()
 
     def current_at(self, t_s: float) -> np.ndarray:
         """Return the current (east, north) [m/s] at simulated time ``t_s`` [s]."""
@@ -125,7 +125,7 @@ class Vessel3DofSimulatorNode(EnbarrNode):
 
     def step(self) -> None:
         """Advance to the clock's present (as RovSimulatorNode.step) and publish the truth."""
-        now = self.get_clock().now().nanoseconds
+        now = self.now_ns()
         if self.time_ns == 0:
             self.time_ns = now - self.period_ns
         n, dt, skipped = sim_steps(self.time_ns, now, self.period_ns, MAX_CATCH_UP)

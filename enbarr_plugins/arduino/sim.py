@@ -127,7 +127,7 @@ def accept_duties(node: Any, msg: Float64MultiArray) -> bool:
         node.health.refused('pwm/duty_cycle', 'malformed')
         return False
     node.health.accepted('pwm/duty_cycle')
-    node.duty_period.add(node.get_clock().now().nanoseconds)
+    node.duty_period.add(node.now_ns())
     return True
 
 

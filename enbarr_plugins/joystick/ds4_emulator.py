@@ -262,12 +262,12 @@ class Ds4EmulatorNode(EnbarrNode):
     def start(self) -> None:
         """Start the script's clock now."""
         super().start()
-        self._start_ns = self.get_clock().now().nanoseconds
+        self._start_ns = self.now_ns()
 
     def _tick(self) -> None:
         if self._start_ns is None:
             return
-        now = self.get_clock().now().nanoseconds
+        now = self.now_ns()
         if self._release_ns is not None and now >= self._release_ns:
             self._release_ns = None
             self.emulator.release_all()

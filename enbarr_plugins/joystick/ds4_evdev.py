@@ -428,7 +428,7 @@ class Ds4EvdevNode(SensorDriver):
         with self._lock:
             axes, buttons = decoder.joy()
         msg = Joy()
-        convert.ns_to_stamp(self.get_clock().now().nanoseconds, msg.header.stamp)
+        convert.ns_to_stamp(self.now_ns(), msg.header.stamp)
         msg.header.frame_id = topics.JOY.frame
         msg.axes = axes
         msg.buttons = buttons

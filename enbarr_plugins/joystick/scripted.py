@@ -143,12 +143,12 @@ class ScriptedJoyNode(EnbarrNode):
     def start(self) -> None:
         """Start the script's clock now."""
         super().start()
-        self._start_ns = self.get_clock().now().nanoseconds
+        self._start_ns = self.now_ns()
 
     def _tick(self) -> None:
         if self._start_ns is None or self._stopped:
             return
-        now = self.get_clock().now().nanoseconds
+        now = self.now_ns()
         elapsed = (now - self._start_ns) * 1e-9
         press = None
         while self._next < len(self.script) and self.script[self._next].time <= elapsed:

@@ -382,7 +382,7 @@ class QualisysNode(SensorDriver):
 
     def _on_packet(self, packet: Any) -> None:
         """One data packet (on the session thread): publish the body's pose."""
-        stamp = self.get_clock().now().nanoseconds
+        stamp = self.now_ns()
         self._last_packet = time.monotonic()
         number = packet.framenumber
         if self._last_frame is not None and number <= self._last_frame:

@@ -103,7 +103,7 @@ class SimMocapNode(SensorDriver):
 
     def _on_truth(self, truth: Odometry) -> None:
         t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.get_clock().now().nanoseconds)
+        verdict = self._gate.offer(t, self.now_ns())
         if verdict is not StampVerdict.ACCEPTED:
             self.health.refused('sim/odometry', verdict.value)
             self.get_logger().warn(f'sim/odometry refused ({verdict.value})',

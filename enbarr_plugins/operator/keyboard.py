@@ -166,7 +166,7 @@ class KeyboardTeleopNode(EnbarrNode):
         if self._stop.is_set():
             return
         msg = TwistStamped()
-        convert.ns_to_stamp(self.get_clock().now().nanoseconds, msg.header.stamp)
+        convert.ns_to_stamp(self.now_ns(), msg.header.stamp)
         msg.header.frame_id = topics.BODY_FRAME
         convert.set_twist(msg.twist, self.state.nu)
         self._twist_pub.publish(msg)

@@ -101,12 +101,12 @@ class ScriptedCommandsNode(EnbarrNode):
     def start(self) -> None:
         """Start the script clock."""
         super().start()
-        self._start_ns = self.get_clock().now().nanoseconds
+        self._start_ns = self.now_ns()
 
     def _tick(self) -> None:
         if self._start_ns is None:
             return
-        now = self.get_clock().now().nanoseconds
+        now = self.now_ns()
         elapsed = (now - self._start_ns) * 1e-9
         while self._next < len(self.script) and self.script[self._next].time <= elapsed:
             step = self.script[self._next]

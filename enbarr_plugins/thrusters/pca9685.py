@@ -525,7 +525,7 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self.written = chip.write(self.settings.counts(cmd))
         self.applied = cmd
         out = JointState(name=self.names, effort=cmd.tolist())
-        convert.ns_to_stamp(self.get_clock().now().nanoseconds, out.header.stamp)
+        convert.ns_to_stamp(self.now_ns(), out.header.stamp)
         out.header.frame_id = topics.BODY_FRAME
         self._output_pub.publish(out)
 
@@ -544,7 +544,7 @@ class Pca9685ThrustersNode(ActuatorDriver):
 
     # -- commands ----------------------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self.now_ns()
         taken = accept_command(self, msg, now_ns)  # the checks of every thruster plugin
         if taken is None:
             return

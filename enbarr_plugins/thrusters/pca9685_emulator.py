@@ -381,7 +381,7 @@ class Pca9685EmulatorNode(EnbarrNode):
         since = [self.chip.since_ns[c] * 1e-9 for c in channels]
         self.thrust = np.array([esc.update(p, now, t)
                                 for esc, p, t in zip(self.escs, self.pulses, since)])
-        stamp = convert.ns_to_stamp(self.get_clock().now().nanoseconds)
+        stamp = convert.ns_to_stamp(self.now_ns())
         thrust = JointState(name=self.names, effort=self.thrust.tolist())
         thrust.header.stamp = stamp
         thrust.header.frame_id = topics.BODY_FRAME

@@ -96,7 +96,7 @@ class SimThrustersNode(ActuatorDriver):
         self.gate.policy = StampPolicy(settings.max_future)
 
     def _on_command(self, msg: JointState) -> None:
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self.now_ns()
         taken = accept_command(self, msg, now_ns)
         if taken is None:
             return
@@ -143,7 +143,7 @@ class SimThrustersNode(ActuatorDriver):
         """Command every thruster to neutral now (motor thrust cut, not ramped)."""
         self.neutral = True
         self.thrust = np.zeros(len(self.names))  # cut: the lag starts again from rest
-        self._output(np.zeros(len(self.names)), self.get_clock().now().nanoseconds)
+        self._output(np.zeros(len(self.names)), self.now_ns())
 
     def status(self) -> tuple[int, str]:
         """Return the driver's status, degraded while commands are refused.
