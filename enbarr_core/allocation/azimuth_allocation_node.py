@@ -23,6 +23,7 @@ from geometry_msgs.msg import WrenchStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.azimuth import AzimuthAllocator
@@ -116,11 +117,12 @@ class AzimuthAllocationNode(EnbarrNode):
             self.get_logger().warn(
                 f'tau {np.round(tau, 3).tolist()} not achievable: delivering '
                 f'{np.round(r.scale * 100.0, 1)} % of it', throttle_duration_sec=2.0)
-        out = JointState(name=self.names, effort=r.thrust.tolist(), position=r.angle.tolist())
+        out = new(JointState)
+        out.name, out.effort, out.position = self.names, r.thrust.tolist(), r.angle.tolist()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = topics.BODY_FRAME
         self._pub.publish(out)
-        delivered = WrenchStamped()
+        delivered = new(WrenchStamped)
         delivered.header = out.header
         convert.set_wrench_tau3(delivered.wrench, r.tau_delivered)
         self._delivered_pub.publish(delivered)

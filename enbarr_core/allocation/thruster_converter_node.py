@@ -22,6 +22,7 @@ from geometry_msgs.msg import WrenchStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
@@ -108,7 +109,8 @@ class ThrusterConverterNode(EnbarrNode):
         self.health.accepted('force_command')
         self.result = r = self.allocator.allocate(tau)
         self.saturated += r.saturated
-        cmd = JointState(name=self._names, effort=r.command.tolist())
+        cmd = new(JointState)
+        cmd.name, cmd.effort = self._names, r.command.tolist()
         cmd.header.stamp = msg.header.stamp
         cmd.header.frame_id = topics.BODY_FRAME
         self._pub.publish(cmd)

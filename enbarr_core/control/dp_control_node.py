@@ -75,6 +75,7 @@ from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.control.dp_control import DpControlSettings, DpController
@@ -431,7 +432,7 @@ class DpControlNode(EnbarrNode):
                 stamp = convert.ns_to_stamp(t)
             self._tau_ns = t
             self.tau = tau
-            w = WrenchStamped()
+            w = new(WrenchStamped)
             w.header.stamp = stamp
             w.header.frame_id = topics.BODY_FRAME
             convert.set_wrench_tau3(w.wrench, tau)

@@ -32,6 +32,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Imu
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.topics import TopicSpec
 
@@ -241,7 +242,7 @@ class VelocityControlNode(EnbarrNode):
         nu_ref, nu_ref_dot = self.reference.step(goal, dt)
         self.output = self.controller.step(nu_ref, nu, dt, nu_d_dot=nu_ref_dot, roll=roll,
                                            pitch=pitch)
-        w = WrenchStamped()
+        w = new(WrenchStamped)
         w.header.stamp = msg.header.stamp
         w.header.frame_id = topics.BODY_FRAME
         convert.set_wrench(w.wrench, self.output.tau)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import Imu, MagneticField
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.attitude_filter import AttitudeFilter, AttitudeFilterSettings
@@ -180,7 +181,7 @@ class AttitudeFilterNode(EnbarrNode):
         mag = self._mag if abs(t - self._mag_ns) <= self._mag_age_ns else None
         est = self.filter.step(gyro, accel, mag, (t - last) * 1e-9)
         self.samples += 1
-        out = Imu()
+        out = new(Imu)
         out.header = msg.header
         convert.set_quaternion(out.orientation, est.q)
         convert.set_covariance3(out.orientation_covariance, est.orientation_cov)

@@ -45,6 +45,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from std_msgs.msg import Float64
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.estimation.dp_observer import ObserverSettings, PassiveObserver
@@ -242,7 +243,7 @@ class DpObserverNode(EnbarrNode):
         if not publish:
             return True
         stamp = convert.ns_to_stamp(t)
-        odom = Odometry()
+        odom = new(Odometry)
         odom.header.stamp = stamp
         odom.header.frame_id = topics.WORLD_FRAME
         odom.child_frame_id = topics.BODY_FRAME
@@ -250,7 +251,7 @@ class DpObserverNode(EnbarrNode):
         convert.set_twist_nu3(odom.twist.twist, e.nu_hat)
         self.age = e.age + lag if e.age else 0.0
         age = Float64(data=float(self.age))
-        bias = WrenchStamped()
+        bias = new(WrenchStamped)
         bias.header.stamp = stamp
         bias.header.frame_id = topics.WORLD_FRAME
         convert.set_wrench_tau3(bias.wrench, e.b_hat)

@@ -28,6 +28,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Imu, JointState
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import allocation_matrix
@@ -199,7 +200,7 @@ class RovSimulatorNode(EnbarrNode):
             self.state = state
         self.time_ns = now
         self.steps += n
-        imu = Imu()
+        imu = new(Imu)
         imu.header.frame_id = topics.IMU_FRAME
         convert.ns_to_stamp(self.time_ns, imu.header.stamp)
         convert.set_quaternion(imu.orientation, state.q)
@@ -223,7 +224,7 @@ class RovSimulatorNode(EnbarrNode):
     def odometry(self, now_ns: int) -> Odometry:
         """Return the true state as ``nav_msgs/Odometry`` stamped ``now_ns``."""
         s = self.state
-        msg = Odometry()
+        msg = new(Odometry)
         convert.ns_to_stamp(now_ns, msg.header.stamp)
         msg.header.frame_id = topics.WORLD_FRAME
         msg.child_frame_id = topics.BODY_FRAME

@@ -22,6 +22,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import JointState
 
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.models.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
@@ -145,7 +146,7 @@ class Vessel3DofSimulatorNode(EnbarrNode):
                                                     dt, current=current, bias=bias)
         self.time_ns = now
         self.steps += n
-        msg = Odometry()
+        msg = new(Odometry)
         convert.ns_to_stamp(self.time_ns, msg.header.stamp)
         msg.header.frame_id = topics.WORLD_FRAME
         msg.child_frame_id = topics.BODY_FRAME

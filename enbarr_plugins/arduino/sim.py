@@ -29,6 +29,7 @@ from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.health import (
     DEGRADED, InputHealth, IntervalMeter, OK, too_short_for_rate, worst)
 from enbarr_core.models.vessel3dof import AzimuthSpec
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import topics
 
 
@@ -90,7 +91,8 @@ class SimArduinoNode(ActuatorDriver):
         return worst(super().status(), (level, message), rate_status(self))
 
     def _send(self, thrust: list[float], angle: list[float]) -> None:
-        out = JointState(name=self.names, effort=thrust, position=angle)
+        out = new(JointState)
+        out.name, out.effort, out.position = self.names, thrust, angle
         out.header.stamp = self.get_clock().now().to_msg()
         self._pub.publish(out)
 

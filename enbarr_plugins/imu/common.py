@@ -44,6 +44,7 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.kinematics import quat_to_rotmat
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
 from enbarr_plugins.transport.i2c import FakeI2cBus, I2cDevice, open_i2c
@@ -288,14 +289,14 @@ class I2cImuNode(SensorDriver):
         stamp = self.get_clock().now().to_msg()
         n = self._noise
         if sample.mag is not None:
-            mag = MagneticField()
+            mag = new(MagneticField)
             mag.header.stamp = stamp
             mag.header.frame_id = topics.IMU_FRAME
             convert.set_vector3(mag.magnetic_field, sample.mag)
             c = mag.magnetic_field_covariance
             c[0] = c[4] = c[8] = n.mag ** 2
             self._mag_pub.publish(mag)
-        raw = Imu()
+        raw = new(Imu)
         raw.header.stamp = stamp
         raw.header.frame_id = topics.IMU_FRAME
         raw.orientation_covariance[0] = -1.0  # no orientation estimate (REP-145)

@@ -19,6 +19,7 @@ from enbarr_core.framework.checks import floats
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.kinematics import quat_to_rotmat
 from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 SPECS = [
@@ -84,7 +85,7 @@ class SimImuNode(SensorDriver):
         q = convert.quaternion_to_array(truth.orientation)
         omega = convert.vector3_to_array(truth.angular_velocity)
         f = convert.vector3_to_array(truth.linear_acceleration)
-        mag = MagneticField()
+        mag = new(MagneticField)
         mag.header.stamp = truth.header.stamp
         mag.header.frame_id = topics.IMU_FRAME
         m = quat_to_rotmat(q).T @ self._magnetic_field + rng.normal(0.0, s.mag_noise, 3)
@@ -92,7 +93,7 @@ class SimImuNode(SensorDriver):
         mag.magnetic_field_covariance[0] = mag.magnetic_field_covariance[4] = \
             mag.magnetic_field_covariance[8] = s.mag_noise ** 2
         self._mag_pub.publish(mag)
-        raw = Imu()
+        raw = new(Imu)
         raw.header.stamp = truth.header.stamp
         raw.header.frame_id = topics.IMU_FRAME
         raw.orientation_covariance[0] = -1.0  # no orientation estimate (REP-145)

@@ -28,6 +28,7 @@ from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 #: Truths stamped further ahead of the clock than this are refused [s].
@@ -124,7 +125,7 @@ class SimMocapNode(SensorDriver):
         eta = convert.pose_to_eta(truth.pose.pose)
         eta[:2] += self._rng.normal(0.0, s.position_noise, 2)
         eta[2] = ssa(eta[2] + self._rng.normal(0.0, s.heading_noise))
-        msg = PoseStamped()
+        msg = new(PoseStamped)
         msg.header.stamp = truth.header.stamp
         msg.header.frame_id = topics.WORLD_FRAME
         convert.set_pose_eta(msg.pose, eta)

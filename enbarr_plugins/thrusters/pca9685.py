@@ -80,6 +80,7 @@ from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
 from enbarr_core.framework.stamps import (
     SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy)
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
 from enbarr_plugins.thrusters.sim import accept_command
@@ -524,7 +525,8 @@ class Pca9685ThrustersNode(ActuatorDriver):
             cmd = np.zeros(len(self.names))
         self.written = chip.write(self.settings.counts(cmd))
         self.applied = cmd
-        out = JointState(name=self.names, effort=cmd.tolist())
+        out = new(JointState)
+        out.name, out.effort = self.names, cmd.tolist()
         convert.ns_to_stamp(self.now_ns(), out.header.stamp)
         out.header.frame_id = topics.BODY_FRAME
         self._output_pub.publish(out)

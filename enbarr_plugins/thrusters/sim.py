@@ -38,6 +38,7 @@ from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import (
     SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 from enbarr_core.allocation.layout_params import declare_thrusters
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 SPECS = [
@@ -126,11 +127,13 @@ class SimThrustersNode(ActuatorDriver):
         self.command = cmd
         self.neutral = not np.any(cmd)
         stamp = convert.ns_to_stamp(now_ns)
-        out = JointState(name=self.names, effort=cmd.tolist())
+        out = new(JointState)
+        out.name, out.effort = self.names, cmd.tolist()
         out.header.stamp = stamp
         out.header.frame_id = topics.BODY_FRAME
         self._output_pub.publish(out)
-        thrust = JointState(name=self.names, effort=self.thrust.tolist())
+        thrust = new(JointState)
+        thrust.name, thrust.effort = self.names, self.thrust.tolist()
         thrust.header.stamp = stamp
         thrust.header.frame_id = topics.BODY_FRAME
         self._thrust_pub.publish(thrust)
