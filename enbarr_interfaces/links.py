@@ -10,6 +10,13 @@ A ``LinkSubscription`` with no publisher in its process falls back to an ordinar
 subscription when the bus is connected, so a chain split over processes (profile groups) or
 fed by a third-party node still works. See ``docs/architecture.md``.
 
+Graph visibility: every link subscription fed by the bus owns a *shadow reader*, a DDS reader of
+its topic created on the subscribing node but never handed to an executor, so ``ros2 topic
+info``, rqt_graph and ``Node.get_subscriptions_info_by_topic`` show the node subscribing, as
+rclcpp shows its intra-process subscriptions. Nothing ever takes from it (history KEEP_LAST 1:
+a sample arriving replaces the previous one in the middleware). A link publisher does not count
+its bus's shadows when it decides whether anyone outside the fast path listens.
+
 Rules that follow: a fast topic has its producer(s) in one process; a published message is
 never modified afterwards (subscribers may keep it, e.g. a recorder's queue); callbacks are
 short and must not block (they run on the publisher's thread); a callback that raises is logged and
@@ -19,12 +26,21 @@ counted, and never breaks the publisher or the other subscribers.
 from __future__ import annotations
 
 from collections.abc import Callable
+import copy
 import threading
 import time
 from typing import Any, TYPE_CHECKING
 import weakref
 
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.exceptions import InvalidHandle
+# rclpy 7.1.6 has no public way to create a subscription that no executor waits on: the
+# executors (SingleThreadedExecutor in Python, EventsExecutor in C++) take every entity of
+# ``Node.subscriptions``, and the EventsExecutor ignores callback groups. A shadow reader is
+# therefore the bare rcl subscription, the object ``Node.create_subscription`` wraps.
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.type_support import check_is_valid_msg_type
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -38,7 +54,11 @@ READER_CHECK_PERIOD = 0.1
 
 
 class LinkSubscription:
-    """An in-process subscriber of one resolved topic."""
+    """An in-process subscriber of one resolved topic.
+
+    It always has exactly one DDS reader, so the ROS graph shows its node subscribing: the
+    shadow reader while the bus feeds it (``local``), the fallback ROS subscription otherwise.
+    """
 
     def __init__(self, bus: LinkBus, node: Node, spec: TopicSpec, name: str,
                  callback: Callback) -> None:
@@ -49,6 +69,7 @@ class LinkSubscription:
         self.callback = callback
         self.errors = 0
         self.ros_subscription: Subscription | None = None
+        self.shadow_reader: Any | None = None
 
     @property
     def local(self) -> bool:
@@ -66,11 +87,42 @@ class LinkSubscription:
                 throttle_duration_sec=1.0)
 
     def destroy(self) -> None:
-        """Leave the bus."""
+        """Leave the bus and the ROS graph."""
         self.bus._remove_subscription(self)
         if self.ros_subscription is not None:
             self.node.destroy_subscription(self.ros_subscription)
             self.ros_subscription = None
+        self._drop_shadow()
+
+    # -- the shadow reader (see the module docstring) ---------------------------------------
+    def _add_shadow(self) -> None:
+        if self.shadow_reader is not None:
+            return
+        spec = self.spec
+        check_is_valid_msg_type(spec.msg_type)  # loads the type support, as create_* does
+        with self.node.handle:
+            # The same name resolution as Node.create_subscription (namespace, remapping).
+            self.shadow_reader = _rclpy.Subscription(
+                self.node.handle, spec.msg_type, spec.name,
+                shadow_qos(spec.qos).get_c_qos_profile())
+
+    def _drop_shadow(self) -> None:
+        reader, self.shadow_reader = self.shadow_reader, None
+        if reader is not None:
+            # Deferred while a publisher thread is counting its matches (``with reader``).
+            reader.destroy_when_not_in_use()
+
+
+def shadow_qos(qos: QoSProfile) -> QoSProfile:
+    """Return the QoS of a shadow reader: the topic's, with a history of one sample.
+
+    Reliability and durability stay the topic's, so graph tools show the QoS the subscriber
+    really asks for and the shadow matches exactly the writers its subscription would.
+    """
+    shadow = copy.copy(qos)
+    shadow.history = HistoryPolicy.KEEP_LAST
+    shadow.depth = 1
+    return shadow
 
 
 class LinkPublisher:
@@ -82,6 +134,7 @@ class LinkPublisher:
         self.spec = spec
         self.name = name
         self._subscribers: tuple[LinkSubscription, ...] = ()
+        self._shadows: tuple[Any, ...] = ()
         # No QoS event handlers: every handler is one more entity the executor re-adds to its
         # wait set at each wake-up, and the fast path has a dozen publishers (measured: the
         # matched event plus rclpy's two default handlers per publisher doubled the
@@ -101,15 +154,36 @@ class LinkPublisher:
         """Deliver ``msg`` to every subscriber of the topic."""
         for sub in self._subscribers:
             sub.deliver(msg)
-        # Only DDS readers count: in-process link subscribers never create one, so this is
-        # non-zero exactly when someone outside the fast path listens. The count is asked of
-        # the middleware at most every READER_CHECK_PERIOD (a new reader waits that long).
+        # Only DDS readers outside the fast path count (``external_readers``), asked of the
+        # middleware at most every READER_CHECK_PERIOD (a new reader waits that long).
         now = time.monotonic()
         if now - self._readers_checked >= READER_CHECK_PERIOD:
-            self._readers = self.ros_publisher.get_subscription_count()
+            self._readers = self.external_readers()
             self._readers_checked = now
         if self._readers:
             self.ros_publisher.publish(msg)
+
+    def external_readers(self) -> int:
+        """Return how many DDS readers outside this bus's fast path this publisher reaches.
+
+        The writer's matched count minus the shadow readers of this bus it has matched. Which
+        readers a writer has matched is not visible in rclpy, so a shadow counts as matched
+        once it has matched any writer: the rmw matches the endpoints of one participant
+        synchronously (Fast DDS), and where matching is asynchronous the two sides may
+        disagree only until both have seen each other (a check later). Two matched counts per
+        check (about 5 us), never a graph query (about 220 us each).
+        """
+        matched = self.ros_publisher.get_subscription_count()
+        if matched == 0:
+            return 0
+        shadows = 0
+        for reader in self._shadows:
+            try:
+                with reader:
+                    shadows += reader.get_publisher_count() > 0
+            except InvalidHandle:  # destroyed meanwhile: it no longer counts anywhere
+                pass
+        return max(0, matched - shadows)
 
     def destroy(self) -> None:
         """Leave the bus."""
@@ -154,6 +228,7 @@ class LinkBus:
                 # It fell back to DDS before this publisher existed: switch it to the link.
                 sub.node.destroy_subscription(sub.ros_subscription)
                 sub.ros_subscription = None
+                sub._add_shadow()
         self._rewire(name)
         for tap in taps:
             tap(pub)
@@ -169,10 +244,12 @@ class LinkBus:
             self._subscriptions.setdefault(name, []).append(sub)
             has_local = bool(self._publishers.get(name))
             connected = self._connected
-        if has_local:
-            self._rewire(name)
-        elif connected:
+        if connected and not has_local:
             self._fall_back(sub)
+        else:
+            # Fed by the bus, or undecided until connect(): either way the node subscribes.
+            sub._add_shadow()
+            self._rewire(name)
         return sub
 
     def connect(self) -> None:
@@ -210,15 +287,21 @@ class LinkBus:
 
     # -- internals --------------------------------------------------------------------------
     def _fall_back(self, sub: LinkSubscription) -> None:
+        # The ROS subscription replaces the shadow: one reader per subscription in the graph.
+        sub._drop_shadow()
         sub.ros_subscription = sub.node.create_subscription(
             sub.spec.msg_type, sub.spec.name, sub.deliver, sub.spec.qos)
+        self._rewire(sub.name)
 
     def _rewire(self, name: str) -> None:
         with self._lock:
             subs = tuple(s for s in self._subscriptions.get(name, ())
                          if s.ros_subscription is None)
+            shadows = tuple(s.shadow_reader for s in subs if s.shadow_reader is not None)
             for pub in self._publishers.get(name, ()):
                 pub._subscribers = subs
+                pub._shadows = shadows
+                pub._readers_checked = -READER_CHECK_PERIOD  # judge the new wiring at once
 
     def _remove_publisher(self, pub: LinkPublisher) -> None:
         with self._lock:
