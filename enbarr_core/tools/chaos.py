@@ -367,13 +367,19 @@ class Observer:
         return False
 
     def stamped_inputs(self, control_nodes: frozenset[str]) -> list[str]:
-        """Contract topics with a header that a control node subscribes to (running graph)."""
+        """Contract topics with a header that a control node takes from outside its group."""
         found = []
         for name, spec in self.topics.items():
             if 'header' not in spec.msg_type.get_fields_and_field_types():
                 continue
-            subs = self.node.get_subscriptions_info_by_topic('/' + name.lstrip('/'))
-            if any(s.node_name in control_nodes for s in subs):
+            topic = '/' + name.lstrip('/')
+            subs = self.node.get_subscriptions_info_by_topic(topic)
+            # Fed from outside the control group: a fast topic produced inside it reaches its
+            # subscribers in-process (their graph readers are never read), so a sample
+            # injected over DDS would never arrive there.
+            pubs = self.node.get_publishers_info_by_topic(topic)
+            if any(s.node_name in control_nodes for s in subs) and \
+                    any(p.node_name not in control_nodes for p in pubs):
                 found.append(name)
         return found
 
