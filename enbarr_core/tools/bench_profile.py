@@ -19,8 +19,9 @@ is stopped with SIGINT (a recorder closes its bag) and one JSON line is printed:
 - ``vessel_cpu_core_fraction``: the tree without the threads of simulator and device emulator
   nodes (not on the vehicle), given only where those threads do their own work alone: not
   when a simulated device (``sim_imu``...) is fed on the simulator's thread, which then
-  carries the whole control chain. What stays mixed in: their timers and subscriptions (on
-  the executor), the emulated device registers that a real driver reads (on its thread);
+  carries the whole control chain (``null`` then, and ``vessel_note`` says why). What stays
+  mixed in: their timers and subscriptions (on the executor), the emulated device registers
+  that a real driver reads (on its thread), DDS threads;
 - ``rss_mb_start``/``rss_mb_end``: resident memory (VmRSS) summed over the tree just after
   the warm-up and at the end, and ``..._max``: of its biggest process;
 - with ``--record``: the profile runs twice back to back, first without recording, then
@@ -194,9 +195,10 @@ def attribute(profile: Any) -> Attribution:
 
     A simulator (a plugin of ``enbarr_core.simulation``) or a device emulator (its class sets
     ``device_emulator``) is not on the vehicle. Its threads are its own only where no node of
-    the vehicle runs on them: a simulated device (a plugin module ``*.sim``/``*.sim_*``) takes
-    the simulator's truth as a direct call on the simulator's thread and drives the chain
-    from there, so with one of them the split is refused.
+    the vehicle runs on them: a simulated device (a plugin module ``*.sim``: ``sim_imu``,
+    ``sim_mocap``, ``sim_thrusters``, ``sim_arduino``) takes the simulator's truth as a direct
+    call on the simulator's thread and drives the chain from there (or calls the simulator on
+    the chain's thread), so with one of them the split is refused.
     """
     from enbarr_core.framework import registry
     off, simulated = [], []
@@ -209,14 +211,15 @@ def attribute(profile: Any) -> Attribution:
         if cls.__module__.startswith('enbarr_core.simulation.') or getattr(
                 cls, 'device_emulator', False):
             off.append((spec.name, spec.plugin))
-        elif module == 'sim' or module.startswith('sim_'):
+        elif module == 'sim':
             simulated.append(spec.name)
     if not off:
         return Attribution((), False, 'no simulator or emulator nodes: all on the vehicle')
     if simulated:
         return Attribution(tuple(off), False,
-                           f'simulated devices ({", ".join(simulated)}) run the chain on the '
-                           "simulator's thread: not separable")
+                           f'simulated devices ({", ".join(simulated)}) are called on the '
+                           "simulator's thread (sensors: the chain runs there) or call it on "
+                           "the chain's (actuators): not separable")
     return Attribution(tuple(off), True,
                        'without the threads of simulator and emulator nodes; their timers '
                        'and subscriptions (executor) and the emulated registers a driver '
