@@ -42,6 +42,7 @@ import os
 from pathlib import Path
 import platform
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -59,6 +60,9 @@ PAGE_KB = os.sysconf('SC_PAGE_SIZE') / 1024.0
 DEFAULT_SECONDS = 15.0
 DEFAULT_WARMUP = 8.0
 STOP_TIMEOUT = 40.0         # bringup's own grace is 10 s per batch of groups
+START_TIMEOUT = 60.0        # after the warm-up, for every group to run
+#: The line each process of bringup logs once its nodes run (orchestrator.run_group).
+RUNNING = re.compile(r'\[enbarr\.bringup\]: .* running: ', re.MULTILINE)
 TOP_THREADS = 8
 STDERR_LINES = 8
 EXECUTOR = 'executor'       # the label of a process's main thread
@@ -270,6 +274,7 @@ class Run(NamedTuple):
     rss_end: dict[str, float]
     window_ns: tuple[int, int]               # time.time_ns() at the start and end
     exit_code: int | None
+    warmup: float                            # from the start to the window [s]
 
 
 def bench_domain() -> str:
@@ -286,9 +291,21 @@ def _last_lines(path: Path, n: int = STDERR_LINES) -> str:
     return ' | '.join(lines)
 
 
+def _running(err_path: Path) -> int:
+    """How many processes of the run have logged that their nodes run."""
+    try:
+        return len(RUNNING.findall(err_path.read_text(errors='replace')))
+    except OSError:
+        return 0
+
+
 def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
-             bag: Path | None, workdir: Path) -> Run:
-    """Run ``enbarr bringup`` for the profile, measure the window, stop it with SIGINT."""
+             bag: Path | None, workdir: Path, processes: int = 1) -> Run:
+    """Run ``enbarr bringup`` for the profile, measure the window, stop it with SIGINT.
+
+    The window opens ``warmup`` seconds after the start, and not before each of the
+    ``processes`` (one per group) has logged that its nodes run.
+    """
     shim = workdir / 'shim'
     shim.mkdir(exist_ok=True)
     (shim / 'sitecustomize.py').write_text(_SITECUSTOMIZE)
@@ -306,6 +323,7 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
     if bag is not None:
         cmd += ['--record', str(bag)]
     err_path = workdir / f'bringup-{time.monotonic_ns()}.err'
+    launched = time.monotonic()
     with open(err_path, 'wb') as err:
         proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL,
                                 stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
@@ -320,14 +338,22 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
                 time.sleep(min(0.1, max(0.0, end - time.monotonic())))
 
         alive_for(warmup)
+        started = time.monotonic()
+        while _running(err_path) < processes:   # a loaded machine starts slower
+            if time.monotonic() - started > START_TIMEOUT:
+                raise EnbarrError(
+                    f'bringup --profile {profile}: {_running(err_path)} of {processes} '
+                    f'process(es) running after {warmup + START_TIMEOUT:g} s: '
+                    f'{_last_lines(err_path) or "no output"}')
+            alive_for(0.2)
         t0_ns, a = time.time_ns(), snapshot(proc.pid)
         alive_for(seconds)
         b, t1_ns = snapshot(proc.pid), time.time_ns()
+        labels = {p: process_label(p, proc.pid) for p in b.process}  # while they run
     except BaseException:
         _stop(proc)
         raise
     exit_code = _stop(proc)
-    labels = {p: process_label(p, proc.pid) for p in b.process}  # before it stopped
     cpu, per_pid, per_thread = cpu_between(a, b)
     per_process: dict[str, float] = {}
     for pid, c in per_pid.items():
@@ -339,7 +365,7 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
     return Run(b.wall - a.wall, cpu, per_process, threads,
                {labels.get(p, str(p)): v for p, v in a.rss.items()},
                {labels.get(p, str(p)): v for p, v in b.rss.items()}, (t0_ns, t1_ns),
-               exit_code)
+               exit_code, a.wall - launched)
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> int | None:
@@ -390,6 +416,7 @@ def figures(run: Run, attribution: Attribution) -> dict[str, Any]:
     top = sorted(run.per_thread.items(), key=lambda kv: -kv[1])
     several = len(run.per_process) > 1
     out: dict[str, Any] = {
+        'warmup_s': round(run.warmup, 1),
         'seconds': round(run.wall, 2),
         'cpu_core_fraction': round(share, 4),
         'pi4_core_fraction_estimate': round(share * PI4_FACTOR, 3),
@@ -416,6 +443,15 @@ def figures(run: Run, attribution: Attribution) -> dict[str, Any]:
     return out
 
 
+def _processes(profile: Any, record: bool) -> int:
+    """How many processes run the profile's nodes: one per group (the recorder's included)."""
+    from enbarr_core.bringup.orchestrator import add_recorder
+    from enbarr_core.bringup.profile import with_record
+    if record:
+        profile = add_recorder(with_record(profile, 'bag', []))
+    return len(profile.groups)
+
+
 def writer_cpu(run: Run) -> float:
     """CPU [s] of the recorder's writer thread(s) in the window."""
     return sum(c for (_, name), c in run.per_thread.items() if name == 'recorder_writer')
@@ -434,18 +470,24 @@ def main(args: argparse.Namespace) -> int:
     check_seconds('--warmup', warmup)
     prof = load_profile(args.profile, args.set)   # unknown profile, bad --set: one line
     attribution = attribute(prof)
+    if args.record and prof.record is not None:
+        raise EnbarrError(f'{prof.path}: the profile records already (its record section): '
+                          'no run without a bag to compare with; drop --record')
+    processes = _processes(prof, record=False)
+    recorded = _processes(prof, record=True)
     result: dict[str, Any] = {'profile': prof.name, 'record': bool(args.record),
                               'warmup': warmup}
     with tempfile.TemporaryDirectory(prefix='enbarr-bench-') as tmp:
         work = Path(tmp)
         try:
             if args.record:
-                bare = run_once(args.profile, args.set, warmup, seconds, None, work)
+                bare = run_once(args.profile, args.set, warmup, seconds, None, work, processes)
                 bag = work / 'bag'
-                run = run_once(args.profile, args.set, warmup, seconds, bag, work)
+                run = run_once(args.profile, args.set, warmup, seconds, bag, work, recorded)
                 inside, total = recorded_in(bag, *run.window_ns)
             else:
-                run = run_once(args.profile, args.set, warmup, seconds, None, work)
+                run = run_once(args.profile, args.set, warmup, seconds, None, work,
+                               processes)
         except KeyboardInterrupt:
             return 130
         result.update(figures(run, attribution))

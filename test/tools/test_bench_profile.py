@@ -207,9 +207,37 @@ def test_bench_profile_runs_a_recorded_profile() -> None:
         assert 'executor' in names and 'simulator_loop' in names, names
         assert run['vessel_cpu_core_fraction'] is None   # simulated devices: not separable
         assert run['bringup_exit'] == 0
+        assert run['warmup_s'] >= 5.0
     assert 'recorder_writer' in {t['thread'] for t in r['threads']}
     assert 0 < r['recorded_messages'] <= r['recorded_messages_run']
     assert r['recorded_messages_per_second'] > 50.0   # mocap 50 Hz alone, and more
     assert r['writer_cpu_us_per_recorded_message'] > 0.0
     assert isinstance(r['cpu_us_per_recorded_message'], float)
     assert r['machine']
+
+
+SPLIT_PROFILE = """
+include: [enbarr_sim]
+nodes:
+  filtering: {group: control}
+  control_loop: {group: control}
+  thruster_converter: {group: control}
+groups:
+  control: {}
+"""
+
+
+@pytest.mark.e2e
+def test_bench_profile_splits_by_process(tmp_path: Path) -> None:
+    profile = tmp_path / 'split.yaml'
+    profile.write_text(SPLIT_PROFILE)
+    result = enbarr('bench', '--profile', str(profile), '--warmup', '6', '--seconds', '2',
+                    timeout=240)
+    assert result.returncode == 0, result.stderr
+    r = json.loads(result.stdout)
+    groups = sorted(p for p in r['processes'] if p.startswith('group '))
+    assert 'bringup' in r['processes'] and 'group control' in groups and len(groups) == 2
+    assert sum(r['processes'].values()) == pytest.approx(r['cpu_core_fraction'], abs=0.002)
+    placed = {(t['process'], t['thread']) for t in r['threads']}
+    other = next(g for g in groups if g != 'group control')
+    assert (other, 'simulator_loop') in placed, placed   # named in a supervised child too
