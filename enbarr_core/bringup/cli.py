@@ -113,10 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     _bringup_parser(p)
     p.set_defaults(func=_bringup)
-    p = sub.add_parser('bench', help='measure the IMU -> thruster chain (prints JSON)',
-                       description='Drive the IMU -> filter -> control -> allocation -> '
-                       'thruster chain in one process at a given rate and print one JSON line '
-                       'of figures.')
+    from enbarr_core.tools.bench_profile import HELP as BENCH_PROFILE_HELP
+    p = sub.add_parser('bench', help='measure a control chain or a whole profile (prints JSON)',
+                       description='--chain (default rov): drive the sensor -> filter -> '
+                       'control -> allocation -> actuator chain in one process at a given '
+                       'rate and print one JSON line of figures.',
+                       epilog=BENCH_PROFILE_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     from enbarr_core.tools.bench import add_arguments
     add_arguments(p)
     p.set_defaults(func=_bench)

@@ -15,6 +15,8 @@ allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are
 - saucer only, ``scenario_real_time_factor``: simulated seconds per wall second of the
   headless station-keeping scenario (recording included).
 
+``--profile NAME`` measures a whole profile under ``bringup`` instead (``bench_profile``).
+
 Figures depend on the machine and its load: run it alone. ``docs/benchmarks.md`` has ours.
 """
 
@@ -50,20 +52,44 @@ CHAINS = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the ``enbarr bench`` options to ``p``."""
-    p.add_argument('--chain', choices=sorted(CHAINS), default='rov',
-                   help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
-    p.add_argument('--rate', type=float, default=400.0, help='chain rate in Hz (default 400)')
-    p.add_argument('--seconds', type=float, default=10.0,
-                   help='measured duration after a 2 s warm-up (default 10)')
+    """Add the ``enbarr bench`` options to ``p``: a chain (default) or a whole profile."""
+    from enbarr_core.tools import bench_profile
+    what = p.add_mutually_exclusive_group()
+    what.add_argument('--chain', choices=sorted(CHAINS),
+                      help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
+    what.add_argument('--profile', metavar='NAME|PATH',
+                      help='a whole profile under bringup instead (see below)')
+    p.add_argument('--rate', type=float, default=None,
+                   help='--chain: chain rate in Hz (default 400)')
+    p.add_argument('--seconds', type=float, default=None,
+                   help='measured duration: after a 2 s warm-up for --chain (default 10), '
+                   f'after --warmup for --profile (default {bench_profile.DEFAULT_SECONDS:g})')
+    p.add_argument('--warmup', type=float, default=None, metavar='W',
+                   help="--profile: seconds before the window: start-up and bringup's 3 s "
+                   f'discovery wait (default {bench_profile.DEFAULT_WARMUP:g})')
+    p.add_argument('--record', action='store_true',
+                   help='--profile: run it without, then with a bag, back to back; report '
+                   'messages recorded per second and CPU per recorded message')
+    p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                   help='--profile: override a node parameter, as bringup --set (repeatable)')
 
 
 def main(args: argparse.Namespace) -> int:
-    """Measure the chain and print one JSON line of figures."""
+    """Measure the chain (or with ``--profile``, the profile) and print one JSON line."""
     import math
 
     from enbarr_core.bringup.cli import check_seconds
     from enbarr_core.framework.errors import EnbarrError, ProfileError
+    if args.profile is not None:
+        from enbarr_core.tools import bench_profile
+        return bench_profile.main(args)
+    for option, given in (('--record', args.record), ('--set', args.set),
+                          ('--warmup', args.warmup is not None)):
+        if given:
+            raise EnbarrError(f'{option} is for --profile; --chain runs the chain alone')
+    args.chain = args.chain or 'rov'
+    args.rate = 400.0 if args.rate is None else args.rate
+    args.seconds = 10.0 if args.seconds is None else args.seconds
     if not (args.rate > 0 and math.isfinite(args.rate)):
         raise EnbarrError(f'--rate must be a positive finite number of Hz, got {args.rate}')
     check_seconds('--seconds', args.seconds)
