@@ -51,6 +51,7 @@ from enbarr_interfaces.links import LinkBus
 from enbarr_core.framework import registry
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.threads import name_os_threads
 from enbarr_core.bringup.profile import GroupSpec, NodeSpec, Profile, RecordSpec
 from enbarr_core.recording.recorder import Recorder
 
@@ -298,8 +299,12 @@ GIL_SWITCH_INTERVAL = 0.0005
 
 
 def configure_process() -> None:
-    """Process-wide settings for running nodes (bringup and the benchmark both call it)."""
+    """Process-wide settings for running nodes (bringup and the benchmark both call it).
+
+    Threads carry their names in the OS from here on (``top -H``, py-spy, ``enbarr bench``).
+    """
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+    name_os_threads()
 
 
 def make_executor(context: Context) -> Executor:

@@ -12,9 +12,9 @@ is stopped with SIGINT (a recorder closes its bag) and one JSON line is printed:
 - ``threads``: the busiest threads as shares of a core, summed per thread name per process
   (``executor``: the main thread, which runs every node's timers and ROS subscriptions;
   ``<node>_loop``: a node's sources; ``recorder_writer``; ``dds.*``/``python``: middleware
-  and other unnamed threads). The OS knows a Python thread's name only if it is told: the
-  child runs with ``enbarr_core.framework.threads.name_os_threads`` installed (through a
-  ``sitecustomize`` on its PYTHONPATH). Names are cut to 15 characters by the kernel;
+  and other unnamed threads). The OS knows a Python thread's name only if it is told: every
+  composed process installs ``enbarr_core.framework.threads.name_os_threads``
+  (``orchestrator.configure_process``). Names are cut to 15 characters by the kernel;
 - ``processes``: the share of each process (its group) when there are several;
 - ``vessel_cpu_core_fraction``: the tree without the threads of simulator and device emulator
   nodes (not on the vehicle), given only where those threads do their own work alone: not
@@ -243,26 +243,6 @@ def owned_by(thread: str, nodes: tuple[tuple[str, str], ...]) -> bool:
 
 # -- running bringup ------------------------------------------------------------------------
 
-_SITECUSTOMIZE = """\
-# Written by enbarr bench: name the OS threads of every process of the measured tree, then
-# run the sitecustomize this one hides, if any.
-import importlib.machinery
-import importlib.util
-import os
-import sys
-try:
-    from enbarr_core.framework.threads import name_os_threads
-    name_os_threads()
-except ImportError:
-    pass
-_here = os.path.dirname(os.path.abspath(__file__))
-_spec = importlib.machinery.PathFinder.find_spec(
-    'sitecustomize', [p for p in sys.path if os.path.abspath(p or '.') != _here])
-if _spec is not None and _spec.loader is not None:
-    _spec.loader.exec_module(importlib.util.module_from_spec(_spec))
-"""
-
-
 class Run(NamedTuple):
     """Figures of one bringup run."""
 
@@ -306,15 +286,11 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
     The window opens ``warmup`` seconds after the start, and not before each of the
     ``processes`` (one per group) has logged that its nodes run.
     """
-    shim = workdir / 'shim'
-    shim.mkdir(exist_ok=True)
-    (shim / 'sitecustomize.py').write_text(_SITECUSTOMIZE)
-    # The shim imports enbarr_core before ``-m`` puts the working directory on the path: it
-    # must find the copy that this bench runs (a source tree or the installed one).
+    # The copy of enbarr that this bench runs (a source tree or the installed one).
     package_root = str(Path(__file__).resolve().parents[2])
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
            'ROS_DOMAIN_ID': bench_domain(), 'PYTHONUNBUFFERED': '1',
-           'PYTHONPATH': os.pathsep.join(p for p in (str(shim), package_root,
+           'PYTHONPATH': os.pathsep.join(p for p in (package_root,
                                                      os.environ.get('PYTHONPATH')) if p)}
     env.pop('ROS_LOCALHOST_ONLY', None)
     cmd = [sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile', profile]
