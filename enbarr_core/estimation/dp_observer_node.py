@@ -38,6 +38,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
+import threading
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -141,6 +142,9 @@ class DpObserverNode(EnbarrNode):
         self.rejected = 0
         self._tau = np.zeros(3)
         self._last_ns: int | None = None
+        # Poses step the estimate on the chain's thread, dead reckoning on the executor's:
+        # one at a time, or a step sees the other's time base move under it (a negative dt).
+        self._step_lock = threading.Lock()
         self._period_ns = round(1e9 / self.settings.rate)
         self._odom_pub = self.create_topic_publisher(topics.OBSERVER_ODOMETRY)
         self._bias_pub = self.create_topic_publisher(topics.OBSERVER_BIAS)
@@ -195,18 +199,23 @@ class DpObserverNode(EnbarrNode):
         if verdict is not StampVerdict.ACCEPTED:
             self._refuse_pose(verdict.value)
             return
-        if self._last_ns is not None and t <= self._last_ns:
-            self._refuse_pose('late')  # the estimate was dead-reckoned past it
-            return
-        self.health.accepted('mocap/pose')
-        self.pose_period.add(t)
-        if not self.observer.initialized:
-            self.observer.initialize(y)
-            self._last_ns = t
-            return
-        self._step(y, t)
+        with self._step_lock:
+            if self._last_ns is not None and t <= self._last_ns:
+                self._refuse_pose('late')  # the estimate was dead-reckoned past it
+                return
+            self.health.accepted('mocap/pose')
+            self.pose_period.add(t)
+            if not self.observer.initialized:
+                self.observer.initialize(y)
+                self._last_ns = t
+                return
+            self._step(y, t)
 
     def _dead_reckon(self) -> None:
+        with self._step_lock:
+            self._dead_reckon_locked()
+
+    def _dead_reckon_locked(self) -> None:
         if self._last_ns is None:
             return
         # Up to max_latency behind the clock: a pose on its way is not overtaken. The age
