@@ -120,3 +120,18 @@ def test_a_check_added_later_counts_its_period_from_then(context):
         assert calls == [3, 5]                     # 2 ticks after it was added, not at even ticks
     finally:
         node.destroy_node()
+
+
+def test_now_ns_reads_the_node_clock_simulated_time_included(context):
+    import time
+
+    from rclpy.time import Time
+    node = EnbarrNode('clock_reader', context=context)
+    try:
+        assert abs(node.now_ns() - time.time_ns()) < 50_000_000     # system time by default
+        clock = node.get_clock()
+        clock._set_ros_time_is_active(True)                       # as scenarios and /clock do
+        clock.set_ros_time_override(Time(nanoseconds=1_234_000_000, clock_type=clock.clock_type))
+        assert node.now_ns() == 1_234_000_000 == clock.now().nanoseconds
+    finally:
+        node.destroy_node()
