@@ -705,3 +705,70 @@ def test_a_failed_metadata_write_leaves_the_previous_version(
     with Reader(bag) as reader:
         assert reader.message_count == 8
         assert len(list(reader.messages())) == 8
+
+
+def test_enbarr_bag_repair_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from enbarr_core.bringup.cli import main
+    bag = tmp_path / 'run'
+    write_bag(bag)
+    data = (bag / 'run_0.mcap').read_bytes()
+    (bag / 'run_0.mcap').write_bytes(data[:-20])  # a torn end
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out.startswith('run_0.mcap: 60 messages, repaired')
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out == 'run_0.mcap: 60 messages, intact\n'
+    with Reader(bag) as reader:
+        assert sum(1 for _ in reader.messages()) == 60
+    assert main(['bag', 'repair', str(tmp_path / 'none')]) == 2
+    assert capsys.readouterr().err == (
+        f'enbarr bag: error: {tmp_path / "none"}: not a bag directory\n')
+
+
+def test_every_joint_state_is_trimmed_not_only_the_first(tmp_path: Path) -> None:
+    bag = tmp_path / 'js'
+    writer = BagWriter(bag)
+    data = serialize_message(JOINTS)
+    for i in range(3):
+        assert writer.write('/joint_states', 'sensor_msgs/msg/JointState', T0 + i, data)
+    writer.close()
+    with Reader(bag) as reader:
+        stored = [bytes(raw) for _, _, raw in reader.messages()]
+    assert len(stored) == 3 and all(len(s) < len(data) for s in stored)
+    for s in stored:
+        assert list(TYPESTORE.deserialize_cdr(s, 'sensor_msgs/msg/JointState').name) == [
+            'a', 'bb', 'ccc']
+
+
+@pytest.mark.parametrize('written', [1, 9, 100, 'most'])
+def test_a_short_write_that_leaves_the_old_footer_is_repaired(tmp_path: Path,
+                                                               written: Any) -> None:
+    """The kill cut the tail write short before the old footer: the file still ends with a
+    valid-looking footer whose summary was overwritten. repair_bag must not trust it."""
+    from enbarr_core.recording.bag import repair_bag
+    bag = tmp_path / 'short'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    for i in range(10):
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, IMU_DATA)
+    writer.flush()
+    mcap = writer._file.mcap
+    at = mcap.data_end
+    first = (bag / 'short_0.mcap').read_bytes()
+    for i in range(10, 12):  # a second flush
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, IMU_DATA)
+    writer.flush()
+    writer.close()
+    second = (bag / 'short_0.mcap').read_bytes()
+    old_tail = len(first) - at
+    k = old_tail - 40 if written == 'most' else written
+    assert k < old_tail
+    torn = second[:at + k] + first[at + k:]  # the new blob written k bytes over the old tail
+    assert len(torn) == len(first) and torn.endswith(first[-37:])  # the old footer
+    (bag / 'short_0.mcap').write_bytes(torn)
+    (r,) = repair_bag(bag)
+    assert r.repaired
+    with Reader(bag) as reader:
+        times = [t for _, t, _ in reader.messages()]
+    # the first flush; the second one's chunk too when it was written whole before the cut
+    assert times in ([T0 + i for i in range(10)], [T0 + i for i in range(12)])
+    with open(bag / 'short_0.mcap', 'rb') as f:
+        assert sum(1 for _ in make_reader(f).iter_messages()) == len(times)
