@@ -123,6 +123,9 @@ class BagWriter:
         self.topics: dict[str, str] = {}          # topic -> type
         self._inexact: dict[str, bool] = {}       # type -> serialize_message over-estimates
         self._checked: set[str] = set()           # topics whose first message decoded
+        # topic -> (type, inexact, open file, channel): what write's fast path needs
+        self._fast: dict[str, tuple[str, bool, McapFile, int]] = {}
+        self._split = bool(split_size or split_seconds)
         self._done: list[FileInfo] = []           # closed files (split)
         self._file: _File | None = None
         self._last_flush = clock()
@@ -153,6 +156,7 @@ class BagWriter:
         """Stop for good: drop what was not flushed, keep the bag as last flushed."""
         self.failure = err
         self.closed = True
+        self._fast.clear()
         f, self._file = self._file, None
         if f is not None:
             f.mcap.abandon()
@@ -182,6 +186,17 @@ class BagWriter:
         ``RecorderError``; later ones are not decoded. A type without a definition in the Jazzy
         typestore is remembered and skipped.
         """
+        fast = self._fast.get(topic)
+        if fast is not None and fast[0] is msgtype and (exact or not fast[1]):
+            # A topic already written to the open file, bytes that need no cut, a chunk
+            # already begun (its free-space check done): append, flush when due.
+            mcap = fast[2]
+            if mcap.pending and not self._split:
+                mcap.write(fast[3], timestamp_ns, data)
+                if self._clock() - self._last_flush >= self.flush_seconds or (
+                        mcap.size - mcap.data_end >= CHUNK_BYTES):
+                    self.flush()
+                return True
         if self.failure is not None:
             raise self.failure
         if self.closed:
@@ -216,6 +231,7 @@ class BagWriter:
             if f.first_t is None:
                 f.first_t = timestamp_ns
             mcap.write(cid, timestamp_ns, data)
+            self._fast[topic] = (msgtype, self._inexact_type(msgtype), mcap, cid)
             if self._clock() - self._last_flush >= self.flush_seconds or (
                     mcap.size - mcap.data_end >= CHUNK_BYTES):
                 self._flush_file()
@@ -298,6 +314,7 @@ class BagWriter:
         self._flush_file()
         f.mcap.close()
         self._file = None
+        self._fast.clear()
         if f.mcap.chunks:
             self._done.append(self._file_info(f))
 
@@ -335,6 +352,7 @@ class BagWriter:
         if self.closed:
             return
         self.flush()
+        self._fast.clear()
         if self._file is not None:
             self._file.mcap.close()
         self.closed = True
@@ -383,14 +401,16 @@ def write_metadata(path: Path, files: list[FileInfo], typestore: Any) -> None:
     # new one, never a part; a failed write leaves the old one.
     tmp = path / 'metadata.yaml.tmp'
     try:
-        tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
-                                      default_flow_style=False, sort_keys=False))
+        tmp.write_text(yaml.dump({'rosbag2_bagfile_information': info}, Dumper=_DUMPER,
+                                 default_flow_style=False, sort_keys=False))
         os.replace(tmp, path / 'metadata.yaml')
     except OSError as err:
         raise BagStorageError(f'{path}: cannot write metadata.yaml: {err.strerror}; '
                               'recording stopped, the previous version is kept') from err
 
 
+#: libyaml's emitter when PyYAML has it (10x faster: the file is rewritten at every flush).
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 _HASHES: dict[str, str] = {}
 
 

@@ -29,6 +29,7 @@ import mmap
 import os
 from pathlib import Path
 import struct
+from typing import Any
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
@@ -56,9 +57,7 @@ class McapError(Exception):
 @dataclass
 class _Chunk:
     records: bytearray = field(default_factory=bytearray)
-    index: dict[int, list[int]] = field(default_factory=dict)  # channel -> [t, offset, ...]
-    start: int = 2 ** 63 - 1
-    end: int = 0
+    entries: list[tuple[int, int, int]] = field(default_factory=list)  # (channel, t, offset)
 
 
 class McapFile:
@@ -87,11 +86,15 @@ class McapFile:
         self.start = 2 ** 63 - 1             # flushed messages' log time span [ns]
         self.end = 0
         self._chunk = _Chunk()
-        self.pending = 0                     # messages not flushed yet
         self.closed = False
         self._prev: tuple | None = None      # state before the last flush (revert)
 
     # -- writing --------------------------------------------------------------------------
+    @property
+    def pending(self) -> int:
+        """Messages not flushed yet."""
+        return len(self._chunk.entries)
+
     @property
     def size(self) -> int:
         """Bytes the file will hold once the pending chunk is flushed (about)."""
@@ -128,18 +131,9 @@ class McapFile:
         """Add one message (log and publish time ``t`` [ns]) to the chunk in memory."""
         c = self._chunk
         rec = c.records
-        idx = c.index.get(cid)
-        if idx is None:
-            idx = c.index[cid] = []
-        idx.append(t)
-        idx.append(len(rec))
+        c.entries.append((cid, t, len(rec)))
         rec += _MESSAGE_HEAD.pack(OP_MESSAGE, 22 + len(data), cid, 0, t, t)
         rec += data
-        if t < c.start:
-            c.start = t
-        if t > c.end:
-            c.end = t
-        self.pending += 1
 
     def flush(self, hook: object = None) -> bool:
         """Write the pending chunk and a new summary and footer; False if nothing pending.
@@ -148,18 +142,27 @@ class McapFile:
         test can kill the process inside the rewrite window.
         """
         c = self._chunk
-        if not c.records:
+        if not c.entries:
             return False
-        records = bytes(c.records)
-        content = (struct.pack('<QQQI', c.start, c.end, len(records), 0) + _str('')
-                   + struct.pack('<Q', len(records)) + records)
-        chunk_rec = _rec(OP_CHUNK, content)
-        pos = self.data_end + len(chunk_rec)
+        index: dict[int, list[int]] = {}  # channel -> [t, offset, t, offset, ...]
+        for cid, t, off in c.entries:
+            entry = index.get(cid)
+            if entry is None:
+                entry = index[cid] = []
+            entry += (t, off)
+        times = [e[1] for e in c.entries]
+        c_start, c_end = min(times), max(times)
+        records = c.records  # written as it is (pwritev): no copy of up to CHUNK_BYTES
+        head = (struct.pack('<QQQI', c_start, c_end, len(records), 0) + _str('')
+                + struct.pack('<Q', len(records)))
+        head = _REC_HEAD.pack(OP_CHUNK, len(head) + len(records)) + head
+        chunk_len = len(head) + len(records)
+        pos = self.data_end + chunk_len
         idx_recs = []
         offsets = []
         counts = dict(self.counts)
-        for cid in sorted(c.index):
-            entries = c.index[cid]
+        for cid in sorted(index):
+            entries = index[cid]
             counts[cid] += len(entries) // 2
             body = struct.pack(f'<HI{len(entries)}Q', cid, len(entries) * 8, *entries)
             offsets.append(struct.pack('<HQ', cid, pos))
@@ -168,18 +171,19 @@ class McapFile:
             pos += len(rec)
         msg_index = b''.join(idx_recs)
         chunk_index = _rec(OP_CHUNK_INDEX, struct.pack(
-            '<QQQQI', c.start, c.end, self.data_end, len(chunk_rec), 10 * len(offsets))
+            '<QQQQI', c_start, c_end, self.data_end, chunk_len, 10 * len(offsets))
             + b''.join(offsets) + struct.pack('<Q', len(msg_index)) + _str('')
             + struct.pack('<QQ', len(records), len(records)))
         chunk_indexes = self._chunk_indexes + chunk_index
-        start, end = min(self.start, c.start), max(self.end, c.end)
+        start, end = min(self.start, c_start), max(self.end, c_end)
         tail = self._summary(pos, chunk_indexes, counts, self.chunks + 1, start, end)
-        blob = chunk_rec + msg_index + tail
+        parts = [head, records, msg_index, tail]
         at = self.data_end
         try:
             if hook is None:
-                self._pwrite(blob, at)
+                self._pwritev(parts, at)
             else:
+                blob = b''.join(parts)
                 half = len(blob) // 2
                 self._pwrite(blob[:half], at)
                 hook()  # type: ignore[operator]
@@ -196,7 +200,6 @@ class McapFile:
         self.chunks += 1
         self.start, self.end = start, end
         self._chunk = _Chunk()
-        self.pending = 0
         return True
 
     def _summary(self, data_end: int, chunk_indexes: bytes | bytearray, counts: dict[int, int],
@@ -233,7 +236,13 @@ class McapFile:
         self._prev = None
         self._rollback()
 
-    def _pwrite(self, data: bytes, at: int) -> None:
+    def _pwritev(self, parts: list[Any], at: int) -> None:
+        total = sum(len(p) for p in parts)
+        n = os.pwritev(self._fd, parts, at)
+        if n < total:  # a short write (a signal, a full disk): the rest, or the OSError
+            self._pwrite(memoryview(b''.join(parts))[n:], at + n)
+
+    def _pwrite(self, data: bytes | memoryview, at: int) -> None:
         view = memoryview(data)
         while view:
             n = os.pwrite(self._fd, view, at)
