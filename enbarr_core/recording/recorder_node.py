@@ -91,6 +91,8 @@ class RecorderSettings:
 _RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.BEST_EFFORT)
 _STOP = object()
+#: The writer thread takes what is queued this often [s] (the queue bounds what waits).
+DRAIN_SECONDS = 0.02
 #: A recorder that got no message for this long, with no publisher left, has all [s].
 QUIET_SECONDS = 0.3
 
@@ -226,13 +228,18 @@ class RecorderNode(EnbarrNode, Recorder):
                    for name in names for info in self.get_publishers_info_by_topic(name))
 
     def _write_loop(self) -> None:
-        get = self._queue.get
+        # Polled, not woken per message: a blocking get() wakes this thread (a futex and a
+        # GIL hand-off against the chain's thread) for nearly every message, which measured
+        # 29 us of writer CPU per message in bringup enbarr_sim --record; draining every
+        # DRAIN_SECONDS takes them in batches.
+        get = self._queue.get_nowait
         while True:
             try:
-                item = get(timeout=0.1)
+                item = get()
             except queue.Empty:
                 if self.recording:
                     self._guarded(self.writer.maybe_flush)
+                time.sleep(DRAIN_SECONDS)
                 continue
             if item is _STOP:
                 break
