@@ -26,6 +26,12 @@ def _bringup_parser(parser: argparse.ArgumentParser) -> None:
                         help='record a rosbag2 (MCAP) into DIR, which must not exist yet')
     parser.add_argument('--record-topic', action='append', default=[], metavar='TOPIC',
                         help='record only this topic (repeatable; default: all)')
+    parser.add_argument('--record-split-size', type=float, metavar='MB',
+                        help='start a new file of the bag past MB megabytes (as ros2 bag '
+                        'record --max-bag-size; default: one file per run)')
+    parser.add_argument('--record-split-seconds', type=float, metavar='S',
+                        help='start a new file of the bag past S seconds of messages (as '
+                        '--max-bag-duration; default: one file per run)')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='override a node parameter; VALUE is YAML (repeatable)')
     parser.add_argument('--check', action='store_true',
@@ -46,7 +52,8 @@ def _bringup(args: argparse.Namespace, argv: Sequence[str]) -> int:
     prof = profiles.load_profile(args.profile, args.set)
     profiles.apply_environment(prof)
     if args.record:
-        prof = profiles.with_record(prof, args.record, args.record_topic)
+        prof = profiles.with_record(prof, args.record, args.record_topic,
+                                    args.record_split_size, args.record_split_seconds)
     prof = bringup.add_recorder(prof)
     if args.group is not None:
         if args.group not in prof.groups:
@@ -102,6 +109,15 @@ def _address(text: str) -> int:
         raise argparse.ArgumentTypeError(f'not an address: {text!r} (e.g. 0x6b)') from None
 
 
+def _bag(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from enbarr_core.recording.bag import repair_bag
+
+    for r in repair_bag(args.path):
+        state = (f'repaired, {r.dropped_bytes} torn bytes cut' if r.repaired else 'intact')
+        print(f'{r.name}: {r.messages} messages, {state}')
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the ``enbarr`` argument parser and its subcommands."""
     parser = argparse.ArgumentParser(
@@ -151,6 +167,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--timeout', type=float, default=2.0, metavar='S',
                    help='longest wait for an answer (default 2 s)')
     p.set_defaults(func=_check_device)
+    p = sub.add_parser('bag', help='repair a bag whose recorder was killed',
+                       description='repair PATH: give every file of a bag recorded by Enbarr '
+                       'a valid index and footer, as of its last complete flush (a kill can '
+                       'tear the file end being rewritten), and rewrite its metadata.yaml '
+                       'from what the files hold. Intact files are left as they are.')
+    p.add_argument('action', choices=('repair',))
+    p.add_argument('path', metavar='PATH', help='the bag directory')
+    p.set_defaults(func=_bag)
     p = sub.add_parser('list', help='list known nodes or installed profiles')
     p.add_argument('what', choices=('nodes', 'profiles'))
     p.set_defaults(func=_list)

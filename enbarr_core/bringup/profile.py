@@ -16,7 +16,7 @@ A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
         group: main                      # process group (default: main)
         enabled: true                    # false drops a node an included profile declared
     groups: {main: {restart_limit: 3, restart_delay: 1.0}}
-    record: {path: bags/run, topics: [], segment_seconds: 1.0}
+    record: {path: bags/run, topics: [], flush_seconds: 1.0, split_size: 0, split_seconds: 0}
 
 Everything is checked before any node starts; an error names the file, the key path and
 what was expected.
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+import math
 import os
 from pathlib import Path
 import re
@@ -42,7 +43,7 @@ TOP_KEYS = ('profile', 'description', 'include', 'environment', 'parameters', 'n
             'groups', 'record', 'scenario')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
-RECORD_KEYS = ('path', 'topics', 'segment_seconds')
+RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds')
 DEFAULT_GROUP = 'main'
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 _NAMESPACE = re.compile(r'^(/?[A-Za-z][A-Za-z0-9_]*)*/?$')
@@ -77,7 +78,14 @@ class RecordSpec:
 
     path: str
     topics: tuple[str, ...] = ()  # empty: every topic
-    segment_seconds: float = 1.0  # [s]
+    flush_seconds: float = 1.0  # [s] a kill loses at most this much
+    split_size: float = 0.0     # [MB] a new file of the bag past this size; 0: one file
+    split_seconds: float = 0.0  # [s] a new file past this much message time; 0: one file
+
+    @property
+    def segment_seconds(self) -> float:
+        """Return ``flush_seconds`` under its old name (the recorder takes both)."""
+        return self.flush_seconds
 
 
 @dataclass(frozen=True)
@@ -440,6 +448,10 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
     if record is not None:
         _expect_mapping(record, where, 'record')
         for k in record:
+            if k == 'segment_seconds':
+                raise ProfileError('renamed flush_seconds: a bag is one file now, flushed '
+                                   'every flush_seconds; split it with split_size (MB) or '
+                                   'split_seconds', path=where, key='record.segment_seconds')
             if k not in RECORD_KEYS:
                 raise ProfileError(f'unknown key; expected one of: {", ".join(RECORD_KEYS)}',
                                    path=where, key=f'record.{k}')
@@ -448,7 +460,9 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
         t = record.get('topics', [])
         if not isinstance(t, list) or not all(isinstance(x, str) for x in t):
             raise ProfileError('expected a list of topic names', path=where, key='record.topics')
-        _expect_number(record, 'segment_seconds', where, 'record', positive=True)
+        _expect_number(record, 'flush_seconds', where, 'record', positive=True)
+        _expect_number(record, 'split_size', where, 'record')
+        _expect_number(record, 'split_seconds', where, 'record')
 
 
 def _expect_mapping(value: Any, where: str, key: str) -> None:
@@ -618,7 +632,9 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
             raise ProfileError('expected a directory path', path=_origin(
                 origins, 'record', path), key='record.path')
         record = RecordSpec(path=r['path'], topics=tuple(r.get('topics', ())),
-                            segment_seconds=float(r.get('segment_seconds', 1.0)))
+                            flush_seconds=float(r.get('flush_seconds', 1.0)),
+                            split_size=float(r.get('split_size', 0.0)),
+                            split_seconds=float(r.get('split_seconds', 0.0)))
     return Profile(
         name=merged.get('profile') or Path(path).stem, path=path,
         description=merged.get('description', ''),
@@ -637,14 +653,26 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
     return best
 
 
-def with_record(profile: Profile, path: str, topics: Sequence[str] = ()) -> Profile:
-    """Return the profile with recording to ``path`` switched on (``--record``)."""
+def with_record(profile: Profile, path: str, topics: Sequence[str] = (),
+                split_size: float | None = None, split_seconds: float | None = None) -> Profile:
+    """Return the profile with recording to ``path`` switched on (``--record``).
+
+    ``split_size`` [MB] and ``split_seconds`` (``--record-split-size / -seconds``) override
+    the profile's; the rest of its ``record`` section is kept.
+    """
     for t in topics:
         if not _TOPIC.match(t):
             raise ProfileError(f'--record-topic {_show(t)}: not a valid topic name')
-    seg = profile.record.segment_seconds if profile.record else 1.0
-    return replace(profile, record=RecordSpec(path=path, topics=tuple(topics) or (
-        profile.record.topics if profile.record else ()), segment_seconds=seg))
+    for option, v in (('--record-split-size', split_size),
+                      ('--record-split-seconds', split_seconds)):
+        if v is not None and not (v >= 0 and math.isfinite(v)):
+            raise ProfileError(f'{option} must be a non-negative number (0: no split), '
+                               f'got {v}')
+    old = profile.record or RecordSpec(path=path)
+    return replace(profile, record=replace(
+        old, path=path, topics=tuple(topics) or old.topics,
+        split_size=old.split_size if split_size is None else split_size,
+        split_seconds=old.split_seconds if split_seconds is None else split_seconds))
 
 
 def apply_environment(profile: Profile, environ: Any = os.environ) -> None:

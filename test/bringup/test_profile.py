@@ -98,9 +98,19 @@ def test_with_record_switches_recording_on_in_a_copy() -> None:
     prof = load_profile(SIM)
     rec = profiles.with_record(prof, 'bags/x', ['/imu/data'])
     assert rec.record is not None
-    assert (rec.record.path, rec.record.topics, rec.record.segment_seconds) == (
-        'bags/x', ('/imu/data',), 1.0)
+    assert (rec.record.path, rec.record.topics, rec.record.flush_seconds,
+            rec.record.split_size, rec.record.split_seconds) == (
+        'bags/x', ('/imu/data',), 1.0, 0.0, 0.0)
     assert prof.record is None  # the original is unchanged
+
+
+def test_with_record_takes_the_split_options() -> None:
+    rec = profiles.with_record(load_profile(SIM), 'bags/x', [], 50.0, 600.0)
+    assert rec.record is not None
+    assert (rec.record.split_size, rec.record.split_seconds) == (50.0, 600.0)
+    with pytest.raises(ProfileError, match='--record-split-size must be a non-negative '
+                                           'number'):
+        profiles.with_record(load_profile(SIM), 'bags/x', [], -1.0)
 
 
 # -- includes and overrides -------------------------------------------------------------------
@@ -533,7 +543,7 @@ def test_record_without_path(tmp_path: Path) -> None:
     path = write(tmp_path / 'p.yaml', """
         nodes:
           imu: {plugin: sim_imu}
-        record: {topics: [/imu/data], segment_seconds: 0.5}
+        record: {topics: [/imu/data], flush_seconds: 0.5}
         """)
     err = load_error(path)
     assert str(err) == f'{path}: record.path: expected a directory path'
@@ -543,21 +553,42 @@ def test_record_section(tmp_path: Path) -> None:
     path = write(tmp_path / 'p.yaml', """
         nodes:
           imu: {plugin: sim_imu}
-        record: {path: bags/run, topics: [/imu/data], segment_seconds: 0.5}
+        record: {path: bags/run, topics: [/imu/data], flush_seconds: 0.5, split_size: 100,
+                 split_seconds: 60}
         """)
     r = load_profile(path).record
-    assert r is not None and (r.path, r.topics, r.segment_seconds) == (
-        'bags/run', ('/imu/data',), 0.5)
+    assert r is not None and (r.path, r.topics, r.flush_seconds, r.split_size,
+                              r.split_seconds) == ('bags/run', ('/imu/data',), 0.5, 100.0, 60.0)
 
 
-def test_record_segment_seconds_must_be_positive(tmp_path: Path) -> None:
+def test_record_flush_seconds_must_be_positive(tmp_path: Path) -> None:
     bad = write(tmp_path / 'q.yaml', """
         nodes:
           imu: {plugin: sim_imu}
-        record: {path: bags/run, segment_seconds: 0}
+        record: {path: bags/run, flush_seconds: 0}
         """)
     assert str(load_error(bad)) == (
-        f'{bad}: record.segment_seconds: expected a positive number, got 0')
+        f'{bad}: record.flush_seconds: expected a positive number, got 0')
+
+
+def test_record_split_must_not_be_negative(tmp_path: Path) -> None:
+    bad = write(tmp_path / 'q.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {path: bags/run, split_size: -5}
+        """)
+    assert str(load_error(bad)) == (
+        f'{bad}: record.split_size: expected a non-negative number, got -5')
+
+
+def test_record_segment_seconds_is_renamed(tmp_path: Path) -> None:
+    bad = write(tmp_path / 'q.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {path: bags/run, segment_seconds: 1.0}
+        """)
+    assert str(load_error(bad)).startswith(
+        f'{bad}: record.segment_seconds: renamed flush_seconds: a bag is one file now')
 
 
 def test_profile_without_nodes(tmp_path: Path) -> None:

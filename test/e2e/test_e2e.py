@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from support.bags import read_bag, stamp
 from support.cli import ENBARR
 
@@ -34,8 +35,14 @@ def _wait_for(cond: Any, timeout: float, what: str) -> None:
     raise AssertionError(f'timed out after {timeout} s waiting for {what}')
 
 
-def _flushed(bag: Path) -> bool:
-    return (bag / 'metadata.yaml').exists()
+def _flushed(bag: Path, seconds: float = 0.0) -> bool:
+    """Whether the bag's metadata.yaml lists at least ``seconds`` of messages (flushed)."""
+    try:
+        info = yaml.safe_load((bag / 'metadata.yaml').read_text())[
+            'rosbag2_bagfile_information']
+    except (FileNotFoundError, yaml.YAMLError, TypeError, KeyError):
+        return False  # not yet, or being replaced
+    return info['duration']['nanoseconds'] >= seconds * 1e9
 
 
 def _neutral(msg: Any) -> bool:
@@ -342,6 +349,7 @@ def test_bag_readable_by_mcap_reader(sim_run: dict[str, Any]) -> None:
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     count = 0
+    assert [f.name for f in sim_run['bag'].glob('*.mcap')] == ['bag_0.mcap']  # one per run
     for f in sorted(sim_run['bag'].glob('*.mcap')):
         with f.open('rb') as fh:
             for _, channel, _, msg in make_reader(
@@ -380,8 +388,7 @@ def test_signal_leaves_thrusters_neutral(tmp_path: Path, sig: signal.Signals) ->
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--record', str(bag), '--set',
          DRIVE_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        _wait_for(lambda: _flushed(bag) and len(list(bag.glob('*.mcap'))) >= 3, 60,
-                  'three flushed segments')
+        _wait_for(lambda: _flushed(bag, 2.0), 60, 'two seconds flushed (three flushes)')
         proc.send_signal(sig)
         log, _ = proc.communicate(timeout=30)
     finally:
@@ -398,8 +405,7 @@ def test_sigkill_leaves_a_readable_bag(tmp_path: Path) -> None:
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--record', str(bag)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        _wait_for(lambda: _flushed(bag) and len(list(bag.glob('*.mcap'))) >= 2, 60,
-                  'two flushed segments')
+        _wait_for(lambda: _flushed(bag, 1.0), 60, 'a second flushed (two flushes)')
     finally:
         proc.kill()
         proc.wait()

@@ -131,7 +131,7 @@ include: [enbarr_sim]
 nodes:
   recorder:
     plugin: recorder
-    parameters: {{path: {bag}, segment_seconds: 0.5, min_free_space: 0.0}}
+    parameters: {{path: {bag}, flush_seconds: 0.5, min_free_space: 0.0}}
   surface:
     parameters:
       script: ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0']   # drive on, all the run

@@ -1,4 +1,8 @@
-"""SegmentedBagWriter (enbarr_core.recording.bag): a rosbag2 MCAP bag that survives being killed.
+"""BagWriter (enbarr_core.recording.bag): a rosbag2 MCAP bag that survives being killed.
+
+One MCAP file per run (more only when asked to split), complete after every flush; a kill
+at any instant leaves it readable up to its last flush, after ``repair_bag`` when the kill
+tore the tail being rewritten.
 
 Payloads come from rclpy's ``serialize_message`` as in the recorder; the bags are read back
 with three independent readers: ``rosbags`` (the whole bag through ``metadata.yaml``), the
@@ -33,7 +37,7 @@ from std_msgs.msg import Header
 from enbarr_core.framework.errors import RecorderError
 from enbarr_core.guidance.guidance import Reference
 from enbarr_core.guidance.guidance_node import msg_to_reference, reference_to_msg
-from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.recording.bag import BagWriter
 from enbarr_interfaces import convert, topics
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -75,8 +79,8 @@ def make_messages(i: int, t: int) -> list[tuple[str, str, Any]]:
 
 
 def write_bag(bag: Path, batches: int = 3, per_batch: int = 5) -> list[tuple[str, int, Any]]:
-    """Three segments, ended by explicit flushes; returns (topic, time, message) written."""
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    """Three batches, each ended by an explicit flush; returns (topic, time, message)."""
+    writer = BagWriter(bag, flush_seconds=3600.0)
     written = []
     for b in range(batches):
         for k in range(per_batch):
@@ -92,7 +96,7 @@ def write_bag(bag: Path, batches: int = 3, per_batch: int = 5) -> list[tuple[str
 
 @dataclass(frozen=True)
 class Written:
-    """A bag of three flushed segments, what went into it, and its metadata."""
+    """A bag of three flushes, what went into it, and its metadata."""
 
     bag: Path
     messages: list[tuple[str, int, Any]]  # (topic, receive time, message)
@@ -106,16 +110,16 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> Written:
     return Written(bag, messages, metadata(bag))
 
 
-def test_metadata_lists_one_mcap_file_per_segment(written: Written) -> None:
+def test_a_run_is_one_mcap_file(written: Written) -> None:
     info = written.info
-    assert info['relative_file_paths'] == ['run_0.mcap', 'run_1.mcap', 'run_2.mcap']
+    assert info['relative_file_paths'] == ['run_0.mcap']
     assert info['storage_identifier'] == 'mcap'
 
 
 def test_metadata_counts_messages_per_file_and_topic(written: Written) -> None:
     info = written.info
     assert info['message_count'] == len(written.messages) == 60
-    assert [f['message_count'] for f in info['files']] == [20, 20, 20]
+    assert [f['message_count'] for f in info['files']] == [60]
     counts = {tm['topic_metadata']['name']: tm['message_count']
               for tm in info['topics_with_message_count']}
     assert counts == {'/imu/data': 15, '/joint_states': 15, '/parameter_events_like': 15,
@@ -128,9 +132,16 @@ def test_metadata_start_and_duration(written: Written) -> None:
     assert info['duration']['nanoseconds'] == messages[-1][1] - messages[0][1]
 
 
-def test_no_segment_directories_are_left(written: Written) -> None:
-    assert sorted(p.name for p in written.bag.iterdir()) == [
-        'metadata.yaml', 'run_0.mcap', 'run_1.mcap', 'run_2.mcap']
+def test_nothing_else_is_left(written: Written) -> None:
+    assert sorted(p.name for p in written.bag.iterdir()) == ['metadata.yaml', 'run_0.mcap']
+
+
+def test_each_flush_is_a_chunk_of_the_one_file(written: Written) -> None:
+    with open(written.bag / 'run_0.mcap', 'rb') as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert len(summary.chunk_indexes) == summary.statistics.chunk_count == 3
+    assert summary.statistics.message_count == 60
 
 
 def rosbags_read(bag: Path) -> tuple[int, dict[str, str], list[tuple[str, int, str, Any]]]:
@@ -219,7 +230,7 @@ def test_rclpy_joint_state_buffer_has_trailing_bytes() -> None:
 
 def stored_payloads(bag: Path, data: bytes, exact: bytes) -> dict[str, bytes]:
     """Write a JointState (``data``) and an Imu (``exact``); the payloads the bag keeps."""
-    writer = SegmentedBagWriter(bag)
+    writer = BagWriter(bag)
     assert writer.write('/joint_states', 'sensor_msgs/msg/JointState', T0, data)
     assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + 1, exact)
     writer.close()
@@ -243,9 +254,9 @@ def test_fixed_size_payload_is_stored_unchanged(tmp_path: Path) -> None:
     assert stored['/imu/data'] == exact
 
 
-def write_timed_segments(bag: Path) -> SegmentedBagWriter:
-    """Three pairs of messages 60 ms apart into 50 ms segments; the writer, still open."""
-    writer = SegmentedBagWriter(bag, segment_seconds=0.05)
+def write_timed_flushes(bag: Path) -> BagWriter:
+    """Three pairs of messages 60 ms apart, flushed every 50 ms; the writer, still open."""
+    writer = BagWriter(bag, flush_seconds=0.05)
     data = serialize_message(Imu())
     for i in range(3):
         assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
@@ -254,132 +265,220 @@ def write_timed_segments(bag: Path) -> SegmentedBagWriter:
     return writer
 
 
-def test_segments_roll_over_by_time(tmp_path: Path) -> None:
+def test_flushes_by_time_into_one_file(tmp_path: Path) -> None:
     bag = tmp_path / 'timed'
-    writer = write_timed_segments(bag)
-    writer.maybe_flush()  # idle: the third segment is old enough
-    assert len(metadata(bag)['relative_file_paths']) == 3
-    assert not any(p.name.startswith('.segment') for p in bag.iterdir())
+    writer = write_timed_flushes(bag)
+    writer.maybe_flush()  # idle: the last flush is old enough
+    assert metadata(bag)['relative_file_paths'] == ['timed_0.mcap']
+    assert metadata(bag)['message_count'] == 6  # all flushed, the writer still open
+    with open(bag / 'timed_0.mcap', 'rb') as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) == 3
     writer.close()
 
 
-def test_close_after_time_segments_keeps_every_message(tmp_path: Path) -> None:
+def test_close_after_time_flushes_keeps_every_message(tmp_path: Path) -> None:
     bag = tmp_path / 'timed'
-    writer = write_timed_segments(bag)
+    writer = write_timed_flushes(bag)
     writer.maybe_flush()
     writer.close()
     assert metadata(bag)['message_count'] == 6
 
 
+# -- killed at any instant ---------------------------------------------------------------------
+
 CHILD = textwrap.dedent("""
-    import sys, time
+    import os, sys, time
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState
-    from enbarr_core.recording.bag import SegmentedBagWriter
+    from enbarr_core.recording.bag import BagWriter
 
-    writer = SegmentedBagWriter(sys.argv[1], segment_seconds=0.2)
+    writer = BagWriter(sys.argv[1], flush_seconds=3600.0)
+    if len(sys.argv) > 2:  # freeze inside the tail rewrite of the 4th flush, to be killed there
+        flushes = []
+        def hook():
+            flushes.append(1)
+            if len(flushes) == 4:
+                print('torn', flush=True)
+                time.sleep(60)
+        writer.flush_hook = hook
     i = 0
     while True:
         imu = Imu()
         imu.linear_acceleration.x = float(i)
-        writer.write('/imu/data', 'sensor_msgs/msg/Imu', time.time_ns(), serialize_message(imu))
+        imu.header.frame_id = 'x' * (i % 13)
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', 1000 + 2 * i, serialize_message(imu))
         if i % 4 == 0:
             js = JointState(name=['n%d' % i], position=[float(i)])
-            writer.write('/joint_states', 'sensor_msgs/msg/JointState', time.time_ns(),
+            writer.write('/joint_states', 'sensor_msgs/msg/JointState', 1001 + 2 * i,
                          serialize_message(js))
         i += 1
-        time.sleep(0.0005)
+        if i % 5 == 0:
+            writer.flush()
+            print(i, flush=True)  # everything up to imu i-1 is flushed
 """)
 
 
-def _frozen_mid_segment(bag: Path) -> bool:
-    """True when >= 3 segments are listed and the next one is being written (checked while
-    the writer is stopped, so what is seen is what the kill leaves).
+def run_and_kill(bag: Path, after: float | None, tear: bool = False) -> int:
+    """Run the writer child on ``bag``, SIGKILL it; the last flushed count it reported.
+
+    ``after``: seconds after its first flush; with ``tear``, kill it frozen inside the
+    rewrite of its fourth flush (half the tail written).
     """
+    args = [sys.executable, '-c', CHILD, str(bag)] + (['tear'] if tear else [])
+    proc = subprocess.Popen(args, env=os.environ, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
-        listed = metadata(bag)['relative_file_paths']
-    except (FileNotFoundError, KeyError, TypeError, yaml.YAMLError):
-        return False
-    seg = bag / f'.segment_{len(listed)}'
-    return len(listed) >= 3 and seg.is_dir() and any(seg.glob('*.mcap'))
-
-
-@pytest.fixture(scope='module')
-def killed(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A bag whose writer process was SIGKILLed in the middle of its fourth segment or later."""
-    bag = tmp_path_factory.mktemp('killed') / 'crash'
-    proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=os.environ,
-                            stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 30.0
-        while True:
-            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ''
-            assert time.monotonic() < deadline, 'the writer never flushed 3 segments'
-            if (bag / 'metadata.yaml').exists() and len(
-                    metadata(bag)['relative_file_paths']) >= 3:
-                # freeze it, and kill only in the middle of a segment (not inside a flush)
-                os.kill(proc.pid, signal.SIGSTOP)
-                if _frozen_mid_segment(bag):
-                    break
-                os.kill(proc.pid, signal.SIGCONT)
-            time.sleep(0.01)
-        os.kill(proc.pid, signal.SIGKILL)
+        lines = [proc.stdout.readline()]
+        assert lines[0], proc.stderr.read()
+        if tear:
+            while lines[-1].strip() != 'torn':
+                lines.append(proc.stdout.readline())
+                assert lines[-1], proc.stderr.read()
+        else:
+            time.sleep(after)
+        proc.kill()
         assert proc.wait(10) == -signal.SIGKILL
+        lines += proc.stdout.read().split()
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
-        if proc.stderr:
-            proc.stderr.close()
-
-    return bag
-
-
-@pytest.mark.e2e  # a process, killed
-def test_killed_writer_lists_only_finished_segments(killed: Path) -> None:
-    listed = metadata(killed)['relative_file_paths']
-    assert len(listed) >= 3
-    assert listed == [f'crash_{k}.mcap' for k in range(len(listed))]
-    leftover = [p.name for p in killed.iterdir() if p.name.startswith('.segment')]
-    assert leftover == [f'.segment_{len(listed)}']  # the unfinished one, and not listed
-    assert not any(name.startswith('.') for name in listed)
+        proc.stdout.close()
+        proc.stderr.close()
+    return max(int(x) for x in lines if x.strip().isdigit())
 
 
-@pytest.mark.e2e  # a process, killed
-def test_killed_writer_leaves_every_listed_file_complete(killed: Path) -> None:
-    info = metadata(killed)
-    for name, finfo in zip(info['relative_file_paths'], info['files']):
-        with open(killed / name, 'rb') as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            summary = reader.get_summary()
-            assert summary is not None and summary.statistics is not None, name
-            assert summary.statistics.message_count == finfo['message_count'] > 0
-            assert sum(1 for _ in reader.iter_decoded_messages()) == finfo['message_count']
-
-
-@pytest.mark.e2e  # a process, killed
-def test_killed_writer_loses_nothing_up_to_the_last_flush(killed: Path) -> None:
-    """The bag as a whole: counts as in metadata.yaml, no gap, time order."""
-    info = metadata(killed)
-    bag = killed
+def read_both(bag: Path) -> list[int]:
+    """The bag by rosbags (through metadata.yaml) and by mcap (file by file): they agree;
+    the imu sequence numbers in time order."""
+    info = metadata(bag)
     with Reader(bag) as reader:
         assert reader.message_count == info['message_count']
         msgs = [(c.topic, t, TYPESTORE.deserialize_cdr(raw, c.msgtype))
                 for c, t, raw in reader.messages()]
-    assert len(msgs) == info['message_count'] == sum(f['message_count'] for f in info['files'])
-    per_topic = {tm['topic_metadata']['name']: tm['message_count']
-                 for tm in info['topics_with_message_count']}
-    assert per_topic == {
-        '/imu/data': sum(1 for m in msgs if m[0] == '/imu/data'),
-        '/joint_states': sum(1 for m in msgs if m[0] == '/joint_states')}
+    assert len(msgs) == info['message_count']
+    by_mcap = []
+    for name, finfo in zip(info['relative_file_paths'], info['files']):
+        with open(bag / name, 'rb') as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None
+            assert summary.statistics.message_count == finfo['message_count']
+            by_mcap += [(ch.topic, m.log_time) for _, ch, m, _ in
+                        reader.iter_decoded_messages()]
+    assert by_mcap == [(topic, t) for topic, t, _ in msgs]
     times = [t for _, t, _ in msgs]
     assert times == sorted(times)
-    seq = [int(m.linear_acceleration.x) for topic, _, m in msgs if topic == '/imu/data']
-    assert seq == list(range(len(seq)))  # everything up to the last flush, nothing lost
     joints = [m for topic, _, m in msgs if topic == '/joint_states']
     assert [list(m.name) for m in joints] == [[f'n{4 * k}'] for k in range(len(joints))]
+    return [int(m.linear_acceleration.x) for topic, _, m in msgs if topic == '/imu/data']
 
 
+@pytest.mark.e2e  # processes, killed
+def test_killed_at_random_instants_the_bag_reads_to_its_last_flush(tmp_path: Path) -> None:
+    from enbarr_core.recording.bag import repair_bag
+    rng = np.random.default_rng(10)
+    torn = 0
+    for k in range(12):
+        bag = tmp_path / f'crash{k}'
+        flushed = run_and_kill(bag, after=float(rng.uniform(0.0, 0.3)))
+        intact = True
+        try:
+            with Reader(bag) as reader:
+                sum(1 for _ in reader.messages())
+        except Exception:  # noqa: BLE001 - a torn tail: the repair's job
+            intact = False
+        torn += not intact
+        repaired = repair_bag(bag)
+        assert [r.name for r in repaired] == [f'crash{k}_0.mcap']
+        assert repaired[0].repaired == (not intact) or intact and not repaired[0].repaired
+        seq = read_both(bag)
+        assert seq == list(range(len(seq)))  # no gap, nothing out of order
+        assert len(seq) >= flushed           # nothing lost up to the last flush
+        assert repair_bag(bag)[0].repaired is False  # repaired once is intact
+
+
+@pytest.mark.e2e  # a process, killed
+def test_killed_inside_the_tail_rewrite_is_repaired_to_the_flush_before(tmp_path: Path) -> None:
+    from enbarr_core.recording.bag import repair_bag
+    bag = tmp_path / 'torn'
+    flushed = run_and_kill(bag, None, tear=True)
+    assert flushed == 15  # three flushes done; killed with half of the fourth's tail written
+    with pytest.raises(Exception, match='magic|footer|summary|Invalid'):
+        with Reader(bag) as reader:  # torn: no reader opens it as it is
+            list(reader.messages())
+    (r,) = repair_bag(bag)
+    assert r.repaired
+    seq = read_both(bag)
+    # The three flushes before, and the torn one's chunk too when its first half held the
+    # chunk and its message indexes whole (it does here: the summary is the larger part).
+    assert seq in (list(range(15)), list(range(20)))
+    assert metadata(bag)['relative_file_paths'] == ['torn_0.mcap']
+
+
+def test_repair_refuses_what_is_not_a_bag(tmp_path: Path) -> None:
+    from enbarr_core.recording.bag import repair_bag
+    with pytest.raises(RecorderError, match='not a bag directory'):
+        repair_bag(tmp_path / 'nothing')
+    (tmp_path / 'other').mkdir()
+    with pytest.raises(RecorderError, match=r'no other_N\.mcap files'):
+        repair_bag(tmp_path / 'other')
+    (tmp_path / 'other' / 'other_0.mcap').write_bytes(b'not an mcap file at all')
+    with pytest.raises(RecorderError, match=r'other_0\.mcap: cannot repair: .*not an MCAP'):
+        repair_bag(tmp_path / 'other')
+
+
+# -- splitting, as ros2 bag record --max-bag-size / --max-bag-duration ------------------------
+
+def test_split_by_duration_of_message_time(tmp_path: Path) -> None:
+    bag = tmp_path / 'split'
+    writer = BagWriter(bag, flush_seconds=3600.0, split_seconds=1.0)
+    for i in range(25):  # 0.1 s of message time apart: 10 per file
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i * 100_000_000, IMU_DATA)
+    writer.close()
+    info = metadata(bag)
+    assert info['relative_file_paths'] == ['split_0.mcap', 'split_1.mcap', 'split_2.mcap']
+    assert [f['message_count'] for f in info['files']] == [10, 10, 5]
+    with Reader(bag) as reader:
+        assert [t for _, t, _ in reader.messages()] == [T0 + i * 100_000_000 for i in range(25)]
+
+
+def test_split_by_size(tmp_path: Path) -> None:
+    bag = tmp_path / 'sized'
+    writer = BagWriter(bag, flush_seconds=3600.0, split_size=20_000)
+    for i in range(300):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, IMU_DATA)
+        if i % 20 == 19:
+            writer.flush()
+    writer.close()
+    info = metadata(bag)
+    names = info['relative_file_paths']
+    assert len(names) > 3 and names == [f'sized_{k}.mcap' for k in range(len(names))]
+    for name in names[:-1]:  # each file stops at the first flush past the size
+        assert 20_000 <= (bag / name).stat().st_size < 20_000 + 20 * (len(IMU_DATA) + 40) + 2000
+    assert sum(f['message_count'] for f in info['files']) == 300
+    with Reader(bag) as reader:
+        assert [t for _, t, _ in reader.messages()] == [T0 + i for i in range(300)]
+
+
+def test_no_split_by_default(tmp_path: Path) -> None:
+    bag = tmp_path / 'one'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    for i in range(300):
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i * 1_000_000_000, IMU_DATA)
+        if i % 20 == 19:
+            writer.flush()
+    writer.close()
+    assert metadata(bag)['relative_file_paths'] == ['one_0.mcap']
+
+
+def test_refuses_negative_splits(tmp_path: Path) -> None:
+    with pytest.raises(RecorderError, match='split_size and split_seconds must be >= 0'):
+        BagWriter(tmp_path / 'new', split_seconds=-1.0)
+
+
+IMU_DATA = serialize_message(Imu())
 
 
 # -- refusals ----------------------------------------------------------------------------------
@@ -388,7 +487,7 @@ def test_refuses_to_overwrite(tmp_path: Path) -> None:
     bag.mkdir()
     (bag / 'metadata.yaml').write_text('precious')
     with pytest.raises(RecorderError) as info:
-        SegmentedBagWriter(bag)
+        BagWriter(bag)
     assert str(info.value) == (f'{bag}: exists and is not an empty directory; bags are never '
                                'overwritten')
     assert (bag / 'metadata.yaml').read_text() == 'precious'
@@ -398,33 +497,33 @@ def test_refuses_a_file_as_the_bag(tmp_path: Path) -> None:
     a_file = tmp_path / 'file'
     a_file.write_text('x')
     with pytest.raises(RecorderError, match='exists and is not an empty directory'):
-        SegmentedBagWriter(a_file)
+        BagWriter(a_file)
 
 
 def test_an_empty_directory_is_fine(tmp_path: Path) -> None:
     empty = tmp_path / 'empty'
     empty.mkdir()
-    SegmentedBagWriter(empty).close()  # an empty directory is fine
+    BagWriter(empty).close()  # an empty directory is fine
 
 
-def test_refuses_a_segment_period_of_zero(tmp_path: Path) -> None:
-    with pytest.raises(RecorderError, match='segment_seconds must be > 0, got 0'):
-        SegmentedBagWriter(tmp_path / 'new', segment_seconds=0)
+def test_refuses_a_flush_period_of_zero(tmp_path: Path) -> None:
+    with pytest.raises(RecorderError, match='flush_seconds must be > 0, got 0'):
+        BagWriter(tmp_path / 'new', flush_seconds=0)
 
 
 def test_knows_the_types_of_the_jazzy_typestore(tmp_path: Path) -> None:
-    writer = SegmentedBagWriter(tmp_path / 'unknown')
+    writer = BagWriter(tmp_path / 'unknown')
     assert writer.knows_type('sensor_msgs/msg/Imu')
     assert not writer.knows_type('my_msgs/msg/Nope')
 
 
 def test_unknown_type_is_skipped_and_remembered(tmp_path: Path) -> None:
     bag = tmp_path / 'unknown'
-    writer = SegmentedBagWriter(bag)
+    writer = BagWriter(bag)
     assert writer.write('/x', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
     assert writer.write('/y', 'my_msgs/msg/Nope', T0, b'\x00\x01\x00\x00') is False
     assert writer.unknown_types == {'my_msgs/msg/Nope'}
-    assert list(bag.iterdir()) == []  # no segment opened for nothing
+    assert list(bag.iterdir()) == []  # no file opened for nothing
     assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
     writer.close()
     assert metadata(bag)['message_count'] == 1
@@ -434,7 +533,7 @@ def test_unknown_type_is_skipped_and_remembered(tmp_path: Path) -> None:
 
 def test_write_after_close(tmp_path: Path) -> None:
     bag = tmp_path / 'closed'
-    writer = SegmentedBagWriter(bag)
+    writer = BagWriter(bag)
     writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
     writer.close()
     writer.close()  # idempotent
@@ -447,25 +546,25 @@ def test_write_after_close(tmp_path: Path) -> None:
 IMU, JS = serialize_message(Imu()), serialize_message(JointState(name=['a']))
 
 
-def test_topic_changing_type_is_refused_within_a_segment(tmp_path: Path) -> None:
-    writer = SegmentedBagWriter(tmp_path / 'typed', segment_seconds=3600.0)
+def test_topic_changing_type_is_refused_before_a_flush(tmp_path: Path) -> None:
+    writer = BagWriter(tmp_path / 'typed', flush_seconds=3600.0)
     assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, IMU)
     with pytest.raises(RecorderError, match='topic /a changed type from sensor_msgs/msg/Imu '
                                             'to sensor_msgs/msg/JointState'):
-        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, JS)  # same segment
+        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, JS)  # not flushed yet
     writer.close()
 
 
-def test_topic_changing_type_is_refused_across_segments(tmp_path: Path) -> None:
+def test_topic_changing_type_is_refused_across_flushes(tmp_path: Path) -> None:
     bag = tmp_path / 'typed'
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    writer = BagWriter(bag, flush_seconds=3600.0)
     imu, js = IMU, JS
     assert writer.write('/a', 'sensor_msgs/msg/Imu', T0, imu)
     with pytest.raises(RecorderError, match='changed type'):
         writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 1, js)  # same segment
     writer.flush()
     with pytest.raises(RecorderError, match='changed type'):
-        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 2, js)  # next segment
+        writer.write('/a', 'sensor_msgs/msg/JointState', T0 + 2, js)  # after a flush
     assert writer.write('/a', 'sensor_msgs/msg/Imu', T0 + 3, imu)
     writer.close()
     with Reader(bag) as reader:
@@ -477,13 +576,16 @@ def test_topic_changing_type_is_refused_across_segments(tmp_path: Path) -> None:
 def test_malformed_payload_is_a_recorder_error(tmp_path: Path) -> None:
     """Bytes that are not the named type (e.g. a peer with another definition) must be a
     RecorderError, which the recorder counts as dropped, not any exception that would end
-    its writer thread; and nothing half-written is left behind.
+    its writer thread; and nothing half-written is left behind. The first message of a topic
+    is checked (such a peer sends nothing else), even when said to be exact (from DDS).
     """
     bag = tmp_path / 'malformed'
-    writer = SegmentedBagWriter(bag)
+    writer = BagWriter(bag)
     for bad in (b'', b'\x00\x01', b'\x00\x01\x00\x00\x01\x02', serialize_message(Imu())[:30]):
         with pytest.raises(RecorderError, match='not a CDR sensor_msgs/msg/Imu'):
             writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, bad)
+        with pytest.raises(RecorderError, match='not a CDR sensor_msgs/msg/Imu'):
+            writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, bad, exact=True)
     assert list(bag.iterdir()) == []
     assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0, serialize_message(Imu()))
     writer.close()
@@ -498,7 +600,7 @@ def test_a_guidance_reference_reads_back_with_rosbags_and_mcap(tmp_path: Path) -
     original = reference_to_msg(ref, header)
     name, msgtype = f'/{topics.GUIDANCE_REFERENCE.name}', topics.GUIDANCE_REFERENCE.type_name
     assert msgtype == 'trajectory_msgs/msg/MultiDOFJointTrajectory'
-    writer = SegmentedBagWriter(tmp_path / 'bag')
+    writer = BagWriter(tmp_path / 'bag')
     assert writer.write(name, msgtype, T0, serialize_message(original))
     writer.close()
     with Reader(tmp_path / 'bag') as reader:
@@ -525,7 +627,7 @@ def test_a_guidance_reference_reads_back_with_rosbags_and_mcap(tmp_path: Path) -
 # halves, and between them the test reads ``metadata.yaml`` as a reader would. A writer that
 # wrote the file in place would show the reader half a file there.
 
-def one_segment(writer: SegmentedBagWriter, i: int) -> None:
+def one_segment(writer: BagWriter, i: int) -> None:
     for j, (topic, msgtype, msg) in enumerate(make_messages(i, T0 + i * 10_000_000)):
         assert writer.write(topic, msgtype, T0 + i * 10_000_000 + j, serialize_message(msg))
     writer.flush()
@@ -552,44 +654,43 @@ class HalfWrites:
 def test_a_reader_never_sees_a_partial_metadata_file(tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     bag = tmp_path / 'atomic'
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
-    seen: list[list[str] | None] = []
-    committed: list[str] = []   # the files listed by the last complete metadata.yaml
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    seen: list[int | None] = []
+    committed: int | None = None   # the count in the last complete metadata.yaml
 
     def reader(_: Path) -> None:
         target = bag / 'metadata.yaml'
         if not target.exists():
             seen.append(None)
-            assert not committed, 'metadata.yaml vanished while being rewritten'
+            assert committed is None, 'metadata.yaml vanished while being rewritten'
             return
-        listed = yaml.safe_load(target.read_text())['rosbag2_bagfile_information'][
-            'relative_file_paths']
-        assert listed == committed          # the previous version, whole
-        seen.append(listed)
+        info = yaml.safe_load(target.read_text())['rosbag2_bagfile_information']
+        assert info['message_count'] == committed          # the previous version, whole
+        seen.append(info['message_count'])
 
     halves = HalfWrites(monkeypatch, bag, reader)
     inodes = []
     for i in range(3):
         one_segment(writer, i)
-        committed = [f'atomic_{k}.mcap' for k in range(i + 1)]
-        assert metadata(bag)['relative_file_paths'] == committed
+        committed = 4 * (i + 1)
+        assert metadata(bag)['message_count'] == committed
+        assert metadata(bag)['relative_file_paths'] == ['atomic_0.mcap']
         inodes.append((bag / 'metadata.yaml').stat().st_ino)
     writer.close()
-    assert halves.calls == 3 and seen == [None, ['atomic_0.mcap'],
-                                         ['atomic_0.mcap', 'atomic_1.mcap']]
+    assert halves.calls == 3 and seen == [None, 4, 8]
     # Each version is a new file moved over the old one, created while the old one still
     # existed, so its inode differs from the previous version's (an in-place rewrite keeps it).
     assert inodes[0] != inodes[1] and inodes[1] != inodes[2]
-    assert sorted(p.name for p in bag.iterdir()) == [
-        'atomic_0.mcap', 'atomic_1.mcap', 'atomic_2.mcap', 'metadata.yaml']
+    assert sorted(p.name for p in bag.iterdir()) == ['atomic_0.mcap', 'metadata.yaml']
 
 
 def test_a_failed_metadata_write_leaves_the_previous_version(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The disk fills up half way through writing the new metadata: the flush fails with a
-    RecorderError naming the file, and the bag still reads as it was before that flush."""
+    RecorderError naming the file, and the bag (file and metadata.yaml) still reads as it was
+    before that flush: the file's last chunk is taken back."""
     bag = tmp_path / 'full'
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    writer = BagWriter(bag, flush_seconds=3600.0)
     one_segment(writer, 0)
     one_segment(writer, 1)
     before = (bag / 'metadata.yaml').read_bytes()
@@ -604,3 +705,70 @@ def test_a_failed_metadata_write_leaves_the_previous_version(
     with Reader(bag) as reader:
         assert reader.message_count == 8
         assert len(list(reader.messages())) == 8
+
+
+def test_enbarr_bag_repair_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from enbarr_core.bringup.cli import main
+    bag = tmp_path / 'run'
+    write_bag(bag)
+    data = (bag / 'run_0.mcap').read_bytes()
+    (bag / 'run_0.mcap').write_bytes(data[:-20])  # a torn end
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out.startswith('run_0.mcap: 60 messages, repaired')
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out == 'run_0.mcap: 60 messages, intact\n'
+    with Reader(bag) as reader:
+        assert sum(1 for _ in reader.messages()) == 60
+    assert main(['bag', 'repair', str(tmp_path / 'none')]) == 2
+    assert capsys.readouterr().err == (
+        f'enbarr bag: error: {tmp_path / "none"}: not a bag directory\n')
+
+
+def test_every_joint_state_is_trimmed_not_only_the_first(tmp_path: Path) -> None:
+    bag = tmp_path / 'js'
+    writer = BagWriter(bag)
+    data = serialize_message(JOINTS)
+    for i in range(3):
+        assert writer.write('/joint_states', 'sensor_msgs/msg/JointState', T0 + i, data)
+    writer.close()
+    with Reader(bag) as reader:
+        stored = [bytes(raw) for _, _, raw in reader.messages()]
+    assert len(stored) == 3 and all(len(s) < len(data) for s in stored)
+    for s in stored:
+        assert list(TYPESTORE.deserialize_cdr(s, 'sensor_msgs/msg/JointState').name) == [
+            'a', 'bb', 'ccc']
+
+
+@pytest.mark.parametrize('written', [1, 9, 100, 'most'])
+def test_a_short_write_that_leaves_the_old_footer_is_repaired(tmp_path: Path,
+                                                               written: Any) -> None:
+    """The kill cut the tail write short before the old footer: the file still ends with a
+    valid-looking footer whose summary was overwritten. repair_bag must not trust it."""
+    from enbarr_core.recording.bag import repair_bag
+    bag = tmp_path / 'short'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    for i in range(10):
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, IMU_DATA)
+    writer.flush()
+    mcap = writer._file.mcap
+    at = mcap.data_end
+    first = (bag / 'short_0.mcap').read_bytes()
+    for i in range(10, 12):  # a second flush
+        writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, IMU_DATA)
+    writer.flush()
+    writer.close()
+    second = (bag / 'short_0.mcap').read_bytes()
+    old_tail = len(first) - at
+    k = old_tail - 40 if written == 'most' else written
+    assert k < old_tail
+    torn = second[:at + k] + first[at + k:]  # the new blob written k bytes over the old tail
+    assert len(torn) == len(first) and torn.endswith(first[-37:])  # the old footer
+    (bag / 'short_0.mcap').write_bytes(torn)
+    (r,) = repair_bag(bag)
+    assert r.repaired
+    with Reader(bag) as reader:
+        times = [t for _, t, _ in reader.messages()]
+    # the first flush; the second one's chunk too when it was written whole before the cut
+    assert times in ([T0 + i for i in range(10)], [T0 + i for i in range(12)])
+    with open(bag / 'short_0.mcap', 'rb') as f:
+        assert sum(1 for _ in make_reader(f).iter_messages()) == len(times)

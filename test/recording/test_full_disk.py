@@ -23,7 +23,7 @@ from sensor_msgs.msg import Imu
 import yaml
 
 from enbarr_core.framework.errors import ConfigurationError, RecorderError
-from enbarr_core.recording.bag import BagStorageError, SegmentedBagWriter
+from enbarr_core.recording.bag import BagStorageError, BagWriter
 from enbarr_core.recording.recorder_node import RecorderNode
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
@@ -42,7 +42,8 @@ def metadata(bag: Path) -> dict[str, Any]:
 def readable(bag: Path) -> int:
     """Read ``bag`` with all three readers, check that they agree; its message count."""
     info = metadata(bag)
-    assert not [p for p in bag.iterdir() if p.name.startswith('.segment')]
+    assert sorted(p.name for p in bag.iterdir()) == sorted(
+        ['metadata.yaml', *info['relative_file_paths']])
     with Reader(bag) as reader:
         by_rosbags = sum(1 for _ in reader.messages())
         assert reader.message_count == by_rosbags == info['message_count']
@@ -63,7 +64,7 @@ def readable(bag: Path) -> int:
 def test_a_full_disk_is_a_storage_error_and_the_bag_reads_to_its_last_flush(
         tmp_path: Path) -> None:
     with small_disk(tmp_path, '1m') as disk:
-        writer = SegmentedBagWriter(disk / 'bag', segment_seconds=3600.0)
+        writer = BagWriter(disk / 'bag', flush_seconds=3600.0)
         flushed = 0
         with pytest.raises(BagStorageError, match='No space left on device') as info:
             for i in range(1_000_000):
@@ -81,17 +82,18 @@ def test_a_full_disk_is_a_storage_error_and_the_bag_reads_to_its_last_flush(
 
 
 @pytest.mark.e2e
-def test_a_disk_that_fills_within_a_segment_drops_only_that_segment(tmp_path: Path) -> None:
+def test_a_disk_that_fills_before_a_flush_loses_only_what_was_not_flushed(
+        tmp_path: Path) -> None:
     with small_disk(tmp_path, '1m') as disk:
-        writer = SegmentedBagWriter(disk / 'bag', segment_seconds=3600.0)
+        writer = BagWriter(disk / 'bag', flush_seconds=3600.0)
         for i in range(100):
             writer.write('/imu', 'sensor_msgs/msg/Imu', i, IMU)
         writer.flush()
-        with pytest.raises(BagStorageError, match=r'cannot write segment 1: No space left on '
+        with pytest.raises(BagStorageError, match=r'cannot write bag_0\.mcap: No space left on '
                                                   r'device; recording stopped'):
-            for i in range(100, 1_000_000):  # no flush: the segment's chunk hits the limit
+            for i in range(100, 1_000_000):  # no explicit flush: full chunks are written
                 writer.write('/imu', 'sensor_msgs/msg/Imu', i, IMU)
-        assert readable(disk / 'bag') == 100  # the unfinished segment is gone, not listed
+        assert readable(disk / 'bag') >= 100  # up to the last chunk written whole
         writer.close()
 
 
@@ -101,14 +103,14 @@ def test_too_little_free_space_refuses_to_start(tmp_path: Path) -> None:
         with pytest.raises(RecorderError,
                            match=r'/bag: 2\.1 MB free, less than the 3 MB margin '
                                  r'\(min_free_space\); recording refused'):
-            SegmentedBagWriter(disk / 'bag', min_free=3 * MB)
+            BagWriter(disk / 'bag', min_free=3 * MB)
         assert not (disk / 'bag').exists()
 
 
 @pytest.mark.e2e
 def test_the_margin_stops_a_run_with_the_bag_closed(tmp_path: Path) -> None:
     with small_disk(tmp_path, '8m') as disk:
-        writer = SegmentedBagWriter(disk / 'bag', segment_seconds=3600.0, min_free=2 * MB)
+        writer = BagWriter(disk / 'bag', flush_seconds=3600.0, min_free=2 * MB)
         for i in range(100):
             writer.write('/imu', 'sensor_msgs/msg/Imu', i, IMU)
         writer.flush()
@@ -121,7 +123,7 @@ def test_the_margin_stops_a_run_with_the_bag_closed(tmp_path: Path) -> None:
 # -- the node -------------------------------------------------------------------------------
 
 def recorder(context: Any, executor: Any, bag: Path, **params: Any) -> RecorderNode:
-    overrides = [Parameter('path', value=str(bag)), Parameter('segment_seconds', value=0.05),
+    overrides = [Parameter('path', value=str(bag)), Parameter('flush_seconds', value=0.05),
                  *(Parameter(k, value=v) for k, v in params.items())]
     return add(executor, RecorderNode(context=context, parameter_overrides=overrides))
 

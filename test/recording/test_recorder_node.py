@@ -82,7 +82,7 @@ def test_settings_are_typed(context, executor, tmp_path) -> None:
     rec = recorder(context, executor, tmp_path / 'bag', '/io_state')
     assert rec.settings == RecorderSettings(path=str(tmp_path / 'bag'),
                                             topics=frozenset({'/io_state'}),
-                                            segment_seconds=1.0)
+                                            flush_seconds=1.0)
 
 
 def test_is_a_recorder_for_bringup(context, executor, tmp_path) -> None:
@@ -107,6 +107,34 @@ def test_a_bag_directory_in_use_is_refused(context, tmp_path) -> None:
 
 def test_empty_topic_names_mean_all() -> None:
     settings = RecorderSettings.from_params({'path': 'bag', 'topics': [''],
-                                             'segment_seconds': 1.0, 'min_free_space': 64.0,
-                                             'max_queued': 20000})
+                                             'flush_seconds': 1.0, 'segment_seconds': 0.0,
+                                             'split_size': 0.0, 'split_seconds': 0.0,
+                                             'min_free_space': 64.0, 'max_queued': 20000})
     assert settings.topics == frozenset()
+
+
+def test_segment_seconds_is_the_old_name_of_flush_seconds() -> None:
+    settings = RecorderSettings.from_params({'path': 'bag', 'topics': [],
+                                             'flush_seconds': 1.0, 'segment_seconds': 0.25,
+                                             'split_size': 0.0, 'split_seconds': 0.0,
+                                             'min_free_space': 64.0, 'max_queued': 20000})
+    assert settings.flush_seconds == 0.25
+
+
+def test_stamps_follow_the_node_clock_under_sim_time(context, executor, spin, tmp_path) -> None:
+    """Receive stamps come from the node's clock: with use_sim_time and no /clock yet it
+    reads 0 (the system clock would give ~1.7e18 ns), and back on the system clock after."""
+    from rosbags.rosbag2 import Reader
+    bag = tmp_path / 'bag'
+    rec = add(executor, RecorderNode(context=context, parameter_overrides=[
+        Parameter('path', value=str(bag)), Parameter('use_sim_time', value=True)]))
+    record_while_publishing(context, executor, spin, rec, topics.IO_STATE, count=3)
+    rec.set_parameters([Parameter('use_sim_time', value=False)])
+    before = rec.written
+    record_while_publishing(context, executor, spin, rec, topics.IO_STATE,
+                            count=before + 3)
+    close(executor, rec)
+    with Reader(bag) as reader:
+        stamps = [t for _, t, _ in reader.messages()]
+    assert stamps[:3] == [0, 0, 0]
+    assert stamps[-1] > 1_600_000_000 * 10 ** 9
