@@ -71,7 +71,8 @@ def add_recorder(profile: Profile) -> Profile:
         return profile
     r: RecordSpec = profile.record
     params: dict[str, Any] = {'path': os.path.abspath(r.path),
-                              'segment_seconds': r.segment_seconds}
+                              'flush_seconds': r.flush_seconds, 'split_size': r.split_size,
+                              'split_seconds': r.split_seconds}
     if r.topics:
         params['topics'] = list(r.topics)
     group = RECORDER_GROUP if len(profile.group_names()) > 1 else profile.nodes[0].group

@@ -82,11 +82,6 @@ class RecordSpec:
     split_size: float = 0.0     # [MB] a new file of the bag past this size; 0: one file
     split_seconds: float = 0.0  # [s] a new file past this much message time; 0: one file
 
-    @property
-    def segment_seconds(self) -> float:
-        """Return ``flush_seconds`` under its old name (the recorder takes both)."""
-        return self.flush_seconds
-
 
 @dataclass(frozen=True)
 class Profile:

@@ -1,5 +1,5 @@
 """Synthetic runs for the metrics: small bags written with the project's own bag writer
-(``enbarr_core.recording.bag.SegmentedBagWriter``) from hand-made messages, serialized with
+(``enbarr_core.recording.bag.BagWriter``) from hand-made messages, serialized with
 the rosbags Jazzy typestore (pure Python: no rclpy, so the metrics tests stay in the unit
 tier).
 
@@ -20,7 +20,7 @@ import numpy as np
 from rosbags.typesys import get_typestore, Stores
 
 from enbarr_core.bringup.profile import NodeSpec
-from enbarr_core.recording.bag import SegmentedBagWriter
+from enbarr_core.recording.bag import BagWriter
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
@@ -98,7 +98,7 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
     for tm, mode in modes:
         out.append((int(round(tm * 1e9)), '/mode', 'std_msgs/msg/String',
                     T['std_msgs/msg/String'](data=mode)))
-    writer = SegmentedBagWriter(bag, segment_seconds=3600.0)
+    writer = BagWriter(bag, flush_seconds=3600.0)
     for ns, topic, msgtype, msg in sorted(out, key=lambda m: m[0]):
         assert writer.write(topic, msgtype, ns, bytes(TS.serialize_cdr(msg, msgtype)))
     writer.close()
