@@ -602,6 +602,8 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                     if rc is None:
                         continue
                     how = f'signal {signal.Signals(-rc).name}' if rc < 0 else f'exit code {rc}'
+                    if rc < 0:
+                        repair_recording(profile, g, how)
                     limit = profile.groups[g].restart_limit
                     if rc == 2:
                         log.error('group %s refused its configuration (%s)', g, how)
@@ -626,6 +628,9 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
                 log.info('%s received, stopping', signal.Signals(stop.signal).name)
         finally:
             codes = _stop_children(procs, stop)
+            for g, c in codes.items():
+                if c is not None and c < 0:
+                    repair_recording(profile, g, f'signal {signal.Signals(-c).name}')
     problems = [f'group {g}: {line}' for g in profile.groups
                 for line in _read_problems(problem_dir / f'{g}.txt')]
     shutil.rmtree(problem_dir, ignore_errors=True)
@@ -635,6 +640,28 @@ def supervise(profile: Profile, child_args: Callable[[str], list[str]],
             if c == EXIT_PROBLEMS))
         exit_code = exit_code or EXIT_PROBLEMS
     return exit_code
+
+
+def repair_recording(profile: Profile, group: str, how: str) -> None:
+    """After ``group`` was killed: make its recorder's bag whole as of its last flush.
+
+    A recorder killed while it rewrote its file's index (once per flush) leaves a torn tail
+    that readers refuse; ``recording.bag.repair_bag`` cuts it and rebuilds the index. A bag
+    that was intact is not written to.
+    """
+    from enbarr_core.recording.bag import repair_bag
+    for n in profile.nodes:
+        if n.name != RECORDER_NODE or n.group != group or 'path' not in n.parameters:
+            continue
+        path = str(n.parameters['path'])
+        try:
+            repaired = [r for r in repair_bag(path) if r.repaired]
+        except EnbarrError as err:
+            log.error('group %s died (%s): its bag could not be repaired: %s', group, how, err)
+            continue
+        for r in repaired:
+            log.warning('group %s died (%s) while writing %s: repaired, %d messages kept, '
+                        '%d torn bytes cut', group, how, r.name, r.messages, r.dropped_bytes)
 
 
 #: The environment variable that tells a supervised group where to write its problems.

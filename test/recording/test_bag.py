@@ -18,6 +18,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from types import SimpleNamespace
 from pathlib import Path
 from typing import Any
 
@@ -772,3 +773,25 @@ def test_a_short_write_that_leaves_the_old_footer_is_repaired(tmp_path: Path,
     assert times in ([T0 + i for i in range(10)], [T0 + i for i in range(12)])
     with open(bag / 'short_0.mcap', 'rb') as f:
         assert sum(1 for _ in make_reader(f).iter_messages()) == len(times)
+
+
+@pytest.mark.e2e  # a process, killed
+def test_the_supervisor_repairs_the_bag_of_a_killed_recorder_group(tmp_path: Path, caplog) -> None:
+    # bringup's supervisor, on a group that died from a signal: orchestrator.repair_recording.
+    import logging
+
+    from enbarr_core.bringup.orchestrator import repair_recording
+    from enbarr_core.bringup.profile import NodeSpec
+    bag = tmp_path / 'killed'
+    flushed = run_and_kill(bag, None, tear=True)
+    with pytest.raises(Exception):  # noqa: B017 - torn: the readers refuse it, as they do
+        read_both(bag)
+    node = NodeSpec(name='recorder', plugin='recorder', parameters={'path': str(bag)},
+                    group='recorder')
+    profile = SimpleNamespace(nodes=(node,))
+    with caplog.at_level(logging.WARNING, logger='enbarr.bringup'):
+        repair_recording(profile, 'main', 'signal SIGKILL')      # not that group: untouched
+        assert not caplog.records
+        repair_recording(profile, 'recorder', 'signal SIGKILL')
+    assert read_both(bag) in (list(range(flushed)), list(range(flushed + 5)))  # as above
+    assert 'died (signal SIGKILL) while writing killed_0.mcap: repaired' in caplog.text
