@@ -25,6 +25,7 @@ thrust over time.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 import json
 import math
@@ -191,10 +192,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     profile = add_recorder(with_record(profile, str(bag)))
     apply_environment(profile)
     wall0, cpu0 = time.monotonic(), time.process_time()
-    # Stepped one ready callback at a time (_spin_ready): the SingleThreadedExecutor's
-    # wait_for_ready_callbacks, which the EventsExecutor of bringup does not have.
-    from rclpy.executors import SingleThreadedExecutor
-    with composed(profile, executor=lambda ctx: SingleThreadedExecutor(context=ctx)) as c:
+    with composed(profile) as c:  # bringup's own executor (EventsExecutor)
         sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)
@@ -210,15 +208,15 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         now = T0_NS
         set_time(now)
         c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
+        run_due = _run_due(c.executor)
+        run_due()
         dt_ns = sim.period_ns
         end = now + int(spec.duration * 1e9)
         while now < end:
             now += dt_ns
             set_time(now)
             sim.step()
-            for _ in range(20):  # run everything due at this instant
-                if not _spin_ready(c.executor):
-                    break
+            run_due()  # everything due at this instant: timers, ROS messages, and theirs
         wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
     from enbarr_core.tools.metrics import compute_metrics, plot_run
     result = compute_metrics(bag, spec, profile)
@@ -230,14 +228,16 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     return result
 
 
-def _spin_ready(executor: Any) -> bool:
-    """Run one ready callback if there is one (as ``spin_once`` does); False when none was."""
-    from rclpy.executors import TimeoutException
-    try:
-        handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=0.0)
-    except TimeoutException:
-        return False
-    handler()
-    if handler.exception() is not None:
-        raise handler.exception()
-    return True
+def _run_due(executor: Any) -> Callable[[], None]:
+    """Return a call that runs every callback due now on ``executor`` (an ``EventsExecutor``).
+
+    rclpy's ``EventsExecutor`` (7.1.x) queues an event when a message arrives (the middleware's
+    listener, called in the publisher's thread for an in-process subscriber), when a clock of
+    a timer is set (its jump callback) and when a timer it dispatched must be rescheduled.
+    ``spin_until_future_complete`` with a zero timeout runs that queue until it is empty,
+    events queued by the callbacks included, and never waits: with a future that never
+    completes, it is "run everything due at this instant".
+    """
+    from rclpy.task import Future
+    never = Future()
+    return lambda: executor.spin_until_future_complete(never, timeout_sec=0.0)
