@@ -67,6 +67,11 @@ from enbarr_interfaces import convert
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
 
+#: The topics ``compute_metrics`` reads (``enbarr scenario`` records these by default).
+METRIC_TOPICS = ('/sim/odometry', '/mode', '/force_command', '/allocation/delivered',
+                 '/guidance/reference')
+#: What ``plot_run`` reads besides them.
+PLOT_TOPICS = ('/azimuth_commands',)
 GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to follow
 VISIT_RADIUS = 0.25    # a waypoint counts as visited this close [m]
 ARRIVAL_RADIUS = 0.1   # arrived at the last waypoint this close [m]

@@ -15,8 +15,12 @@ simulator itself (instead of its real-time loop), then lets the executor run wha
 and callbacks became due. Nothing waits for the wall clock, so a scenario runs as fast as the
 machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
 
-The run is recorded (rosbag2/MCAP) into the output directory; the metrics are computed from
-that bag (their definitions: :mod:`enbarr_core.tools.metrics`) and printed as one JSON line
+The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
+plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``), plus the topics the scenario
+lists in its ``record`` section (its ``path`` is replaced by the output directory), or every
+topic with ``--record-all`` (several times slower: the recorder serializes each message of
+every 100 Hz topic). The metrics are computed from that bag (their definitions:
+:mod:`enbarr_core.tools.metrics`) and printed as one JSON line
 with ``scenario``, ``simulated_s``, ``wall_s``, ``real_time_factor``, ``cpu_s``, ``bag`` and
 ``plot``; a PNG shows the path in the NE plane with the vessel outline, the errors and the
 thrust over time.
@@ -60,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', type=float, metavar='S',
                    help="simulated seconds (default: the scenario's own)")
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
+    p.add_argument('--record-all', action='store_true',
+                   help='record every topic (default: what the metrics and the plot read, '
+                   "plus the scenario's record.topics)")
     p.epilog = (
         'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
         'modes, thrust_saturation_s (every kind; a run scenario has only these); '
@@ -87,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
             raise EnbarrError(f'--output {out}: cannot create the directory: '
                               f'{err.strerror or err}') from err
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
-                 duration=args.duration)
+                 duration=args.duration, record_all=args.record_all)
     print(json.dumps(result))
     return 0
 
@@ -172,8 +179,18 @@ def resolve(name: str) -> str:
     raise ProfileError(f'no scenario {name!r}; scenarios: {", ".join(known_scenarios())}')
 
 
+def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> tuple[str, ...]:
+    """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
+    from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
+    if record_all:
+        return ()
+    listed = profile.record.topics if profile.record is not None else ()
+    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *listed}))
+
+
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
-        plot: bool = True, duration: float | None = None) -> dict[str, Any]:
+        plot: bool = True, duration: float | None = None,
+        record_all: bool = False) -> dict[str, Any]:
     """Run scenario ``name`` on simulated time, record it and return its metrics."""
     from rclpy.time import Time
 
@@ -189,7 +206,9 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         raise EnbarrError(f'{out}: exists and is not empty')
     out.mkdir(parents=True, exist_ok=True)
     bag = out / 'bag'
-    profile = add_recorder(with_record(profile, str(bag)))
+    topics = record_topics(profile, plot, record_all)
+    # The scenario's record section only lists topics: its path is replaced by ``bag``.
+    profile = add_recorder(with_record(replace(profile, record=None), str(bag), topics))
     apply_environment(profile)
     wall0, cpu0 = time.monotonic(), time.process_time()
     with composed(profile) as c:  # bringup's own executor (EventsExecutor)
