@@ -88,6 +88,33 @@ def test_mocap_dropout_is_ridden_through(tmp_path: Path) -> None:
     assert max(ages) > 0.9  # it did dead-reckon for about a second
 
 
+def run_figures(name: str, out: Path, *args: str) -> dict[str, Any]:
+    """``enbarr scenario NAME --no-plot ARGS``: its figures (no timings, no paths)."""
+    proc = subprocess.run([*ENBARR, 'scenario', name, '--output', str(out), '--no-plot', *args],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    return {k: v for k, v in result.items()
+            if k not in ('wall_s', 'real_time_factor', 'cpu_s', 'bag')}
+
+
+def test_runs_repeat_and_the_recorded_selection_holds_the_metrics(tmp_path: Path) -> None:
+    """Two runs of one scenario give the same figures (simulated time, seeded noise), and so
+    does a run that records every topic (--record-all): the default selection holds all that
+    the metrics read, plus the scenario's own record.topics, and recording changes nothing.
+    """
+    from enbarr_core.tools.metrics import METRIC_TOPICS
+    args = ('--duration', '22')  # automatic at 1 s, settle_time 20 s: a 1 s window
+    a = run_figures('mocap_dropout', tmp_path / 'a', *args)
+    b = run_figures('mocap_dropout', tmp_path / 'b', *args)
+    everything = run_figures('mocap_dropout', tmp_path / 'all', *args, '--record-all')
+    assert 'error' not in a, a['error']
+    assert a == b == everything
+    chosen = set(read_bag(tmp_path / 'a' / 'bag'))
+    assert chosen == {*METRIC_TOPICS, '/observer/measurement_age'}  # the scenario's own too
+    assert chosen < set(read_bag(tmp_path / 'all' / 'bag'))
+
+
 def test_unknown_scenario_lists_known(tmp_path: Path) -> None:
     proc = subprocess.run([*ENBARR, 'scenario', 'nope', '--output', str(tmp_path / 'o')],
                           capture_output=True, text=True, timeout=60)
