@@ -237,13 +237,15 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
             sim.step()
             run_due()  # everything due at this instant: timers, ROS messages, and theirs
         wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
+    from enbarr_core.recording.bag import read_bag
     from enbarr_core.tools.metrics import compute_metrics, plot_run
-    result = compute_metrics(bag, spec, profile)
+    msgs = read_bag(bag)  # once, for the metrics and the plot
+    result = compute_metrics(bag, spec, profile, msgs)
     result.update({'scenario': profile.name, 'simulated_s': spec.duration,
                    'wall_s': round(wall, 2), 'real_time_factor': round(spec.duration / wall, 1),
                    'cpu_s': round(cpu, 2), 'bag': str(bag)})
     if plot:
-        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png'))
+        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png', msgs))
     return result
 
 
