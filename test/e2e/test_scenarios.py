@@ -106,7 +106,10 @@ def test_runs_repeat_and_the_recorded_selection_holds_the_metrics(tmp_path: Path
     the metrics read, plus the scenario's own record.topics, and recording changes nothing.
     """
     from enbarr_core.tools.metrics import METRIC_TOPICS
-    args = ('--duration', '22')  # automatic at 1 s, settle_time 20 s: a 1 s window
+    # Automatic at 1 s, settle_time 20 s: a 1 s window. The Arduino twin's command watchdog
+    # runs on the wall clock (framework/driver.py, as a real board's): a stall of this
+    # loaded machine longer than its 0.25 s would put the azimuths neutral in one run only.
+    args = ('--duration', '22', '--set', 'arduino.command_timeout=10.0')
     a = run_figures('mocap_dropout', tmp_path / 'a', *args)
     b = run_figures('mocap_dropout', tmp_path / 'b', *args)
     everything = run_figures('mocap_dropout', tmp_path / 'all', *args, '--record-all')
