@@ -14,8 +14,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import difflib
+import functools
 import importlib
 from importlib import metadata
+import sys
 from typing import Any
 
 from enbarr_core.framework.errors import RegistryError
@@ -79,10 +81,20 @@ class NodeEntry:
     origin: str  # 'builtin' or the distribution that declared the entry point
 
 
+@functools.lru_cache(maxsize=4)
+def _declared(path: tuple[str, ...]) -> tuple[metadata.EntryPoint, ...]:
+    """Return the ``ENTRY_POINT_GROUP`` entry points of the distributions on ``path``.
+
+    Scanning every installed distribution takes about 0.1 s here, and bringup resolves each
+    node of a profile twice: once per process and search path is enough.
+    """
+    return tuple(metadata.entry_points(group=ENTRY_POINT_GROUP))
+
+
 def entries() -> dict[str, NodeEntry]:
     """Every known node name, built-ins first, then entry points."""
     known = {name: NodeEntry(name, target, 'builtin') for name, target in BUILTIN.items()}
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+    for ep in _declared(tuple(sys.path)):
         dist = getattr(ep.dist, 'name', None) or 'unknown distribution'
         if ep.name in known and known[ep.name].target != ep.value:
             raise RegistryError(

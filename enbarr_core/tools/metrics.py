@@ -67,6 +67,11 @@ from enbarr_interfaces import convert
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
 
+#: The topics ``compute_metrics`` reads (``enbarr scenario`` records these by default).
+METRIC_TOPICS = ('/sim/odometry', '/mode', '/force_command', '/allocation/delivered',
+                 '/guidance/reference')
+#: What ``plot_run`` reads besides them.
+PLOT_TOPICS = ('/azimuth_commands',)
 GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to follow
 VISIT_RADIUS = 0.25    # a waypoint counts as visited this close [m]
 ARRIVAL_RADIUS = 0.1   # arrived at the last waypoint this close [m]
@@ -192,9 +197,16 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x ** 2)))
 
 
-def compute_metrics(bag: Path, spec: Any, profile: Any) -> dict[str, Any]:
-    """Compute the figures of a recorded run from its bag (see the module docstring)."""
-    msgs = read_bag(bag)
+Messages = dict[str, list[tuple[int, Any]]]  # read_bag's answer: {topic: [(time ns, msg)]}
+
+
+def compute_metrics(bag: Path, spec: Any, profile: Any,
+                    msgs: Messages | None = None) -> dict[str, Any]:
+    """Compute the figures of a recorded run from its bag (see the module docstring).
+
+    ``msgs``: the bag as ``read_bag`` returned it, when the caller has read it already.
+    """
+    msgs = read_bag(bag) if msgs is None else msgs
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
     modes = _modes(msgs.get('/mode', []))
@@ -309,13 +321,17 @@ def _norm(w: Any) -> float:
     return math.sqrt(w.force.x ** 2 + w.force.y ** 2 + w.torque.z ** 2)
 
 
-def plot_run(bag: Path, spec: Any, profile: Any, png: Path) -> Path:
-    """Path in the NE plane with the vessel outline at intervals, errors and thrust."""
+def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
+             msgs: Messages | None = None) -> Path:
+    """Path in the NE plane with the vessel outline at intervals, errors and thrust.
+
+    ``msgs``: the bag as ``read_bag`` returned it, when the caller has read it already.
+    """
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    msgs = read_bag(bag)
+    msgs = read_bag(bag) if msgs is None else msgs
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
     fig = plt.figure(figsize=(12, 7), layout='constrained')

@@ -15,8 +15,12 @@ simulator itself (instead of its real-time loop), then lets the executor run wha
 and callbacks became due. Nothing waits for the wall clock, so a scenario runs as fast as the
 machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
 
-The run is recorded (rosbag2/MCAP) into the output directory; the metrics are computed from
-that bag (their definitions: :mod:`enbarr_core.tools.metrics`) and printed as one JSON line
+The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
+plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``), plus the topics the scenario
+lists in its ``record`` section (its ``path`` is replaced by the output directory), or every
+topic with ``--record-all`` (several times slower: the recorder serializes each message of
+every 100 Hz topic). The metrics are computed from that bag (their definitions:
+:mod:`enbarr_core.tools.metrics`) and printed as one JSON line
 with ``scenario``, ``simulated_s``, ``wall_s``, ``real_time_factor``, ``cpu_s``, ``bag`` and
 ``plot``; a PNG shows the path in the NE plane with the vessel outline, the errors and the
 thrust over time.
@@ -25,6 +29,7 @@ thrust over time.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 import json
 import math
@@ -59,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', type=float, metavar='S',
                    help="simulated seconds (default: the scenario's own)")
     p.add_argument('--no-plot', action='store_true', help='skip the PNG')
+    p.add_argument('--record-all', action='store_true',
+                   help='record every topic (default: what the metrics and the plot read, '
+                   "plus the scenario's record.topics)")
     p.epilog = (
         'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
         'modes, thrust_saturation_s (every kind; a run scenario has only these); '
@@ -86,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
             raise EnbarrError(f'--output {out}: cannot create the directory: '
                               f'{err.strerror or err}') from err
     result = run(args.name, args.output, args.set, plot=not args.no_plot,
-                 duration=args.duration)
+                 duration=args.duration, record_all=args.record_all)
     print(json.dumps(result))
     return 0
 
@@ -171,8 +179,18 @@ def resolve(name: str) -> str:
     raise ProfileError(f'no scenario {name!r}; scenarios: {", ".join(known_scenarios())}')
 
 
+def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> tuple[str, ...]:
+    """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
+    from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
+    if record_all:
+        return ()
+    listed = profile.record.topics if profile.record is not None else ()
+    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *listed}))
+
+
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
-        plot: bool = True, duration: float | None = None) -> dict[str, Any]:
+        plot: bool = True, duration: float | None = None,
+        record_all: bool = False) -> dict[str, Any]:
     """Run scenario ``name`` on simulated time, record it and return its metrics."""
     from rclpy.time import Time
 
@@ -188,13 +206,12 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         raise EnbarrError(f'{out}: exists and is not empty')
     out.mkdir(parents=True, exist_ok=True)
     bag = out / 'bag'
-    profile = add_recorder(with_record(profile, str(bag)))
+    topics = record_topics(profile, plot, record_all)
+    # The scenario's record section only lists topics: its path is replaced by ``bag``.
+    profile = add_recorder(with_record(replace(profile, record=None), str(bag), topics))
     apply_environment(profile)
     wall0, cpu0 = time.monotonic(), time.process_time()
-    # Stepped one ready callback at a time (_spin_ready): the SingleThreadedExecutor's
-    # wait_for_ready_callbacks, which the EventsExecutor of bringup does not have.
-    from rclpy.executors import SingleThreadedExecutor
-    with composed(profile, executor=lambda ctx: SingleThreadedExecutor(context=ctx)) as c:
+    with composed(profile) as c:  # bringup's own executor (EventsExecutor)
         sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)
@@ -210,34 +227,38 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         now = T0_NS
         set_time(now)
         c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
+        run_due = _run_due(c.executor)
+        run_due()
         dt_ns = sim.period_ns
         end = now + int(spec.duration * 1e9)
         while now < end:
             now += dt_ns
             set_time(now)
             sim.step()
-            for _ in range(20):  # run everything due at this instant
-                if not _spin_ready(c.executor):
-                    break
+            run_due()  # everything due at this instant: timers, ROS messages, and theirs
         wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
+    from enbarr_core.recording.bag import read_bag
     from enbarr_core.tools.metrics import compute_metrics, plot_run
-    result = compute_metrics(bag, spec, profile)
+    msgs = read_bag(bag)  # once, for the metrics and the plot
+    result = compute_metrics(bag, spec, profile, msgs)
     result.update({'scenario': profile.name, 'simulated_s': spec.duration,
                    'wall_s': round(wall, 2), 'real_time_factor': round(spec.duration / wall, 1),
                    'cpu_s': round(cpu, 2), 'bag': str(bag)})
     if plot:
-        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png'))
+        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png', msgs))
     return result
 
 
-def _spin_ready(executor: Any) -> bool:
-    """Run one ready callback if there is one (as ``spin_once`` does); False when none was."""
-    from rclpy.executors import TimeoutException
-    try:
-        handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=0.0)
-    except TimeoutException:
-        return False
-    handler()
-    if handler.exception() is not None:
-        raise handler.exception()
-    return True
+def _run_due(executor: Any) -> Callable[[], None]:
+    """Return a call that runs every callback due now on ``executor`` (an ``EventsExecutor``).
+
+    rclpy's ``EventsExecutor`` (7.1.x) queues an event when a message arrives (the middleware's
+    listener, called in the publisher's thread for an in-process subscriber), when a clock of
+    a timer is set (its jump callback) and when a timer it dispatched must be rescheduled.
+    ``spin_until_future_complete`` with a zero timeout runs that queue until it is empty,
+    events queued by the callbacks included, and never waits: with a future that never
+    completes, it is "run everything due at this instant".
+    """
+    from rclpy.task import Future
+    never = Future()
+    return lambda: executor.spin_until_future_complete(never, timeout_sec=0.0)

@@ -97,6 +97,17 @@ def test_builtin_entry_names_its_target_and_origin() -> None:
                                             'builtin')
 
 
+def test_a_distribution_put_on_the_path_later_is_found(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The entry points are scanned once per search path (bringup resolves every node twice,
+    0.1 s a scan), not once per process: a path added afterwards is scanned too.
+    """
+    assert 'late_node' not in registry.entries()  # the scan of the present path is cached
+    make_distribution(tmp_path, {'late_node': 'thirdparty_enbarr.mod:MyNode'}, 'late_enbarr')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert registry.entries()['late_node'].origin == 'late_enbarr'
+
+
 def test_every_builtin_resolves() -> None:
     from enbarr_core.framework.node import EnbarrNode
     for name in registry.BUILTIN:
