@@ -29,7 +29,7 @@ from collections.abc import Callable
 import copy
 import threading
 import time
-from typing import Any, TYPE_CHECKING
+from typing import Any, TYPE_CHECKING, TypeVar
 import weakref
 
 from rclpy.event_handler import PublisherEventCallbacks
@@ -49,6 +49,7 @@ if TYPE_CHECKING:
     from enbarr_interfaces.topics import TopicSpec
 
 Callback = Callable[[Any], None]
+P = TypeVar('P', bound='PerContext')
 #: How often a link publisher asks DDS whether anyone outside the process listens [s].
 READER_CHECK_PERIOD = 0.1
 
@@ -191,11 +192,34 @@ class LinkPublisher:
         self.node.destroy_publisher(self.ros_publisher)
 
 
-class LinkBus:
-    """All link publishers and subscriptions of one rclpy ``Context``."""
+class PerContext:
+    """One instance of the subclass per rclpy ``Context``: ``Sub.of(context)``.
 
-    _buses: weakref.WeakKeyDictionary[Any, LinkBus] = weakref.WeakKeyDictionary()
-    _buses_lock = threading.Lock()
+    Composed nodes share what belongs to their process through it (the link bus, the
+    supervision ``Ticker`` of ``enbarr_core.framework.node``); a context that is gone takes its
+    instance with it.
+    """
+
+    _instances: weakref.WeakKeyDictionary[Any, Any]
+    _instances_lock: threading.Lock
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._instances = weakref.WeakKeyDictionary()
+        cls._instances_lock = threading.Lock()
+
+    @classmethod
+    def of(cls: type[P], context: Any) -> P:
+        """Return the instance of ``context`` (created on first use)."""
+        with cls._instances_lock:
+            instance = cls._instances.get(context)
+            if instance is None:
+                instance = cls._instances[context] = cls()
+            return instance
+
+
+class LinkBus(PerContext):
+    """All link publishers and subscriptions of one rclpy ``Context``."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -203,15 +227,6 @@ class LinkBus:
         self._subscriptions: dict[str, list[LinkSubscription]] = {}
         self._connected = False
         self._taps: list[Callable[[LinkPublisher], None]] = []
-
-    @classmethod
-    def of(cls, context: Any) -> LinkBus:
-        """Return the bus of ``context`` (created on first use)."""
-        with cls._buses_lock:
-            bus = cls._buses.get(context)
-            if bus is None:
-                bus = cls._buses[context] = LinkBus()
-            return bus
 
     # -- creation ---------------------------------------------------------------------------
     def create_publisher(self, node: Node, spec: TopicSpec) -> LinkPublisher:

@@ -23,7 +23,6 @@ from collections.abc import Callable, Sequence
 import threading
 import time
 from typing import Any, TypeVar
-import weakref
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
@@ -33,7 +32,8 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 
 from enbarr_interfaces import topics
-from enbarr_interfaces.links import Callback, LinkBus, LinkPublisher, LinkSubscription
+from enbarr_interfaces.links import (Callback, LinkBus, LinkPublisher, LinkSubscription,
+                                      PerContext)
 from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
@@ -69,7 +69,7 @@ class Periodic:
         self.cancelled = True
 
 
-class Ticker:
+class Ticker(PerContext):
     """One executor timer per rclpy ``Context`` that runs every node's periodic checks.
 
     Why: each executor wake-up costs more CPU than a watchdog's own work (measured on
@@ -82,23 +82,11 @@ class Ticker:
     faulty report must not silence another's watchdog.
     """
 
-    _tickers: weakref.WeakKeyDictionary[Any, Ticker] = weakref.WeakKeyDictionary()
-    _tickers_lock = threading.Lock()
-
     def __init__(self) -> None:
         self._entries: tuple[Periodic, ...] = ()
         self._host: Node | None = None
         self._timer: Any = None
         self.count = 0
-
-    @classmethod
-    def of(cls, context: Any) -> Ticker:
-        """Return the ticker of ``context`` (created on first use)."""
-        with cls._tickers_lock:
-            ticker = cls._tickers.get(context)
-            if ticker is None:
-                ticker = cls._tickers[context] = Ticker()
-            return ticker
 
     @property
     def host(self) -> Node | None:
