@@ -15,7 +15,9 @@ allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are
 - saucer only, ``scenario_real_time_factor``: simulated seconds per wall second of the
   headless station-keeping scenario (recording included).
 
-``--profile NAME`` measures a whole profile under ``bringup`` instead (``bench_profile``).
+``--profile NAME`` measures a whole profile under ``bringup`` instead (``bench_profile``);
+``--profile NAME --idle`` its fixed cost: the nodes composed in this process and spun, no
+source started (timers, watchdogs, reports, parameter services), as ``cpu_core_fraction``.
 
 Figures depend on the machine and its load: run it alone. ``docs/benchmarks.md`` has ours.
 """
@@ -72,6 +74,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    'messages recorded per second and CPU per recorded message')
     p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                    help='--profile: override a node parameter, as bringup --set (repeatable)')
+    p.add_argument('--idle', action='store_true',
+                   help="--profile: the fixed cost instead: the profile's nodes composed in "
+                   'this process and spun, none of their sources started (nothing flows; '
+                   'timers, watchdogs, reports and parameter services run), CPU over '
+                   '--seconds after a 3 s warm-up')
 
 
 def main(args: argparse.Namespace) -> int:
@@ -80,11 +87,20 @@ def main(args: argparse.Namespace) -> int:
 
     from enbarr_core.bringup.cli import check_seconds
     from enbarr_core.framework.errors import EnbarrError, ProfileError
+    if args.profile is not None and args.idle:
+        for option, given in (('--record', args.record), ('--rate', args.rate is not None),
+                              ('--warmup', args.warmup is not None)):
+            if given:
+                raise EnbarrError(f'{option} does not go with --idle: nothing flows there')
+        seconds = 10.0 if args.seconds is None else args.seconds
+        check_seconds('--seconds', seconds)
+        print(json.dumps(run_idle(args.profile, args.set, seconds)))
+        return 0
     if args.profile is not None:
         from enbarr_core.tools import bench_profile
         return bench_profile.main(args)
     for option, given in (('--record', args.record), ('--set', args.set),
-                          ('--warmup', args.warmup is not None)):
+                          ('--warmup', args.warmup is not None), ('--idle', args.idle)):
         if given:
             raise EnbarrError(f'{option} is for --profile; --chain runs the chain alone')
     args.chain = args.chain or 'rov'
@@ -115,6 +131,36 @@ def main(args: argparse.Namespace) -> int:
                         f'{platform.python_version()}'
     print(json.dumps(result))
     return 0
+
+
+#: Spin before the idle window [s]: discovery's first exchanges, the first reports.
+IDLE_WARMUP = 3.0
+
+
+def run_idle(profile: str, sets: list[str], seconds: float) -> dict[str, Any]:
+    """Measure the fixed cost of ``profile``: its nodes composed and spun, no source started."""
+    from enbarr_core.bringup.orchestrator import composed
+    from enbarr_core.bringup.profile import apply_environment, load_profile
+
+    prof = replace(load_profile(profile, sets), record=None)
+    apply_environment(prof)
+    with composed(prof) as c:
+        def spin_for(s: float) -> None:
+            end = time.monotonic() + s
+            while time.monotonic() < end:
+                c.executor.spin_once(timeout_sec=0.1)
+
+        spin_for(IDLE_WARMUP)
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        spin_for(seconds)
+        cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+        nodes = len(c.nodes)
+    share = cpu / wall
+    return {'profile': prof.name, 'idle': True, 'nodes': nodes,
+            'cpu_core_fraction': round(share, 4),
+            'pi4_core_fraction_estimate': round(share * 6.0, 3),
+            'machine': f'{platform.machine()} {os.cpu_count()} cpu, Python '
+                       f'{platform.python_version()}'}
 
 
 def _overrides(chain: Chain, rate: float) -> list[str]:

@@ -180,6 +180,9 @@ def test_recorded_in_refuses_a_bag_it_cannot_read(tmp_path: Path) -> None:
     (['--profile', 'saucer_sim', '--warmup', 'inf'], '--warmup must be a positive finite'),
     (['--profile', 'saucer_sim', '--rate', '50'], '--rate is for --chain'),
     (['--chain', 'rov', '--record'], '--record is for --profile'),
+    (['--chain', 'rov', '--idle'], '--idle is for --profile'),
+    (['--profile', 'saucer_sim', '--idle', '--record'], '--record does not go with --idle'),
+    (['--profile', 'saucer_sim', '--idle', '--seconds', '-1'], '--seconds must be a positive'),
     (['--profile', 'saucer_sim', '--set', 'nobody.rate=5'], "no node 'nobody'"),
     (['--profile', 'saucer_sim', '--warmup', '30', '--set', 'simulator.rate=-5'],
      r'bringup --profile saucer_sim exited early \(code 2\): enbarr bringup: error: .*rate'),
@@ -241,3 +244,14 @@ def test_bench_profile_splits_by_process(tmp_path: Path) -> None:
     placed = {(t['process'], t['thread']) for t in r['threads']}
     other = next(g for g in groups if g != 'group control')
     assert (other, 'simulator_loop') in placed, placed   # named in a supervised child too
+
+
+@pytest.mark.e2e
+def test_bench_idle_measures_the_composed_profile_with_nothing_flowing() -> None:
+    result = enbarr('bench', '--profile', 'saucer_sim', '--idle', '--seconds', '1', timeout=120)
+    assert result.returncode == 0, result.stderr
+    (line,) = result.stdout.strip().splitlines()
+    r = json.loads(line)
+    assert r['profile'] == 'saucer_sim' and r['idle'] is True and r['nodes'] >= 8
+    assert 0.0 < r['cpu_core_fraction'] < os.cpu_count()
+    assert r['pi4_core_fraction_estimate'] == pytest.approx(6 * r['cpu_core_fraction'], abs=1e-3)
