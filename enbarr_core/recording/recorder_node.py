@@ -32,7 +32,6 @@ from rclpy.clock import JumpThreshold
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 
-
 from enbarr_interfaces.links import LinkPublisher
 
 from enbarr_core.framework.errors import ConfigurationError, RecorderError
@@ -148,13 +147,13 @@ class RecorderNode(EnbarrNode, Recorder):
             post_callback=lambda _jump: self._choose_stamp())
         self._choose_stamp()
         self.link_bus.add_tap(self._on_link_publisher)
-        self.create_timer(1.0, self._discover)
-        self.create_timer(1.0, self._report)
+        self.create_periodic(1.0, self._discover)
+        self.create_periodic(1.0, self._report)
 
     def _choose_stamp(self) -> None:
         clock = self.get_clock()
         if getattr(clock, 'ros_time_is_active', False):
-            self._stamp = lambda: clock.now().nanoseconds
+            self._stamp = self.now_ns
         else:
             self._stamp = time.time_ns
 

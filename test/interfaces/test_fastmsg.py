@@ -22,18 +22,28 @@ def _extra():
     return [DiagnosticArray, Polygon, CameraInfo, LaserScan]
 
 
-@pytest.mark.parametrize('cls', CONTRACT + _extra(), ids=lambda c: c.__name__)
+def _cdr_end(data: bytes, cls: type) -> int:
+    """The end of the CDR data in ``data`` (rmw_fastrtps pads some types with stray bytes)."""
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msgdef = store.get_msgdef(f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}')
+    _, pos = msgdef.deserialize_cdr_le(memoryview(data)[4:], 0, msgdef.cls, store)
+    return 4 + pos
+
+
+@pytest.mark.parametrize('cls', sorted(set(CONTRACT + _extra()), key=lambda c: c.__name__),
+                         ids=lambda c: c.__name__)
 def test_new_equals_the_generated_constructor_field_by_field_and_byte_for_byte(cls):
     from rclpy.serialization import deserialize_message
     built = fastmsg.new(cls)
     assert type(built) is cls
     assert built == cls()
     assert deserialize_message(serialize_message(built), cls) == cls()
-    reference = serialize_message(cls())
-    if reference == serialize_message(cls()):
-        # Fast-DDS pads types with string sequences with bytes of its estimate, not zeros:
-        # those (Parameter, Float64MultiArray) compare by value above, the rest byte by byte.
-        assert serialize_message(built) == reference
+    # Byte for byte up to the end of the CDR data: Fast-DDS sizes the buffer of types with
+    # strings inside sequences by its estimate and leaves what follows undefined.
+    reference, ours = serialize_message(cls()), serialize_message(built)
+    end = _cdr_end(reference, cls)
+    assert ours[:end] == reference[:end] and _cdr_end(ours, cls) == end
 
 
 def test_the_contract_has_the_hot_types():
