@@ -37,6 +37,8 @@ nodes:
   filtering: {group: control}
   control_loop: {group: control}
   thruster_converter: {group: control}
+  thruster_control:
+    parameters: {command_timeout: 1.0}
   surface:
     parameters:
       script: ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0']
@@ -135,7 +137,7 @@ def test_one_early_imu_sample_from_another_process_does_not_stop_control(tmp_pat
         wait(lambda: len(listener.outputs) > 200
              and listener.value('/thruster_control', 'timeouts') is not None, 30,
              'no thruster_output or thruster diagnostics')
-        for ahead in (20.0, 0.4):
+        for ahead in (20.0, 2.0):
             timeouts = listener.value('/thruster_control', 'timeouts')
             first = len(listener.outputs)
             listener.inject(ahead)
