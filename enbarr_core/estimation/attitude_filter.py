@@ -93,7 +93,7 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
+from enbarr_core.estimation.filterpy_kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from enbarr_core.framework.kinematics import (
