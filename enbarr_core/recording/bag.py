@@ -6,10 +6,13 @@ by size or duration, as ``ros2 bag record --max-bag-size / --max-bag-duration``)
 written with a new summary and footer (see ``mcap_file``), then ``metadata.yaml`` is replaced
 (atomically) to list the files and counts. That is the flush: after a kill, the bag holds
 everything up to the last one, readable by the ``rosbags`` reader, ``ros2 bag`` and the
-``mcap`` reader. A kill inside the tail write itself (a fraction of a millisecond per flush)
-can tear the file's end: ``repair_bag`` (``enbarr bag repair PATH``) puts it back as of the
-last complete flush and rewrites ``metadata.yaml`` from the files. No ROS import: messages
-arrive serialized (CDR).
+``mcap`` reader. A chunk that fills up (1 MiB: a camera frame or two) is flushed at once;
+``metadata.yaml`` is then rewritten only when it would miss a file or topic, or is
+``flush_seconds`` old, so its counts may lag the file by less than that (readers take the
+messages from the file's own index). A kill inside the tail write itself (a fraction of a
+millisecond per flush) can tear the file's end: ``repair_bag`` (``enbarr bag repair PATH``)
+puts it back as of the last complete flush and rewrites ``metadata.yaml`` from the files. No
+ROS import: messages arrive serialized (CDR).
 
 Storage: the writer refuses to start with less than ``min_free`` bytes free where the bag
 goes, and checks again at each new chunk and each flush; below the margin, or when the
@@ -129,6 +132,9 @@ class BagWriter:
         self._done: list[FileInfo] = []           # closed files (split)
         self._file: _File | None = None
         self._last_flush = clock()
+        self._last_metadata = self._last_flush
+        self._described: tuple[int, str, int] | None = None  # (closed files, open file, channels)
+        self._metadata_behind = False  # a chunk flushed since metadata.yaml was written
         self.closed = False
         self.failure: BagStorageError | None = None  # set once the storage failed
         self.flush_hook: Callable[[], None] | None = None  # tests: inside the tail write
@@ -193,9 +199,10 @@ class BagWriter:
             mcap = fast[2]
             if mcap.pending and not self._split:
                 mcap.write(fast[3], timestamp_ns, data)
-                if self._clock() - self._last_flush >= self.flush_seconds or (
-                        mcap.size - mcap.data_end >= CHUNK_BYTES):
+                if self._clock() - self._last_flush >= self.flush_seconds:
                     self.flush()
+                elif mcap.size - mcap.data_end >= CHUNK_BYTES:
+                    self.flush(metadata=False)
                 return True
         if self.failure is not None:
             raise self.failure
@@ -232,9 +239,10 @@ class BagWriter:
                 f.first_t = timestamp_ns
             mcap.write(cid, timestamp_ns, data)
             self._fast[topic] = (msgtype, self._inexact_type(msgtype), mcap, cid)
-            if self._clock() - self._last_flush >= self.flush_seconds or (
-                    mcap.size - mcap.data_end >= CHUNK_BYTES):
+            if self._clock() - self._last_flush >= self.flush_seconds:
                 self._flush_file()
+            elif mcap.size - mcap.data_end >= CHUNK_BYTES:
+                self._flush_file(metadata=False)
         except OSError as err:
             raise self._fail(BagStorageError(
                 f'{self.path}: cannot write {f.name if f else "a new file"}: '
@@ -292,19 +300,37 @@ class BagWriter:
         n = sum(counts.values())
         return FileInfo(m.path, topics, counts, m.start if n else 0, m.end if n else 0)
 
-    def _flush_file(self) -> None:
-        """Write the pending chunk and summary, then metadata.yaml."""
-        self._last_flush = self._clock()
+    def _flush_file(self, metadata: bool = True) -> None:
+        """Write the pending chunk and summary, then metadata.yaml.
+
+        ``metadata=False`` (a chunk flushed early because it is full): metadata.yaml is
+        rewritten only if it is ``flush_seconds`` old or no longer lists every file and topic
+        (camera frames fill a chunk per frame; rewriting the YAML for each took a quarter of
+        the writer's CPU). Its counts then lag the file by less than ``flush_seconds``, which
+        no reader minds: they read the messages through the file's own index.
+        """
+        now = self._clock()
+        self._last_flush = now
         f = self._file
         if f is None:
             return
         self._check_free('recording stopped')
-        if f.mcap.flush(self.flush_hook):
-            try:
-                write_metadata(self.path, [*self._done, self._file_info(f)], self.typestore)
-            except BagStorageError:
+        flushed = f.mcap.flush(self.flush_hook)
+        if not (flushed or (metadata and self._metadata_behind)):
+            return
+        described = (len(self._done), f.name, len(f.mcap.channels))
+        if (not metadata and described == self._described
+                and now - self._last_metadata < self.flush_seconds):
+            self._metadata_behind = True
+            return
+        try:
+            write_metadata(self.path, [*self._done, self._file_info(f)], self.typestore)
+        except BagStorageError:
+            if flushed:
                 f.mcap.revert()  # the file back as metadata.yaml still describes it
-                raise
+            raise
+        self._described, self._last_metadata = described, now
+        self._metadata_behind = False
 
     def _roll_over(self) -> None:
         """Close the current file (flushed) and start the next one at the next message."""
@@ -318,12 +344,15 @@ class BagWriter:
         if f.mcap.chunks:
             self._done.append(self._file_info(f))
 
-    def flush(self) -> None:
-        """Write what is pending: the file is complete and listed in ``metadata.yaml``."""
+    def flush(self, metadata: bool = True) -> None:
+        """Write what is pending: the file is complete and listed in ``metadata.yaml``.
+
+        ``metadata=False``: see ``_flush_file``.
+        """
         if self.closed:
             return
         try:
-            self._flush_file()
+            self._flush_file(metadata)
         except OSError as err:
             name = self._file.name if self._file else 'the bag'
             raise self._fail(BagStorageError(

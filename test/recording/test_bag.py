@@ -286,6 +286,47 @@ def test_close_after_time_flushes_keeps_every_message(tmp_path: Path) -> None:
     assert metadata(bag)['message_count'] == 6
 
 
+def test_full_chunks_flush_the_file_and_metadata_follows_at_its_period(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Camera-sized messages fill a chunk each: each is flushed (the file is complete), but
+    metadata.yaml is rewritten only at flush_seconds or when it would miss a topic; a reader
+    of the open bag gets every flushed message, the lagging counts notwithstanding."""
+    from enbarr_core.recording import bag as bag_module
+    rewrites: list[int] = []
+    real = bag_module.write_metadata
+    monkeypatch.setattr(bag_module, 'write_metadata', lambda path, files, typestore: (
+        rewrites.append(sum(f.message_count for f in files)), real(path, files, typestore)))
+    now = [0.0]
+    bag = tmp_path / 'frames'
+    writer = BagWriter(bag, flush_seconds=1.0, clock=lambda: now[0])
+    frame = JointState()
+    frame.position = [0.5] * (bag_module.CHUNK_BYTES // 8 + 1)  # one message fills a chunk
+    data = serialize_message(stamp(frame, T0))
+    for i in range(10):  # 10 frames in 0.45 s: 10 chunks
+        now[0] = 0.05 * i
+        assert writer.write('/camera', 'sensor_msgs/msg/JointState', T0 + i, data)
+    assert rewrites == [1]  # the first chunk lists the topic; then none is due
+    with Reader(bag) as reader:  # the writer still open: what a kill would leave
+        assert reader.message_count == 1
+        assert [t for _, t, _ in reader.messages()] == [T0 + i for i in range(10)]
+    now[0] = 0.5
+    imu = serialize_message(make_messages(0, T0)[0][2])
+    assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + 10, imu)
+    assert writer.write('/camera', 'sensor_msgs/msg/JointState', T0 + 11, data)
+    assert rewrites == [1, 12]  # a new topic in the flushed chunk: listed at once
+    with open(bag / 'frames_0.mcap', 'rb') as f:
+        assert len(make_reader(f).get_summary().chunk_indexes) == 11
+    with Reader(bag) as reader:
+        assert [t for _, t, _ in reader.messages()] == [T0 + i for i in range(12)]
+    for i in range(12, 33):  # a frame every 50 ms until 1.55 s: full chunks, none timed
+        now[0] = 0.5 + 0.05 * (i - 11)
+        assert writer.write('/camera', 'sensor_msgs/msg/JointState', T0 + i, data)
+    # rewritten once more, by the first full chunk flush_seconds after the last rewrite (0.5 s)
+    assert rewrites == [1, 12, 32]
+    writer.close()
+    assert metadata(bag)['message_count'] == 33
+
+
 # -- killed at any instant ---------------------------------------------------------------------
 
 CHILD = textwrap.dedent("""
