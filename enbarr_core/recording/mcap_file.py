@@ -5,9 +5,17 @@ a chunk in memory; ``flush`` writes that chunk and its message indexes at the en
 section, followed by a fresh DataEnd, summary (schemas, channels, every chunk index,
 statistics, summary offsets) and footer, in one ``pwrite`` over the previous DataEnd and
 summary. After it returns the file is a complete, indexed MCAP that ``rosbags`` and the
-``mcap`` reader open. The new tail is always longer than the one it covers, so a file never
-has to shrink; a write that fails (``ENOSPC``) is rolled back by writing the previous tail
-again and truncating to it.
+``mcap`` reader open. A write that fails (``ENOSPC``) is rolled back by writing the previous
+tail again and truncating to it.
+
+The summary grows with every chunk (camera frames fill a chunk each: after ten minutes it
+holds 9 000 chunk indexes, 2 MB rewritten 13 times a second). A flush therefore rewrites a
+summary of more than ``SUMMARY_ALWAYS`` bytes only while that costs at most
+``1/SUMMARY_RATIO`` of the data written since it was last written; otherwise the tail is
+DataEnd and a footer without summary (``summary_start`` 0), which is still a complete MCAP:
+``rosbags``, the ``mcap`` reader and ``ros2 bag`` (``AllowFallbackScan``) then read the data
+section from the start. ``close`` always writes the summary. When a new tail is
+shorter than the one it covers, the file is truncated right after the write.
 
 A process killed inside that ``pwrite`` can leave a torn tail (a short write stops at a page
 boundary). ``recover`` reads the data section record by record, keeps every chunk whose
@@ -37,6 +45,12 @@ OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS = 0x06, 0x07, 0x08, 0x
 OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
 FOOTER_SIZE = 1 + 8 + 20
 DATA_END = struct.pack('<BQI', OP_DATA_END, 4, 0)
+#: DataEnd and a footer that points at no summary (readers scan the data section).
+BARE_TAIL = DATA_END + struct.pack('<BQQQI', OP_FOOTER, 20, 0, 0, 0) + MAGIC
+#: A summary up to this size is rewritten at every flush; a larger one while its size is at
+#: most 1/SUMMARY_RATIO of the data written since the last one (see the module docstring).
+SUMMARY_ALWAYS = 64 * 1024
+SUMMARY_RATIO = 10
 _MESSAGE_HEAD = struct.Struct('<BQHIQQ')
 _REC_HEAD = struct.Struct('<BQ')
 
@@ -88,6 +102,7 @@ class McapFile:
         self._chunk = _Chunk()
         self.closed = False
         self._prev: tuple | None = None      # state before the last flush (revert)
+        self._unsummarized = 0               # data bytes written since the last summary
 
     # -- writing --------------------------------------------------------------------------
     @property
@@ -135,14 +150,24 @@ class McapFile:
         rec += _MESSAGE_HEAD.pack(OP_MESSAGE, 22 + len(data), cid, 0, t, t)
         rec += data
 
-    def flush(self, hook: object = None) -> bool:
-        """Write the pending chunk and a new summary and footer; False if nothing pending.
+    @property
+    def summarized(self) -> bool:
+        """Whether the file's tail holds a summary (an index of every chunk)."""
+        return self._tail != BARE_TAIL
 
-        ``hook`` (tests only): called between the two halves of the tail write, so that a
-        test can kill the process inside the rewrite window.
+    def flush(self, hook: object = None, summary: bool = False) -> bool:
+        """Write the pending chunk and a new tail; False if nothing pending.
+
+        The tail holds a summary when ``summary`` or when it is cheap enough (see the module
+        docstring). ``hook`` (tests only): called between the two halves of the tail write,
+        so that a test can kill the process inside the rewrite window.
         """
         c = self._chunk
         if not c.entries:
+            if summary and self.chunks and not self.summarized:
+                self._write_tail(self._summary(self.data_end, self._chunk_indexes,
+                                               self.counts, self.chunks, self.start,
+                                               self.end))
             return False
         index: dict[int, list[int]] = {}  # channel -> [t, offset, t, offset, ...]
         for cid, t, off in c.entries:
@@ -174,9 +199,17 @@ class McapFile:
             '<QQQQI', c_start, c_end, self.data_end, chunk_len, 10 * len(offsets))
             + b''.join(offsets) + struct.pack('<Q', len(msg_index)) + _str('')
             + struct.pack('<QQ', len(records), len(records)))
-        chunk_indexes = self._chunk_indexes + chunk_index
+        chunk_indexes = self._chunk_indexes
+        chunk_indexes += chunk_index  # in place: revert cuts it back to its length
         start, end = min(self.start, c_start), max(self.end, c_end)
-        tail = self._summary(pos, chunk_indexes, counts, self.chunks + 1, start, end)
+        unsummarized = self._unsummarized + pos - self.data_end
+        summary_len = len(self._schema_recs) + len(self._channel_recs) + len(chunk_indexes)
+        if (summary or summary_len <= SUMMARY_ALWAYS
+                or unsummarized >= SUMMARY_RATIO * summary_len):
+            tail = self._summary(pos, chunk_indexes, counts, self.chunks + 1, start, end)
+            unsummarized = 0
+        else:
+            tail = BARE_TAIL
         parts = [head, records, msg_index, tail]
         at = self.data_end
         try:
@@ -188,14 +221,16 @@ class McapFile:
                 self._pwrite(blob[:half], at)
                 hook()  # type: ignore[operator]
                 self._pwrite(blob[half:], at + half)
+            self._truncate_after(pos + len(tail))
         except OSError:
+            del chunk_indexes[len(chunk_indexes) - len(chunk_index):]
             self._rollback()
             raise
-        self._prev = (self.data_end, self._tail, self._chunk_indexes, self.counts, self.chunks,
-                      self.start, self.end)
+        self._prev = (self.data_end, self._tail, len(chunk_indexes) - len(chunk_index),
+                      self.counts, self.chunks, self.start, self.end, self._unsummarized)
         self.data_end = pos
         self._tail = tail
-        self._chunk_indexes = chunk_indexes
+        self._unsummarized = unsummarized
         self.counts = counts
         self.chunks += 1
         self.start, self.end = start, end
@@ -231,10 +266,28 @@ class McapFile:
         """Undo the last flush (its chunk is lost): when what lists the file failed."""
         if self._prev is None:
             return
-        (self.data_end, self._tail, self._chunk_indexes, self.counts, self.chunks,
-         self.start, self.end) = self._prev
+        (self.data_end, self._tail, indexes_len, self.counts, self.chunks,
+         self.start, self.end, self._unsummarized) = self._prev
+        del self._chunk_indexes[indexes_len:]
         self._prev = None
         self._rollback()
+
+    def _write_tail(self, tail: bytes) -> None:
+        """Replace the tail after the data section (no chunk), e.g. the summary at close."""
+        try:
+            self._pwrite(tail, self.data_end)
+            self._truncate_after(self.data_end + len(tail))
+        except OSError:
+            self._rollback()
+            raise
+        self._tail = tail
+        self._unsummarized = 0
+        self._prev = None
+
+    def _truncate_after(self, end: int) -> None:
+        """Cut what an older, longer tail left after ``end`` (the footer must end the file)."""
+        if end < self.data_end + len(self._tail):
+            os.ftruncate(self._fd, end)
 
     def _pwritev(self, parts: list[Any], at: int) -> None:
         total = sum(len(p) for p in parts)
@@ -261,7 +314,7 @@ class McapFile:
         if self.closed:
             return
         try:
-            self.flush()
+            self.flush(summary=True)
         finally:
             self.closed = True
             os.close(self._fd)
@@ -391,7 +444,11 @@ def _footer_ok(data: mmap.mmap, data_end_next: int) -> bool:
     if len(data) < FOOTER_SIZE + 8 or data[len(data) - 8:] != MAGIC:
         return False
     op, n, summary_start, _, _ = struct.unpack_from('<BQQQI', data, len(data) - 8 - FOOTER_SIZE)
-    return op == OP_FOOTER and n == 20 and summary_start == data_end_next
+    if op != OP_FOOTER or n != 20:
+        return False
+    if summary_start == 0:  # no summary: the footer must follow DataEnd
+        return len(data) == data_end_next + FOOTER_SIZE + 8
+    return summary_start == data_end_next
 
 
 def _scan_chunk(data: mmap.mmap, cstart: int, body: int, nxt: int,

@@ -1,0 +1,155 @@
+"""McapFile (enbarr_core.recording.mcap_file): a summary that stops growing the cost of a flush.
+
+The summary indexes every chunk, so rewriting it at each flush grows with the run. Past
+``SUMMARY_ALWAYS`` bytes it is rewritten only when it costs at most ``1/SUMMARY_RATIO`` of
+the data written since the last one; the other flushes end the file with a footer that points
+at no summary. Every state is read back by the ``mcap`` reader and ``rosbags`` (independent
+of the writer), and by ``recover`` (which must find it intact).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import Reader
+from sensor_msgs.msg import Imu
+
+from enbarr_core.recording import mcap_file
+from enbarr_core.recording.bag import BagWriter
+from enbarr_core.recording.mcap_file import BARE_TAIL, McapFile, recover
+
+T0 = 1_700_000_000_000_000_000
+CHANNELS = 40
+
+
+def open_file(path: Path) -> tuple[McapFile, list[int]]:
+    f = McapFile(path)
+    f.add_schema('std_msgs/msg/String', 'ros2msg', 'string data')
+    return f, [f.add_channel(f'/topic_{k}', 'std_msgs/msg/String', 'cdr', {})
+               for k in range(CHANNELS)]
+
+
+def read_times(path: Path) -> list[int]:
+    with open(path, 'rb') as stream:
+        return [m.log_time for _, _, m in make_reader(stream).iter_messages(log_time_order=False)]
+
+
+def summary_of(path: Path):
+    with open(path, 'rb') as stream:
+        return make_reader(stream).get_summary()
+
+
+def test_the_summary_is_rewritten_at_its_share_of_the_data(tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / 'long.mcap'
+    f, cids = open_file(path)
+    summaries: list[int] = []
+    real = McapFile._summary
+    monkeypatch.setattr(McapFile, '_summary', lambda self, *a: (
+        summaries.append(len(out := real(self, *a))), out)[1])
+    text = b'x' * 400
+    payload = b'\x00\x01\x00\x00' + (len(text) + 1).to_bytes(4, 'little') + text + b'\x00'
+    data_start = f.data_end
+    bare_after_summary = 0
+    t = T0
+    for flush in range(400):  # a chunk of one message per channel: one index of 40 entries
+        for cid in cids:
+            f.write(cid, t, payload)
+            t += 1
+        before = f.summarized
+        size_before = os.path.getsize(path)
+        assert f.flush()
+        if not f.summarized:
+            if before:  # the first bare tail after a summary: the file was cut to it
+                bare_after_summary += 1
+                assert os.path.getsize(path) < size_before
+            assert path.read_bytes().endswith(BARE_TAIL)
+        if flush in (0, 150, 399) or (flush > 150 and before and not f.summarized):
+            assert read_times(path) == list(range(T0, t))  # complete after every flush
+            assert not recover(path).repaired                 # and found intact
+    # A small summary at every flush; then at most a tenth of the data since the last.
+    small = [n for n in summaries if n <= mcap_file.SUMMARY_ALWAYS]
+    large = summaries[len(small):]
+    assert len(small) > 50 and len(large) >= 3 and bare_after_summary == len(large)
+    assert sum(large) <= (f.data_end - data_start) / mcap_file.SUMMARY_RATIO + large[-1]
+    assert summary_of(path) is None  # the last flush left a bare tail
+    f.close()
+    summary = summary_of(path)
+    assert summary is not None and len(summary.chunk_indexes) == 400  # close: the full index
+    assert read_times(path) == list(range(T0, t))
+
+
+def test_close_right_after_a_summary_keeps_it(tmp_path: Path) -> None:
+    path = tmp_path / 'short.mcap'
+    f, cids = open_file(path)
+    f.write(cids[0], T0, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
+    assert f.flush() and f.summarized
+    f.close()
+    assert len(summary_of(path).chunk_indexes) == 1
+
+
+def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)  # never a summary before close
+    path = tmp_path / 'torn.mcap'
+    f, cids = open_file(path)
+    for k in range(5):
+        f.write(cids[k], T0 + k, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
+        f.flush()
+    assert not f.summarized
+    f.abandon()
+    os.truncate(path, os.path.getsize(path) - 10)  # a kill tore the footer
+    info = recover(path)
+    assert info.repaired and info.message_count == 5
+    assert len(summary_of(path).chunk_indexes) == 5
+    assert read_times(path) == [T0 + k for k in range(5)]
+
+
+def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+    bag = tmp_path / 'bag'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    imu = Imu()
+    imu.orientation.w = 1.0
+    data = serialize_message(imu)
+    for k in range(30):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
+        if k % 10 == 9:
+            writer.flush()
+    assert summary_of(bag / 'bag_0.mcap') is None
+    with Reader(bag) as reader:  # what a kill would leave
+        assert [t for _, t, _ in reader.messages()] == [T0 + k for k in range(30)]
+    writer.close()
+    assert len(summary_of(bag / 'bag_0.mcap').chunk_indexes) == 3
+
+
+def test_after_a_revert_or_a_failed_write_the_index_lists_only_what_the_file_holds(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / 'undo.mcap'
+    f, cids = open_file(path)
+    one = b'\x00\x01\x00\x00\x01\x00\x00\x00\x00'
+    f.write(cids[0], T0, one)
+    assert f.flush()
+    f.write(cids[0], T0 + 1, one)
+    assert f.flush()
+    f.revert()  # what lists the file failed: the second chunk is gone
+    f.write(cids[1], T0 + 2, one)
+    real = McapFile._pwritev
+
+    def full_disk(self, parts, at):
+        raise OSError(28, 'No space left on device')
+    monkeypatch.setattr(McapFile, '_pwritev', full_disk)
+    with pytest.raises(OSError):
+        f.flush()
+    monkeypatch.setattr(McapFile, '_pwritev', real)
+    assert f.flush()  # the same chunk, written once there is room
+    f.close()
+    assert len(summary_of(path).chunk_indexes) == 2
+    assert read_times(path) == [T0, T0 + 2]
