@@ -16,6 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from rcl_interfaces.msg import ParameterType, ParameterValue
 
+from enbarr_interfaces.fastmsg import new
+
 NS_PER_S = 1_000_000_000
 
 
@@ -26,7 +28,7 @@ def stamp_to_ns(stamp: Time) -> int:
 
 def ns_to_stamp(ns: int, out: Time | None = None) -> Time:
     """Integer nanoseconds -> ``builtin_interfaces/Time`` (filled in place when ``out``)."""
-    out = out if out is not None else Time()
+    out = out if out is not None else new(Time)
     out.sec, out.nanosec = divmod(int(ns), NS_PER_S)
     return out
 

@@ -259,7 +259,8 @@ class DpObserverNode(EnbarrNode):
         convert.set_pose_eta(odom.pose.pose, e.eta_hat)
         convert.set_twist_nu3(odom.twist.twist, e.nu_hat)
         self.age = e.age + lag if e.age else 0.0
-        age = Float64(data=float(self.age))
+        age = new(Float64)
+        age.data = float(self.age)
         bias = new(WrenchStamped)
         bias.header.stamp = stamp
         bias.header.frame_id = topics.WORLD_FRAME
