@@ -118,14 +118,14 @@ class SimThrustersNode(ActuatorDriver):
         # The lag is skipped only from rest (thrust cut by write_neutral, or never set): a
         # command of 0 is not a cut, the motor spins down and the next command goes on from
         # the thrust of that moment.
-        if tc > 0.0 and last is not None and np.any(self.thrust):
+        if tc > 0.0 and last is not None and self.thrust.any():
             # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
             alpha = 1.0 - math.exp(-max(now_ns - last, 0) * 1e-9 / tc)
             self.thrust = self.thrust + alpha * (target - self.thrust)
         else:
             self.thrust = target
         self.command = cmd
-        self.neutral = not np.any(cmd)
+        self.neutral = not cmd.any()
         stamp = convert.ns_to_stamp(now_ns)
         out = new(JointState)
         out.name, out.effort = self.names, cmd.tolist()
