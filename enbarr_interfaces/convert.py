@@ -16,6 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from rcl_interfaces.msg import ParameterType, ParameterValue
 
+from enbarr_interfaces.fastmsg import new
+
 NS_PER_S = 1_000_000_000
 
 
@@ -26,7 +28,7 @@ def stamp_to_ns(stamp: Time) -> int:
 
 def ns_to_stamp(ns: int, out: Time | None = None) -> Time:
     """Integer nanoseconds -> ``builtin_interfaces/Time`` (filled in place when ``out``)."""
-    out = out if out is not None else Time()
+    out = out if out is not None else new(Time)
     out.sec, out.nanosec = divmod(int(ns), NS_PER_S)
     return out
 
@@ -144,9 +146,32 @@ def set_covariance3(field: Any, cov: NDArray[np.float64]) -> None:
     field[:] = np.asarray(cov, dtype=float).reshape(9)
 
 
+#: Up to this many elements ``all_finite`` tests them one by one as Python floats (a
+#: 3-vector: 0.4 instead of 3.2 us for ``np.all(np.isfinite(a))`` here); larger arrays in numpy.
+_SMALL = 16
+
+
 def all_finite(*arrays: Any) -> bool:
-    """Whether every element of every array is finite."""
-    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+    """Whether every element of every array (or sequence, or number) is finite.
+
+    The check every node makes on every sample's vectors before it uses them: NaN, +inf and
+    -inf are refused, exactly as ``np.isfinite`` refuses them.
+    """
+    isfinite = math.isfinite
+    for a in arrays:
+        if type(a) is float:
+            if not isfinite(a):
+                return False
+            continue
+        a = np.asarray(a, dtype=float) if type(a) is not np.ndarray else a
+        if a.size > _SMALL:
+            if not np.isfinite(a).all():
+                return False
+            continue
+        for v in a.ravel().tolist():
+            if not isfinite(v):
+                return False
+    return True
 
 
 def parameter_value_to_python(value: ParameterValue) -> Any:

@@ -96,7 +96,7 @@ class AzimuthAllocationNode(EnbarrNode):
 
     def _on_tau(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau3(msg.wrench)
-        if not np.all(np.isfinite(tau)):
+        if not convert.all_finite(tau):
             self.rejected += 1
             self.health.refused('force_command', 'non_finite')
             return

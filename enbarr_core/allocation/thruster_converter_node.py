@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
-import numpy as np
 from sensor_msgs.msg import JointState
 
 from enbarr_interfaces.fastmsg import new
@@ -96,7 +95,7 @@ class ThrusterConverterNode(EnbarrNode):
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau(msg.wrench)
-        if not np.all(np.isfinite(tau)):
+        if not convert.all_finite(tau):
             self.rejected += 1
             self.health.refused('force_command', 'non_finite')
             return

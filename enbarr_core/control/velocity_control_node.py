@@ -196,7 +196,7 @@ class VelocityControlNode(EnbarrNode):
 
     def _on_goal(self, msg: TwistStamped) -> None:
         nu = convert.twist_to_nu(msg.twist)
-        if not np.all(np.isfinite(nu)):
+        if not convert.all_finite(nu):
             self.health.refused('trajectory_request', 'non_finite')
             return
         t = convert.stamp_to_ns(msg.header.stamp)
@@ -210,7 +210,7 @@ class VelocityControlNode(EnbarrNode):
 
     def _on_velocity(self, msg: Odometry) -> None:
         v = convert.vector3_to_array(msg.twist.twist.linear)
-        if np.all(np.isfinite(v)):
+        if convert.all_finite(v):
             self._linear = v
 
     def _on_imu(self, msg: Imu) -> None:

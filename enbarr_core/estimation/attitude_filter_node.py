@@ -142,7 +142,7 @@ class AttitudeFilterNode(EnbarrNode):
 
     def _on_mag(self, msg: MagneticField) -> None:
         m = convert.vector3_to_array(msg.magnetic_field)
-        if not np.all(np.isfinite(m)):
+        if not convert.all_finite(m):
             self.health.refused('imu/mag', 'non_finite')
             return
         t = convert.stamp_to_ns(msg.header.stamp)

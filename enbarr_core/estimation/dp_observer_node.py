@@ -173,7 +173,7 @@ class DpObserverNode(EnbarrNode):
 
     def _on_tau(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau3(msg.wrench)
-        if not np.all(np.isfinite(tau)):
+        if not convert.all_finite(tau):
             self.health.refused('allocation/delivered', 'non_finite')
             return
         verdict = self._tau_gate.offer(convert.stamp_to_ns(msg.header.stamp),
@@ -192,7 +192,7 @@ class DpObserverNode(EnbarrNode):
     def _on_pose(self, msg: PoseStamped) -> None:
         y = convert.pose_to_eta(msg.pose)
         t = convert.stamp_to_ns(msg.header.stamp)
-        if not np.all(np.isfinite(y)):
+        if not convert.all_finite(y):
             self._refuse_pose('non_finite')
             return
         verdict = self._pose_gate.offer(t, self.now_ns())
@@ -259,7 +259,8 @@ class DpObserverNode(EnbarrNode):
         convert.set_pose_eta(odom.pose.pose, e.eta_hat)
         convert.set_twist_nu3(odom.twist.twist, e.nu_hat)
         self.age = e.age + lag if e.age else 0.0
-        age = Float64(data=float(self.age))
+        age = new(Float64)
+        age.data = float(self.age)
         bias = new(WrenchStamped)
         bias.header.stamp = stamp
         bias.header.frame_id = topics.WORLD_FRAME

@@ -32,10 +32,9 @@ One supervision timer per driver runs the watchdog, the reconnect schedule and t
 from __future__ import annotations
 
 from collections.abc import Callable
-from contextlib import contextmanager
 import threading
 import time
-from typing import Any, Iterator
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
@@ -117,6 +116,21 @@ class CommandWatchdog:
         """Note a command applied just now (call with ``lock`` held)."""
         self._last_ns = time.monotonic_ns()
         self.period.add(self._last_ns)
+
+    def __enter__(self) -> CommandWatchdog:
+        """Apply one command (``with watchdog:``): the lock held, the watchdog fed."""
+        # A plain context manager, not a @contextmanager generator: entered for every command
+        # (a generator's machinery cost more than the lock and the feed).
+        self.lock.acquire()
+        try:
+            self.fed()
+        except BaseException:
+            self.lock.release()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.lock.release()
 
     def check(self) -> bool:
         """Go neutral if commands stopped; True when it did."""
@@ -287,12 +301,9 @@ class ActuatorDriver(DeviceNode):
         """How often the watchdog put the outputs neutral."""
         return self.watchdog.timeouts
 
-    @contextmanager
-    def commanding(self) -> Iterator[None]:
-        """Apply one command: the watchdog's lock held, the watchdog fed."""
-        with self.watchdog.lock:
-            self.watchdog.fed()
-            yield
+    def commanding(self) -> CommandWatchdog:
+        """Apply one command (``with self.commanding():``): the watchdog's lock held, fed."""
+        return self.watchdog
 
     def safe_state(self) -> None:
         """Put the outputs neutral now (every bringup exit path, device faults)."""

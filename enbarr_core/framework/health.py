@@ -32,13 +32,28 @@ class InputHealth:
         if not 0.0 <= degraded_fraction < 1.0:
             raise ValueError(f'degraded_fraction must be in [0, 1), got {degraded_fraction}')
         self.degraded_fraction = degraded_fraction
-        self.totals: Counter[tuple[str, str]] = Counter()
-        self._window: Counter[tuple[str, str]] = Counter()
+        # Counts of closed windows; the open window's are added when it closes (``totals``
+        # adds them on the fly), so that a sample costs one count, not two.
+        self._closed: Counter[tuple[str, str]] = Counter()
+        self._window: dict[tuple[str, str], int] = {}
         self._inputs: dict[str, None] = {}  # insertion-ordered set
+
+    @property
+    def totals(self) -> Counter[tuple[str, str]]:
+        """Return the counts since start per (input, reason): a copy."""
+        totals = Counter(self._closed)
+        totals.update(self._window)
+        return totals
 
     def accepted(self, name: str, n: int = 1) -> None:
         """Count ``n`` samples of input ``name`` that the node used."""
-        self._count(name, 'accepted', n)
+        # The hot path (every sample of every input): one dict update once the key exists.
+        key = (name, 'accepted')
+        window = self._window
+        if key in window:
+            window[key] += n
+        else:
+            self._count(name, 'accepted', n)
 
     def refused(self, name: str, reason: str, n: int = 1) -> None:
         """Count ``n`` samples of input ``name`` refused or dropped for ``reason``."""
@@ -52,8 +67,8 @@ class InputHealth:
 
     def _count(self, name: str, reason: str, n: int) -> None:
         self._inputs.setdefault(name, None)
-        self.totals[(name, reason)] += n
-        self._window[(name, reason)] += n
+        key = (name, reason)
+        self._window[key] = self._window.get(key, 0) + n
 
     def report(self, window_s: float) -> tuple[int, str, dict[str, int]]:
         """Close the window (``window_s`` long, for the message): (level, message, totals).
@@ -75,8 +90,9 @@ class InputHealth:
             if lost and lost > self.degraded_fraction * total:
                 why = ', '.join(f'{r} {n}' for r, n in counts.items() if r != 'accepted')
                 findings.append(f'{name}: refused {lost} of {total} in {window_s:g} s ({why})')
+        self._closed.update(self._window)
         self._window.clear()
-        values = {f'{i}.{r}': n for (i, r), n in self.totals.items()}
+        values = {f'{i}.{r}': n for (i, r), n in self._closed.items()}
         if findings:
             return DEGRADED, 'degraded: ' + '; '.join(findings), values
         return OK, 'ok', values

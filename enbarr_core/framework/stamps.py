@@ -43,6 +43,14 @@ class StampVerdict(enum.Enum):
     NOT_NEWER = 'not_newer'
     STALE = 'stale'
 
+    # Members are singletons compared by identity: hash them as such, in C (Enum's own
+    # ``__hash__`` hashes the name in Python, once per count on every sample).
+    __hash__ = object.__hash__
+
+
+_ACCEPTED, _FUTURE = StampVerdict.ACCEPTED, StampVerdict.FUTURE
+_NOT_NEWER, _STALE = StampVerdict.NOT_NEWER, StampVerdict.STALE
+
 
 @dataclass(frozen=True)
 class StampPolicy:
@@ -85,23 +93,32 @@ class StampGate:
     def check(self, stamp_ns: int, now_ns: int) -> StampVerdict:
         """Judge a sample stamped ``stamp_ns`` arriving at ``now_ns``, without taking it."""
         if stamp_ns - now_ns > self._max_future_ns:
-            return StampVerdict.FUTURE
+            return _FUTURE
         last = self.last_ns
         if last is not None and stamp_ns <= last and now_ns >= last - self._max_future_ns:
-            return StampVerdict.NOT_NEWER
+            return _NOT_NEWER
         if self._max_age_ns is not None and now_ns - stamp_ns > self._max_age_ns:
-            return StampVerdict.STALE
-        return StampVerdict.ACCEPTED
+            return _STALE
+        return _ACCEPTED
 
     def offer(self, stamp_ns: int, now_ns: int) -> StampVerdict:
         """Judge and count a sample; an accepted stamp becomes the stream's last."""
-        verdict = self.check(stamp_ns, now_ns)
-        self.counts[verdict] += 1
-        if verdict is StampVerdict.ACCEPTED:
-            last = self.last_ns
+        # ``check`` inlined: this runs for every sample of every gated input.
+        last = self.last_ns
+        if stamp_ns - now_ns > self._max_future_ns:
+            verdict = _FUTURE
+        elif (last is not None and stamp_ns <= last
+              and now_ns >= last - self._max_future_ns):
+            verdict = _NOT_NEWER
+        elif self._max_age_ns is not None and now_ns - stamp_ns > self._max_age_ns:
+            verdict = _STALE
+        else:
+            self.counts[_ACCEPTED] += 1
             if last is not None and stamp_ns <= last:
                 self.clock_resets += 1  # the clock went back past the last stamp: start over
             self.last_ns = stamp_ns
+            return _ACCEPTED
+        self.counts[verdict] += 1
         return verdict
 
     def reset(self) -> None:

@@ -33,7 +33,7 @@ from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from enbarr_interfaces import convert, topics
-
+from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, worst)
@@ -69,14 +69,18 @@ def reference_to_msg(ref: Reference, header: Any) -> MultiDOFJointTrajectory:
     pose component that is not fed back (``position_mask`` False) is NaN in the transform
     (all four quaternion components for yaw): there is no position reference for that DOF.
     """
-    pose, velocity, acceleration = Transform(), Twist(), Twist()
+    # Built with ``fastmsg.new`` (once per estimate: the generated constructors of these five
+    # messages cost more than the guidance law).
+    pose, velocity, acceleration = new(Transform), new(Twist), new(Twist)
     convert.set_transform_eta(pose, [float(v) if used else math.nan
                                      for v, used in zip(ref.eta_d, ref.position_mask)])
     convert.set_twist_nu3(velocity, ref.nu_d)
     convert.set_twist_nu3(acceleration, ref.nu_d_dot)
-    point = MultiDOFJointTrajectoryPoint(transforms=[pose], velocities=[velocity],
-                                         accelerations=[acceleration])
-    out = MultiDOFJointTrajectory(joint_names=[REFERENCE_JOINT], points=[point])
+    point = new(MultiDOFJointTrajectoryPoint)
+    point.transforms, point.velocities = [pose], [velocity]
+    point.accelerations = [acceleration]
+    out = new(MultiDOFJointTrajectory)
+    out.joint_names, out.points = [REFERENCE_JOINT], [point]
     out.header.stamp = header.stamp
     out.header.frame_id = topics.WORLD_FRAME
     return out

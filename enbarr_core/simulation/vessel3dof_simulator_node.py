@@ -103,8 +103,8 @@ class Vessel3DofSimulatorNode(EnbarrNode):
             self.model = Vessel3Dof(v.vessel)
             self.settings = v
             self._timeout_ns = int(v.command_timeout * 1e9)
-            self._current = np.array(v.current)
-            self._current_amplitude = np.array(v.current_amplitude)
+            self._current = tuple(float(c) for c in v.current)
+            self._current_amplitude = tuple(float(a) for a in v.current_amplitude)
             self._bias = list(v.bias)
 
     def _on_command(self, msg: JointState) -> None:
@@ -119,10 +119,11 @@ class Vessel3DofSimulatorNode(EnbarrNode):
         self._cmd_thrust, self._cmd_angle = thrust, angle
         self._cmd_ns = self.now_ns()
 
-    def current_at(self, t_s: float) -> np.ndarray:
+    def current_at(self, t_s: float) -> tuple[float, float]:
         """Return the current (east, north) [m/s] at simulated time ``t_s`` [s]."""
         phase = math.sin(2.0 * math.pi * t_s / self.settings.current_period)
-        return self._current + phase * self._current_amplitude
+        (c_e, c_n), (a_e, a_n) = self._current, self._current_amplitude
+        return c_e + phase * a_e, c_n + phase * a_n  # floats: once per step, no 2-array
 
     def step(self) -> None:
         """Advance to the clock's present (as RovSimulatorNode.step) and publish the truth."""

@@ -30,7 +30,7 @@ from enbarr_core.framework.health import (
     DEGRADED, InputHealth, IntervalMeter, OK, too_short_for_rate, worst)
 from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces.fastmsg import new
-from enbarr_interfaces import topics
+from enbarr_interfaces import convert, topics
 
 
 _BETWEEN = 'the outputs would go neutral between messages'
@@ -93,7 +93,7 @@ class SimArduinoNode(ActuatorDriver):
     def _send(self, thrust: list[float], angle: list[float]) -> None:
         out = new(JointState)
         out.name, out.effort, out.position = self.names, thrust, angle
-        out.header.stamp = self.get_clock().now().to_msg()
+        out.header.stamp = convert.ns_to_stamp(self.now_ns())
         self._pub.publish(out)
 
     def is_neutral(self) -> bool:

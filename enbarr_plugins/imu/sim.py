@@ -75,16 +75,15 @@ class SimImuNode(SensorDriver):
     def _apply(self, settings: SimImuSettings) -> None:
         self.settings = settings
         # The per-sample arithmetic wants arrays; made once per settings change.
-        self._gyro_bias = np.array(settings.gyro_bias)
-        self._accel_bias = np.array(settings.accel_bias)
+        self._gyro_bias = tuple(float(b) for b in settings.gyro_bias)
+        self._accel_bias = tuple(float(b) for b in settings.accel_bias)
         self._magnetic_field = np.array(settings.magnetic_field)
 
     def _on_truth(self, truth: Imu) -> None:
         s = self.settings
         rng = self._rng
         q = convert.quaternion_to_array(truth.orientation)
-        omega = convert.vector3_to_array(truth.angular_velocity)
-        f = convert.vector3_to_array(truth.linear_acceleration)
+        omega, f = truth.angular_velocity, truth.linear_acceleration
         mag = new(MagneticField)
         mag.header.stamp = truth.header.stamp
         mag.header.frame_id = topics.IMU_FRAME
@@ -97,10 +96,16 @@ class SimImuNode(SensorDriver):
         raw.header.stamp = truth.header.stamp
         raw.header.frame_id = topics.IMU_FRAME
         raw.orientation_covariance[0] = -1.0  # no orientation estimate (REP-145)
-        convert.set_vector3(raw.angular_velocity,
-                            omega + self._gyro_bias + rng.normal(0.0, s.gyro_noise, 3))
-        convert.set_vector3(raw.linear_acceleration,
-                            f + self._accel_bias + rng.normal(0.0, s.accel_noise, 3))
+        # truth + bias + noise in Python floats: the same draws in the same order and the same
+        # sums as with 3-element arrays, which cost more to build than the noise.
+        bx, by, bz = self._gyro_bias
+        nx, ny, nz = rng.normal(0.0, s.gyro_noise, 3).tolist()
+        v = raw.angular_velocity
+        v.x, v.y, v.z = omega.x + bx + nx, omega.y + by + ny, omega.z + bz + nz
+        bx, by, bz = self._accel_bias
+        nx, ny, nz = rng.normal(0.0, s.accel_noise, 3).tolist()
+        v = raw.linear_acceleration
+        v.x, v.y, v.z = f.x + bx + nx, f.y + by + ny, f.z + bz + nz
         g2, a2 = s.gyro_noise ** 2, s.accel_noise ** 2
         raw.angular_velocity_covariance[0] = raw.angular_velocity_covariance[4] = \
             raw.angular_velocity_covariance[8] = g2

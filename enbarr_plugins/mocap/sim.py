@@ -118,17 +118,21 @@ class SimMocapNode(SensorDriver):
         self._next_ns += self._period_ns * max(1, (t - self._next_ns) // self._period_ns + 1)
         since = (t - self._start_ns) * 1e-9
         s = self.settings
-        if any(a <= since < b for a, b in s.dropout_windows) or (
+        if (s.dropout_windows and any(a <= since < b for a, b in s.dropout_windows)) or (
                 s.dropout_probability > 0.0 and self._rng.random() < s.dropout_probability):
             self.dropped += 1
             return
-        eta = convert.pose_to_eta(truth.pose.pose)
-        eta[:2] += self._rng.normal(0.0, s.position_noise, 2)
-        eta[2] = ssa(eta[2] + self._rng.normal(0.0, s.heading_noise))
+        # eta = truth + noise in Python floats (the same draws, in the same order, and the
+        # same sums as with a 3-element array, which cost more to build than the noise).
+        pose = truth.pose.pose
+        noise_x, noise_y = self._rng.normal(0.0, s.position_noise, 2).tolist()
+        psi = ssa(convert.quaternion_to_yaw(pose.orientation)
+                  + float(self._rng.normal(0.0, s.heading_noise)))
         msg = new(PoseStamped)
         msg.header.stamp = truth.header.stamp
         msg.header.frame_id = topics.WORLD_FRAME
-        convert.set_pose_eta(msg.pose, eta)
+        convert.set_pose_eta(msg.pose, (pose.position.x + noise_x, pose.position.y + noise_y,
+                                        psi))
         self.published += 1
         self._pub.publish(msg)
         self.sample_received()

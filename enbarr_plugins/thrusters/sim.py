@@ -118,14 +118,14 @@ class SimThrustersNode(ActuatorDriver):
         # The lag is skipped only from rest (thrust cut by write_neutral, or never set): a
         # command of 0 is not a cut, the motor spins down and the next command goes on from
         # the thrust of that moment.
-        if tc > 0.0 and last is not None and np.any(self.thrust):
+        if tc > 0.0 and last is not None and self.thrust.any():
             # First-order motor: f += (f* - f)(1 - exp(-dt / T)), exact for a held f*.
             alpha = 1.0 - math.exp(-max(now_ns - last, 0) * 1e-9 / tc)
             self.thrust = self.thrust + alpha * (target - self.thrust)
         else:
             self.thrust = target
         self.command = cmd
-        self.neutral = not np.any(cmd)
+        self.neutral = not cmd.any()
         stamp = convert.ns_to_stamp(now_ns)
         out = new(JointState)
         out.name, out.effort = self.names, cmd.tolist()
@@ -174,7 +174,8 @@ def accept_command(node: Any, msg: JointState, now_ns: int) -> tuple[np.ndarray,
         node.refused += 1
         node.health.refused('thruster_commands', 'invalid')
         return None
-    cmd = np.zeros(len(node.names))
+    # Python floats until the checks pass (numpy on 6-8 values costs more than the checks).
+    values = [0.0] * len(node.names)
     for name, value in zip(msg.name, msg.effort):
         i = node._index.get(name)
         if i is None or not math.isfinite(value):
@@ -183,7 +184,7 @@ def accept_command(node: Any, msg: JointState, now_ns: int) -> tuple[np.ndarray,
             node.get_logger().warn(f'refused thruster command {name}={value}',
                                    throttle_duration_sec=1.0)
             return None
-        cmd[i] = value
+        values[i] = value
     stamp_ns = convert.stamp_to_ns(msg.header.stamp)
     verdict = node.gate.offer(stamp_ns, now_ns)
     if verdict is not StampVerdict.ACCEPTED:
@@ -191,7 +192,7 @@ def accept_command(node: Any, msg: JointState, now_ns: int) -> tuple[np.ndarray,
         node.health.refused('thruster_commands', verdict.value)
         return None
     node.health.accepted('thruster_commands')
-    if np.any(np.abs(cmd) > 1.0):
+    if values and (max(values) > 1.0 or min(values) < -1.0):
         node.clipped += 1
-        np.clip(cmd, -1.0, 1.0, out=cmd)
-    return cmd, stamp_ns
+        values = [min(max(v, -1.0), 1.0) for v in values]
+    return np.array(values, dtype=float), stamp_ns

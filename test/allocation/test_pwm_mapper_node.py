@@ -192,3 +192,17 @@ def test_pwm_mapper_refuses_a_command_timeout_shorter_than_two_command_periods(
     assert 'measured 0.02 s' in result.reason
     assert r.node.watchdog.timeout_ns != 30_000_000
     assert r.node.set_parameters([Parameter('command_timeout', value=0.25)])[0].successful
+
+
+def test_duty_message_is_byte_for_byte_the_one_the_generated_constructors_build() -> None:
+    """``duty_message`` builds with ``fastmsg.new``: the same message as the classes'."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+
+    from enbarr_core.allocation.pwm_mapper_node import duty_message
+    from enbarr_interfaces import topics
+    duties = [7.5, 6.1, 8.25, 7.0]
+    expected = Float64MultiArray(layout=MultiArrayLayout(dim=[MultiArrayDimension(
+        label=topics.PWM_DUTY_LABEL, size=4, stride=4)]), data=duties)
+    assert serialize_message(duty_message(duties)) == serialize_message(expected)
+    assert duty_message(duties).layout.dim[0] is not duty_message(duties).layout.dim[0]

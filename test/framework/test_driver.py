@@ -518,3 +518,26 @@ def test_a_start_command_timeout_too_short_for_the_commands_is_reported(context,
     level, message, _ = reports.last
     assert level == WARN and 'command_timeout' in message and 'period' in message, message
     node.destroy_node()
+
+
+def test_commanding_holds_the_lock_feeds_the_watchdog_and_releases_on_error(context, clock):
+    """``with commanding():`` (a plain context manager on the hot path): lock held and the
+    watchdog fed inside, released after, also when the command raises."""
+    node = actuator(context)
+    try:
+        w = node.watchdog
+        clock.at(5.0)
+        with node.commanding():
+            assert w.lock.locked() and w._last_ns == clock.ns
+        assert not w.lock.locked()
+        clock.at(6.0)
+        with pytest.raises(RuntimeError, match='device gone'):
+            with node.commanding():
+                node.neutral = False
+                raise RuntimeError('device gone')
+        assert not w.lock.locked() and w._last_ns == clock.ns
+        assert not w.check()            # fed just now: no timeout
+        clock.at(6.3)                   # 0.3 s > command_timeout 0.25 s
+        assert w.check() and w.timeouts == 1
+    finally:
+        node.destroy_node()

@@ -99,3 +99,19 @@ def test_max_future_must_stay_under_one_measured_period() -> None:
     assert future_tolerance_problem(0.02, 0.02, 'mocap/pose') == (
         'max_future 0.02 s is not under the period of mocap/pose (period measured 0.02 s): '
         'one early sample could hide the next good one')
+
+
+def test_totals_include_the_open_window_and_reports_count_each_sample_once() -> None:
+    """Totals are folded in when a window closes (one count per sample): none is lost or
+    counted twice, whether read mid-window or in the report."""
+    h = InputHealth()
+    h.accepted('pose')
+    h.accepted('pose', 3)
+    h.refused('pose', 'stale', 2)
+    assert h.totals == {('pose', 'accepted'): 4, ('pose', 'stale'): 2}
+    assert h.report(1.0)[2] == {'pose.accepted': 4, 'pose.stale': 2}
+    h.accepted('pose')
+    h.accepted('tau')
+    assert h.totals == {('pose', 'accepted'): 5, ('pose', 'stale'): 2, ('tau', 'accepted'): 1}
+    assert h.report(1.0)[2] == {'pose.accepted': 5, 'pose.stale': 2, 'tau.accepted': 1}
+    assert h.report(1.0)[2] == {'pose.accepted': 5, 'pose.stale': 2, 'tau.accepted': 1}

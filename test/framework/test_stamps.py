@@ -6,6 +6,8 @@ Every limit is checked at its boundary: a stamp exactly ``max_future`` ahead is 
 
 from __future__ import annotations
 
+import random
+
 import pytest
 
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
@@ -95,3 +97,29 @@ def test_reset_forgets_the_last_stamp() -> None:
     g.offer(NOW, NOW)
     g.reset()
     assert g.offer(NOW - MS, NOW) is A
+
+
+@pytest.mark.parametrize('policy', [StampPolicy(max_future=0.002),
+                                    StampPolicy(max_future=0.0, max_age=0.005)])
+def test_offer_judges_as_check_does_and_counts_every_verdict(policy: StampPolicy) -> None:
+    """``offer`` inlines ``check`` (the hot path): both must agree on every kind of sample."""
+    rng = random.Random(7)
+    g = StampGate(policy)
+    now, expected = NOW, {v: 0 for v in StampVerdict}
+    for _ in range(4000):
+        now += rng.choice((0, MS, 3 * MS, -20 * MS))  # a clock that also goes back
+        stamp = now + rng.randint(-8 * MS, 4 * MS)
+        last, resets = g.last_ns, g.clock_resets
+        verdict = g.check(stamp, now)
+        assert g.offer(stamp, now) is verdict
+        expected[verdict] += 1
+        if verdict is A:
+            assert g.last_ns == stamp
+            assert g.clock_resets == resets + (last is not None and stamp <= last)
+        else:
+            assert (g.last_ns, g.clock_resets) == (last, resets)
+    assert g.counts == expected
+    exercised = {v for v, n in expected.items() if n}
+    assert exercised == set(StampVerdict) - ({StampVerdict.STALE} if policy.max_age is None
+                                             else set())
+    assert g.refused == sum(expected.values()) - expected[A]

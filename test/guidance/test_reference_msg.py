@@ -59,3 +59,19 @@ def test_a_malformed_reference_is_refused_with_what_was_expected():
     msg.points[0].accelerations = []
     with pytest.raises(ValueError, match='one transform, velocity and acceleration'):
         msg_to_reference(msg)
+
+
+def test_the_message_is_byte_for_byte_the_one_the_generated_constructors_build():
+    """``reference_to_msg`` builds with ``fastmsg.new``: the same message as the classes'."""
+    from geometry_msgs.msg import Transform, Twist
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+    ref = ref_of((True, False, True))
+    pose, vel, acc = Transform(), Twist(), Twist()
+    convert.set_transform_eta(pose, [1.0, math.nan, 0.3])
+    convert.set_twist_nu3(vel, ref.nu_d)
+    convert.set_twist_nu3(acc, ref.nu_d_dot)
+    expected = MultiDOFJointTrajectory(
+        header=HEADER, joint_names=[topics.BODY_FRAME], points=[MultiDOFJointTrajectoryPoint(
+            transforms=[pose], velocities=[vel], accelerations=[acc])])
+    assert serialize_message(reference_to_msg(ref, HEADER)) == serialize_message(expected)

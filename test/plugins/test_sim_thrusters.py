@@ -88,6 +88,11 @@ def test_commands_beyond_one_are_clipped_and_counted(rig):
     assert rig.node.clipped == 1
     assert rig.outputs[-1].effort.tolist() == pytest.approx([1.0, -1.0, 0, 0, 0, 0, 0, 0])
     assert rig.thrusts[-1].effort.tolist() == pytest.approx([51.5, -40.2, 0, 0, 0, 0, 0, 0])
+    rig.command([0, 0, 0, 0, 0, 0, 0, -1.25])   # only one, below -1
+    assert rig.node.clipped == 2
+    assert rig.outputs[-1].effort.tolist() == pytest.approx([0, 0, 0, 0, 0, 0, 0, -1.0])
+    rig.command([1.0, -1.0, 0, 0, 0, 0, 0, 0])  # the limits themselves are not clipped
+    assert rig.node.clipped == 2
 
 
 def test_watchdog_goes_neutral_once_when_commands_stop(executor, spin, rig):

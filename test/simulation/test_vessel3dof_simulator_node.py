@@ -208,3 +208,16 @@ def test_surge_coast_with_the_manual_damping_moves_along_the_heading(context, ex
         np.testing.assert_allclose(nu, [u, 0.0, 0.0], rtol=0.0, atol=TOL)
         np.testing.assert_allclose(eta, [1.0 + s * math.cos(psi0), 2.0 + s * math.sin(psi0),
                                          psi0], rtol=0.0, atol=TOL)
+
+
+def test_the_current_is_its_mean_plus_the_sine_of_its_period(context, executor):
+    """current_at: mean + sin(2 pi t / period) * amplitude, per axis (east, north)."""
+    sim = add(executor, Vessel3DofSimulatorNode(
+        node_name='simulator', context=context, parameter_overrides=overrides({
+            'current': [0.05, -0.01], 'current_amplitude': [0.02, 0.03],
+            'current_period': 8.0})))
+    for t in (0.0, 2.0, 3.3, 6.0, 100.1):
+        phase = math.sin(2.0 * math.pi * t / 8.0)
+        assert sim.current_at(t) == (0.05 + phase * 0.02, -0.01 + phase * 0.03)
+    assert sim.current_at(2.0) == pytest.approx((0.07, 0.02))
+    assert sim.current_at(6.0) == pytest.approx((0.03, -0.04))
