@@ -113,7 +113,8 @@ def _bag(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from enbarr_core.recording.bag import repair_bag
 
     for r in repair_bag(args.path):
-        state = (f'repaired, {r.dropped_bytes} torn bytes cut' if r.repaired else 'intact')
+        state = (f'repaired, {r.dropped_bytes} torn bytes cut' if r.repaired
+                 else 'intact, its index written' if r.indexed else 'intact')
         print(f'{r.name}: {r.messages} messages, {state}')
     return 0
 

@@ -655,13 +655,18 @@ def repair_recording(profile: Profile, group: str, how: str) -> None:
             continue
         path = str(n.parameters['path'])
         try:
-            repaired = [r for r in repair_bag(path) if r.repaired]
+            repaired = [r for r in repair_bag(path) if r.repaired or r.indexed]
         except EnbarrError as err:
             log.error('group %s died (%s): its bag could not be repaired: %s', group, how, err)
             continue
         for r in repaired:
-            log.warning('group %s died (%s) while writing %s: repaired, %d messages kept, '
-                        '%d torn bytes cut', group, how, r.name, r.messages, r.dropped_bytes)
+            if r.repaired:
+                log.warning('group %s died (%s) while writing %s: repaired, %d messages '
+                            'kept, %d torn bytes cut', group, how, r.name, r.messages,
+                            r.dropped_bytes)
+            else:
+                log.warning('group %s died (%s) while writing %s: intact, %d messages, its '
+                            'index written', group, how, r.name, r.messages)
 
 
 #: The environment variable that tells a supervised group where to write its problems.

@@ -460,8 +460,9 @@ class Repaired:
 
     name: str
     messages: int
-    repaired: bool        # its tail was rewritten
+    repaired: bool        # its tail was torn and rewritten
     dropped_bytes: int    # torn bytes cut after its last complete flush
+    indexed: bool = False  # intact but without summary: the summary was written
 
 
 def repair_bag(path: str | os.PathLike[str]) -> list[Repaired]:
@@ -469,8 +470,9 @@ def repair_bag(path: str | os.PathLike[str]) -> list[Repaired]:
 
     Every ``<bag>_N.mcap`` file gets a valid summary and footer (a torn tail after the last
     complete flush is cut), and ``metadata.yaml`` is rewritten from what the files hold.
-    Intact files are not written to. Raises ``RecorderError`` naming the bag when it is not
-    one of this recorder's.
+    Intact files are not written to, except that one without summary (the writer was killed
+    between two summaries: readable, but readers scan it) gets its summary. Raises
+    ``RecorderError`` naming the bag when it is not one of this recorder's.
     """
     path = Path(path)
     if not path.is_dir():
@@ -488,7 +490,8 @@ def repair_bag(path: str | os.PathLike[str]) -> list[Repaired]:
         except (McapError, OSError) as err:
             raise RecorderError(f'{p}: cannot repair: {err}') from err
         infos.append(fi)
-        out.append(Repaired(p.name, fi.message_count, fi.repaired, fi.dropped_bytes))
+        out.append(Repaired(p.name, fi.message_count, fi.repaired, fi.dropped_bytes,
+                            fi.indexed))
     try:
         write_metadata(path, infos, get_typestore(Stores.ROS2_JAZZY))
     except BagStorageError as err:

@@ -20,8 +20,9 @@ shorter than the one it covers, the file is truncated right after the write.
 A process killed inside that ``pwrite`` can leave a torn tail (a short write stops at a page
 boundary). ``recover`` reads the data section record by record, keeps every chunk whose
 message indexes are complete (everything up to the last finished flush), drops the rest and
-writes a fresh summary and footer; an intact file is left as it is. A kill at any other
-instant leaves the file as of its last flush.
+writes a fresh summary and footer; an intact file is left as it is, except that one ending
+with a footer without summary (a kill between summaries) gets its summary written. A kill at
+any other instant leaves the file as of its last flush.
 
 Records (MCAP spec, https://mcap.dev/spec): little endian; a record is ``opcode u8,
 length u64, content``; strings are ``u32 length + UTF-8``. Chunks are uncompressed, CRCs 0
@@ -337,8 +338,9 @@ class FileInfo:
     counts: dict[str, int]          # topic -> messages
     start: int                      # first log time [ns] (0 without messages)
     end: int
-    repaired: bool = False          # the tail was rewritten
+    repaired: bool = False          # the tail was torn and rewritten
     dropped_bytes: int = 0          # torn bytes after the last complete flush
+    indexed: bool = False           # intact without summary: the summary was written
 
     @property
     def message_count(self) -> int:
@@ -349,7 +351,8 @@ class FileInfo:
 def recover(path: str | os.PathLike[str]) -> FileInfo:
     """Make ``path`` a complete MCAP holding everything up to its last finished flush.
 
-    An intact file is not written to. Raises ``McapError`` for a file that does not even
+    An intact file is not written to, unless it has no summary (``indexed``): then it gets
+    one. Raises ``McapError`` for a file that does not even
     start as an MCAP of the ros2 profile.
     """
     path = Path(path)
@@ -372,7 +375,7 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
     chunk_indexes = bytearray()
     counts: dict[int, int] = {}
     nchunks, start, end = 0, 2 ** 63 - 1, 0
-    clean = False
+    footer = 'torn'
     pending: tuple | None = None   # a chunk waiting for its message indexes
     size = len(data)
     while pos + 9 <= size:
@@ -406,7 +409,8 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
                 pending = None
                 good = nxt
         elif op == OP_DATA_END:
-            clean = pending is None and _footer_ok(data, nxt)
+            if pending is None:
+                footer = _footer(data, nxt)
             break
         else:
             if pending is not None:
@@ -418,7 +422,7 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
         fi.topics[topic] = schemas[sid][0]
         fi.counts[topic] = counts.get(cid, 0)
     fi.start, fi.end = (start, end) if nchunks else (0, 0)
-    if clean:
+    if footer == 'summary':
         return fi
     # Rebuild the tail at ``good``; schemas/channels only from complete chunks count, but
     # listing all that were seen is harmless (a channel without messages).
@@ -435,20 +439,24 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
         os.ftruncate(fd, good + len(tail))
     finally:
         os.close(fd)
-    fi.repaired = True
-    fi.dropped_bytes = max(0, size - good - len(DATA_END))
+    if footer == 'bare':
+        fi.indexed = True
+    else:
+        fi.repaired = True
+        fi.dropped_bytes = max(0, size - good - len(DATA_END))
     return fi
 
 
-def _footer_ok(data: mmap.mmap, data_end_next: int) -> bool:
+def _footer(data: mmap.mmap, data_end_next: int) -> str:
+    """Tell what ends the file after a DataEnd record: 'summary', 'bare' (none), 'torn'."""
     if len(data) < FOOTER_SIZE + 8 or data[len(data) - 8:] != MAGIC:
-        return False
+        return 'torn'
     op, n, summary_start, _, _ = struct.unpack_from('<BQQQI', data, len(data) - 8 - FOOTER_SIZE)
     if op != OP_FOOTER or n != 20:
-        return False
+        return 'torn'
     if summary_start == 0:  # no summary: the footer must follow DataEnd
-        return len(data) == data_end_next + FOOTER_SIZE + 8
-    return summary_start == data_end_next
+        return 'bare' if len(data) == data_end_next + FOOTER_SIZE + 8 else 'torn'
+    return 'summary' if summary_start == data_end_next else 'torn'
 
 
 def _scan_chunk(data: mmap.mmap, cstart: int, body: int, nxt: int,

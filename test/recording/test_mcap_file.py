@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import shutil
 
 import pytest
 from mcap.reader import make_reader
@@ -49,8 +50,12 @@ def test_the_summary_is_rewritten_at_its_share_of_the_data(tmp_path: Path,
     f, cids = open_file(path)
     summaries: list[int] = []
     real = McapFile._summary
-    monkeypatch.setattr(McapFile, '_summary', lambda self, *a: (
-        summaries.append(len(out := real(self, *a))), out)[1])
+    def counted(self: McapFile, *args: object) -> bytes:
+        out = real(self, *args)
+        if self is f:  # the writer's, not recover's on a copy
+            summaries.append(len(out))
+        return out
+    monkeypatch.setattr(McapFile, '_summary', counted)
     text = b'x' * 400
     payload = b'\x00\x01\x00\x00' + (len(text) + 1).to_bytes(4, 'little') + text + b'\x00'
     data_start = f.data_end
@@ -70,7 +75,11 @@ def test_the_summary_is_rewritten_at_its_share_of_the_data(tmp_path: Path,
             assert path.read_bytes().endswith(BARE_TAIL)
         if flush in (0, 150, 399) or (flush > 150 and before and not f.summarized):
             assert read_times(path) == list(range(T0, t))  # complete after every flush
-            assert not recover(path).repaired                 # and found intact
+            copy = tmp_path / 'copy.mcap'                  # what a kill would leave
+            shutil.copyfile(path, copy)
+            info = recover(copy)                           # intact; indexed if it had none
+            assert not info.repaired and info.indexed == (not f.summarized)
+            assert len(summary_of(copy).chunk_indexes) == f.chunks
     # A small summary at every flush; then at most a tenth of the data since the last.
     small = [n for n in summaries if n <= mcap_file.SUMMARY_ALWAYS]
     large = summaries[len(small):]
@@ -92,6 +101,25 @@ def test_close_right_after_a_summary_keeps_it(tmp_path: Path) -> None:
     assert len(summary_of(path).chunk_indexes) == 1
 
 
+def test_an_intact_file_without_summary_gets_one(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+    path = tmp_path / 'bare.mcap'
+    f, cids = open_file(path)
+    for k in range(4):
+        f.write(cids[k], T0 + k, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
+        f.flush()
+    f.abandon()  # killed between summaries
+    assert summary_of(path) is None
+    info = recover(path)
+    assert info.indexed and not info.repaired and info.dropped_bytes == 0
+    assert info.message_count == 4 and len(summary_of(path).chunk_indexes) == 4
+    assert read_times(path) == [T0 + k for k in range(4)]
+    again = recover(path)
+    assert not again.indexed and not again.repaired  # now intact with its summary
+
+
 def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
@@ -105,7 +133,7 @@ def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path,
     f.abandon()
     os.truncate(path, os.path.getsize(path) - 10)  # a kill tore the footer
     info = recover(path)
-    assert info.repaired and info.message_count == 5
+    assert info.repaired and not info.indexed and info.message_count == 5
     assert len(summary_of(path).chunk_indexes) == 5
     assert read_times(path) == [T0 + k for k in range(5)]
 
@@ -128,6 +156,29 @@ def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(
         assert [t for _, t, _ in reader.messages()] == [T0 + k for k in range(30)]
     writer.close()
     assert len(summary_of(bag / 'bag_0.mcap').chunk_indexes) == 3
+
+
+def test_bag_repair_writes_the_index_of_a_bag_killed_between_summaries(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from enbarr_core.bringup.cli import main
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+    bag = tmp_path / 'run'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    data = serialize_message(Imu())
+    for k in range(20):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
+        if k % 5 == 4:
+            writer.flush()
+    writer._file.mcap.abandon()  # the process dies: nothing more is written
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out == 'run_0.mcap: 20 messages, intact, its index written\n'
+    assert len(summary_of(bag / 'run_0.mcap').chunk_indexes) == 4
+    with Reader(bag) as reader:
+        assert [t for _, t, _ in reader.messages()] == [T0 + k for k in range(20)]
+    assert main(['bag', 'repair', str(bag)]) == 0
+    assert capsys.readouterr().out == 'run_0.mcap: 20 messages, intact\n'
 
 
 def test_after_a_revert_or_a_failed_write_the_index_lists_only_what_the_file_holds(
@@ -153,3 +204,28 @@ def test_after_a_revert_or_a_failed_write_the_index_lists_only_what_the_file_hol
     f.close()
     assert len(summary_of(path).chunk_indexes) == 2
     assert read_times(path) == [T0, T0 + 2]
+
+
+def test_the_supervisor_writes_the_index_of_a_killed_recorder_group(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+    from types import SimpleNamespace
+
+    from enbarr_core.bringup.orchestrator import repair_recording
+    from enbarr_core.bringup.profile import NodeSpec
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+    bag = tmp_path / 'killed'
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    data = serialize_message(Imu())
+    for k in range(10):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
+    writer.flush()
+    writer._file.mcap.abandon()
+    node = NodeSpec(name='recorder', plugin='recorder', parameters={'path': str(bag)},
+                    group='recorder')
+    with caplog.at_level(logging.WARNING, logger='enbarr.bringup'):
+        repair_recording(SimpleNamespace(nodes=(node,)), 'recorder', 'signal SIGKILL')
+    assert ('died (signal SIGKILL) while writing killed_0.mcap: intact, 10 messages, its index '
+            'written') in caplog.text
+    assert len(summary_of(bag / 'killed_0.mcap').chunk_indexes) == 1
