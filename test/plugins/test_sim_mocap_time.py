@@ -16,18 +16,24 @@ from enbarr_interfaces.links import LinkBus
 from enbarr_plugins.mocap.sim import SimMocapNode
 
 
-def test_a_truth_stamped_ahead_does_not_silence_the_mocap(context, executor):
-    # One sim/odometry stamped 20 s ahead moved the next measurement time 20 s ahead: the
-    # motion capture fell silent for 20 s (the observer dead-reckoned, automatic fell back).
+def mocap_rig(context, executor, **params):
+    """A 50 Hz sim mocap (``params`` set), its clock, a truth publisher and the poses out."""
     mocap = add(executor, SimMocapNode(node_name='mocap', context=context, parameter_overrides=[
-        Parameter('rate', value=50.0), Parameter('position_noise', value=0.0),
-        Parameter('heading_noise', value=0.0)]))
+        Parameter('rate', value=50.0), *(Parameter(k, value=v) for k, v in params.items())]))
     clock = SimClock(mocap)
     p = probe(context, executor, 'simulator')
     truth = p.create_topic_publisher(topics.SIM_ODOMETRY)
     poses: list[PoseStamped] = []
     p.create_topic_subscription(topics.MOCAP_POSE, poses.append)
     LinkBus.of(context).connect()
+    return mocap, clock, truth, poses
+
+
+def test_a_truth_stamped_ahead_does_not_silence_the_mocap(context, executor):
+    # One sim/odometry stamped 20 s ahead moved the next measurement time 20 s ahead: the
+    # motion capture fell silent for 20 s (the observer dead-reckoned, automatic fell back).
+    mocap, clock, truth, poses = mocap_rig(context, executor, position_noise=0.0,
+                                           heading_noise=0.0)
     for _ in range(10):
         truth.publish(odometry_msg(clock.advance(0.02), [0.0, 0.0, 0.0]))
     for ahead in (20.0, 5.0, 1.0):
@@ -47,15 +53,8 @@ def test_the_noisy_pose_is_truth_plus_the_seeded_draws_bit_for_bit(context, exec
 
     from enbarr_core.framework.kinematics import ssa
     from enbarr_interfaces import convert
-    mocap = add(executor, SimMocapNode(node_name='mocap', context=context, parameter_overrides=[
-        Parameter('rate', value=50.0), Parameter('position_noise', value=0.01),
-        Parameter('heading_noise', value=0.02), Parameter('seed', value=11)]))
-    clock = SimClock(mocap)
-    p = probe(context, executor, 'simulator')
-    truth = p.create_topic_publisher(topics.SIM_ODOMETRY)
-    poses: list[PoseStamped] = []
-    p.create_topic_subscription(topics.MOCAP_POSE, poses.append)
-    LinkBus.of(context).connect()
+    mocap, clock, truth, poses = mocap_rig(context, executor, position_noise=0.01,
+                                           heading_noise=0.02, seed=11)
     etas = [(0.1 * k, -0.3 + 0.05 * k, 3.13 + 0.002 * k) for k in range(12)]  # yaw near pi
     for eta in etas:
         truth.publish(odometry_msg(clock.advance(0.02), list(eta)))

@@ -44,6 +44,24 @@ def summary_of(path: Path):
         return make_reader(stream).get_summary()
 
 
+@pytest.fixture
+def no_summary(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Flushes end with a bare footer until close (the summary is never cheap enough)."""
+    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
+    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+
+
+def write_imu_bag(bag: Path, messages: int, every: int) -> BagWriter:
+    """A bag of ``messages`` Imu flushed every ``every``; returned open."""
+    writer = BagWriter(bag, flush_seconds=3600.0)
+    data = serialize_message(Imu())
+    for k in range(messages):
+        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
+        if k % every == every - 1:
+            writer.flush()
+    return writer
+
+
 def test_the_summary_is_rewritten_at_its_share_of_the_data(tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / 'long.mcap'
@@ -101,10 +119,7 @@ def test_close_right_after_a_summary_keeps_it(tmp_path: Path) -> None:
     assert len(summary_of(path).chunk_indexes) == 1
 
 
-def test_an_intact_file_without_summary_gets_one(tmp_path: Path,
-                                                 monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
-    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+def test_an_intact_file_without_summary_gets_one(tmp_path: Path, no_summary: None) -> None:
     path = tmp_path / 'bare.mcap'
     f, cids = open_file(path)
     for k in range(4):
@@ -120,10 +135,7 @@ def test_an_intact_file_without_summary_gets_one(tmp_path: Path,
     assert not again.indexed and not again.repaired  # now intact with its summary
 
 
-def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
-    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)  # never a summary before close
+def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path, no_summary: None) -> None:
     path = tmp_path / 'torn.mcap'
     f, cids = open_file(path)
     for k in range(5):
@@ -138,19 +150,10 @@ def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path,
     assert read_times(path) == [T0 + k for k in range(5)]
 
 
-def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
-    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
+def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(tmp_path: Path,
+                                                            no_summary: None) -> None:
     bag = tmp_path / 'bag'
-    writer = BagWriter(bag, flush_seconds=3600.0)
-    imu = Imu()
-    imu.orientation.w = 1.0
-    data = serialize_message(imu)
-    for k in range(30):
-        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
-        if k % 10 == 9:
-            writer.flush()
+    writer = write_imu_bag(bag, 30, every=10)
     assert summary_of(bag / 'bag_0.mcap') is None
     with Reader(bag) as reader:  # what a kill would leave
         assert [t for _, t, _ in reader.messages()] == [T0 + k for k in range(30)]
@@ -159,18 +162,10 @@ def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(
 
 
 def test_bag_repair_writes_the_index_of_a_bag_killed_between_summaries(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-        capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, no_summary: None, capsys: pytest.CaptureFixture[str]) -> None:
     from enbarr_core.bringup.cli import main
-    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
-    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
     bag = tmp_path / 'run'
-    writer = BagWriter(bag, flush_seconds=3600.0)
-    data = serialize_message(Imu())
-    for k in range(20):
-        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
-        if k % 5 == 4:
-            writer.flush()
+    writer = write_imu_bag(bag, 20, every=5)
     writer._file.mcap.abandon()  # the process dies: nothing more is written
     assert main(['bag', 'repair', str(bag)]) == 0
     assert capsys.readouterr().out == 'run_0.mcap: 20 messages, intact, its index written\n'
@@ -207,20 +202,14 @@ def test_after_a_revert_or_a_failed_write_the_index_lists_only_what_the_file_hol
 
 
 def test_the_supervisor_writes_the_index_of_a_killed_recorder_group(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+        tmp_path: Path, no_summary: None, caplog: pytest.LogCaptureFixture) -> None:
     import logging
     from types import SimpleNamespace
 
     from enbarr_core.bringup.orchestrator import repair_recording
     from enbarr_core.bringup.profile import NodeSpec
-    monkeypatch.setattr(mcap_file, 'SUMMARY_ALWAYS', 0)
-    monkeypatch.setattr(mcap_file, 'SUMMARY_RATIO', 10 ** 9)
     bag = tmp_path / 'killed'
-    writer = BagWriter(bag, flush_seconds=3600.0)
-    data = serialize_message(Imu())
-    for k in range(10):
-        assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + k, data)
-    writer.flush()
+    writer = write_imu_bag(bag, 10, every=10)
     writer._file.mcap.abandon()
     node = NodeSpec(name='recorder', plugin='recorder', parameters={'path': str(bag)},
                     group='recorder')
