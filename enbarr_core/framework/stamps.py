@@ -103,22 +103,13 @@ class StampGate:
 
     def offer(self, stamp_ns: int, now_ns: int) -> StampVerdict:
         """Judge and count a sample; an accepted stamp becomes the stream's last."""
-        # ``check`` inlined: this runs for every sample of every gated input.
-        last = self.last_ns
-        if stamp_ns - now_ns > self._max_future_ns:
-            verdict = _FUTURE
-        elif (last is not None and stamp_ns <= last
-              and now_ns >= last - self._max_future_ns):
-            verdict = _NOT_NEWER
-        elif self._max_age_ns is not None and now_ns - stamp_ns > self._max_age_ns:
-            verdict = _STALE
-        else:
-            self.counts[_ACCEPTED] += 1
+        verdict = self.check(stamp_ns, now_ns)
+        self.counts[verdict] += 1
+        if verdict is _ACCEPTED:
+            last = self.last_ns
             if last is not None and stamp_ns <= last:
                 self.clock_resets += 1  # the clock went back past the last stamp: start over
             self.last_ns = stamp_ns
-            return _ACCEPTED
-        self.counts[verdict] += 1
         return verdict
 
     def reset(self) -> None:
