@@ -30,6 +30,7 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import (Callback, LinkBus, LinkPublisher, LinkSubscription,
@@ -247,6 +248,7 @@ class EnbarrNode(Node):
         self._clock_handle = self.get_clock().handle
         self._links: list[LinkPublisher | LinkSubscription] = []
         self._loops: list[RateLoop] = []
+        self._source_timers: list[Timer] = []
         self._diagnostics_pub = None
         self._started = False
         self._problems: list[str] = []
@@ -299,6 +301,18 @@ class EnbarrNode(Node):
             loop.start()
         return loop
 
+    def create_source_timer(self, period: float, callback: Callable[[], None]) -> Timer:
+        """Call ``callback`` every ``period`` [s] on the executor thread between start and stop.
+
+        For sources paced by the node's clock (a scripted operator, a joystick stand-in):
+        nothing goes out before bringup has checked the graph or once the safe state is being
+        put in place, and a node that is not started costs no executor wake-up (each costs
+        about 0.1-0.3 ms of CPU in rclpy's ``EventsExecutor``).
+        """
+        timer = self.create_timer(period, callback, autostart=self._started)
+        self._source_timers.append(timer)
+        return timer
+
     def create_periodic(self, period: float, callback: Callable[[], None]) -> Periodic:
         """Call ``callback`` every ``period`` [s] on the process's ``Ticker`` (executor thread).
 
@@ -325,12 +339,16 @@ class EnbarrNode(Node):
     def start(self) -> None:
         """Start the node's sources. Called by bringup after every node exists and is wired."""
         self._started = True
+        for timer in self._source_timers:
+            timer.reset()
         for loop in self._loops:
             loop.start()
 
     def stop(self) -> None:
         """Stop the node's sources (bringup calls it on every node before ``safe_state``)."""
         self._started = False
+        for timer in self._source_timers:
+            timer.cancel()
         for loop in self._loops:
             loop.stop()
 

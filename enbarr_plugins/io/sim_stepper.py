@@ -56,7 +56,9 @@ class SimStepperNode(IoPluginNode):
         self.executor_name = self.settings.executor or self.get_name()
         self.position = 0.0
         self.target = 0
-        self.create_timer(1.0 / self.settings.update_rate, self._move)
+        # Runs while a move is under way only: a stepper at rest costs no executor wake-up.
+        self._mover = self.create_timer(1.0 / self.settings.update_rate, self._move,
+                                        autostart=False)
         self.connect()
 
     def _apply(self, settings: SimStepperSettings) -> None:
@@ -71,11 +73,16 @@ class SimStepperNode(IoPluginNode):
         if not s.min_position <= target <= s.max_position:
             return f'target {target} is outside [{s.min_position}, {s.max_position}] steps'
         self.target = target
+        if target != self.position and self._mover.is_canceled():
+            self._mover.reset()
         return None
 
     def _move(self) -> None:
         error = self.target - self.position
         if error == 0:
+            self._mover.cancel()
+            if self.target != self.position:  # a move asked for meanwhile (another thread)
+                self._mover.reset()
             return
         step = self.settings.max_rate / self.settings.update_rate
         self.position = float(self.target) if abs(error) <= step else (

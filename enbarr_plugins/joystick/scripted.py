@@ -135,7 +135,7 @@ class ScriptedJoyNode(EnbarrNode):
         self._start_ns: int | None = None
         self._pub = self.create_topic_publisher(topics.JOY)
         self._connected_pub = self.create_topic_publisher(topics.JOY_CONNECTED)
-        self.create_timer(1.0 / s.rate, self._tick)
+        self.create_source_timer(1.0 / s.rate, self._tick)
 
     def _apply(self, settings: ScriptedJoySettings) -> None:
         self.settings = settings

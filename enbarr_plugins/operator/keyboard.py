@@ -118,7 +118,7 @@ class KeyboardTeleopNode(EnbarrNode):
         self.state = KeyState()
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
-        self.create_timer(1.0 / self.settings.rate, self._send)
+        self.create_source_timer(1.0 / self.settings.rate, self._send)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name='keyboard', daemon=True)
 

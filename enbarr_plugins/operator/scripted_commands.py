@@ -88,7 +88,7 @@ class ScriptedCommandsNode(EnbarrNode):
         self._start_ns: int | None = None
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
-        self.create_timer(1.0 / self.settings.rate, self._tick)
+        self.create_source_timer(1.0 / self.settings.rate, self._tick)
 
     def _apply(self, settings: ScriptedCommandsSettings) -> None:
         self.settings = settings

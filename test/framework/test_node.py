@@ -135,3 +135,52 @@ def test_now_ns_reads_the_node_clock_simulated_time_included(context):
         assert node.now_ns() == 1_234_000_000 == clock.now().nanoseconds
     finally:
         node.destroy_node()
+
+
+# -- source timers: between start and stop only ---------------------------------------------------
+def _spin_for(executor, seconds):
+    import time
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.02)
+
+
+@pytest.mark.parametrize('events', [False, True], ids=['single_threaded', 'events'])
+def test_a_source_timer_runs_between_start_and_stop_only(context, executor, events):
+    from enbarr_core.bringup.orchestrator import make_executor
+    ex = make_executor(context) if events else executor
+    node = EnbarrNode('source_timer', context=context)
+    try:
+        ex.add_node(node)
+        calls = []
+        timer = node.create_source_timer(0.01, lambda: calls.append(1))
+        _spin_for(ex, 0.3)
+        assert calls == [] and timer.is_canceled()       # not started: no call, no wake-up
+        node.start()
+        _spin_for(ex, 0.3)
+        assert len(calls) >= 5 and not timer.is_canceled()
+        node.stop()
+        stopped_at = len(calls)
+        _spin_for(ex, 0.3)
+        assert len(calls) == stopped_at and timer.is_canceled()
+        node.start()                                      # a restart runs it again
+        _spin_for(ex, 0.3)
+        assert len(calls) > stopped_at
+    finally:
+        node.stop()
+        ex.remove_node(node)
+        node.destroy_node()
+        if events:
+            ex.shutdown()
+
+
+def test_a_source_timer_made_after_start_runs_at_once(context, executor):
+    node = EnbarrNode('source_timer_late', context=context)
+    executor.add_node(node)
+    node.start()
+    calls = []
+    timer = node.create_source_timer(0.01, lambda: calls.append(1))
+    assert not timer.is_canceled()
+    _spin_for(executor, 0.3)
+    assert len(calls) >= 5
+    node.stop()

@@ -121,6 +121,39 @@ def test_stepper_reports_only_while_it_moves(executor, spin, stepper):
     assert len(states) == n
 
 
+def test_stepper_at_rest_costs_no_timer_and_moves_again_when_asked(executor, spin, stepper):
+    node, pub, states = stepper
+    moves = [0]
+    move = node._move
+
+    def counted():
+        moves[0] += 1
+        move()
+    node._mover.callback = counted
+    assert node._mover.is_canceled()                  # at rest from the start: no wake-ups
+    moved_to(spin, executor, node, pub, states, 40, 40)
+    assert spin(executor, node._mover.is_canceled, TIMEOUT)
+    at_rest = moves[0]
+    ticks = [0]
+    node.create_timer(0.05, lambda: ticks.__setitem__(0, ticks[0] + 1))
+    assert spin(executor, lambda: ticks[0] >= 4, TIMEOUT)
+    assert moves[0] == at_rest                        # nothing woke it at rest
+    moved_to(spin, executor, node, pub, states, -40, 0)  # and a new move resumes it
+
+
+def test_stepper_move_asked_while_it_comes_to_rest_is_not_lost(stepper):
+    node, _, _ = stepper
+    node._mover.reset()                               # moving, and now at its target
+    real_cancel = node._mover.cancel
+
+    def cancel_then_request():
+        real_cancel()
+        node.target = 9         # a request from another thread lands between the two
+    node._mover.cancel = cancel_then_request
+    node._move()
+    assert not node._mover.is_canceled()              # the re-check restarted it
+
+
 def test_stepper_end_stops_must_be_ordered(context):
     with pytest.raises(ConfigurationError, match='min_position must not exceed max_position'):
         SimStepperNode(context=context, parameter_overrides=[

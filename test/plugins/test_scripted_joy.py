@@ -132,3 +132,30 @@ def test_joy_script_errors_name_the_line_and_the_fault(line, reason):
     with pytest.raises(ValueError, match=re.escape(f"script[1] '{line}'") + '.*'
                        + re.escape(reason)):
         parse_joy_script(['0.0 stop', line], BUTTONS)
+
+
+def test_nothing_is_published_before_start_or_after_stop(context, executor, spin):
+    """Stopped (bringup putting the safe state in place), the stand-in no longer drives the
+    chain, as the real driver's reader stops; not started, its timer does not even wake."""
+    node = add(executor, joystick(context, **{
+        'script': ['0.0 sticks 0.5 0.0 0.0'], 'rate': 20.0, 'joy.layout': 'joy',
+        'joy.surge': 'left_y', 'joy.sway': 'left_x', 'joy.yaw': 'right_x'}))
+    clock = SimClock(node)
+    got: list[Joy] = []
+    p = probe(context, executor, 'listener')
+    p.create_subscription(Joy, topics.JOY.name, got.append, topics.JOY.qos)
+
+    def run(seconds: float) -> None:
+        for _ in range(round(seconds / 0.05)):
+            clock.advance(0.05)
+            spin(executor, lambda: False, 0.02)
+    run(0.3)
+    assert got == []
+    node.start()
+    run(0.3)
+    assert spin(executor, lambda: len(got) >= 2, TIMEOUT)
+    node.stop()
+    spin(executor, lambda: False, 0.2)               # what was in flight is delivered
+    stopped_at = len(got)
+    run(0.5)
+    assert len(got) == stopped_at
