@@ -24,6 +24,10 @@ writes a fresh summary and footer; an intact file is left as it is, except that 
 with a footer without summary (a kill between summaries) gets its summary written. A kill at
 any other instant leaves the file as of its last flush.
 
+A message of at least ``BIG`` bytes (a camera frame) is not copied into the chunk: the chunk
+keeps a reference to it and ``pwritev`` writes it in place (the caller does not change it
+afterwards: a serialized message is immutable).
+
 Records (MCAP spec, https://mcap.dev/spec): little endian; a record is ``opcode u8,
 length u64, content``; strings are ``u32 length + UTF-8``. Chunks are uncompressed, CRCs 0
 (not computed), as the spec allows. Schemas and channels are written inside the chunk where
@@ -52,6 +56,8 @@ BARE_TAIL = DATA_END + struct.pack('<BQQQI', OP_FOOTER, 20, 0, 0, 0) + MAGIC
 #: most 1/SUMMARY_RATIO of the data written since the last one (see the module docstring).
 SUMMARY_ALWAYS = 64 * 1024
 SUMMARY_RATIO = 10
+#: A message of at least this many bytes is kept by reference in its chunk, not copied.
+BIG = 64 * 1024
 _MESSAGE_HEAD = struct.Struct('<BQHIQQ')
 _REC_HEAD = struct.Struct('<BQ')
 
@@ -71,8 +77,13 @@ class McapError(Exception):
 
 @dataclass
 class _Chunk:
-    records: bytearray = field(default_factory=bytearray)
+    records: bytearray = field(default_factory=bytearray)  # the records after ``parts``
     entries: list[tuple[int, int, int]] = field(default_factory=list)  # (channel, t, offset)
+    parts: list[Any] = field(default_factory=list)  # earlier records, big messages whole
+    size: int = 0                                    # bytes in ``parts``
+
+    def __len__(self) -> int:
+        return self.size + len(self.records)
 
 
 class McapFile:
@@ -114,7 +125,7 @@ class McapFile:
     @property
     def size(self) -> int:
         """Bytes the file will hold once the pending chunk is flushed (about)."""
-        return self.data_end + len(self._chunk.records) + len(self._tail)
+        return self.data_end + len(self._chunk) + len(self._tail)
 
     def add_schema(self, name: str, encoding: str, data: str) -> int:
         """Add schema ``name`` (once); its id."""
@@ -147,9 +158,15 @@ class McapFile:
         """Add one message (log and publish time ``t`` [ns]) to the chunk in memory."""
         c = self._chunk
         rec = c.records
-        c.entries.append((cid, t, len(rec)))
-        rec += _MESSAGE_HEAD.pack(OP_MESSAGE, 22 + len(data), cid, 0, t, t)
-        rec += data
+        n = len(data)
+        c.entries.append((cid, t, c.size + len(rec)))
+        rec += _MESSAGE_HEAD.pack(OP_MESSAGE, 22 + n, cid, 0, t, t)
+        if n < BIG:
+            rec += data
+        else:  # by reference: no copy of a camera frame (see the module docstring)
+            c.parts += (rec, data)
+            c.size += len(rec) + n
+            c.records = bytearray()
 
     @property
     def summarized(self) -> bool:
@@ -178,11 +195,12 @@ class McapFile:
             entry += (t, off)
         times = [e[1] for e in c.entries]
         c_start, c_end = min(times), max(times)
-        records = c.records  # written as it is (pwritev): no copy of up to CHUNK_BYTES
-        head = (struct.pack('<QQQI', c_start, c_end, len(records), 0) + _str('')
-                + struct.pack('<Q', len(records)))
-        head = _REC_HEAD.pack(OP_CHUNK, len(head) + len(records)) + head
-        chunk_len = len(head) + len(records)
+        records = [*c.parts, c.records]  # written as they are (pwritev): no copy
+        size = len(c)
+        head = (struct.pack('<QQQI', c_start, c_end, size, 0) + _str('')
+                + struct.pack('<Q', size))
+        head = _REC_HEAD.pack(OP_CHUNK, len(head) + size) + head
+        chunk_len = len(head) + size
         pos = self.data_end + chunk_len
         idx_recs = []
         offsets = []
@@ -199,7 +217,7 @@ class McapFile:
         chunk_index = _rec(OP_CHUNK_INDEX, struct.pack(
             '<QQQQI', c_start, c_end, self.data_end, chunk_len, 10 * len(offsets))
             + b''.join(offsets) + struct.pack('<Q', len(msg_index)) + _str('')
-            + struct.pack('<QQ', len(records), len(records)))
+            + struct.pack('<QQ', size, size))
         chunk_indexes = self._chunk_indexes
         chunk_indexes += chunk_index  # in place: revert cuts it back to its length
         start, end = min(self.start, c_start), max(self.end, c_end)
@@ -211,7 +229,7 @@ class McapFile:
             unsummarized = 0
         else:
             tail = BARE_TAIL
-        parts = [head, records, msg_index, tail]
+        parts = [head, *records, msg_index, tail]
         at = self.data_end
         try:
             if hook is None:
