@@ -22,7 +22,8 @@ allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are
 
 ``--profile NAME`` measures a whole profile under ``bringup`` instead (``bench_profile``);
 ``--profile NAME --idle`` its fixed cost: the nodes composed in this process and spun, no
-source started (timers, watchdogs, reports, parameter services), as ``cpu_core_fraction``.
+source started (what runs: the supervision tick with its watchdogs and reports, the timers of
+core nodes, parameter services; a source's timer does not), as ``cpu_core_fraction``.
 
 Figures depend on the machine and its load: run it alone. ``docs/benchmarks.md`` has ours.
 """
@@ -82,7 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--idle', action='store_true',
                    help="--profile: the fixed cost instead: the profile's nodes composed in "
                    'this process and spun, none of their sources started (nothing flows; '
-                   'timers, watchdogs, reports and parameter services run), CPU over '
+                   'watchdogs, reports, core timers and parameter services run), CPU over '
                    '--seconds after a 3 s warm-up')
 
 
