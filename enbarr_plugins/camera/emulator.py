@@ -1,15 +1,12 @@
 """An emulated camera: a short synthetic video file the camera driver reads like any file.
 
-``write_test_video`` writes a test pattern (colour bars, a moving bar and the frame number,
-in digits and as 16 black/white blocks along the top edge that survive JPEG compression)
-with ``cv2.VideoWriter`` (Motion-JPEG in AVI, which every OpenCV build reads back).
-``read_counter`` decodes the blocks: a test checks which frame it got.
-
-``CameraEmulatorNode`` writes one such file to a temporary directory and registers its path
-as the ``camera`` endpoint ``name`` (``emulation``; the driver's ``device: emulated[:NAME]``).
-``stall()`` replaces the file with one OpenCV cannot read (a camera that stops delivering:
-the driver's next open fails and it retries with backoff), ``resume()`` writes the video
-again. ``/diagnostics`` says what it wrote and whether it is stalled.
+``CameraEmulatorNode`` writes a test video (``pattern_video``: colour bars, a moving bar and
+the frame number, Motion-JPEG in AVI) to a temporary directory, from a child process so that
+the encoder's memory stays out of the vessel's, and registers its path as the ``camera``
+endpoint ``name`` (``emulation``; the driver's ``device: emulated[:NAME]``). ``stall()``
+replaces the file with one OpenCV cannot read (a camera that stops delivering: the driver's
+next open fails and it retries with backoff), ``resume()`` writes the video again.
+``/diagnostics`` says what it wrote and whether it is stalled.
 """
 
 from __future__ import annotations
@@ -21,64 +18,11 @@ import shutil
 import tempfile
 from typing import Any
 
-import cv2
-import numpy as np
-
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins import emulation
-
-BITS = 16       # frame counter bits along the top edge
-BLOCK = 16      # [px] per bit
-
-
-def test_pattern(index: int, width: int, height: int) -> np.ndarray:
-    """Return frame ``index`` of the test pattern (bgr8)."""
-    bars = np.array([[255, 255, 255], [0, 255, 255], [255, 255, 0], [0, 255, 0],
-                     [255, 0, 255], [0, 0, 255], [255, 0, 0], [0, 0, 0]], dtype=np.uint8)
-    columns = (np.arange(width) * len(bars) // width)
-    frame = np.repeat(bars[columns][np.newaxis], height, axis=0)
-    x = (index * 8) % max(1, width)
-    frame[height // 2:, x:x + 8] = 128
-    cv2.putText(frame, str(index), (width // 8, height * 3 // 4), cv2.FONT_HERSHEY_SIMPLEX,
-                max(1.0, height / 160), (255, 255, 255), 3)
-    frame[:BLOCK, :BITS * BLOCK] = 0
-    for bit in range(BITS):
-        if index >> bit & 1:
-            frame[:BLOCK, bit * BLOCK:(bit + 1) * BLOCK] = 255
-    return frame
-
-
-def read_counter(frame: np.ndarray) -> int:
-    """Return the frame number the top-edge blocks of ``frame`` encode."""
-    value = 0
-    for bit in range(BITS):
-        block = frame[2:BLOCK - 2, bit * BLOCK + 2:(bit + 1) * BLOCK - 2]
-        if block.mean() > 127:
-            value |= 1 << bit
-    return value
-
-
-def write_test_video(directory: str, width: int, height: int, frame_rate: float,
-                     frames: int) -> str:
-    """Write ``frames`` test-pattern frames to ``directory``/test_pattern.avi; return the path.
-
-    Written beside and renamed into place, so a reader never opens a half-written file.
-    """
-    path = os.path.join(directory, 'test_pattern.avi')
-    partial = os.path.join(directory, 'test_pattern.partial.avi')
-    writer = cv2.VideoWriter(partial, cv2.VideoWriter_fourcc(*'MJPG'), frame_rate,
-                             (width, height))
-    if not writer.isOpened():
-        raise OSError(f'{partial}: OpenCV cannot write Motion-JPEG AVI')
-    try:
-        for i in range(frames):
-            writer.write(test_pattern(i, width, height))
-    finally:
-        writer.release()
-    os.replace(partial, path)
-    return path
-
+from enbarr_plugins.camera.pattern_video import (  # noqa: F401 - names kept importable here
+    BITS, read_counter, test_pattern, write_in_child, write_test_video)
 
 SPECS = [
     ParamSpec('name', 'default', "Name of the emulated camera (the driver's device: "
@@ -130,7 +74,7 @@ class CameraEmulatorNode(EnbarrNode):
     def _write(self) -> str:
         s = self.settings
         self.frames = max(1, round(s.frame_rate * s.duration))
-        return write_test_video(self.directory, s.width, s.height, s.frame_rate, self.frames)
+        return write_in_child(self.directory, s.width, s.height, s.frame_rate, self.frames)
 
     def stall(self) -> None:
         """Replace the video with a file OpenCV cannot read: the camera stops delivering."""

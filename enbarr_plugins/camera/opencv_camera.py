@@ -342,7 +342,7 @@ def check_device(target: CheckTarget) -> list[str]:
         raise DeviceError(str(err)) from err
     emulator = None
     if source.emulated:
-        from enbarr_plugins.camera.emulator import write_test_video
+        from enbarr_plugins.camera.pattern_video import write_test_video
         import tempfile
         emulator = tempfile.TemporaryDirectory(prefix='enbarr-camera-check-')
         source = Source(None, write_test_video(emulator.name, 640, 480, 15.0, 15), False)
