@@ -21,8 +21,7 @@ from typing import Any
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins import emulation
-from enbarr_plugins.camera.pattern_video import (  # noqa: F401 - names kept importable here
-    BITS, read_counter, test_pattern, write_in_child, write_test_video)
+from enbarr_plugins.camera.pattern_video import BITS, write_in_child
 
 SPECS = [
     ParamSpec('name', 'default', "Name of the emulated camera (the driver's device: "

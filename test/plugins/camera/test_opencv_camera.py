@@ -19,7 +19,8 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import topics
 from enbarr_plugins.camera import opencv_camera
 from enbarr_plugins.camera.calibration import load_calibration
-from enbarr_plugins.camera.emulator import CameraEmulatorNode, read_counter
+from enbarr_plugins.camera.emulator import CameraEmulatorNode
+from enbarr_plugins.camera.pattern_video import read_counter
 from enbarr_plugins.camera.opencv_camera import CameraNode
 from enbarr_plugins.check import CheckTarget
 
