@@ -138,7 +138,11 @@ def test_now_ns_reads_the_node_clock_simulated_time_included(context):
 
 
 # -- source timers: between start and stop only ---------------------------------------------------
+from test.conftest import spin_until  # noqa: E402
+
+
 def _spin_for(executor, seconds):
+    """Spin for ``seconds``: to see that nothing comes (what comes is awaited by spin_until)."""
     import time
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -157,15 +161,13 @@ def test_a_source_timer_runs_between_start_and_stop_only(context, executor, even
         _spin_for(ex, 0.3)
         assert calls == [] and timer.is_canceled()       # not started: no call, no wake-up
         node.start()
-        _spin_for(ex, 0.3)
-        assert len(calls) >= 5 and not timer.is_canceled()
+        assert spin_until(ex, lambda: len(calls) >= 5) and not timer.is_canceled()
         node.stop()
         stopped_at = len(calls)
         _spin_for(ex, 0.3)
         assert len(calls) == stopped_at and timer.is_canceled()
         node.start()                                      # a restart runs it again
-        _spin_for(ex, 0.3)
-        assert len(calls) > stopped_at
+        assert spin_until(ex, lambda: len(calls) > stopped_at)
     finally:
         node.stop()
         ex.remove_node(node)
@@ -181,6 +183,5 @@ def test_a_source_timer_made_after_start_runs_at_once(context, executor):
     calls = []
     timer = node.create_source_timer(0.01, lambda: calls.append(1))
     assert not timer.is_canceled()
-    _spin_for(executor, 0.3)
-    assert len(calls) >= 5
+    assert spin_until(executor, lambda: len(calls) >= 5)
     node.stop()

@@ -1,4 +1,4 @@
-"""Unit tests: the emulated camera's test video, written in a child process."""
+"""End-to-end tier: the emulated camera's test video, written in a child process."""
 
 from __future__ import annotations
 
