@@ -25,6 +25,7 @@ from enbarr_core.recording.mcap_file import BARE_TAIL, McapFile, recover
 
 T0 = 1_700_000_000_000_000_000
 CHANNELS = 40
+ONE = b'\x00\x01\x00\x00\x01\x00\x00\x00\x00'  # a CDR std_msgs/String ''
 
 
 def open_file(path: Path) -> tuple[McapFile, list[int]]:
@@ -113,19 +114,26 @@ def test_the_summary_is_rewritten_at_its_share_of_the_data(tmp_path: Path,
 def test_close_right_after_a_summary_keeps_it(tmp_path: Path) -> None:
     path = tmp_path / 'short.mcap'
     f, cids = open_file(path)
-    f.write(cids[0], T0, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
+    f.write(cids[0], T0, ONE)
     assert f.flush() and f.summarized
     f.close()
     assert len(summary_of(path).chunk_indexes) == 1
 
 
+def write_killed_between_summaries(path: Path, messages: int) -> None:
+    """A file of ``messages`` one-message chunks, each flushed with a bare tail, then
+    abandoned as a kill between summaries leaves it (needs ``no_summary``)."""
+    f, cids = open_file(path)
+    for k in range(messages):
+        f.write(cids[k], T0 + k, ONE)
+        f.flush()
+    assert not f.summarized
+    f.abandon()
+
+
 def test_an_intact_file_without_summary_gets_one(tmp_path: Path, no_summary: None) -> None:
     path = tmp_path / 'bare.mcap'
-    f, cids = open_file(path)
-    for k in range(4):
-        f.write(cids[k], T0 + k, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
-        f.flush()
-    f.abandon()  # killed between summaries
+    write_killed_between_summaries(path, 4)
     assert summary_of(path) is None
     info = recover(path)
     assert info.indexed and not info.repaired and info.dropped_bytes == 0
@@ -137,12 +145,7 @@ def test_an_intact_file_without_summary_gets_one(tmp_path: Path, no_summary: Non
 
 def test_a_torn_bare_tail_is_repaired_with_a_summary(tmp_path: Path, no_summary: None) -> None:
     path = tmp_path / 'torn.mcap'
-    f, cids = open_file(path)
-    for k in range(5):
-        f.write(cids[k], T0 + k, b'\x00\x01\x00\x00\x01\x00\x00\x00\x00')
-        f.flush()
-    assert not f.summarized
-    f.abandon()
+    write_killed_between_summaries(path, 5)
     os.truncate(path, os.path.getsize(path) - 10)  # a kill tore the footer
     info = recover(path)
     assert info.repaired and not info.indexed and info.message_count == 5
@@ -180,13 +183,12 @@ def test_after_a_revert_or_a_failed_write_the_index_lists_only_what_the_file_hol
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / 'undo.mcap'
     f, cids = open_file(path)
-    one = b'\x00\x01\x00\x00\x01\x00\x00\x00\x00'
-    f.write(cids[0], T0, one)
+    f.write(cids[0], T0, ONE)
     assert f.flush()
-    f.write(cids[0], T0 + 1, one)
+    f.write(cids[0], T0 + 1, ONE)
     assert f.flush()
     f.revert()  # what lists the file failed: the second chunk is gone
-    f.write(cids[1], T0 + 2, one)
+    f.write(cids[1], T0 + 2, ONE)
     real = McapFile._pwritev
 
     def full_disk(self, parts, at):
