@@ -114,8 +114,6 @@ class PwmMapperNode(ActuatorDriver):
         self.latency = LatencyLog()  # azimuth command stamp (the pose's) -> duties delivered
         self._pub = self.create_topic_publisher(topics.PWM_DUTY)
         self.create_topic_subscription(topics.AZIMUTH_COMMANDS, self._on_command)
-        self.safe_state()
-        self.connect()
 
     def _build_max_future(self, v: Mapping[str, Any]) -> float:
         problem = future_tolerance_problem(v['max_future'], self.command_period.period,

@@ -5,13 +5,23 @@ ros2_control's hardware interfaces play the same part.
 A driver is an ``EnbarrNode`` with a device behind it. The base classes own what every driver
 must get right, so a new driver writes only its device's bytes:
 
-- **lifecycle**: the driver calls ``connect()`` at the end of its ``__init__``, which calls
-  ``open_device()``; a ``DeviceError`` there (device
-  absent) or from ``device_fault()`` later (unplugged, stalled, corrupted frames, wrong
-  identity) closes the device, counts the fault, logs it, puts the actuators in their safe
-  state and retries ``open_device()`` with exponential backoff (``reconnect.initial_delay``
-  doubling up to ``reconnect.max_delay``) until the device returns. The process and the other
-  nodes keep running. A simulated twin has nothing to open and never faults.
+- **lifecycle**: constructing a driver opens nothing (it declares and validates its
+  parameters and creates its topics): ``bringup --check`` builds every node of a profile and
+  must touch no device. ``start()`` opens the device (``connect()`` -> ``open_device()``)
+  before it starts the sources, the line ROS 2 managed nodes draw between *configure* and
+  *activate*; ``stop()`` stops the sources; destruction closes the device. A ``DeviceError``
+  from ``open_device()`` (device absent) or from ``device_fault()`` later (unplugged, stalled,
+  corrupted frames, wrong identity) closes the device, counts the fault, logs it, puts the
+  actuators in their safe state and retries ``open_device()`` with exponential backoff
+  (``reconnect.initial_delay`` doubling up to ``reconnect.max_delay``) until the device
+  returns. The process and the other nodes keep running. A simulated twin has nothing to
+  open and never faults.
+- **confirmation**: a device is back when it has answered, not when it could be opened.
+  Where ``open_device()`` reads the device's identity (I2C chips, the Arduino's handshake),
+  opening confirms it. A driver whose open only starts a reader (a serial stream, a TCP
+  client) sets ``confirmed_by_open = False`` and calls ``device_confirmed()`` on the first
+  valid sample or identity answer (a ``SensorDriver`` does so in ``sample_received()``); until
+  then the retry delay keeps growing, so a dead server is not "back" every half second.
 - **diagnostics**: one ``diagnostic_msgs/DiagnosticArray`` status per node on
   ``/diagnostics`` every ``REPORT_PERIOD``: OK while the device works, ERROR with the last
   fault while it does not, WARN while a sensor's samples are late; the values are the
@@ -146,16 +156,22 @@ class DeviceNode(EnbarrNode):
     """A node with a device behind it; see the module docstring.
 
     Subclasses override ``open_device``/``close_device`` (nothing to do for a simulated
-    twin), call ``connect()`` at the end of their ``__init__`` and ``device_fault(err)`` when
-    the device fails at run time, and add their counters in ``status_values``. Their
-    ``safe_state`` must not raise while the device is gone (it runs on every fault).
+    twin), call ``device_fault(err)`` when the device fails at run time, and add their
+    counters in ``status_values``. Their constructor opens nothing: ``start()`` connects.
+    Their ``safe_state`` must not raise while the device is gone (it runs on every fault).
     """
+
+    #: Whether a successful ``open_device()`` proves the device is there (it read an
+    #: identity). False for drivers whose open only starts a reader: they call
+    #: ``device_confirmed()`` on the first valid sample or answer.
+    confirmed_by_open = True
 
     def __init__(self, node_name: str, *, device: str = 'simulated', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         #: What the device is, for people: 'simulated', '/dev/ttyACM0', 'i2c-1 0x40' ...
         self.device = device
-        self.connected = False
+        self.connected = False    # open_device() succeeded and no fault since
+        self.confirmed = False    # ... and the device answered (see confirmed_by_open)
         self.faults = 0
         self.last_fault = ''
         self._report_ns = 0
@@ -181,6 +197,17 @@ class DeviceNode(EnbarrNode):
         """Periodic check of the subclass (every ``WATCHDOG_PERIOD``)."""
 
     # -- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the device (unless open, or a retry is scheduled), then start the sources.
+
+        Actuators are put in their safe state in between: neutral before the first command,
+        also after a restart.
+        """
+        if not self.connected and self._backoff.next_ns is None:
+            self.connect()
+        self.safe_state()
+        super().start()
+
     def connect(self) -> bool:
         """Try to open the device now; on failure schedule a retry. True when connected."""
         try:
@@ -188,11 +215,22 @@ class DeviceNode(EnbarrNode):
         except DeviceError as err:
             self._fail(err)
             return False
+        self.connected = True
+        if self.confirmed_by_open:
+            self.device_confirmed()
+        return True
+
+    def device_confirmed(self) -> None:
+        """The device answered (a valid sample, its identity): it is back, the backoff resets.
+
+        Called from the driver's reader thread; cheap when already confirmed.
+        """
+        if self.confirmed or not self.connected:
+            return
+        self.confirmed = True
+        self._backoff.reset()
         if self.faults:
             self.get_logger().info(f'{self.device}: device back')
-        self.connected = True
-        self._backoff.reset()
-        return True
 
     def device_fault(self, err: DeviceError) -> None:
         """Handle a run-time failure of the device: safe state, close, retry with backoff."""
@@ -201,7 +239,7 @@ class DeviceNode(EnbarrNode):
         self._fail(err)
 
     def _fail(self, err: DeviceError) -> None:
-        self.connected = False
+        self.connected = self.confirmed = False
         self.faults += 1
         self.last_fault = str(err)
         self.safe_state()
@@ -216,6 +254,8 @@ class DeviceNode(EnbarrNode):
                                 throttle_duration_sec=1.0)
 
     def _supervise(self) -> None:
+        if not self.started:  # nothing is open before start, nothing to report after stop
+            return
         now = time.monotonic_ns()
         if not self.connected and self._backoff.due(now):
             self.connect()
@@ -224,13 +264,15 @@ class DeviceNode(EnbarrNode):
             self._report_ns = now
             level, message = self.status()
             self.publish_diagnostics(level, message, {
-                'device': self.device, 'connected': self.connected, 'faults': self.faults,
-                **self.status_values()})
+                'device': self.device, 'connected': self.connected,
+                'confirmed': self.confirmed, 'faults': self.faults, **self.status_values()})
 
     def status(self) -> tuple[int, str]:
         """Diagnostic level and message of the driver now."""
         if not self.connected:
             return ERROR, f'device fault: {self.last_fault}'
+        if not self.confirmed:
+            return WARN, 'opened, waiting for the device to answer'
         return OK, 'ok'
 
     @staticmethod
@@ -249,7 +291,7 @@ class DeviceNode(EnbarrNode):
     def destroy_node(self) -> None:
         """Close the device, then destroy the node."""
         if self.connected:
-            self.connected = False
+            self.connected = self.confirmed = False
             try:
                 self.close_device()
             except Exception:  # noqa: BLE001 - destruction goes on
@@ -344,9 +386,14 @@ class SensorDriver(DeviceNode):
         self._sample_timeout_ns = int(seconds * 1e9)
 
     def sample_received(self) -> None:
-        """Count one sample published (call from the sample path; cheap)."""
+        """Count one valid sample published (call from the sample path; cheap).
+
+        The first one after an open confirms the device (``device_confirmed``).
+        """
         self.samples += 1
         self._last_sample_ns = time.monotonic_ns()
+        if not self.confirmed:
+            self.device_confirmed()
 
     @property
     def stale(self) -> bool:

@@ -561,7 +561,6 @@ class ArduinoPwmNode(ActuatorDriver):
         self.duty_period = IntervalMeter()  # on arrival: the duty message has no stamp
         self.add_on_set_parameters_callback(self._check_command_timeout)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
-        self.connect()
 
     # -- device -------------------------------------------------------------------------------
     def open_device(self) -> None:

@@ -70,7 +70,6 @@ class SimArduinoNode(ActuatorDriver):
         self.add_on_set_parameters_callback(self._check_command_timeout)
         self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
-        self.connect()
 
     def _on_duty(self, msg: Float64MultiArray) -> None:
         if not accept_duties(self, msg):

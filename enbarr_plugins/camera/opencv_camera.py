@@ -189,7 +189,6 @@ class CameraNode(SensorDriver):
         self.stalls = 0
         self.description = ''
         self._loop = self.create_rate_loop(s.frame_rate, self._tick)
-        self.connect()
 
     def _apply(self, settings: CameraSettings) -> None:
         self.settings = settings

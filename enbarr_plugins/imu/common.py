@@ -205,7 +205,6 @@ class I2cImuNode(SensorDriver):
         self.corrupted = 0   # reads dropped as corrupted
         self.identity = ''
         self._loop = self.create_rate_loop(s.rate, self._tick)
-        self.connect()
 
     def _apply(self, settings: Any) -> None:
         self.settings = settings

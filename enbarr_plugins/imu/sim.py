@@ -70,7 +70,6 @@ class SimImuNode(SensorDriver):
         self._raw_pub = self.create_topic_publisher(topics.IMU_RAW)
         self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
         self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
-        self.connect()
 
     def _apply(self, settings: SimImuSettings) -> None:
         self.settings = settings

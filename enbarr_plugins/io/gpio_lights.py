@@ -66,7 +66,6 @@ class GpioLightsNode(IoPluginNode):
         self.level = s.initial
         self.factory: Any = None
         self.output: Any = None
-        self.connect()
 
     def _apply(self, settings: GpioLightsSettings) -> None:
         self.settings = settings

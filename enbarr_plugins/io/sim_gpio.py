@@ -43,7 +43,6 @@ class SimGpioNode(IoPluginNode):
         self.bind_settings(SPECS, SimGpioSettings.from_params, self._apply)
         self.executor_name = f'gpio_{self.settings.pin}'
         self.level = self.settings.initial
-        self.connect()
 
     def _apply(self, settings: SimGpioSettings) -> None:
         self.settings = settings

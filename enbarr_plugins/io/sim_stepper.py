@@ -59,7 +59,6 @@ class SimStepperNode(IoPluginNode):
         # Runs while a move is under way only: a stepper at rest costs no executor wake-up.
         self._mover = self.create_timer(1.0 / self.settings.update_rate, self._move,
                                         autostart=False)
-        self.connect()
 
     def _apply(self, settings: SimStepperSettings) -> None:
         self.settings = settings

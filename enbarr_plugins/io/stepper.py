@@ -108,7 +108,6 @@ class StepperNode(IoPluginNode):
         self._thread: threading.Thread | None = None
         self._fault: DeviceError | None = None
         self._halted = False   # safe_state: stop where it is until the next request
-        self.connect()
 
     def _apply(self, settings: StepperSettings) -> None:
         self.settings = settings

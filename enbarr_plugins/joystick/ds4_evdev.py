@@ -336,7 +336,6 @@ class Ds4EvdevNode(SensorDriver):
         self._pub = self.create_topic_publisher(topics.JOY)
         self._connected_pub = self.create_topic_publisher(topics.JOY_CONNECTED)
         self._connected_pub.publish(Bool(data=False))
-        self.connect()
 
     # -- device ---------------------------------------------------------------------------------
     def open_device(self) -> None:

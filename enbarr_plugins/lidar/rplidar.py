@@ -569,7 +569,6 @@ class RplidarNode(SensorDriver):
         self._stop = threading.Event()
         self._error: DeviceError | None = None
         self._pub = self.create_topic_publisher(topics.SCAN)
-        self.connect()
 
     def _apply(self, settings: RplidarSettings) -> None:
         self.settings = settings

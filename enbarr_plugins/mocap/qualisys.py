@@ -292,7 +292,6 @@ class QualisysNode(SensorDriver):
         self._stop = threading.Event()
         self._error: DeviceError | None = None
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
-        self.connect()
 
     def _apply(self, settings: QualisysSettings) -> None:
         self.settings = settings

@@ -87,7 +87,6 @@ class SimMocapNode(SensorDriver):
         self.health = InputHealth()
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.connect()
 
     def status_values(self) -> dict[str, Any]:
         """Return the driver's status, with the count of dropped samples."""

@@ -431,8 +431,6 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self.written: bytes = b''                  # last channel block written
         self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
         self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
-        self.safe_state()
-        self.connect()
 
     def _apply(self, settings: Pca9685Settings) -> None:
         self.settings = settings

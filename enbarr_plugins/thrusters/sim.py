@@ -89,8 +89,6 @@ class SimThrustersNode(ActuatorDriver):
         self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
         self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
-        self.safe_state()  # start neutral, also after a restart
-        self.connect()
 
     def _apply(self, settings: SimThrustersSettings) -> None:
         self.settings = settings

@@ -64,7 +64,6 @@ class FakeActuator(ActuatorDriver):
         self.neutral = True
         self.outputs: list[float] = []
         super().__init__('fake_actuator', device='fake0', **kwargs)
-        self.connect()
 
     def open_device(self) -> None:
         self.opens += 1
@@ -91,18 +90,21 @@ class FakeSensor(SensorDriver):
     def __init__(self, **kwargs: Any) -> None:
         self.present = True
         super().__init__('fake_sensor', device='fake1', **kwargs)
-        self.connect()
 
     def open_device(self) -> None:
         if not self.present:
             raise DeviceError('fake1: gone')
 
 
-def actuator(context: Any, present: bool = True, **params: Any) -> FakeActuator:
+def actuator(context: Any, present: bool = True, start: bool = True,
+             **params: Any) -> FakeActuator:
     values = {'reconnect.initial_delay': 0.5, 'reconnect.max_delay': 4.0,
               'command_timeout': 0.25, **params}
-    return FakeActuator(present, context=context, parameter_overrides=[
+    node = FakeActuator(present, context=context, parameter_overrides=[
         Parameter(k, value=v) for k, v in values.items()])
+    if start:
+        node.start()
+    return node
 
 
 def tick(node: Any, clock: FakeClock, seconds: float) -> None:
@@ -155,6 +157,99 @@ def test_device_appearing_connects_and_reports_ok(context, clock):
     tick(node, clock, 3.0)
     assert reports.last[0] == OK and reports.last[2]['connected'] is True
     assert node._backoff.delay == 0.5  # reset for the next fault
+    node.destroy_node()
+
+
+# -- opening belongs to start, not to construction ------------------------------------------
+
+def test_constructing_a_driver_opens_nothing_and_reports_nothing(context, clock):
+    """``bringup --check`` builds every node: a driver's constructor must not touch its device
+    (opening a PCA9685 rewrites every channel, opening an Arduino's port resets it)."""
+    node = actuator(context, start=False)
+    reports = Reports(node)
+    assert node.opens == 0 and not node.connected and node.outputs == []
+    tick(node, clock, 5.0)               # supervision before start: no retry, no report
+    assert node.opens == 0 and reports.items == []
+    node.start()
+    assert node.opens == 1 and node.connected and node.confirmed
+    assert node.outputs == [0.0]         # neutral before the first command
+    node.destroy_node()
+    assert node.closes == 1
+
+
+def test_start_after_a_failed_open_waits_for_the_scheduled_retry(context, clock):
+    clock.at(0.0)
+    node = actuator(context, present=False)
+    assert node.opens == 1 and node.faults == 1
+    node.stop()
+    node.start()                          # a restart does not hammer an absent device
+    assert node.opens == 1
+    node.destroy_node()
+
+
+class FakeStream(SensorDriver):
+    """A device whose open only starts a reader (a serial stream, a TCP client): it is back
+    when a valid sample arrives, not when the port opened."""
+
+    confirmed_by_open = False
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.opens = 0
+        super().__init__('fake_stream', device='fake2', **kwargs)
+
+    def open_device(self) -> None:
+        self.opens += 1
+
+
+def stream(context: Any) -> FakeStream:
+    node = FakeStream(context=context, parameter_overrides=[
+        Parameter('reconnect.initial_delay', value=0.5),
+        Parameter('reconnect.max_delay', value=4.0)])
+    node.start()
+    return node
+
+
+def test_an_open_that_never_answers_backs_off_instead_of_being_back(context, clock):
+    """A reader that opens and then faults with no valid sample (a QTM server that is down,
+    a lidar that sends garbage) keeps doubling its delay: it was never back."""
+    clock.at(0.0)
+    node = stream(context)
+    infos: list[str] = []
+    node.get_logger = lambda: type('Log', (), {'error': lambda self, m, **k: None,
+                                               'warn': lambda self, m, **k: None,
+                                               'info': lambda self, m, **k: infos.append(m)})()
+    assert node.connected and not node.confirmed
+    attempts = [0.0]
+    t = 0.0
+    node.device_fault(DeviceError('fake2: no answer'))
+    while t < 30.0:
+        t = round(t + 0.05, 2)
+        before = node.opens
+        tick(node, clock, t)
+        if node.opens > before:
+            attempts.append(t)
+            node.device_fault(DeviceError('fake2: no answer'))  # opened, then nothing
+    gaps = [round(b - a, 2) for a, b in zip(attempts, attempts[1:])]
+    assert gaps[:6] == [0.5, 1.0, 2.0, 4.0, 4.0, 4.0]
+    assert not any('device back' in m for m in infos)
+    node.destroy_node()
+
+
+def test_the_first_valid_sample_confirms_the_device_and_resets_the_backoff(context, clock):
+    clock.at(0.0)
+    node = stream(context)
+    reports = Reports(node)
+    node.device_fault(DeviceError('fake2: no answer'))
+    tick(node, clock, 0.5)               # reopened, not yet answered
+    tick(node, clock, 1.5)
+    assert node.connected and not node.confirmed and node._backoff.delay == 1.0
+    level, message, values = reports.last
+    assert level == WARN and 'waiting' in message and values['confirmed'] is False
+    clock.at(2.0)
+    node.sample_received()
+    assert node.confirmed and node._backoff.delay == 0.5 and node._backoff.next_ns is None
+    tick(node, clock, 2.6)
+    assert reports.last[0] == OK and reports.last[2]['confirmed'] is True
     node.destroy_node()
 
 
@@ -266,8 +361,10 @@ def test_watchdog_count_is_reported(context, clock):
 # -- a sensor going stale --------------------------------------------------------------------
 
 def sensor(context: Any) -> FakeSensor:
-    return FakeSensor(context=context, parameter_overrides=[
+    node = FakeSensor(context=context, parameter_overrides=[
         Parameter('sample_timeout', value=1.0)])
+    node.start()
+    return node
 
 
 def test_sensor_without_samples_warns(context, clock):
@@ -340,7 +437,6 @@ class I2cSensor(SensorDriver):
         from enbarr_plugins.transport.i2c import I2cDevice
         self.chip = I2cDevice(bus, 0x68, bus_name='i2c-1', retries=1, retry_delay=0.0)
         super().__init__('i2c_sensor', device=self.chip.name, **kwargs)
-        self.connect()
 
     def open_device(self) -> None:
         if self.chip.read_u8(self.WHO_AM_I) != 0x71:
@@ -361,6 +457,7 @@ def test_a_driver_over_the_fake_i2c_bus_faults_and_recovers(context, clock):
     clock.at(0.0)
     node = I2cSensor(bus, context=context, parameter_overrides=[
         Parameter('reconnect.initial_delay', value=0.5)])
+    node.start()
     assert not node.connected and 'i2c-1 0x68: read register 0x75' in node.last_fault
     bus.attach(0x68, RegisterMap({0x75: 0x71}))
     tick(node, clock, 0.5)
