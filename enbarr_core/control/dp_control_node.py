@@ -233,6 +233,14 @@ class DpControlNode(EnbarrNode):
         self._joy_last: tuple[int, tuple[float, ...], tuple[int, ...]] | None = None
         self.create_periodic(WATCHDOG_PERIOD, self._supervise)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Announce the starting mode (latched: guidance follows it), then run.
+
+        Not in the constructor: a node built only to be checked, or in a run that the vessel
+        guard refuses, must not switch the mode of a vessel already running on the graph.
+        """
+        super().start()
         self._mode_pub.publish(String(data=self.manager.mode.value))
 
     def _build(self, v: Mapping[str, Any]) -> DpControlNodeSettings:

@@ -185,7 +185,16 @@ class GuidanceNode(EnbarrNode):
     def _apply(self, settings: GuidanceSettings) -> None:
         self._gate.policy = StampPolicy(max_future=settings.max_future)
         self.settings = settings
-        self._path_pub.publish(Bool(data=bool(settings.waypoints)))
+        if self.started:  # the first value goes out at start: constructing publishes nothing
+            self._publish_path_available()
+
+    def _publish_path_available(self) -> None:
+        self._path_pub.publish(Bool(data=bool(self.settings.waypoints)))
+
+    def start(self) -> None:
+        """Announce whether a path is set (latched), then run."""
+        super().start()
+        self._publish_path_available()
 
     def _on_mode(self, msg: String) -> None:
         try:

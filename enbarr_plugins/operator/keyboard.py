@@ -107,14 +107,10 @@ class KeyboardTeleopNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         self.settings: KeyboardTeleopSettings
         self.bind_settings(SPECS, KeyboardTeleopSettings.from_params, self._apply)
-        device = self.settings.device
-        try:
-            self._fd = os.open(device, os.O_RDONLY | os.O_NOCTTY) if device else os.dup(0)
-            self._saved = termios.tcgetattr(self._fd)
-        except (OSError, termios.error) as err:
-            raise ConfigurationError(
-                f'node {node_name!r}: {device or "standard input"} is not a terminal '
-                f'({err}); run bringup in a terminal or set device', parameter='device') from err
+        if not self.settings.device and not os.isatty(0):  # a check can tell without opening
+            raise ConfigurationError(self._not_a_terminal('not a tty'), parameter='device')
+        self._fd = -1  # the terminal is opened at start: constructing opens nothing
+        self._saved: list[Any] = []
         self.state = KeyState()
         self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
         self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
@@ -125,8 +121,21 @@ class KeyboardTeleopNode(EnbarrNode):
     def _apply(self, settings: KeyboardTeleopSettings) -> None:
         self.settings = settings
 
+    def _not_a_terminal(self, why: object) -> str:
+        return (f'node {self.get_name()!r}: {self.settings.device or "standard input"} is not '
+                f'a terminal ({why}); run bringup in a terminal or set device')
+
     def start(self) -> None:
-        """Switch the terminal to cbreak mode and start reading keys."""
+        """Open the terminal, switch it to cbreak mode and start reading keys."""
+        device = self.settings.device
+        try:
+            self._fd = os.open(device, os.O_RDONLY | os.O_NOCTTY) if device else os.dup(0)
+            self._saved = termios.tcgetattr(self._fd)
+        except (OSError, termios.error) as err:
+            if self._fd >= 0:
+                os.close(self._fd)
+                self._fd = -1
+            raise ConfigurationError(self._not_a_terminal(err), parameter='device') from err
         super().start()
         tty.setcbreak(self._fd)
         self.get_logger().info('keys: w/s surge, a/d sway, r/f heave, q/e yaw, space stop, '
@@ -176,9 +185,10 @@ class KeyboardTeleopNode(EnbarrNode):
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(1.0)
-        try:
-            termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
-            os.close(self._fd)
-        except (OSError, termios.error):
-            pass
+        if self._fd >= 0:
+            try:
+                termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+                os.close(self._fd)
+            except (OSError, termios.error):
+                pass
         super().destroy_node()

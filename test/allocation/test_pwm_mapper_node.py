@@ -42,6 +42,10 @@ def rig(context: Any, executor: Any, timeout: float = 10.0) -> Rig:
     duties: list[Float64MultiArray] = []
     p.create_topic_subscription(topics.PWM_DUTY, duties.append)
     LinkBus.of(context).connect()
+    assert not duties  # constructing publishes nothing
+    node.start()  # neutral duties before the first command, as bringup starts it
+    assert len(duties) == 1 and list(duties[0].data) == pytest.approx(NEUTRAL)
+    duties.clear()
     return Rig(node, pub, duties)
 
 

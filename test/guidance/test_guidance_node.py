@@ -30,6 +30,7 @@ class Harness:
         self.executor, self.spin = executor, spin
         self.node = add(executor, GuidanceNode(node_name='guidance', context=context,
                                                parameter_overrides=overrides(params)))
+        self.node.start()  # announces path_available before the probe below subscribes
         p = probe(context, executor, 'controller')
         self.mode_pub = p.create_publisher(String, topics.MODE.name, topics.MODE.qos)
         self.available: list[bool] = []

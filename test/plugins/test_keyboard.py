@@ -128,10 +128,16 @@ def test_node_stops_when_the_terminal_goes_away(terminal, executor, spin):
     assert spin(executor, lambda: terminal.node._stop.is_set(), 10.0)
 
 
-def test_not_a_terminal_is_a_clear_error(context):
-    with pytest.raises(ConfigurationError, match='/dev/null is not a terminal'):
-        KeyboardTeleopNode(node_name='keyboard', context=context, parameter_overrides=[
-            Parameter('device', value='/dev/null')])
+def test_not_a_terminal_is_a_clear_error_at_start_and_constructing_opens_nothing(context):
+    node = KeyboardTeleopNode(node_name='keyboard', context=context, parameter_overrides=[
+        Parameter('device', value='/dev/null')])
+    try:
+        assert node._fd == -1  # a check builds the node: the terminal is not touched
+        with pytest.raises(ConfigurationError, match='/dev/null is not a terminal'):
+            node.start()
+        assert node._fd == -1 and not node.started
+    finally:
+        node.destroy_node()
 
 
 @pytest.mark.e2e  # the command line, in a process

@@ -184,6 +184,8 @@ class DpHarness:
         p.create_topic_subscription(topics.FORCE_COMMAND, self._on_tau)
         p.create_topic_subscription(topics.GUIDANCE_REFERENCE, self.refs.append)
         LinkBus.of(context).connect()
+        for n in (self.guidance, node):  # as bringup does: the first mode goes out at start
+            n.start()
         # Count every joystick sample the node's mode manager sees (accepted or not).
         self.joy_seen = 0
         real = node.manager.on_joy
