@@ -127,6 +127,15 @@ class AzimuthAllocationNode(EnbarrNode):
         convert.set_wrench_tau3(delivered.wrench, r.tau_delivered)
         self._delivered_pub.publish(delivered)
 
+    def safe_state(self) -> None:
+        """Command zero thrust at the present angles: the last azimuth command is neutral."""
+        out = new(JointState)
+        out.name, out.effort = self.names, [0.0] * len(self.names)
+        out.position = np.asarray(self.angle, dtype=float).tolist()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.header.frame_id = topics.BODY_FRAME
+        self._pub.publish(out)
+
     def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
         """(level, message, values) for ``/diagnostics``; closes the input-health window."""
         own = (DEGRADED, f'{self.infeasible} forces not achievable') if self.infeasible \

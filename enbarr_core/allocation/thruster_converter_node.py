@@ -93,6 +93,19 @@ class ThrusterConverterNode(EnbarrNode):
         self.settings = settings
         self.gate.policy = StampPolicy(settings.max_future)
 
+    def safe_state(self) -> None:
+        """Command every thruster to zero: the last word on ``thruster_commands`` is neutral.
+
+        The thruster plugin goes neutral by itself, but in a split profile it is another
+        process, and a bag whose last command is not the neutral the thrusters show would
+        be a lie about how the run ended.
+        """
+        cmd = new(JointState)
+        cmd.name, cmd.effort = self._names, [0.0] * len(self._names)
+        cmd.header.stamp = self.get_clock().now().to_msg()
+        cmd.header.frame_id = topics.BODY_FRAME
+        self._pub.publish(cmd)
+
     def _on_wrench(self, msg: WrenchStamped) -> None:
         tau = convert.wrench_to_tau(msg.wrench)
         if not convert.all_finite(tau):

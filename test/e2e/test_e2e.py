@@ -49,6 +49,16 @@ def _neutral(msg: Any) -> bool:
     return len(msg.effort) == 8 and all(e == 0.0 for e in msg.effort)
 
 
+def _ends_neutral_after_driving(outputs: list[Any]) -> bool:
+    """The thrusters drove until the end and the last outputs are neutral.
+
+    A short neutral tail, not one message: the converter's zero command and the plugin's own
+    safe state each leave one (both on the way out).
+    """
+    tail = next((i for i, m in enumerate(reversed(outputs)) if not _neutral(m)), len(outputs))
+    return 1 <= tail <= 3 < len(outputs)
+
+
 # -- the default vessel ----------------------------------------------------------------------
 PROFILE = load_profile('enbarr_sim')
 
@@ -376,9 +386,7 @@ def test_duration_end_leaves_thrusters_neutral(tmp_path: Path) -> None:
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '4', '--record',
          str(bag), '--set', DRIVE_SCRIPT], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    out = _last_outputs(bag)
-    assert not _neutral(out[-2])  # it was driving until the end ...
-    assert _neutral(out[-1])      # ... and the last command is neutral
+    assert _ends_neutral_after_driving(_last_outputs(bag))
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
@@ -395,8 +403,7 @@ def test_signal_leaves_thrusters_neutral(tmp_path: Path, sig: signal.Signals) ->
         proc.kill()
     assert proc.returncode == 0, log[-2000:]
     assert f'{sig.name} received' in log
-    out = _last_outputs(bag)
-    assert not _neutral(out[-2]) and _neutral(out[-1])
+    assert _ends_neutral_after_driving(_last_outputs(bag))
 
 
 def test_sigkill_leaves_a_readable_bag(tmp_path: Path) -> None:
