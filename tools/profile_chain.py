@@ -21,7 +21,7 @@ import time
 
 def main() -> None:
     """Step the chain, print CPU per cycle and the profile."""
-    from enbarr_core.bringup.orchestrator import composed
+    from enbarr_core.bringup.compose import composed
     from enbarr_core.bringup.profile import apply_environment
     from enbarr_core.tools import bench
 

@@ -1,1 +1,1 @@
-"""Bringup: vessel profiles, the orchestrator that runs their nodes, and the command line."""
+"""Bringup: vessel profiles, composition, the vessel guard, runner, supervisor and CLI."""

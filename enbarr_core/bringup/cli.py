@@ -46,7 +46,7 @@ def check_seconds(option: str, value: float | None) -> None:
 
 
 def _bringup(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from enbarr_core.bringup import orchestrator as bringup, profile as profiles
+    from enbarr_core.bringup import compose, profile as profiles, run, supervisor
 
     check_seconds('--duration', args.duration)
     prof = profiles.load_profile(args.profile, args.set)
@@ -54,18 +54,22 @@ def _bringup(args: argparse.Namespace, argv: Sequence[str]) -> int:
     if args.record:
         prof = profiles.with_record(prof, args.record, args.record_topic,
                                     args.record_split_size, args.record_split_seconds)
-    prof = bringup.add_recorder(prof)
+    prof = compose.add_recorder(prof)
     if args.group is not None:
         if args.group not in prof.groups:
             raise EnbarrError(f'no group {args.group!r}; groups: {", ".join(prof.groups)}')
-        return bringup.run_group(prof, args.group)
+        return run.run_group(prof, args.group)
     if args.check:
-        bringup.run_group(prof, None, check_only=True)
-        print(f'{prof.path}: ok ({len(prof.nodes)} nodes in {len(prof.groups)} group(s))')
+        checked = compose.validate(prof)
+        print(f'{prof.path}: ok ({checked.nodes} nodes in {checked.groups} group(s))')
+        if checked.devices:
+            print('not checked: the devices, which a check never opens: '
+                  + ', '.join(f'{name} ({device})' for name, device in checked.devices)
+                  + '; talk to one with `enbarr check-device KIND`')
         return 0
     if len(prof.groups) > 1:
-        return bringup.supervise(prof, bringup.child_command(argv), args.duration)
-    return bringup.run_group(prof, None, args.duration)
+        return supervisor.supervise(prof, supervisor.child_command(argv), args.duration)
+    return run.run_group(prof, None, args.duration)
 
 
 def _bench(args: argparse.Namespace, argv: Sequence[str]) -> int:

@@ -221,7 +221,7 @@ class DeviceNode(EnbarrNode):
         return True
 
     def device_confirmed(self) -> None:
-        """The device answered (a valid sample, its identity): it is back, the backoff resets.
+        """Note that the device answered (a valid sample, its identity): back, backoff reset.
 
         Called from the driver's reader thread; cheap when already confirmed.
         """

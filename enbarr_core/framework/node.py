@@ -2,7 +2,7 @@
 
 An ``EnbarrNode`` is an ordinary rclpy ``Node`` (``__init__(node_name, **kwargs)`` passes
 ``context``, ``namespace``, ``parameter_overrides``, ``cli_args`` ... through) with four
-additions that the orchestrator relies on:
+additions that bringup relies on:
 
 - ``create_topic_publisher`` / ``create_topic_subscription``: a topic of the contract
   (``enbarr_interfaces.topics``); the contract's ``TopicSpec.fast`` decides whether it travels

@@ -149,7 +149,7 @@ IDLE_WARMUP = 3.0
 
 def run_idle(profile: str, sets: list[str], seconds: float) -> dict[str, Any]:
     """Measure the fixed cost of ``profile``: its nodes composed and spun, no source started."""
-    from enbarr_core.bringup.orchestrator import composed
+    from enbarr_core.bringup.compose import composed
     from enbarr_core.bringup.profile import apply_environment, load_profile
 
     prof = replace(load_profile(profile, sets), record=None)
@@ -189,7 +189,7 @@ def _chain_profile(chain: Chain, rate: float) -> Any:
 
 def run_ros(chain: Chain, rate: float, seconds: float) -> dict[str, Any]:
     """Run ``chain`` composed in this process at ``rate`` [Hz]; return its figures."""
-    from enbarr_core.bringup.orchestrator import composed
+    from enbarr_core.bringup.compose import composed
     from enbarr_core.bringup.profile import apply_environment
 
     prof = _chain_profile(chain, rate)

@@ -14,7 +14,7 @@ is stopped with SIGINT (a recorder closes its bag) and one JSON line is printed:
   ``<node>_loop``: a node's sources; ``recorder_writer``; ``dds.*``/``python``: middleware
   and other unnamed threads). The OS knows a Python thread's name only if it is told: every
   composed process installs ``enbarr_core.framework.threads.name_os_threads``
-  (``orchestrator.configure_process``). Names are cut to 15 characters by the kernel;
+  (``compose.configure_process``). Names are cut to 15 characters by the kernel;
 - ``processes``: the share of each process (its group) when there are several;
 - ``vessel_cpu_core_fraction``: the tree without the threads of simulator and device emulator
   nodes (not on the vehicle), given only where those threads do their own work alone: not
@@ -61,7 +61,7 @@ DEFAULT_SECONDS = 15.0
 DEFAULT_WARMUP = 8.0
 STOP_TIMEOUT = 40.0         # bringup's own grace is 10 s per batch of groups
 START_TIMEOUT = 60.0        # after the warm-up, for every group to run
-#: The line each process of bringup logs once its nodes run (orchestrator.run_group).
+#: The line each process of bringup logs once its nodes run (run.run_group).
 RUNNING = re.compile(r'\[enbarr\.bringup\]: .* running: ', re.MULTILINE)
 TOP_THREADS = 8
 STDERR_LINES = 8
@@ -421,7 +421,7 @@ def figures(run: Run, attribution: Attribution) -> dict[str, Any]:
 
 def _processes(profile: Any, record: bool) -> int:
     """How many processes run the profile's nodes: one per group (the recorder's included)."""
-    from enbarr_core.bringup.orchestrator import add_recorder
+    from enbarr_core.bringup.compose import add_recorder
     from enbarr_core.bringup.profile import with_record
     if record:
         profile = add_recorder(with_record(profile, 'bag', []))

@@ -194,7 +194,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     """Run scenario ``name`` on simulated time, record it and return its metrics."""
     from rclpy.time import Time
 
-    from enbarr_core.bringup.orchestrator import add_recorder, composed
+    from enbarr_core.bringup.compose import add_recorder, composed
     from enbarr_core.bringup.profile import apply_environment, load_profile, with_record
 
     profile = load_profile(resolve(name), overrides)

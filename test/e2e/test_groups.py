@@ -129,9 +129,10 @@ def test_last_thruster_output_is_neutral(crash_run: CrashRun) -> None:
 def test_sigint_stops_every_group(tmp_path: Path) -> None:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    bag = tmp_path / 'bag'
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--record',
+                             str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
     out = Output(proc)
     try:
         out.wait_for(r'group control started', 60)
@@ -146,6 +147,16 @@ def test_sigint_stops_every_group(tmp_path: Path) -> None:
     time.sleep(0.5)
     out.wait_for(r'SIGINT received', 5)
     assert 'died' not in out.text  # a requested stop is not a crash
+    assert re.search(rf'summary: \S+ ran \d+\.\d s; bag {re.escape(str(bag))}: '
+                     r'[1-9]\d* messages on [1-9]\d* topics; no problems', out.text), \
+        out.text[-3000:]
+    # The last word of every stage is neutral, across the process boundary too: the control
+    # group's converter used to leave its last non-zero command in the bag while the
+    # thruster plugin (group main) showed neutral.
+    recorded = read_bag(bag)
+    commands, outputs = recorded['/thruster_commands'], recorded['/thruster_output']
+    assert any(any(m.effort) for _, m in commands)
+    assert not any(commands[-1][1].effort) and not any(outputs[-1][1].effort)
 
 
 @dataclass(frozen=True)
@@ -237,7 +248,10 @@ def test_stop_request_is_served_during_a_long_restart_delay(tmp_path: Path, sig:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert rc == 0, out.text[-3000:]
+    # A group died on the way: the run ends with problems, naming it, though the stop itself
+    # went as asked (it used to exit 0 as if nothing had happened).
+    assert rc == 3, out.text[-3000:]
+    assert re.search(r'ended with problems: group control died \(signal SIGKILL\)', out.text)
     assert took < 30
     assert 'group control started' not in out.text.split('restart 1 of 1')[1]
 
@@ -250,19 +264,19 @@ SIGINT_DEAF = ('import signal, sys, time\n'
 
 def test_a_second_stop_request_kills_groups_that_ignore_the_first(tmp_path: Path) -> None:
     # The grace period of stopping the children (10 s) is a wait too: a second SIGINT ends it.
-    from enbarr_core.bringup import orchestrator
+    from enbarr_core.bringup import stop as stops, supervisor
 
     procs = {name: subprocess.Popen([sys.executable, '-c', SIGINT_DEAF],
                                     stdout=subprocess.PIPE, text=True)
-             for name in ('main', orchestrator.RECORDER_GROUP)}
+             for name in ('main', supervisor.RECORDER_GROUP)}
     for p in procs.values():
         assert p.stdout is not None and p.stdout.readline().strip() == 'ready'
-    stop = orchestrator._Stop()
+    stop = stops.StopRequest()
     timer = threading.Timer(0.5, lambda: stop._handle(signal.SIGINT, None))
     t0 = time.monotonic()
     try:
         timer.start()
-        codes = orchestrator._stop_children(procs, stop)
+        codes = supervisor._stop_children(procs, stop)
     finally:
         timer.cancel()
         for p in procs.values():
@@ -271,7 +285,7 @@ def test_a_second_stop_request_kills_groups_that_ignore_the_first(tmp_path: Path
             p.wait()
     took = time.monotonic() - t0
     assert took < 0.5 + 1.0 + 1.0, took  # served within 1 s (and 1 s of slack for load)
-    assert codes == {'main': -signal.SIGKILL, orchestrator.RECORDER_GROUP: -signal.SIGKILL}
+    assert codes == {'main': -signal.SIGKILL, supervisor.RECORDER_GROUP: -signal.SIGKILL}
 
 
 # -- a group that ends with problems fails the supervisor, naming them ------------------------
@@ -304,5 +318,7 @@ def test_a_group_that_ends_with_problems_fails_the_supervisor(tmp_path: Path) ->
                             env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 3, (result.returncode, result.stderr[-3000:])
     assert 'Traceback' not in result.stderr
-    last = result.stderr.strip().splitlines()[-1]
-    assert 'group control' in last and 'No space left on device (injected)' in last, last
+    *_, named, summary = result.stderr.strip().splitlines()
+    assert 'ended with problems' in named and 'group control' in named, named
+    assert 'No space left on device (injected)' in named, named
+    assert 'summary: ' in summary and '1 problem(s), named above' in summary, summary

@@ -151,7 +151,7 @@ def _spin_for(executor, seconds):
 
 @pytest.mark.parametrize('events', [False, True], ids=['single_threaded', 'events'])
 def test_a_source_timer_runs_between_start_and_stop_only(context, executor, events):
-    from enbarr_core.bringup.orchestrator import make_executor
+    from enbarr_core.bringup.compose import make_executor
     ex = make_executor(context) if events else executor
     node = EnbarrNode('source_timer', context=context)
     try:

@@ -4,7 +4,7 @@ What ``ros2 topic info -v`` and rqt_graph see is played by a second rclpy ``Cont
 DDS participant) asking the graph API they use: ``get_subscriptions_info_by_topic``,
 ``get_subscriber_names_and_types_by_node`` and ``count_subscribers``. Every test that spins
 runs under both executors bringup may use: the ``SingleThreadedExecutor`` and the
-``EventsExecutor`` of ``orchestrator.make_executor``.
+``EventsExecutor`` of ``compose.make_executor``.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu
 
-from enbarr_core.bringup.orchestrator import make_executor
+from enbarr_core.bringup.compose import make_executor
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, links, topics
 from enbarr_interfaces.links import LinkBus, LinkPublisher, READER_CHECK_PERIOD

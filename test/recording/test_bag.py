@@ -818,10 +818,10 @@ def test_a_short_write_that_leaves_the_old_footer_is_repaired(tmp_path: Path,
 
 @pytest.mark.e2e  # a process, killed
 def test_the_supervisor_repairs_the_bag_of_a_killed_recorder_group(tmp_path: Path, caplog) -> None:
-    # bringup's supervisor, on a group that died from a signal: orchestrator.repair_recording.
+    # bringup's supervisor, on a group that died from a signal: repair.repair_recording.
     import logging
 
-    from enbarr_core.bringup.orchestrator import repair_recording
+    from enbarr_core.bringup.repair import repair_recording
     from enbarr_core.bringup.profile import NodeSpec
     bag = tmp_path / 'killed'
     flushed = run_and_kill(bag, None, tear=True)

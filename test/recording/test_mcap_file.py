@@ -208,7 +208,7 @@ def test_the_supervisor_writes_the_index_of_a_killed_recorder_group(
     import logging
     from types import SimpleNamespace
 
-    from enbarr_core.bringup.orchestrator import repair_recording
+    from enbarr_core.bringup.repair import repair_recording
     from enbarr_core.bringup.profile import NodeSpec
     bag = tmp_path / 'killed'
     writer = write_imu_bag(bag, 10, every=10)
