@@ -160,6 +160,26 @@ def parse(payload: bytes) -> Hello | Status:
     raise ProtocolError(f'type 0x{kind:02X} with {len(body)} body bytes')
 
 
+def config_problem(duty_min: int, duty_max: int, timeout_ms: int,
+                   neutral: Sequence[int]) -> str | None:
+    """Why the board would refuse this CONFIG (link.h's rule), naming the field; or None.
+
+    A duty of 0 has no pulse on the board (its timer compare value would wrap above TOP and
+    hold the output high), so the minimum, and with it every duty, is at least one unit.
+    """
+    if duty_min < 1:
+        return (f'duty_min: {duty_min} units of 0.01 %: the board outputs no duty below '
+                '0.01 % (a duty of 0 would hold its PWM pins high)')
+    if not duty_min < duty_max <= 100 * UNITS_PER_PERCENT:
+        return f'duty_max: {duty_max} units must be above duty_min ({duty_min}) and at most 10000'
+    if not 20 <= timeout_ms <= 0xFFFF:
+        return f'timeout_ms: {timeout_ms} ms must be within 20 .. 65535'
+    if len(neutral) != CHANNELS or not all(duty_min <= n <= duty_max for n in neutral):
+        return (f'neutral: {list(neutral)} must be {CHANNELS} duties within duty_min .. '
+                f'duty_max ({duty_min} .. {duty_max} units of 0.01 %)')
+    return None
+
+
 def newer(seq: int, last: int) -> bool:
     """Whether sequence number ``seq`` is 1..127 ahead of ``last`` (mod 256)."""
     return 1 <= (seq - last) % 256 <= 127
@@ -178,6 +198,13 @@ class LinkSettings:
     duty_min: int = DEFAULT_DUTY_MIN
     duty_max: int = DEFAULT_DUTY_MAX
     neutral: tuple[int, ...] = (DEFAULT_NEUTRAL,) * CHANNELS
+
+    def __post_init__(self) -> None:
+        """Refuse a configuration the board would refuse (``config_problem``) before sending."""
+        problem = config_problem(self.duty_min, self.duty_max, self.board_timeout_ms,
+                                 self.neutral)
+        if problem:
+            raise ValueError(problem)
 
 
 class BoardSession:
@@ -521,6 +548,10 @@ class ArduinoPwmSettings:
         if v['hello_timeout'] < v['boot_wait']:
             raise ValueError(f"hello_timeout: {v['hello_timeout']} s is shorter than "
                              f"boot_wait ({v['boot_wait']} s)")
+        if to_units(c.duty_min_percent) < 1:
+            raise ValueError(f'pwm.duty_min_percent: {c.duty_min_percent} % is below the '
+                             "board's smallest duty, 0.01 % (a duty of 0 would hold its PWM "
+                             'pins high; docs/hardware.md)')
         neutral = tuple(to_units(d) for _ in azimuths
                         for d in (c.neutral_thrust_duty, c.neutral_angle_duty))
         link = LinkSettings(v['heartbeat_period'], v['reply_timeout'], v['boot_wait'],

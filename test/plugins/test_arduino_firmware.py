@@ -286,3 +286,25 @@ def test_firmware_builds_for_the_mega(tmp_path):
     assert lines[-1] == ':00000001FF' and all(line.startswith(':') for line in lines)
     size = sum(int(line[1:3], 16) for line in lines)
     assert 1000 < size < 253952, size  # the Mega's flash without the bootloader
+
+
+def test_config_with_a_zero_minimum_or_neutral_duty_is_refused():
+    # On the board a duty d is OCR = d * 4 - 1 ticks: ticks(0) wraps to 0xFFFF, above
+    # TOP = ICRn = 39999, so no compare match ever clears the output (ATmega2560 data sheet,
+    # 16-bit Timer/Counter, fast PWM mode): a constant-high line to the ESCs and servos.
+    # Frames typed from link.h: CONFIG = 0x04, body u16 min, u16 max, u16 timeout_ms,
+    # 6 x u16 neutral; the answer STATUS = 0x82 with result RANGE = 3.
+    w = Wire()
+    for lo, neutral in ((0, [685] * 6), (0, [0] * 6), (0, [0, 685, 685, 685, 685, 685])):
+        body = struct.pack('>9H', lo, 940, 250, *neutral)
+        w.board.rx(proto.encode_frame(bytes([0x04, w.seq + 1]) + body), w.t)
+        w.seq += 1
+        (status,) = w.read()
+        assert (status.acked, status.result) == (w.seq, 3), (lo, neutral, status)
+        assert not status.flags & 0x02  # not CONFIGURED
+    assert w.board.duties() == [685] * 6
+    # The defaults still stand: a zero duty is refused.
+    assert w.duty([0] + GOOD[1:]).result == 3 and w.board.duties() == [685] * 6
+    # The smallest duty the board can output is one unit (0.01 %, OCR = 3).
+    status = w.send(proto.CONFIG, struct.pack('>9H', 1, 940, 250, *[685] * 6))[0]
+    assert status.result == 0 and w.duty([1] * 6).result == 0 and w.board.duties() == [1] * 6

@@ -386,3 +386,19 @@ def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor
     assert spin(executor, lambda: not r.node.connected, TIMEOUT)
     emu_node.replug()
     drive(spin, executor, r, Emu(emu_node.emulator, name), OTHER)
+
+
+@pytest.mark.parametrize('duty_min', [0.0, 0.004])
+def test_a_minimum_duty_of_zero_is_refused_before_anything_is_sent(context, duty_min):
+    # 0 in the board's 0.01 % units: its ticks(0) wraps to a constant-high output.
+    with pytest.raises(ConfigurationError, match=r'pwm\.duty_min_percent: .*0\.01 %') as info:
+        ArduinoPwmNode(node_name='arduino', context=context, parameter_overrides=overrides(
+            {'port': 'emulated:none', 'pwm.duty_min_percent': duty_min}))
+    assert info.value.parameter == 'pwm.duty_min_percent'
+
+
+def test_link_settings_refuse_a_zero_minimum_or_neutral():
+    with pytest.raises(ValueError, match='duty_min'):
+        proto.LinkSettings(duty_min=0)
+    with pytest.raises(ValueError, match='neutral'):
+        proto.LinkSettings(neutral=(0,) * 6)
