@@ -33,7 +33,8 @@ class Rig:
     duties: list[Float64MultiArray]
 
 
-def rig(context: Any, executor: Any, timeout: float = 10.0) -> Rig:
+def rig(context: Any, executor: Any, timeout: float = 10.0, start: bool = True) -> Rig:
+    """The mapper, a command publisher and a duty listener; started (its neutral dropped)."""
     node = add(executor, PwmMapperNode(
         node_name='pwm', context=context,
         parameter_overrides=overrides({'command_timeout': timeout})))
@@ -42,12 +43,18 @@ def rig(context: Any, executor: Any, timeout: float = 10.0) -> Rig:
     duties: list[Float64MultiArray] = []
     p.create_topic_subscription(topics.PWM_DUTY, duties.append)
     LinkBus.of(context).connect()
+    if start:
+        node.start()
+        duties.clear()
     return Rig(node, pub, duties)
 
 
 def test_pwm_mapper_channels_in_profile_order_and_starts_neutral(context, executor):
-    r = rig(context, executor)
+    r = rig(context, executor, start=False)
     assert r.node.channels == CHANNELS
+    assert r.duties == [] and r.node.duty == []  # constructing it published nothing
+    r.node.start()
+    assert len(r.duties) == 1 and list(r.duties[0].data) == pytest.approx(NEUTRAL)
     assert r.node.neutral and r.node.duty == pytest.approx(NEUTRAL)
 
 
