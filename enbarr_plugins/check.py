@@ -30,7 +30,7 @@ CHECKS: dict[str, str] = {
     'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
     'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
     'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
-    'ds4': 'enbarr_plugins.joystick.ds4_evdev:check_device',
+    'ds4': 'enbarr_plugins.joystick.check:check_device',
     'gpio': 'enbarr_plugins.io.gpio_lights:check_device',
 }
 
