@@ -431,8 +431,20 @@ def test_constructing_the_driver_opens_and_publishes_nothing(context, executor, 
         node_name='joystick', context=context,
         parameter_overrides=[Parameter('device', value='emulated:quiet')]))
     assert emu_node.emulator.opens == 0 and sent == [] and not node.connected
+    said_true = lambda: any(isinstance(m, Bool) and m.data for m in sent)  # noqa: E731
+    real_safe_state = Ds4EvdevNode.safe_state
+
+    def late_safe_state(self: Ds4EvdevNode) -> None:
+        # Between opening and starting, give the reader its first heartbeats (they must not
+        # say True yet) before the safe state says False: the order must not rest on luck.
+        deadline = time.monotonic() + 0.2
+        while not said_true() and time.monotonic() < deadline:
+            time.sleep(0.005)
+        real_safe_state(self)
+
+    monkeypatch.setattr(Ds4EvdevNode, 'safe_state', late_safe_state)
     node.start()
     assert emu_node.emulator.opens == 1 and node.connected
-    assert spin(executor, lambda: any(isinstance(m, Bool) and m.data for m in sent), TIMEOUT)
+    assert spin(executor, said_true, TIMEOUT)
     said = [m.data for m in sent if isinstance(m, Bool)]
     assert said[0] is False and said[said.index(True):].count(False) == 0, said
