@@ -373,8 +373,9 @@ class BoardSession:
 
 # -- the node ---------------------------------------------------------------------------------
 LINK_SPECS = [
-    ParamSpec('port', '/dev/ttyACM0', "Serial port of the Arduino, or 'emulated[:NAME]' for "
-              'the emulator in this process', read_only=True),
+    ParamSpec('port', '/dev/ttyACM0', 'Serial port of the Arduino: its /dev/serial/by-id/... '
+              'link (survives a re-plug; /dev/ttyACMn may change), or '
+              "'emulated[:NAME]' for the emulator in this process", read_only=True),
     ParamSpec('baud', 115200, 'Serial speed (the firmware uses 115200)', 'baud', 1200,
               2000000, read_only=True),
     ParamSpec('heartbeat_period', 0.05, 'A HEARTBEAT when no command was sent for this long',
@@ -412,7 +413,8 @@ class ArduinoPwmSettings:
             raise ValueError(f'azimuth_names: the board drives {CHANNELS // 2} azimuths '
                              f'(motor and servo each), got {len(azimuths)}')
         if not v['port']:
-            raise ValueError("port: a serial port (/dev/ttyACM0) or 'emulated' is needed")
+            raise ValueError('port: a serial port (/dev/serial/by-id/usb-Arduino...) or '
+                             "'emulated' is needed")
         if v['board_timeout'] < 2.0 * v['heartbeat_period']:
             raise ValueError(f"board_timeout: {v['board_timeout']} s is shorter than two "
                              f"heartbeat_period ({v['heartbeat_period']} s): the board would "

@@ -175,28 +175,38 @@ def _errnos(err: BaseException | None) -> set[int]:
     return out
 
 
-def vanished_port_hint(port: str, err: BaseException | None = None) -> str:
-    """Advice to append to an error on ``port`` when a kernel-numbered USB serial node vanished.
+def _present_by_id() -> str:
+    try:
+        present = sorted(p.name for p in BY_ID_DIR.iterdir())
+    except OSError:
+        return 'none'
+    if not present:
+        return 'none'
+    return ', '.join(present[:4]) + (', ...' if len(present) > 4 else '')
 
-    ``''`` unless ``port`` is a ``/dev/ttyUSBn`` or ``/dev/ttyACMn`` path and the node is
-    gone: ``err`` (or an error it was raised from) carries ENOENT, ENODEV or EIO, or the path
-    no longer exists. Otherwise a sentence that steers to ``/dev/serial/by-id/...``, naming the
-    links present now.
+
+def vanished_port_hint(port: str, err: BaseException | None = None) -> str:
+    """Advice to append to an error on ``port`` when its device node is gone, or ``''``.
+
+    For a kernel-numbered USB serial name (``/dev/ttyUSBn``, ``/dev/ttyACMn``) that is gone
+    (``err``, or an error it was raised from, carries ENOENT, ENODEV or EIO, or the path no
+    longer exists): a sentence that steers to the stable ``/dev/serial/by-id/...`` link. For
+    a ``/dev/serial/by-id/...`` link that does not exist (the device is unplugged, or the
+    name is a profile's placeholder): the links present now. Both name the links present.
     """
+    if port.startswith(f'{BY_ID_DIR}/'):
+        if _node_exists(port):
+            return ''
+        return (f' (no such link: the device is unplugged or has another serial number; '
+                f'links present now: {_present_by_id()}; docs/hardware.md)')
     if not _KERNEL_NUMBERED.fullmatch(port):
         return ''
     if not (_errnos(err) & VANISHED_ERRNOS or not _node_exists(port)):
         return ''
-    try:
-        present = sorted(p.name for p in BY_ID_DIR.iterdir())
-    except OSError:
-        present = []
-    now = (f'; present now: {", ".join(present[:4])}{", ..." if len(present) > 4 else ""}'
-           if present else '')
     return (f' ({port} is gone: the kernel numbers USB serial devices as they appear, so a '
             're-plugged one may come back as another /dev/ttyUSBn or /dev/ttyACMn; name it by '
-            f'its stable link {BY_ID_DIR}/usb-<vendor>_<model>_<serial>-if00 instead{now}; '
-            'docs/hardware.md)')
+            f'its stable link {BY_ID_DIR}/usb-<vendor>_<model>_<serial>-if00 instead; links '
+            f'present now: {_present_by_id()}; docs/hardware.md)')
 
 
 def open_serial(port: str, baudrate: int = 115200, *, timeout: float = 0.1,

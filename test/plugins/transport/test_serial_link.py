@@ -227,7 +227,7 @@ def test_no_by_id_hint_for_other_errors_and_other_names(by_id, monkeypatch):
     assert serial_link.vanished_port_hint('/dev/ttyUSB0', denied) == ''  # there, not ours
     gone = OSError(errno.ENODEV, 'No such device')
     assert serial_link.vanished_port_hint('/dev/ttyUSB0', gone) != ''
-    for stable in ('/dev/serial/by-id/usb-x-if00', '/dev/pts/3', '/dev/ttyS0', '/dev/ttyUSB'):
+    for stable in (f'{by_id}/usb-x-if00', '/dev/pts/3', '/dev/ttyS0', '/dev/ttyUSB'):
         assert serial_link.vanished_port_hint(stable, gone) == '', stable
     monkeypatch.setattr(serial_link, '_node_exists', lambda path: False)
     assert serial_link.vanished_port_hint('/dev/ttyACM1') != ''  # the node itself is gone
@@ -240,3 +240,13 @@ def test_a_closed_pty_gets_no_by_id_hint(pty):
     with pytest.raises(DeviceError) as info:
         link.read_frames()
     assert 'by-id' not in str(info.value)
+
+
+def test_a_missing_by_id_link_lists_the_links_present(by_id):
+    # The profile's placeholder, or a board with another serial number.
+    with pytest.raises(DeviceError) as info:
+        open_serial(f'{by_id}/usb-Arduino__www.arduino.cc__0042_SERIAL-if00')
+    text = str(info.value)
+    assert 'no such link' in text and ('links present now: '
+                                       'usb-Arduino__www.arduino.cc__0042_7543331373935161D021'
+                                       '-if00') in text, text
