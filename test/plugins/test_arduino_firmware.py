@@ -337,3 +337,15 @@ def test_config_with_a_zero_minimum_or_neutral_duty_is_refused():
     # The smallest duty the board can output is one unit (0.01 %, OCR = 3).
     status = w.send(proto.CONFIG, struct.pack('>9H', 1, 940, 250, *[685] * 6))[0]
     assert status.result == 0 and w.duty([1] * 6).result == 0 and w.board.duties() == [1] * 6
+
+
+@pytest.mark.e2e
+def test_protocol_modules_import_without_rclpy():
+    """The protocol and firmware modules are pure: a tool or a test can use them without ROS."""
+    import sys
+    code = ('import sys\nsys.modules["rclpy"] = None\n'
+            'import enbarr_plugins.arduino.protocol, enbarr_plugins.arduino.firmware\n'
+            'import enbarr_plugins.joystick.ds4_protocol\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            cwd=ROOT, timeout=60)
+    assert result.returncode == 0, result.stderr
