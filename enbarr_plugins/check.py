@@ -1,11 +1,17 @@
 """``enbarr check-device KIND``: talk to one device, print what it is, without a vessel.
 
-Each device module offers ``check_device(target: CheckTarget) -> list[str]``: it opens the
-device named by ``target`` with the driver's own code, reads its identity and one sample (or
-sends one neutral command), closes it and returns the lines to print. A device that is absent,
-silent or not what it should be raises ``DeviceError`` naming the port, bus, address or host
-and what was found. ``emulated`` as the port, bus, host or device starts this package's
-emulator of that device in the process and checks against it (the command's own test).
+This module is the registry: ``CheckTarget`` (what the command line names) and ``CHECKS``
+(KIND -> ``'module:function'``), imported on demand so that listing the kinds imports no
+driver. Each kind's check lives in a check module of its own beside the driver
+(``enbarr_plugins/<kind>/check.py``), apart from the driver and its emulator: it uses both
+(``emulated`` runs the emulator in the process), and neither imports it.
+
+A check is ``check_device(target: CheckTarget) -> list[str]``: it opens the device named by
+``target`` with the driver's own code, reads its identity and one sample (or sends one neutral
+command), closes it and returns the lines to print. A device that is absent, silent or not
+what it should be raises ``DeviceError`` naming the port, bus, address or host and what was
+found. ``emulated`` as the port, bus, host or device starts this package's emulator of that
+device in the process and checks against it (the command's own test).
 """
 
 from __future__ import annotations
@@ -15,15 +21,16 @@ import importlib
 from typing import Callable
 
 #: KIND -> 'module:function', the ``check_device`` of each device this package drives.
+#: One line per kind.
 CHECKS: dict[str, str] = {
     'pca9685': 'enbarr_plugins.thrusters.pca9685:check_device',
     'lsm9ds1': 'enbarr_plugins.imu.lsm9ds1:check_device',
     'fxos8700': 'enbarr_plugins.imu.fxos8700:check_device',
-    'arduino': 'enbarr_plugins.arduino.link:check_device',
+    'arduino': 'enbarr_plugins.arduino.check:check_device',
     'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
     'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
     'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
-    'ds4': 'enbarr_plugins.joystick.ds4_evdev:check_device',
+    'ds4': 'enbarr_plugins.joystick.check:check_device',
     'gpio': 'enbarr_plugins.io.gpio_lights:check_device',
 }
 
@@ -42,6 +49,8 @@ class CheckTarget:
 
 
 def checker(kind: str) -> Callable[[CheckTarget], list[str]]:
-    """Return the ``check_device`` function of ``kind``; ``KeyError`` when there is none."""
+    """Return the ``check_device`` function of ``kind``; ``KeyError`` naming the known kinds."""
+    if kind not in CHECKS:
+        raise KeyError(f'no device check {kind!r}; known: {", ".join(sorted(CHECKS))}')
     module_name, _, attr = CHECKS[kind].partition(':')
     return getattr(importlib.import_module(module_name), attr)

@@ -9,8 +9,10 @@ serves, a loopback TCP port, an input-event pipe or a video file. From there on 
 runs exactly its hardware code path: the same bytes, the same faults.
 
 An emulator and the drivers that use it must run in one process (the same profile ``group``).
-A driver that starts before its emulator finds nothing, reports the device absent and
-retries with backoff like for a device that is not plugged in yet.
+An emulator node registers its endpoint when it starts (constructing it opens nothing), and
+bringup starts emulators before drivers. A driver that starts before its emulator finds
+nothing, reports the device absent and retries with backoff like for a device that is not
+plugged in yet.
 """
 
 from __future__ import annotations

@@ -187,3 +187,38 @@ def pwm_from_params(v: Mapping[str, Any]) -> PwmCalibration:
 def declare_pwm(node: Node) -> PwmCalibration:
     """Declare the PWM duty limits and calibration tables (all required); return them."""
     return SettingsBinding(node, pwm_specs(node), pwm_from_params, lambda _: None).settings
+
+
+@dataclass(frozen=True)
+class PwmLayout:
+    """The azimuths and the PWM calibration of their drives: what every PWM node reads.
+
+    The PWM mapper, the simulated Arduino, its driver and its emulator all declare the same
+    read-only parameters (``azimuth_names``, ``azimuths.*``, ``pwm.*``) and agree on the
+    channel order of ``pwm/duty_cycle``: ``<azimuth>/motor, <azimuth>/servo`` per azimuth.
+    """
+
+    azimuths: tuple[AzimuthSpec, ...]
+    calibration: PwmCalibration
+
+    @classmethod
+    def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> PwmLayout:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        return cls(AZIMUTHS.from_params(names, v), pwm_from_params(v))
+
+    @property
+    def channels(self) -> list[str]:
+        """Channel names in the order of the duties: ``<azimuth>/motor, <azimuth>/servo``."""
+        return [f'{a.name}/{k}' for a in self.azimuths for k in ('motor', 'servo')]
+
+
+def pwm_layout_specs(node: Node, names: Sequence[str]) -> list[ParamSpec]:
+    """Return the parameters of a ``PwmLayout`` with azimuths ``names`` (all read only)."""
+    return AZIMUTHS.specs(node, names) + pwm_specs(node)
+
+
+def declare_pwm_layout(node: Node) -> PwmLayout:
+    """Declare ``azimuth_names``, each azimuth's parameters and the PWM tables; return them."""
+    names = AZIMUTHS.names(node)
+    return SettingsBinding(node, pwm_layout_specs(node, names),
+                           lambda v: PwmLayout.from_params(names, v), lambda _: None).settings

@@ -21,7 +21,6 @@ outputs would go neutral between commands) and ``max_future`` stay under one.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 import math
 from typing import Any
 
@@ -34,9 +33,8 @@ from enbarr_interfaces.fastmsg import new
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 
-from enbarr_core.allocation.azimuth import PwmCalibration
 from enbarr_core.allocation.azimuth_allocation_node import MAX_FUTURE
-from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
+from enbarr_core.allocation.layout_params import declare_pwm_layout, PwmLayout
 from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.health import (
@@ -45,25 +43,6 @@ from enbarr_core.framework.health import (
 from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
-from enbarr_core.models.vessel3dof import AzimuthSpec
-
-
-@dataclass(frozen=True)
-class PwmMapperSettings:
-    """Settings of ``PwmMapperNode``: the azimuth layout and the PWM calibration (read only)."""
-
-    azimuths: tuple[AzimuthSpec, ...]
-    calibration: PwmCalibration
-
-    @classmethod
-    def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> PwmMapperSettings:
-        """Build from the declared parameters' values (ValueError naming the parameter)."""
-        return cls(AZIMUTHS.from_params(names, v), pwm_from_params(v))
-
-    @property
-    def channels(self) -> list[str]:
-        """Channel names in the order of the duties: ``<azimuth>/motor, <azimuth>/servo``."""
-        return [f'{a.name}/{k}' for a in self.azimuths for k in ('motor', 'servo')]
 
 
 def duty_message(duties: Sequence[float]) -> Float64MultiArray:
@@ -85,11 +64,7 @@ class PwmMapperNode(ActuatorDriver):
         self.neutral = True
         super().__init__(node_name, timeout_message='azimuth commands stopped: PWM neutral',
                          **kwargs)
-        names = AZIMUTHS.names(self)
-        self.settings: PwmMapperSettings = self.bind_settings(
-            AZIMUTHS.specs(self, names) + pwm_specs(self),
-            lambda v: PwmMapperSettings.from_params(names, v),
-            lambda _: None).settings  # every parameter is read only
+        self.settings: PwmLayout = declare_pwm_layout(self)  # read only
         self.calibration = self.settings.calibration
         for a in self.settings.azimuths:
             try:
@@ -106,7 +81,7 @@ class PwmMapperNode(ActuatorDriver):
             "this are refused (at least the observer's)", 's', 0.0, 0.5)],
             self._build_max_future, self._apply_max_future)
         self.add_on_set_parameters_callback(self._check_command_timeout)
-        self.azimuths = list(names)
+        self.azimuths = [a.name for a in self.settings.azimuths]
         self._index = {n: i for i, n in enumerate(self.azimuths)}
         self.channels = self.settings.channels
         self.duty: list[float] = []

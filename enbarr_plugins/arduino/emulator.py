@@ -16,13 +16,14 @@ again: an out-of-order frame); ``stall()``/``resume()`` (no byte passes either w
 ``wrong_identity(board_id, version)`` (HELLO from another board); ``reset()`` (the board
 resets: outputs neutral, its sequence restarts, a HELLO).
 
-``ArduinoEmulatorNode`` (registry name ``arduino_emulator``) wraps one for a profile: it
-registers the pty path with ``enbarr_plugins.emulation`` as serial endpoint ``name``, turns the
-board's output duties into ``sim/azimuth_command`` through the profile's PWM calibration
-exactly as ``arduino/sim.py`` does (so ``saucer_emulated`` flies the simulated vessel),
-publishes the duties on ``emulator/arduino`` (``sensor_msgs/JointState``: channel names,
-position = duty [%]) every PWM period (50 Hz) while the board is powered, and reports the
-board's counters on ``/diagnostics``.
+``ArduinoEmulatorNode`` (registry name ``arduino_emulator``) wraps one for a profile: when it
+starts (constructing it opens nothing) it opens the pty and registers its path with
+``enbarr_plugins.emulation`` as serial endpoint ``name``; it turns the board's output duties
+into ``sim/azimuth_command`` through the profile's PWM calibration exactly as ``arduino/sim.py``
+does (so ``saucer_emulated`` flies the simulated vessel), publishes the duties on
+``emulator/arduino`` (``sensor_msgs/JointState``: channel names, position = duty [%]) every
+PWM period (50 Hz) while the board is powered, and reports the board's counters on
+``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -38,18 +39,16 @@ from typing import Any
 
 from sensor_msgs.msg import JointState
 
-from enbarr_core.allocation.azimuth import PwmCalibration
-from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
+from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_layout_specs, PwmLayout
 from enbarr_core.framework.driver import REPORT_PERIOD
 from enbarr_core.framework.health import OK, DEGRADED
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
 from enbarr_interfaces.topics import SENSOR_QOS, TopicSpec
 from enbarr_plugins import emulation
-from enbarr_plugins.arduino import link as proto
-from enbarr_plugins.arduino.firmware import Board
+from enbarr_plugins.arduino.firmware import Board, defines
+from enbarr_plugins.transport.serial_link import encode_frame
 
 #: What the emulated board outputs: one entry per channel, position = duty [%].
 EMULATOR_OUTPUT = TopicSpec(
@@ -61,6 +60,7 @@ EMULATOR_OUTPUT = TopicSpec(
 
 PWM_PERIOD = 0.02  # [s] 50 Hz
 SKETCH_CHUNK = 32  # bytes the sketch's loop() takes from Serial before it sends the replies
+UNITS_PER_PERCENT = 100  # link.h: duties travel in units of 0.01 %
 
 
 def _now_ms() -> int:
@@ -211,7 +211,8 @@ class ArduinoEmulator:
     def wrong_identity(self, board_id: int = 0x1234, version: int | None = None) -> None:
         """Answer HELLO as another board (``board_id``, protocol ``version``)."""
         with self._lock:
-            self._identity = (board_id, proto.PROTOCOL_VERSION if version is None else version)
+            self._identity = (board_id, defines()['ENB_PROTOCOL_VERSION'] if version is None
+                              else version)
 
     def right_identity(self) -> None:
         """Answer HELLO as the Enbarr board again."""
@@ -227,13 +228,13 @@ class ArduinoEmulator:
     def duties(self) -> list[float]:
         """Output duty of each channel [%]."""
         with self._lock:
-            return [u / proto.UNITS_PER_PERCENT for u in self.board.duties()]
+            return [u / UNITS_PER_PERCENT for u in self.board.duties()]
 
     @property
     def neutral(self) -> bool:
         """Whether the board's outputs are all at their neutral duty."""
         with self._lock:
-            return bool(self.board.flags & proto.FLAG_NEUTRAL)
+            return bool(self.board.flags & defines()['ENB_FLAG_NEUTRAL'])
 
     def counters(self) -> dict[str, int]:
         """Return the board's counters and the emulator's own."""
@@ -280,7 +281,7 @@ class ArduinoEmulator:
                     self.board.tx()  # what the board sends is lost in the stalled bridge
                 if time.monotonic() >= next_pwm:
                     next_pwm = max(next_pwm + PWM_PERIOD, time.monotonic() - PWM_PERIOD)
-                    duties = [u / proto.UNITS_PER_PERCENT for u in self.board.duties()]
+                    duties = [u / UNITS_PER_PERCENT for u in self.board.duties()]
             if hup:
                 time.sleep(0.01)  # nobody has the port open: poll returns at once
             if duties is not None and self.on_output is not None:
@@ -327,13 +328,14 @@ class ArduinoEmulator:
         self.frames_out += 1
         payload = frame[2:-2]
         extra = b''
-        if payload[:1] == bytes([proto.HELLO]) and self._identity is not None:
+        hello, status = defines()['ENB_HELLO'], defines()['ENB_STATUS']
+        if payload[:1] == bytes([hello]) and self._identity is not None:
             board_id, version = self._identity
             body = bytearray(payload)
             body[2] = version
             body[3:5] = board_id.to_bytes(2, 'big')
-            frame = proto.encode_frame(bytes(body))
-        if payload[:1] == bytes([proto.STATUS]):
+            frame = encode_frame(bytes(body))
+        if payload[:1] == bytes([status]):
             if self._replay and self._last_status is not None:
                 self._replay -= 1
                 extra = self._last_status
@@ -363,8 +365,7 @@ EMULATOR_SPECS = [
 class ArduinoEmulatorSettings:
     """Settings of ``ArduinoEmulatorNode`` (read only)."""
 
-    azimuths: tuple[AzimuthSpec, ...]
-    calibration: PwmCalibration
+    layout: PwmLayout
     name: str
     boot_delay: float   # [s]
     reset_on_open: bool
@@ -372,14 +373,15 @@ class ArduinoEmulatorSettings:
     @classmethod
     def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> ArduinoEmulatorSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
-        azimuths = AZIMUTHS.from_params(names, v)
-        if 2 * len(azimuths) != proto.CHANNELS:
-            raise ValueError(f'azimuth_names: the board drives {proto.CHANNELS // 2} '
+        layout = PwmLayout.from_params(names, v)
+        azimuths = layout.azimuths
+        channels = defines()['ENB_CHANNELS']
+        if 2 * len(azimuths) != channels:
+            raise ValueError(f'azimuth_names: the board drives {channels // 2} '
                              f'azimuths (motor and servo each), got {len(azimuths)}')
         if not v['name'] or ':' in v['name']:
             raise ValueError(f"name: a word without ':', got {v['name']!r}")
-        return cls(azimuths, pwm_from_params(v), v['name'], v['boot_delay'],
-                   v['reset_on_open'])
+        return cls(layout, v['name'], v['boot_delay'], v['reset_on_open'])
 
 
 class ArduinoEmulatorNode(EnbarrNode):
@@ -391,22 +393,33 @@ class ArduinoEmulatorNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         names = AZIMUTHS.names(self)
         self.settings: ArduinoEmulatorSettings = self.bind_settings(
-            AZIMUTHS.specs(self, names) + pwm_specs(self) + EMULATOR_SPECS,
+            pwm_layout_specs(self, names) + EMULATOR_SPECS,
             lambda v: ArduinoEmulatorSettings.from_params(names, v),
             lambda _: None).settings  # every parameter is read only
-        self.calibration = self.settings.calibration
+        self.calibration = self.settings.layout.calibration
         self.name = self.settings.name
         self.names = list(names)
-        self.channel_names = [f'{n}/{k}' for n in names for k in ('motor', 'servo')]
+        self.channel_names = self.settings.layout.channels
         self._sim_pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self._out_pub = self.create_topic_publisher(EMULATOR_OUTPUT)
         self.emulator = ArduinoEmulator(reset_on_open=self.settings.reset_on_open,
                                         boot_delay=self.settings.boot_delay,
                                         on_output=self._on_output)
         self._registered: str | None = None
-        self._register(self.emulator.start())
+        self._serving = False
         self._last_trips = 0
         self.create_periodic(REPORT_PERIOD, self._report)
+
+    def start(self) -> None:
+        """Open the pty, serve it and register its path (once), then start the sources.
+
+        Bringup starts the emulators before the drivers, so the driver finds the path when it
+        opens its port.
+        """
+        if not self._serving:
+            self._serving = True
+            self._register(self.emulator.start())
+        super().start()
 
     def _register(self, path: str) -> None:
         self._registered = path

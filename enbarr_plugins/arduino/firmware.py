@@ -6,16 +6,21 @@ runs that very code: ``load()`` compiles it with the host's C compiler
 (``cc -shared -fPIC -O2``) into a cache directory keyed by the sources' hash
 (``$XDG_CACHE_HOME/enbarr/firmware`` or ``~/.cache/enbarr/firmware``; ``ENBARR_CACHE``
 overrides it) and ``Board`` is one board instance over it. With no C compiler the error says
-what to install. The sources are found beside the package (a source checkout) or in the
-package's share directory (``share/enbarr/firmware``, installed by ``setup.py``).
+what to install. ``defines()`` reads the numbers of ``link.h`` (message types, flags, channel
+count): the emulator takes its protocol constants from the firmware's own header, not from the
+driver's ``arduino/protocol.py``, so a wrong number on the driver's side is not copied into
+the board it is tested against. The sources are found beside the package (a source checkout)
+or in the package's share directory (``share/enbarr/firmware``, installed by ``setup.py``).
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 from pathlib import Path
+import re
 import shutil
 import subprocess
 import sys
@@ -105,6 +110,14 @@ def build(src: Path | None = None) -> Path:
     return out
 
 
+@functools.cache
+def defines() -> dict[str, int]:
+    """Return the numeric ``#define ENB_NAME value`` lines of ``link.h`` by name."""
+    text = (source_dir() / 'link.h').read_text()
+    return {m[1]: int(m[2], 0) for m in re.finditer(
+        r'^#define (ENB_\w+)\s+(0x[0-9A-Fa-f]+|[0-9]+)u?\b', text, re.M)}
+
+
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
 
@@ -144,7 +157,7 @@ class Board:
         self.lib = load()
         self._state = ctypes.create_string_buffer(self.lib.enb_link_size())
         self._out = ctypes.create_string_buffer(256)
-        self.channels = 6
+        self.channels = defines()['ENB_CHANNELS']
         self.reset(now_ms, boot_count, reset_cause)
 
     def reset(self, now_ms: int, boot_count: int = 1, reset_cause: int = 1) -> None:

@@ -3,15 +3,18 @@
 The CS Saucer's Raspberry Pi sends duty cycles to an Arduino Mega over USB, which drives the
 three azimuth motor drives (Torpedo 800) and the three azimuth servos at 4.3-9.4 % duty,
 50 Hz (CS Saucer manual, Table 1.1 and section 3.2.4). ``ArduinoPwmNode`` takes
-``pwm/duty_cycle`` with the checks of its simulated twin (``arduino/sim.py``: label, size,
-the profile's duty limits, the command-rate rule) and sends them to the board's firmware
+``pwm/duty_cycle`` with the checks its simulated twin makes (``arduino/common.py``: label,
+size, the profile's duty limits, the command-rate rule) and sends them to the board's firmware
 (``firmware/enbarr_arduino``) in the framed protocol of ``firmware/enbarr_arduino/link.h``
-(frame of ``transport/serial_link.py``: 0xA5 | LEN | TYPE SEQ BODY | CRC-16/CCITT-FALSE),
-documented again in ``docs/hardware.md``.
+(``arduino/protocol.py``; frame of ``transport/serial_link.py``: 0xA5 | LEN | TYPE SEQ BODY |
+CRC-16/CCITT-FALSE), documented again in ``docs/hardware.md``.
 
-The device is named by ``port`` (``/dev/ttyACM0``, or ``emulated[:NAME]`` for the
-emulator of ``arduino/emulator.py``, looked up again at every reconnection). Device I/O runs
-on the session's two threads, never on the executor or the chain thread:
+The device is named by ``port`` (its stable name
+``/dev/serial/by-id/usb-Arduino__www.arduino.cc__0042_<serial>-if00``, or ``/dev/ttyACM0``, or
+``emulated[:NAME]`` for the emulator of ``arduino/emulator.py``, looked up again at every
+reconnection). Constructing the node opens nothing (opening the port resets a Mega through
+DTR): ``start()`` does. Device I/O runs on the session's two threads, never on the executor or
+the chain thread:
 
 - the **writer** waits quietly for the board's boot HELLO (the Mega resets when the port
   opens, DTR; bytes sent into its bootloader would keep it there), then sends HELLO_REQ
@@ -37,132 +40,25 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-import struct
 import threading
 import time
-from typing import Any, NamedTuple
+from typing import Any
 
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
-from enbarr_core.allocation.azimuth import PwmCalibration
-from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_from_params, pwm_specs
+from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_layout_specs, PwmLayout
 from enbarr_core.framework.driver import ActuatorDriver, WARN
 from enbarr_core.framework.errors import DeviceError
-from enbarr_core.framework.health import (
-    InputHealth, IntervalMeter, OK, worst)
+from enbarr_core.framework.health import OK, worst
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.models.vessel3dof import AzimuthSpec
 from enbarr_interfaces import topics
 from enbarr_plugins import emulation
-from enbarr_plugins.arduino.sim import accept_duties, check_command_timeout, rate_status
-from enbarr_plugins.transport.serial_link import encode_frame, open_serial, SerialLink
-
-# -- the protocol (firmware/enbarr_arduino/link.h; a test checks that the values agree) ------
-PROTOCOL_VERSION = 1
-BOARD_ID = 0x4D45
-CHANNELS = 6
-HELLO_REQ, SET_DUTY, HEARTBEAT, CONFIG = 0x01, 0x02, 0x03, 0x04
-HELLO, STATUS = 0x81, 0x82
-RESULT_OK, RESULT_SEQ, RESULT_LENGTH, RESULT_RANGE, RESULT_TYPE = 0, 1, 2, 3, 4
-RESULTS = {RESULT_OK: 'ok', RESULT_SEQ: 'sequence refused', RESULT_LENGTH: 'wrong length',
-           RESULT_RANGE: 'value out of range', RESULT_TYPE: 'unknown type'}
-FLAG_NEUTRAL, FLAG_CONFIGURED, FLAG_TRIPPED = 0x01, 0x02, 0x04
-DEFAULT_TIMEOUT_MS = 250
-DEFAULT_DUTY_MIN, DEFAULT_DUTY_MAX, DEFAULT_NEUTRAL = 430, 940, 685
-UNITS_PER_PERCENT = 100  # duties travel in 0.01 %
-
-_HELLO = struct.Struct('>BHBHHB')
-_STATUS = struct.Struct('>BBBHHHHH')
-
-
-class Hello(NamedTuple):
-    """The board's identity (HELLO)."""
-
-    seq: int
-    version: int
-    board_id: int
-    channels: int
-    timeout_ms: int
-    boot_count: int
-    reset_cause: int
-
-    def describe(self) -> str:
-        """Say what was read, for people."""
-        return (f'protocol {self.version}, board id 0x{self.board_id:04X}, {self.channels} '
-                f'channels, watchdog {self.timeout_ms} ms, boot {self.boot_count}, reset cause '
-                f'0x{self.reset_cause:02X}')
-
-    def problem(self) -> str | None:
-        """Why this is not the board the driver speaks to, or None."""
-        if (self.version, self.board_id, self.channels) != (PROTOCOL_VERSION, BOARD_ID,
-                                                            CHANNELS):
-            return (f'not an Enbarr PWM board: read {self.describe()}; expected protocol '
-                    f'{PROTOCOL_VERSION}, board id 0x{BOARD_ID:04X}, {CHANNELS} channels '
-                    '(flash firmware/enbarr_arduino, docs/hardware.md)')
-        return None
-
-
-class Status(NamedTuple):
-    """The board's answer to one host frame (STATUS)."""
-
-    seq: int
-    acked: int
-    result: int
-    flags: int
-    watchdog_trips: int
-    crc_errors: int
-    seq_errors: int
-    refused: int
-    truncated: int
-
-    @property
-    def neutral(self) -> bool:
-        """Whether every output is at its neutral duty."""
-        return bool(self.flags & FLAG_NEUTRAL)
-
-
-class ProtocolError(DeviceError):
-    """A well-framed payload that is not a board message."""
-
-
-def message(kind: int, seq: int, body: bytes = b'') -> bytes:
-    """Return the frame of one message (type ``kind``, sequence ``seq``)."""
-    return encode_frame(bytes([kind, seq & 0xFF]) + body)
-
-
-def to_units(percent: float) -> int:
-    """Duty [%] in the protocol's 0.01 % units."""
-    return int(round(percent * UNITS_PER_PERCENT))
-
-
-def duty_body(units: Sequence[int]) -> bytes:
-    """Body of SET_DUTY: one u16 per channel [0.01 %]."""
-    return struct.pack(f'>{CHANNELS}H', *units)
-
-
-def config_body(duty_min: int, duty_max: int, timeout_ms: int,
-                neutral: Sequence[int]) -> bytes:
-    """Body of CONFIG: limits and neutral duties [0.01 %], watchdog timeout [ms]."""
-    return struct.pack(f'>3H{CHANNELS}H', duty_min, duty_max, timeout_ms, *neutral)
-
-
-def parse(payload: bytes) -> Hello | Status:
-    """Decode one board message; ``ProtocolError`` for an unknown type or a wrong length."""
-    if len(payload) < 2:
-        raise ProtocolError(f'payload of {len(payload)} bytes')
-    kind, seq, body = payload[0], payload[1], payload[2:]
-    if kind == HELLO and len(body) == _HELLO.size:
-        return Hello(seq, *_HELLO.unpack(body))
-    if kind == STATUS and len(body) == _STATUS.size:
-        return Status(seq, *_STATUS.unpack(body))
-    raise ProtocolError(f'type 0x{kind:02X} with {len(body)} body bytes')
-
-
-def newer(seq: int, last: int) -> bool:
-    """Whether sequence number ``seq`` is 1..127 ahead of ``last`` (mod 256)."""
-    return 1 <= (seq - last) % 256 <= 127
+from enbarr_plugins.arduino.common import DutyInput
+from enbarr_plugins.arduino.protocol import (
+    CHANNELS, config_body, config_problem, CONFIG, DEFAULT_DUTY_MAX, DEFAULT_DUTY_MIN,
+    DEFAULT_NEUTRAL, DEFAULT_TIMEOUT_MS, duty_body, Hello, HEARTBEAT, HELLO_REQ, newer, parse,
+    ProtocolError, RESULT_OK, RESULTS, SET_DUTY, Status, to_units)
+from enbarr_plugins.transport.serial_link import open_serial, SerialLink
 
 
 # -- the session: the two I/O threads --------------------------------------------------------
@@ -178,6 +74,13 @@ class LinkSettings:
     duty_min: int = DEFAULT_DUTY_MIN
     duty_max: int = DEFAULT_DUTY_MAX
     neutral: tuple[int, ...] = (DEFAULT_NEUTRAL,) * CHANNELS
+
+    def __post_init__(self) -> None:
+        """Refuse a configuration the board would refuse (``config_problem``) before sending."""
+        problem = config_problem(self.duty_min, self.duty_max, self.board_timeout_ms,
+                                 self.neutral)
+        if problem:
+            raise ValueError(problem)
 
 
 class BoardSession:
@@ -470,8 +373,9 @@ class BoardSession:
 
 # -- the node ---------------------------------------------------------------------------------
 LINK_SPECS = [
-    ParamSpec('port', '/dev/ttyACM0', "Serial port of the Arduino, or 'emulated[:NAME]' for "
-              'the emulator in this process', read_only=True),
+    ParamSpec('port', '/dev/ttyACM0', 'Serial port of the Arduino: its /dev/serial/by-id/... '
+              'link (survives a re-plug; /dev/ttyACMn may change), or '
+              "'emulated[:NAME]' for the emulator in this process", read_only=True),
     ParamSpec('baud', 115200, 'Serial speed (the firmware uses 115200)', 'baud', 1200,
               2000000, read_only=True),
     ParamSpec('heartbeat_period', 0.05, 'A HEARTBEAT when no command was sent for this long',
@@ -495,8 +399,7 @@ ERROR_MEMORY = 5.0
 class ArduinoPwmSettings:
     """Settings of ``ArduinoPwmNode`` (read only)."""
 
-    azimuths: tuple[AzimuthSpec, ...]
-    calibration: PwmCalibration
+    layout: PwmLayout
     port: str
     baud: int
     link: LinkSettings
@@ -504,13 +407,14 @@ class ArduinoPwmSettings:
     @classmethod
     def from_params(cls, names: Sequence[str], v: Mapping[str, Any]) -> ArduinoPwmSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
-        azimuths = AZIMUTHS.from_params(names, v)
-        c = pwm_from_params(v)
+        layout = PwmLayout.from_params(names, v)
+        azimuths, c = layout.azimuths, layout.calibration
         if 2 * len(azimuths) != CHANNELS:
             raise ValueError(f'azimuth_names: the board drives {CHANNELS // 2} azimuths '
                              f'(motor and servo each), got {len(azimuths)}')
         if not v['port']:
-            raise ValueError("port: a serial port (/dev/ttyACM0) or 'emulated' is needed")
+            raise ValueError('port: a serial port (/dev/serial/by-id/usb-Arduino...) or '
+                             "'emulated' is needed")
         if v['board_timeout'] < 2.0 * v['heartbeat_period']:
             raise ValueError(f"board_timeout: {v['board_timeout']} s is shorter than two "
                              f"heartbeat_period ({v['heartbeat_period']} s): the board would "
@@ -521,13 +425,17 @@ class ArduinoPwmSettings:
         if v['hello_timeout'] < v['boot_wait']:
             raise ValueError(f"hello_timeout: {v['hello_timeout']} s is shorter than "
                              f"boot_wait ({v['boot_wait']} s)")
+        if to_units(c.duty_min_percent) < 1:
+            raise ValueError(f'pwm.duty_min_percent: {c.duty_min_percent} % is below the '
+                             "board's smallest duty, 0.01 % (a duty of 0 would hold its PWM "
+                             'pins high; docs/hardware.md)')
         neutral = tuple(to_units(d) for _ in azimuths
                         for d in (c.neutral_thrust_duty, c.neutral_angle_duty))
         link = LinkSettings(v['heartbeat_period'], v['reply_timeout'], v['boot_wait'],
                             v['hello_timeout'], int(round(v['board_timeout'] * 1000)),
                             to_units(c.duty_min_percent), to_units(c.duty_max_percent),
                             neutral)
-        return cls(azimuths, c, v['port'], v['baud'], link)
+        return cls(layout, v['port'], v['baud'], link)
 
 
 class ArduinoPwmNode(ActuatorDriver):
@@ -546,21 +454,24 @@ class ArduinoPwmNode(ActuatorDriver):
                          **kwargs)
         names = AZIMUTHS.names(self)
         self.settings: ArduinoPwmSettings = self.bind_settings(
-            AZIMUTHS.specs(self, names) + pwm_specs(self) + LINK_SPECS,
+            pwm_layout_specs(self, names) + LINK_SPECS,
             lambda v: ArduinoPwmSettings.from_params(names, v),
             lambda _: None).settings  # every parameter is read only
         self.names = list(names)
-        self.calibration = self.settings.calibration
+        self.calibration = self.settings.layout.calibration
         self.channels = CHANNELS
         self._neutral = self.settings.link.neutral
         self._command = self._neutral
         self.device = self.settings.port
-        self.refused = 0
         self.sessions = 0
-        self.health = InputHealth()
-        self.duty_period = IntervalMeter()  # on arrival: the duty message has no stamp
-        self.add_on_set_parameters_callback(self._check_command_timeout)
+        self.duties = DutyInput(self.calibration, CHANNELS)
+        self.add_on_set_parameters_callback(self.duties.check_command_timeout)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
+
+    @property
+    def refused(self) -> int:
+        """Duty messages refused since start."""
+        return self.duties.refused
 
     # -- device -------------------------------------------------------------------------------
     def open_device(self) -> None:
@@ -626,7 +537,7 @@ class ArduinoPwmNode(ActuatorDriver):
 
     # -- commands -----------------------------------------------------------------------------
     def _on_duty(self, msg: Float64MultiArray) -> None:
-        if not accept_duties(self, msg):  # the checks of sim_arduino
+        if not self.duties.accept(msg, self.now_ns()):  # the checks of sim_arduino
             return
         with self.commanding():
             self._set(tuple(to_units(d) for d in msg.data))
@@ -646,9 +557,6 @@ class ArduinoPwmNode(ActuatorDriver):
         self._set(self._neutral)
 
     # -- status -------------------------------------------------------------------------------
-    def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
-        return check_command_timeout(self, params)
-
     def status(self) -> tuple[int, str]:
         """Return ERROR while faulted; WARN during the handshake, on link errors or refusals."""
         level, message = super().status()
@@ -662,8 +570,8 @@ class ArduinoPwmNode(ActuatorDriver):
               and time.monotonic_ns() - self._last_error_ns < ERROR_MEMORY * 1e9):
             link = (WARN, f'link errors in the last {ERROR_MEMORY:g} s (corrupted, truncated, '
                     'out-of-order frames or a board reset: see the counters)')
-        h_level, h_message, _ = self.health.report(1.0)
-        return worst((level, message), link, (h_level, h_message), rate_status(self))
+        return worst((level, message), link, self.duties.status(
+            self.watchdog.timeout_ns * 1e-9, self.report_problem))
 
     def status_values(self) -> dict[str, Any]:
         """Return the link and board counters."""
@@ -673,54 +581,3 @@ class ArduinoPwmNode(ActuatorDriver):
         if session is not None:
             out.update(session.counters())
         return out
-
-
-# -- enbarr check-device arduino --------------------------------------------------------------
-def check_device(target: Any) -> list[str]:
-    """Open the board, read its HELLO, send one neutral SET_DUTY, read the STATUS.
-
-    ``target.port`` (default ``/dev/ttyACM0``) or ``emulated``: then this package's emulator
-    runs in the process. A board that resets on open needs ``--timeout`` of a few seconds.
-    """
-    port = target.port or '/dev/ttyACM0'
-    timeout = target.timeout
-    emulator = None
-    if emulation.is_emulated(port):
-        from enbarr_plugins.arduino.emulator import ArduinoEmulator
-        emulator = ArduinoEmulator()
-        emulator.start()
-        path = emulator.path
-    else:
-        path = port
-    settings = LinkSettings(boot_wait=min(2.5, 0.5 * timeout), hello_timeout=timeout,
-                            reply_timeout=max(0.5, 0.25 * timeout))
-    session = None
-    try:
-        link = SerialLink(open_serial(path, 115200, timeout=0.05, write_timeout=0.1), port)
-        session = BoardSession(link, settings, port)
-        session.start()
-        session.wait(session.ready.is_set, timeout + settings.reply_timeout)
-        if session.fault is not None:
-            raise session.fault
-        if not session.ready.is_set():
-            raise DeviceError(f'{port}: no HELLO from the board within {timeout:g} s')
-        hello = session.hello
-        assert hello is not None
-        session.set_command(settings.neutral)
-        if not session.wait(lambda: session.confirmed, settings.reply_timeout * 2):
-            raise session.fault or DeviceError(
-                f'{port}: the board did not acknowledge a neutral SET_DUTY')
-        status = session.last_status
-        assert status is not None
-        return [
-            f'{port}: Enbarr PWM board, {hello.describe()}',
-            f'{port}: neutral SET_DUTY ({DEFAULT_NEUTRAL / 100:.2f} % on {CHANNELS} channels) '
-            f'acknowledged (seq {status.acked}); outputs '
-            f'{"neutral" if status.neutral else "NOT neutral"}; board counters: watchdog '
-            f'trips {status.watchdog_trips}, CRC errors {status.crc_errors}, sequence errors '
-            f'{status.seq_errors}, refused {status.refused}, truncated {status.truncated}']
-    finally:
-        if session is not None:
-            session.stop()
-        if emulator is not None:
-            emulator.stop()

@@ -1,6 +1,7 @@
 """DualShock 4 emulator: a DS4 gamepad input node that writes real ``struct input_event`` records.
 
-uinput is not available in containers, so the emulator stands where the kernel stands: it
+uinput is not available in containers, so the emulator stands where the kernel stands (with its
+own copy of the kernel's numbers, written from the kernel's sources, not the driver's): it
 describes the gamepad node hid-playstation registers (name, key and axis capabilities, absinfo
 0..255 flat 0 for sticks and triggers, -1..1 for the hat; ``drivers/hid/hid-playstation.c``,
 ``ps_gamepad_create``) and writes the events a kernel would (``struct input_event``, 24 bytes
@@ -15,8 +16,8 @@ DS4's motion-sensor node); ``garbage()`` (records with a bad type, code or value
 overran: SYN_DROPPED, events lost, the state must be re-read); ``stall()`` (nothing written;
 a resting controller looks the same).
 
-``Ds4EmulatorNode`` wraps it for profiles: registered as the ``evdev`` endpoint ``name``
-(``emulated:NAME`` in the driver's ``device``), scripted like ``scripted_joy``
+``Ds4EmulatorNode`` wraps it for profiles: registered when it starts as the ``evdev`` endpoint
+``name`` (``emulated:NAME`` in the driver's ``device``), scripted like ``scripted_joy``
 (``'7.0 press triangle'``, ``'0.0 sticks S W Y'`` with the profile's ``joy.surge``,
 ``joy.sway``, ``joy.yaw`` stick names, ``'72.0 stop'`` = unplugged), so it is the scripted
 operator of an emulated vessel, and it reports on ``/diagnostics`` what it wrote.
@@ -27,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import os
+import struct
 import threading
 import time
 from typing import Any
@@ -36,12 +38,37 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins import emulation
-from enbarr_plugins.joystick.ds4_evdev import (
-    ABS_HAT0X, ABS_HAT0Y, ABS_RX, ABS_RY, ABS_RZ, ABS_X, ABS_Y, ABS_Z, AbsInfo, BUTTON_CODES,
-    EV_ABS, EV_KEY, EV_SYN, EVENT, InputHandle, SYN_DROPPED, SYN_REPORT)
 from enbarr_core.control.joy_layouts import AXIS_CONTROLS
+from enbarr_plugins.joystick.ds4_protocol import AbsInfo, InputHandle
 from enbarr_plugins.joystick.scripted import parse_joy_script
 from enbarr_plugins.operator.script import Step
+
+# The device's side of the kernel ABI, typed here from the kernel's sources rather than taken
+# from the driver's ds4_protocol: the emulator stands where the kernel stands, so a wrong
+# number on the driver's side must show in the tests as a wrong button, not be copied here.
+# include/uapi/linux/input.h: struct input_event, 24 bytes on 64-bit.
+EVENT = struct.Struct('=qqHHi')
+# include/uapi/linux/input-event-codes.h
+EV_SYN, EV_KEY, EV_ABS = 0x00, 0x01, 0x03
+SYN_REPORT, SYN_DROPPED = 0, 3
+ABS_X, ABS_Y, ABS_Z, ABS_RX, ABS_RY, ABS_RZ = 0x00, 0x01, 0x02, 0x03, 0x04, 0x05
+ABS_HAT0X, ABS_HAT0Y = 0x10, 0x11
+# drivers/hid/hid-playstation.c, ps_gamepad_buttons, with the codes of input-event-codes.h.
+BUTTON_CODES = {
+    'square': 0x134,    # BTN_WEST
+    'triangle': 0x133,  # BTN_NORTH
+    'circle': 0x131,    # BTN_EAST
+    'cross': 0x130,     # BTN_SOUTH
+    'l1': 0x136,        # BTN_TL
+    'l2': 0x138,        # BTN_TL2
+    'r1': 0x137,        # BTN_TR
+    'r2': 0x139,        # BTN_TR2
+    'share': 0x13a,     # BTN_SELECT
+    'options': 0x13b,   # BTN_START
+    'ps': 0x13c,        # BTN_MODE
+    'l3': 0x13d,        # BTN_THUMBL
+    'r3': 0x13e,        # BTN_THUMBR
+}
 
 #: hdev->name of a DS4 on USB (hid-playstation names the gamepad node after it).
 NAME = 'Sony Interactive Entertainment Wireless Controller'
@@ -251,7 +278,6 @@ class Ds4EmulatorNode(EnbarrNode):
         self.settings: Ds4EmulatorSettings = self.bind_settings(
             SPECS, Ds4EmulatorSettings.from_params, lambda s: None).settings
         self.emulator = Ds4Emulator()
-        emulation.register('evdev', self.settings.name, self.emulator, owner=self)
         self._names = list(BUTTON_CODES)
         self._next = 0
         self._start_ns: int | None = None
@@ -260,7 +286,12 @@ class Ds4EmulatorNode(EnbarrNode):
         self.create_periodic(1.0, self._report)
 
     def start(self) -> None:
-        """Start the script's clock now."""
+        """Offer the device (the ``evdev`` endpoint ``name``), start the script's clock now.
+
+        Bringup starts the emulators before the drivers, so the driver finds the device when it
+        opens it; constructing the node offers nothing.
+        """
+        emulation.register('evdev', self.settings.name, self.emulator, owner=self)
         super().start()
         self._start_ns = self.now_ns()
 

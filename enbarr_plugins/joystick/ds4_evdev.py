@@ -1,17 +1,13 @@
 """DualShock 4 through Linux evdev: ``sensor_msgs/Joy`` in the ``enbarr_ds4`` layout.
 
-Sources (checked): linux ``drivers/hid/hid-playstation.c`` (``ps_gamepad_create``: the
-gamepad node has ABS_X/ABS_Y left stick, ABS_RX/ABS_RY right stick, ABS_Z/ABS_RZ L2/R2, all
-0..255 with flat 0, ABS_HAT0X/HAT0Y -1..1 the d-pad, hat value 0 = up = HAT0Y -1;
-``ps_gamepad_buttons``: BTN_WEST square, BTN_NORTH triangle, BTN_EAST circle, BTN_SOUTH
-cross, BTN_TL/TR L1/R1, BTN_TL2/TR2 L2/R2, BTN_SELECT share, BTN_START options, BTN_THUMBL/R
-L3/R3, BTN_MODE ps; ``ps_sensors_create``/``ps_touchpad_create``: the motion sensors
-("... Motion Sensors", INPUT_PROP_ACCELEROMETER, also ABS_X..ABS_RZ) and the touchpad
-("... Touchpad", its click BTN_LEFT) are separate nodes); ``include/uapi/linux/input.h``
-(``struct input_event``: ``struct timeval`` then ``__u16 type, code; __s32 value``, 24 bytes
-on 64-bit); ``Documentation/input/event-codes.rst`` (events up to SYN_REPORT form one
+The kernel's numbers (event types, axis and key codes, ``struct input_event``) and the
+open-node interface are in ``ds4_protocol``, with their sources. Semantics: the gamepad node
+of ``drivers/hid/hid-playstation.c`` has both sticks and both triggers 0..255 with flat 0 and
+the d-pad as a hat -1..1 (hat value 0 = up = HAT0Y -1); the motion sensors ("... Motion
+Sensors", INPUT_PROP_ACCELEROMETER) and the touchpad ("... Touchpad", its click BTN_LEFT) are
+separate nodes. ``Documentation/input/event-codes.rst``: events up to SYN_REPORT form one
 frame; after SYN_DROPPED ignore everything up to and including the next SYN_REPORT, then
-query the state with EVIOCGKEY/EVIOCGABS). The python-evdev package opens the device, reads
+query the state with EVIOCGKEY/EVIOCGABS. The python-evdev package opens the device, reads
 its name, capabilities and absinfo, and queries the state (``active_keys``, ``absinfo``); the
 events themselves are read from its fd and decoded here (``EventDecoder``), the same code
 for the emulator's pipe (``ds4_emulator``), so emulated and real runs share the byte path.
@@ -24,7 +20,9 @@ triangle, circle, cross, l1, l2, r1, r2, share, options, ps, trackpad (always 0:
 node), l3, r3, dpad_left, dpad_up, dpad_right, dpad_down]. Published on every change (each
 SYN_REPORT that changed the state) and at a steady ``rate`` (the heartbeat), stamped on the
 node clock at read time, with ``joy/connected`` (latched) True with each heartbeat and False
-at once on a fault.
+at once on a fault. Constructing the node opens and publishes nothing; ``start()`` opens the
+device, says ``joy/connected`` False (nothing read yet), and the heartbeat says True from
+then on; after ``stop()`` the node is silent.
 
 Device: ``device`` = ``/dev/input/eventN``, ``auto`` (the first input node whose
 capabilities are a DS4 gamepad's, re-found at every reconnect) or ``emulated[:NAME]``. A
@@ -42,15 +40,13 @@ on the executor.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 import errno
 import os
 import select
-import struct
 import threading
 import time
-from typing import Any, TYPE_CHECKING
+from typing import Any
 
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool
@@ -61,56 +57,13 @@ from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
 from enbarr_core.control.joy_layouts import get_layout
+from enbarr_plugins.joystick.ds4_protocol import (
+    ABS_HAT0X, ABS_HAT0Y, AbsInfo, BUTTON_CODES, EV_ABS, EV_KEY, EV_MSC, EV_SYN, EVENT,
+    GAMEPAD_ABS, GAMEPAD_KEYS, INPUT_PROP_ACCELEROMETER, InputHandle, STICKS, SYN_DROPPED,
+    SYN_REPORT, TRIGGERS)
 
-if TYPE_CHECKING:
-    from enbarr_plugins.check import CheckTarget
-
-#: ``struct input_event`` on 64-bit Linux: tv_sec, tv_usec (long), type, code (u16), value.
-EVENT = struct.Struct('=qqHHi')
-EV_SYN, EV_KEY, EV_ABS, EV_MSC = 0x00, 0x01, 0x03, 0x04
-SYN_REPORT, SYN_DROPPED = 0, 3
-ABS_X, ABS_Y, ABS_Z, ABS_RX, ABS_RY, ABS_RZ, ABS_HAT0X, ABS_HAT0Y = 0, 1, 2, 3, 4, 5, 16, 17
-#: enbarr_ds4 button name -> evdev key code (linux/input-event-codes.h).
-BUTTON_CODES = {
-    'square': 0x134, 'triangle': 0x133, 'circle': 0x131, 'cross': 0x130,  # WEST NORTH EAST S.
-    'l1': 0x136, 'l2': 0x138, 'r1': 0x137, 'r2': 0x139,  # BTN_TL, BTN_TL2, BTN_TR, BTN_TR2
-    'share': 0x13a, 'options': 0x13b, 'ps': 0x13c,       # BTN_SELECT, BTN_START, BTN_MODE
-    'l3': 0x13d, 'r3': 0x13e,                           # BTN_THUMBL, BTN_THUMBR
-}
-GAMEPAD_KEYS = frozenset(BUTTON_CODES.values())
-GAMEPAD_ABS = frozenset((ABS_X, ABS_Y, ABS_Z, ABS_RX, ABS_RY, ABS_RZ, ABS_HAT0X, ABS_HAT0Y))
-STICKS = (ABS_X, ABS_Y, ABS_RX, ABS_RY)  # left_x, left_y, right_x, right_y
-TRIGGERS = (ABS_Z, ABS_RZ)               # l2, r2
 LAYOUT = get_layout('enbarr_ds4')
-_READ_EVENTS = 64  # events per read
-
-
-@dataclass(frozen=True)
-class AbsInfo:
-    """Range of an absolute axis (``struct input_absinfo``)."""
-
-    value: int
-    minimum: int
-    maximum: int
-    flat: int = 0
-
-
-@dataclass
-class InputHandle:
-    """An opened input node: its identity, the fd its events are read from, its state query.
-
-    For a real device these come from python-evdev (``InputDevice``); the emulator builds one
-    around a pipe.
-    """
-
-    path: str
-    name: str
-    keys: frozenset[int]
-    absinfo: dict[int, AbsInfo]
-    fd: int
-    state: Callable[[], tuple[frozenset[int], dict[int, int]]]  # EVIOCGKEY, EVIOCGABS
-    close: Callable[[], None]
-    accelerometer: bool = False  # INPUT_PROP_ACCELEROMETER: a motion-sensor node
+READ_EVENTS = 64  # events per read
 
 
 def check_identity(h: InputHandle) -> None:
@@ -150,7 +103,7 @@ def open_input(path: str) -> InputHandle:
         return frozenset(dev.active_keys()), {c: dev.absinfo(c).value for c in absinfo}
 
     return InputHandle(path, dev.name, frozenset(caps.get(EV_KEY, [])), absinfo, dev.fd,
-                       state, dev.close, accelerometer=0x06 in props)
+                       state, dev.close, accelerometer=INPUT_PROP_ACCELEROMETER in props)
 
 
 def find_gamepad() -> InputHandle:
@@ -335,7 +288,6 @@ class Ds4EvdevNode(SensorDriver):
         self.device = self.settings.device
         self._pub = self.create_topic_publisher(topics.JOY)
         self._connected_pub = self.create_topic_publisher(topics.JOY_CONNECTED)
-        self._connected_pub.publish(Bool(data=False))
 
     # -- device ---------------------------------------------------------------------------------
     def open_device(self) -> None:
@@ -370,7 +322,11 @@ class Ds4EvdevNode(SensorDriver):
             h.close()
 
     def safe_state(self) -> None:
-        """Say the joystick is gone: ``joy/connected`` False (the controller's loss rule)."""
+        """Say the joystick is gone: ``joy/connected`` False (the controller's loss rule).
+
+        Also the first word of ``start()`` (``DeviceNode.start`` calls it between opening the
+        device and starting the node): the heartbeat says True once the node has started.
+        """
         self._connected_pub.publish(Bool(data=False))
 
     # -- reader thread -------------------------------------------------------------------------
@@ -381,7 +337,7 @@ class Ds4EvdevNode(SensorDriver):
             wait = max(0.0, next_beat - time.monotonic())
             try:
                 ready, _, _ = select.select([h.fd], [], [], min(wait, period))
-                data = os.read(h.fd, EVENT.size * _READ_EVENTS) if ready else None
+                data = os.read(h.fd, EVENT.size * READ_EVENTS) if ready else None
             except OSError as err:
                 if self._stop.is_set():
                     return
@@ -405,7 +361,8 @@ class Ds4EvdevNode(SensorDriver):
             beat = now >= next_beat
             if beat:
                 next_beat = max(next_beat + period, now)
-                self._connected_pub.publish(Bool(data=True))
+                if self.started:  # a source: silent before start (which says False first)
+                    self._connected_pub.publish(Bool(data=True))
             if changed or beat:
                 self._publish(decoder)
 
@@ -452,40 +409,3 @@ class Ds4EvdevNode(SensorDriver):
             pass
         super().destroy_node()
         self._stop.set()
-
-
-def check_device(target: CheckTarget) -> list[str]:
-    """``enbarr check-device ds4``: open the gamepad, print its identity and one state."""
-    device = target.device or 'auto'
-    emulator = None
-    if emulation.is_emulated(device):
-        from enbarr_plugins.joystick.ds4_emulator import Ds4Emulator
-        emulator = Ds4Emulator()
-        h = emulator.open()
-        check_identity(h)
-    else:
-        h = open_device(device)
-    try:
-        decoder = EventDecoder(h.keys, h.absinfo)
-        decoder.reset(*h.state())
-        if emulator is not None:  # the event path too: one frame through the pipe
-            emulator.press('cross')
-        ready, _, _ = select.select([h.fd], [], [], min(target.timeout, 0.2))
-        if ready:
-            data = os.read(h.fd, EVENT.size * _READ_EVENTS)
-            if data == b'':
-                raise DeviceError(f'{h.path}: end of input (unplugged)')
-            decoder.feed(data)
-        axes, buttons = decoder.joy()
-        pressed = [n for n, b in zip(LAYOUT.buttons, buttons) if b]
-        return [f'device: {h.path}', f'name: {h.name}',
-                f'buttons: {len(GAMEPAD_KEYS & h.keys)} gamepad keys '
-                f'({", ".join(hex(k) for k in sorted(GAMEPAD_KEYS & h.keys))})',
-                'axes: ' + ', '.join(f'{c}: {h.absinfo[c].minimum}..{h.absinfo[c].maximum} '
-                                     f'flat {h.absinfo[c].flat}' for c in sorted(GAMEPAD_ABS)),
-                'state (enbarr_ds4 layout): axes ' + ' '.join(f'{a:+.2f}' for a in axes)
-                + f'; pressed: {", ".join(pressed) or "none"}']
-    finally:
-        h.close()
-        if emulator is not None:
-            emulator.unplug()

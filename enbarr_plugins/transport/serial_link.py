@@ -16,10 +16,20 @@ CRC-16/IBM-3740) over LEN and PAYLOAD, sent big-endian.
 a start byte), CRC errors (the start byte is dropped and the search goes on from the next
 byte, so a frame that started inside a corrupted one is still found) and truncation (a frame
 cut off by a silent line, ``flush_partial``); each is counted.
+
+``vanished_port_hint`` is what every serial driver adds to an error on a port that went away:
+the kernel numbers USB serial adapters (``/dev/ttyUSBn``, ``/dev/ttyACMn``) in the order they
+appear, so a re-plugged device may come back under another number, while udev's
+``/dev/serial/by-id/...`` link (``60-serial.rules``: ``usb-<ID_SERIAL>-if<interface>``) keeps
+naming the same device.
 """
 
 from __future__ import annotations
 
+import errno
+import os
+from pathlib import Path
+import re
 from typing import Any
 
 from enbarr_core.framework.errors import DeviceError
@@ -140,6 +150,65 @@ class FrameDecoder:
                 'too_long': self.too_long, 'truncated': self.truncated}
 
 
+#: errno values a USB serial node fails with once the device is gone: ENOENT (opening a node
+#: udev removed), ENODEV and EIO (reading or writing a descriptor whose device was unplugged).
+VANISHED_ERRNOS = frozenset((errno.ENOENT, errno.ENODEV, errno.EIO))
+#: Where udev links each USB serial device under a name made of its vendor, model and serial.
+BY_ID_DIR = Path('/dev/serial/by-id')
+_KERNEL_NUMBERED = re.compile(r'/dev/tty(USB|ACM)[0-9]+')
+
+
+def _node_exists(path: str) -> bool:
+    return os.path.exists(path)
+
+
+def _errnos(err: BaseException | None) -> set[int]:
+    """Return the errno of ``err`` and of the errors it was raised from (pyserial wraps)."""
+    out: set[int] = set()
+    seen: set[int] = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        code = getattr(err, 'errno', None)
+        if isinstance(code, int):
+            out.add(code)
+        err = err.__cause__ or err.__context__
+    return out
+
+
+def _present_by_id() -> str:
+    try:
+        present = sorted(p.name for p in BY_ID_DIR.iterdir())
+    except OSError:
+        return 'none'
+    if not present:
+        return 'none'
+    return ', '.join(present[:4]) + (', ...' if len(present) > 4 else '')
+
+
+def vanished_port_hint(port: str, err: BaseException | None = None) -> str:
+    """Advice to append to an error on ``port`` when its device node is gone, or ``''``.
+
+    For a kernel-numbered USB serial name (``/dev/ttyUSBn``, ``/dev/ttyACMn``) that is gone
+    (``err``, or an error it was raised from, carries ENOENT, ENODEV or EIO, or the path no
+    longer exists): a sentence that steers to the stable ``/dev/serial/by-id/...`` link. For
+    a ``/dev/serial/by-id/...`` link that does not exist (the device is unplugged, or the
+    name is a profile's placeholder): the links present now. Both name the links present.
+    """
+    if port.startswith(f'{BY_ID_DIR}/'):
+        if _node_exists(port):
+            return ''
+        return (f' (no such link: the device is unplugged or has another serial number; '
+                f'links present now: {_present_by_id()}; docs/hardware.md)')
+    if not _KERNEL_NUMBERED.fullmatch(port):
+        return ''
+    if not (_errnos(err) & VANISHED_ERRNOS or not _node_exists(port)):
+        return ''
+    return (f' ({port} is gone: the kernel numbers USB serial devices as they appear, so a '
+            're-plugged one may come back as another /dev/ttyUSBn or /dev/ttyACMn; name it by '
+            f'its stable link {BY_ID_DIR}/usb-<vendor>_<model>_<serial>-if00 instead; links '
+            f'present now: {_present_by_id()}; docs/hardware.md)')
+
+
 def open_serial(port: str, baudrate: int = 115200, *, timeout: float = 0.1,
                 write_timeout: float = 0.1) -> Any:
     """Open ``port`` (``/dev/ttyACM0``) as a pyserial ``Serial`` with bounded read/write waits."""
@@ -150,7 +219,8 @@ def open_serial(port: str, baudrate: int = 115200, *, timeout: float = 0.1,
     try:
         return serial.Serial(port, baudrate, timeout=timeout, write_timeout=write_timeout)
     except (serial.SerialException, OSError, ValueError) as err:
-        raise DeviceError(f'{port}: cannot open at {baudrate} baud: {err}') from err
+        raise DeviceError(f'{port}: cannot open at {baudrate} baud: {err}'
+                          f'{vanished_port_hint(port, err)}') from err
 
 
 class SerialLink:
@@ -181,7 +251,8 @@ class SerialLink:
         try:
             written = self.serial.write(frame)
         except Exception as err:  # noqa: BLE001 - SerialException, SerialTimeoutException, OSError
-            raise DeviceError(f'{self.port}: write failed: {err}') from err
+            raise DeviceError(f'{self.port}: write failed: {err}'
+                              f'{vanished_port_hint(self.port, err)}') from err
         if written is not None and written != len(frame):
             raise DeviceError(f'{self.port}: wrote {written} of {len(frame)} bytes')
         self.sent += 1
@@ -191,7 +262,8 @@ class SerialLink:
         try:
             data = self.serial.read(max(1, self.serial.in_waiting))
         except Exception as err:  # noqa: BLE001 - SerialException, OSError (unplugged)
-            raise DeviceError(f'{self.port}: read failed: {err}') from err
+            raise DeviceError(f'{self.port}: read failed: {err}'
+                              f'{vanished_port_hint(self.port, err)}') from err
         if not data:
             self.decoder.flush_partial()
             return []

@@ -43,9 +43,12 @@ void get_mcusr(void)
 static enb_link board;
 static uint16_t *const BOOT_COUNT_ADDR = (uint16_t *)0;  /* EEPROM word 0 */
 
+/* The output is high for OCR + 1 ticks. link.c refuses a duty of 0 (CONFIG's duty_min is at
+ * least 1): 0 * 4 - 1 would wrap to 0xFFFF, above TOP, and with no compare match the pin
+ * would stay high (data sheet, 16-bit Timer/Counter, fast PWM mode). */
 static uint16_t ticks(uint16_t duty)
 {
-    return (uint16_t)(duty * 4u - 1u);  /* the output is high for OCR + 1 ticks */
+    return (uint16_t)(duty * 4u - 1u);
 }
 
 static void write_outputs(void)

@@ -202,7 +202,10 @@ static void handle(enb_link *link, const uint8_t *p, uint8_t len, uint32_t now_m
         uint16_t lo = get_u16(body);
         uint16_t hi = get_u16(body + 2);
         uint16_t timeout = get_u16(body + 4);
-        if (lo >= hi || hi > 10000u || timeout < 20u) {
+        /* A duty of 0 cannot be output: the sketch's OCR = 4 * duty - 1 wraps to 0xFFFF,
+         * above TOP, where no compare match clears the pin (a constant-high line). Every
+         * duty is at least duty_min, so refusing a zero minimum refuses them all. */
+        if (lo == 0u || lo >= hi || hi > 10000u || timeout < 20u) {
             count(link, ENB_C_REFUSED);
             send_status(link, seq, ENB_RESULT_RANGE);
             return;

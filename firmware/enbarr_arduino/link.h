@@ -28,7 +28,10 @@
  *                              the whole frame is refused (RESULT_RANGE).
  *   0x03 HEARTBEAT  (no body)  the host is alive: the outputs keep their duty.
  *   0x04 CONFIG     u16 duty_min, u16 duty_max, u16 timeout_ms, 6 x u16 neutral duty
- *                              (kept in RAM until reset; defaults below).
+ *                              (kept in RAM until reset; defaults below). Refused
+ *                              (RESULT_RANGE) unless 1 <= duty_min < duty_max <= 10000,
+ *                              timeout_ms >= 20 and every neutral within [duty_min,
+ *                              duty_max]: a duty of 0 has no pulse the timers can make.
  * Board -> host (SEQ: the board's counter, 0 at reset, +1 per frame):
  *   0x81 HELLO      u8 protocol version, u16 board id, u8 channels, u16 timeout_ms,
  *                   u16 boot count, u8 reset cause. Sent at reset and for HELLO_REQ.

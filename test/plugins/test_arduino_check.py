@@ -8,7 +8,7 @@ from enbarr_core.bringup.cli import main
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins.arduino import firmware
 from enbarr_plugins.arduino.emulator import ArduinoEmulator
-from enbarr_plugins.arduino.link import check_device
+from enbarr_plugins.arduino.check import check_device
 from enbarr_plugins.check import CheckTarget
 
 

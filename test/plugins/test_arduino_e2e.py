@@ -38,6 +38,7 @@ node = ArduinoPwmNode('arduino', parameter_overrides=overrides(
 source = EnbarrNode('pwm')
 pub = source.create_topic_publisher(topics.PWM_DUTY)
 LinkBus.of(node.context).connect()
+node.start()
 source.create_timer(0.02, lambda: pub.publish(duty_msg([8.2, 9.4] * 3)))
 ex = SingleThreadedExecutor()
 ex.add_node(node)

@@ -12,13 +12,24 @@ import subprocess
 
 import pytest
 
-from enbarr_plugins.arduino import firmware
-from enbarr_plugins.arduino import link as proto
-from enbarr_plugins.transport.serial_link import crc16_ccitt_false, FrameDecoder
+from enbarr_plugins.arduino import emulator, firmware
+from enbarr_plugins.arduino import protocol as proto
+from enbarr_plugins.transport.serial_link import crc16_ccitt_false, encode_frame, FrameDecoder
 
 APT = 'apt-get install -y --no-install-recommends gcc-avr avr-libc arduino-core-avr'
 ROOT = Path(__file__).resolve().parents[2]
 GOOD = [820, 940, 430, 685, 700, 600]  # duties [0.01 %]
+
+# The protocol's numbers, typed from firmware/enbarr_arduino/link.h (its source of truth).
+LINK_H = {
+    'PROTOCOL_VERSION': 1, 'BOARD_ID': 0x4D45, 'CHANNELS': 6,
+    'HELLO_REQ': 0x01, 'SET_DUTY': 0x02, 'HEARTBEAT': 0x03, 'CONFIG': 0x04,
+    'HELLO': 0x81, 'STATUS': 0x82,
+    'RESULT_OK': 0, 'RESULT_SEQ': 1, 'RESULT_LENGTH': 2, 'RESULT_RANGE': 3, 'RESULT_TYPE': 4,
+    'FLAG_NEUTRAL': 0x01, 'FLAG_CONFIGURED': 0x02, 'FLAG_TRIPPED': 0x04,
+    'DEFAULT_TIMEOUT_MS': 250, 'DEFAULT_DUTY_MIN': 430, 'DEFAULT_DUTY_MAX': 940,
+    'DEFAULT_NEUTRAL': 685,
+}
 
 
 @pytest.fixture(scope='session', autouse=True)
@@ -67,21 +78,39 @@ def test_crc_is_ccitt_false_and_agrees_with_the_host():
 
 
 def test_constants_agree_with_link_h():
+    """The driver's numbers (protocol.py) and the emulator's (firmware.defines) against link.h
+    parsed here and the values typed from it."""
     text = (ROOT / 'firmware/enbarr_arduino/link.h').read_text()
     defines = {m[1]: int(m[2], 0) for m in re.finditer(
-        r'#define (ENB_\w+) (0x[0-9A-Fa-f]+|\d+)u?\b', text)}
-    assert defines['ENB_PROTOCOL_VERSION'] == proto.PROTOCOL_VERSION
-    assert defines['ENB_BOARD_ID'] == proto.BOARD_ID
-    assert defines['ENB_CHANNELS'] == proto.CHANNELS
-    for name in ('HELLO_REQ', 'SET_DUTY', 'HEARTBEAT', 'CONFIG', 'HELLO', 'STATUS',
-                 'RESULT_OK', 'RESULT_SEQ', 'RESULT_LENGTH', 'RESULT_RANGE', 'RESULT_TYPE',
-                 'FLAG_NEUTRAL', 'FLAG_CONFIGURED', 'FLAG_TRIPPED'):
-        assert defines[f'ENB_{name}'] == getattr(proto, name), name
-    assert defines['ENB_DEFAULT_TIMEOUT_MS'] == proto.DEFAULT_TIMEOUT_MS
-    assert defines['ENB_DEFAULT_NEUTRAL'] == proto.DEFAULT_NEUTRAL
+        r'#define (ENB_\w+) +(0x[0-9A-Fa-f]+|\d+)u?\b', text)}
+    for name, value in LINK_H.items():
+        assert defines[f'ENB_{name}'] == value, f'link.h changed {name}: a new protocol version'
+        assert getattr(proto, name) == value, name
+        assert firmware.defines()[f'ENB_{name}'] == value, name
+    assert proto.UNITS_PER_PERCENT == emulator.UNITS_PER_PERCENT == 100  # 0.01 % units
     enum = re.search(r'enum enb_counter_id \{(.*?)\}', text, re.S)[1]
     names = [m.lower() for m in re.findall(r'ENB_C_(\w+)', enum) if m != 'COUNT']
     assert tuple(names) == firmware.COUNTERS
+
+
+def test_message_layouts_are_link_h():
+    """Each body layout of link.h, typed: the driver's encoders and parser agree with it."""
+    # host -> board: A5 | LEN | TYPE SEQ BODY | CRC; SET_DUTY 6 x u16, CONFIG 9 x u16.
+    duty = proto.message(0x02, 0x107, proto.duty_body(GOOD))
+    body = bytes([0x02, 0x07]) + struct.pack('>6H', *GOOD)
+    assert duty == encode_frame(body) and duty[:2] == bytes([0xA5, 14])
+    assert proto.config_body(500, 900, 100, [690] * 6) == struct.pack('>9H', 500, 900, 100,
+                                                                      *[690] * 6)
+    # board -> host: HELLO u8 version, u16 board id, u8 channels, u16 timeout_ms,
+    # u16 boot count, u8 reset cause; STATUS u8 acked, u8 result, u8 flags, 5 x u16.
+    hello = proto.parse(bytes([0x81, 9]) + struct.pack('>BHBHHB', 1, 0x4D45, 6, 250, 12, 2))
+    assert hello == proto.Hello(9, 1, 0x4D45, 6, 250, 12, 2) and hello.problem() is None
+    status = proto.parse(bytes([0x82, 10]) + struct.pack('>BBBHHHHH', 7, 3, 0x05, 1, 2, 3, 4,
+                                                         5))
+    assert status == proto.Status(10, 7, 3, 0x05, 1, 2, 3, 4, 5) and status.neutral
+    for wrong in (bytes([0x81, 0]) + bytes(8), bytes([0x82, 0]) + bytes(14), bytes([0x83, 0])):
+        with pytest.raises(proto.ProtocolError):
+            proto.parse(wrong)
 
 
 def test_power_on_is_neutral_and_says_hello():
@@ -286,3 +315,37 @@ def test_firmware_builds_for_the_mega(tmp_path):
     assert lines[-1] == ':00000001FF' and all(line.startswith(':') for line in lines)
     size = sum(int(line[1:3], 16) for line in lines)
     assert 1000 < size < 253952, size  # the Mega's flash without the bootloader
+
+
+def test_config_with_a_zero_minimum_or_neutral_duty_is_refused():
+    # On the board a duty d is OCR = d * 4 - 1 ticks: ticks(0) wraps to 0xFFFF, above
+    # TOP = ICRn = 39999, so no compare match ever clears the output (ATmega2560 data sheet,
+    # 16-bit Timer/Counter, fast PWM mode): a constant-high line to the ESCs and servos.
+    # Frames typed from link.h: CONFIG = 0x04, body u16 min, u16 max, u16 timeout_ms,
+    # 6 x u16 neutral; the answer STATUS = 0x82 with result RANGE = 3.
+    w = Wire()
+    for lo, neutral in ((0, [685] * 6), (0, [0] * 6), (0, [0, 685, 685, 685, 685, 685])):
+        body = struct.pack('>9H', lo, 940, 250, *neutral)
+        w.board.rx(proto.encode_frame(bytes([0x04, w.seq + 1]) + body), w.t)
+        w.seq += 1
+        (status,) = w.read()
+        assert (status.acked, status.result) == (w.seq, 3), (lo, neutral, status)
+        assert not status.flags & 0x02  # not CONFIGURED
+    assert w.board.duties() == [685] * 6
+    # The defaults still stand: a zero duty is refused.
+    assert w.duty([0] + GOOD[1:]).result == 3 and w.board.duties() == [685] * 6
+    # The smallest duty the board can output is one unit (0.01 %, OCR = 3).
+    status = w.send(proto.CONFIG, struct.pack('>9H', 1, 940, 250, *[685] * 6))[0]
+    assert status.result == 0 and w.duty([1] * 6).result == 0 and w.board.duties() == [1] * 6
+
+
+@pytest.mark.e2e
+def test_protocol_modules_import_without_rclpy():
+    """The protocol and firmware modules are pure: a tool or a test can use them without ROS."""
+    import sys
+    code = ('import sys\nsys.modules["rclpy"] = None\n'
+            'import enbarr_plugins.arduino.protocol, enbarr_plugins.arduino.firmware\n'
+            'import enbarr_plugins.joystick.ds4_protocol\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            cwd=ROOT, timeout=60)
+    assert result.returncode == 0, result.stderr

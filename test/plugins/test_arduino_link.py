@@ -19,15 +19,19 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import duty_msg, NAMES, overrides
 
-from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins import emulation
-from enbarr_plugins.arduino import link as proto
+from enbarr_plugins.arduino import link
 from enbarr_plugins.arduino.emulator import (
     ArduinoEmulator, ArduinoEmulatorNode, EMULATOR_OUTPUT)
-from enbarr_plugins.arduino.link import ArduinoPwmNode
+from enbarr_plugins.arduino.link import ArduinoPwmNode, LinkSettings
 from enbarr_plugins.transport.serial_link import crc16_ccitt_false, FrameDecoder
+
+# Message types of firmware/enbarr_arduino/link.h, typed from it (not read from the driver).
+HELLO_REQ, SET_DUTY, HEARTBEAT, CONFIG = 0x01, 0x02, 0x03, 0x04
+BOARD_ID = 0x4D45
 
 GOOD = [8.2, 9.4] * len(NAMES)           # motor 0.6 N, servo 1.98968 rad on every azimuth
 OTHER = [6.0, 5.0, 7.5, 8.0, 4.3, 6.85]
@@ -80,6 +84,7 @@ def driver(context: Any, executor: Any, port: str, **extra: Any) -> Rig:
                                         parameter_overrides=overrides(params)))
     pub = probe(context, executor, 'pwm').create_topic_publisher(topics.PWM_DUTY)
     LinkBus.of(context).connect()
+    node.start()  # opens the port: the board resets (DTR) and the session begins
     return Rig(node, pub)
 
 
@@ -101,10 +106,10 @@ def test_duties_reach_the_board_as_set_duty_frames(context, executor, spin, emu)
     payloads = FrameDecoder().feed(bytes(emu.board.received))
     kinds = [p[0] for p in payloads]
     # The session: HELLO_REQ, CONFIG from the profile, neutral duties, then the command.
-    assert kinds[:3] == [proto.HELLO_REQ, proto.CONFIG, proto.SET_DUTY], kinds[:5]
+    assert kinds[:3] == [HELLO_REQ, CONFIG, SET_DUTY], kinds[:5]
     assert payloads[1][2:] == struct.pack('>9H', 430, 940, 250, *[685] * 6)
     assert payloads[2][2:] == struct.pack('>6H', *[685] * 6)
-    duty = next(p for p in payloads if p[0] == proto.SET_DUTY and p[2:] != payloads[2][2:])
+    duty = next(p for p in payloads if p[0] == SET_DUTY and p[2:] != payloads[2][2:])
     body = struct.pack('>6H', 820, 940, 820, 940, 820, 940)
     assert duty[2:] == body
     head = bytes([len(duty)]) + duty
@@ -122,7 +127,7 @@ def test_heartbeats_keep_the_board_alive_without_commands(context, executor, spi
     sent = r.node._session.sent
     assert spin(executor, lambda: r.node._session.sent >= sent + 10, TIMEOUT)
     kinds = [p[0] for p in FrameDecoder().feed(bytes(emu.board.received))]
-    assert kinds[-5:] == [proto.HEARTBEAT] * 5
+    assert kinds[-5:] == [HEARTBEAT] * 5
     assert emu.applied(GOOD) and emu.board.counters()['watchdog_trips'] == 0
     # /diagnostics carries the link counters of both ends.
     assert spin(executor, lambda: diag and diag[-1].level == DiagnosticStatus.OK
@@ -144,7 +149,7 @@ def test_the_board_goes_neutral_on_its_own_when_the_driver_dies(context, executo
     r.node._session = None
     with session._cond:
         session._stop = True
-        session.fault = proto.DeviceError('paused')  # no last word
+        session.fault = DeviceError('paused')  # no last word
         session._cond.notify_all()
     assert spin(executor, lambda: emu.board.neutral, TIMEOUT)
     assert emu.board.counters()['watchdog_trips'] == 1
@@ -284,7 +289,7 @@ def test_wrong_identity_is_refused_naming_port_and_value(context, executor, spin
     fault = r.node.last_fault
     assert emu.port in fault and emu.board.path in fault and 'board id 0x1234' in fault, fault
     assert not ready(r.node)
-    emu.board.wrong_identity(board_id=proto.BOARD_ID, version=9)
+    emu.board.wrong_identity(board_id=BOARD_ID, version=9)
     assert spin(executor, lambda: 'protocol 9' in r.node.last_fault, TIMEOUT)
     # The port opens each time, the board does not fit: the retries still back off.
     assert spin(executor, lambda: r.node.faults >= 4, TIMEOUT)
@@ -357,6 +362,7 @@ def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor
     emu_node = add(executor, ArduinoEmulatorNode(
         node_name='arduino_emulator', context=context,
         parameter_overrides=overrides({'name': name})))
+    emu_node.start()  # bringup starts the emulators first
     r = driver(context, executor, f'emulated:{name}')
     p = probe(context, executor, 'sim')
     sim: list[JointState] = []
@@ -386,3 +392,58 @@ def test_emulator_node_flies_the_simulator_and_reports_outputs(context, executor
     assert spin(executor, lambda: not r.node.connected, TIMEOUT)
     emu_node.replug()
     drive(spin, executor, r, Emu(emu_node.emulator, name), OTHER)
+
+
+@pytest.mark.parametrize('duty_min', [0.0, 0.004])
+def test_a_minimum_duty_of_zero_is_refused_before_anything_is_sent(context, duty_min):
+    # 0 in the board's 0.01 % units: its ticks(0) wraps to a constant-high output.
+    with pytest.raises(ConfigurationError, match=r'pwm\.duty_min_percent: .*0\.01 %') as info:
+        ArduinoPwmNode(node_name='arduino', context=context, parameter_overrides=overrides(
+            {'port': 'emulated:none', 'pwm.duty_min_percent': duty_min}))
+    assert info.value.parameter == 'pwm.duty_min_percent'
+
+
+def test_link_settings_refuse_a_zero_minimum_or_neutral():
+    with pytest.raises(ValueError, match='duty_min'):
+        LinkSettings(duty_min=0)
+    with pytest.raises(ValueError, match='neutral'):
+        LinkSettings(neutral=(0,) * 6)
+
+
+def test_constructing_the_driver_opens_nothing(context, executor, spin, emu, monkeypatch):
+    # Opening the port resets a Mega through DTR: building the node (bringup --check) must not.
+    opened: list[str] = []
+    real = link.open_serial
+    monkeypatch.setattr(link, 'open_serial', lambda path, *a, **k: opened.append(path)
+                        or real(path, *a, **k))
+    node = add(executor, ArduinoPwmNode(node_name='arduino', context=context,
+                                        parameter_overrides=overrides({'port': emu.port})))
+    assert opened == [] and node._session is None and node.sessions == 0
+    assert not node.connected and node.faults == 0 and emu.board.resets == 0
+    node.start()
+    assert opened == [emu.board.path] and node.sessions == 1
+    assert spin(executor, lambda: ready(node), TIMEOUT), node.last_fault
+    assert emu.board.resets == 1  # the open reset it, once
+
+
+def test_constructing_the_emulator_node_opens_no_pty(context, executor):
+    name = f'quiet{next(_names)}'
+    emu_node = add(executor, ArduinoEmulatorNode(
+        node_name='arduino_emulator', context=context,
+        parameter_overrides=overrides({'name': name})))
+    assert emu_node.emulator.path is None and not emu_node.emulator.powered
+    with pytest.raises(DeviceError, match=f'no serial emulator named {name!r}'):
+        emulation.lookup('serial', f'emulated:{name}')
+    emu_node.start()
+    path = emulation.lookup('serial', f'emulated:{name}')
+    assert path == emu_node.emulator.path and os.path.exists(path)
+    emu_node.start()  # a second start opens no second pty
+    assert emulation.lookup('serial', f'emulated:{name}') == path
+
+
+def test_a_vanished_usb_port_is_a_fault_that_names_the_by_id_link(context, executor):
+    # No /dev/ttyACM97 here: the open fails with ENOENT, as after a re-plug renumbered it.
+    r = driver(context, executor, '/dev/ttyACM97')
+    assert not r.node.connected
+    assert ('/dev/ttyACM97 is gone' in r.node.last_fault
+            and '/dev/serial/by-id/usb-<vendor>_<model>_<serial>-if00' in r.node.last_fault)

@@ -4,6 +4,7 @@ CLI), and the driver node with every fault of issue 9 (node).
 
 from __future__ import annotations
 
+import struct
 import time
 from typing import Any
 
@@ -17,15 +18,38 @@ from support.nodes import TIMEOUT, add, probe
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
 from enbarr_plugins.check import CheckTarget
-from enbarr_plugins.joystick import ds4_evdev
-from enbarr_plugins.joystick.ds4_emulator import ABSINFO, Ds4Emulator, Ds4EmulatorNode
-from enbarr_plugins.joystick.ds4_evdev import (
-    BUTTON_CODES, check_device, Ds4EvdevNode, EV_ABS, EV_KEY, EV_SYN, EVENT, EventDecoder,
-    SYN_REPORT)
+from enbarr_plugins.joystick import ds4_emulator, ds4_evdev, ds4_protocol
+from enbarr_plugins.joystick.check import check_device
+from enbarr_plugins.joystick.ds4_emulator import Ds4Emulator, Ds4EmulatorNode
+from enbarr_plugins.joystick.ds4_evdev import Ds4EvdevNode, EventDecoder
+from enbarr_plugins.joystick.ds4_protocol import AbsInfo
 from enbarr_core.control.joy_layouts import get_layout
 
 LAYOUT = get_layout('enbarr_ds4')
 TRIANGLE = LAYOUT.buttons.index('triangle')
+
+# The kernel's numbers, typed from its sources (never read from the code under test):
+# include/uapi/linux/input-event-codes.h ...
+EV_SYN, EV_KEY, EV_ABS, EV_MSC = 0x00, 0x01, 0x03, 0x04
+SYN_REPORT, SYN_DROPPED = 0, 3
+AXES = {'ABS_X': 0x00, 'ABS_Y': 0x01, 'ABS_Z': 0x02, 'ABS_RX': 0x03, 'ABS_RY': 0x04,
+        'ABS_RZ': 0x05, 'ABS_HAT0X': 0x10, 'ABS_HAT0Y': 0x11}
+INPUT_PROP_ACCELEROMETER = 0x06
+# ... and drivers/hid/hid-playstation.c, ps_gamepad_buttons: the DS4's buttons as key codes.
+CODES = {'square': 0x134,    # BTN_WEST
+         'triangle': 0x133,  # BTN_NORTH
+         'circle': 0x131,    # BTN_EAST
+         'cross': 0x130,     # BTN_SOUTH
+         'l1': 0x136, 'r1': 0x137, 'l2': 0x138, 'r2': 0x139,  # BTN_TL, TR, TL2, TR2
+         'share': 0x13a, 'options': 0x13b, 'ps': 0x13c,       # BTN_SELECT, START, MODE
+         'l3': 0x13d, 'r3': 0x13e}                            # BTN_THUMBL, THUMBR
+# include/uapi/linux/input.h: struct input_event = struct timeval (two 8-byte longs on 64-bit),
+# __u16 type, __u16 code, __s32 value.
+EVENT = struct.Struct('<qqHHi')
+# ps_gamepad_create: sticks and triggers 0..255, the hat -1..1 (flat 0).
+ABSINFO = {**{AXES[a]: AbsInfo(128, 0, 255) for a in ('ABS_X', 'ABS_Y', 'ABS_RX', 'ABS_RY')},
+           AXES['ABS_Z']: AbsInfo(0, 0, 255), AXES['ABS_RZ']: AbsInfo(0, 0, 255),
+           AXES['ABS_HAT0X']: AbsInfo(0, -1, 1), AXES['ABS_HAT0Y']: AbsInfo(0, -1, 1)}
 
 
 def pack(*events: tuple[int, int, int], t: float = 1.0) -> bytes:
@@ -33,7 +57,7 @@ def pack(*events: tuple[int, int, int], t: float = 1.0) -> bytes:
 
 
 def decoder() -> EventDecoder:
-    d = EventDecoder(frozenset(BUTTON_CODES.values()), dict(ABSINFO))
+    d = EventDecoder(frozenset(CODES.values()), dict(ABSINFO))
     d.reset(frozenset(), {c: a.value for c, a in ABSINFO.items()})
     return d
 
@@ -43,6 +67,32 @@ def decoder() -> EventDecoder:
 @pytest.mark.unit
 def test_record_is_the_64_bit_input_event():
     assert EVENT.size == 24
+    for struct_ in (ds4_protocol.EVENT, ds4_emulator.EVENT):  # the driver's, the device's
+        assert struct_.size == 24
+        record = EVENT.pack(1, 2, 3, 4, -5)
+        assert struct_.unpack(record) == (1, 2, 3, 4, -5)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize('side', [ds4_protocol, ds4_emulator], ids=['driver', 'emulator'])
+def test_kernel_numbers_are_the_kernels(side):
+    """Each side's copy of the kernel's numbers against the numbers typed from its sources."""
+    assert side.BUTTON_CODES == CODES
+    assert (side.EV_SYN, side.EV_KEY, side.EV_ABS) == (EV_SYN, EV_KEY, EV_ABS)
+    assert (side.SYN_REPORT, side.SYN_DROPPED) == (SYN_REPORT, SYN_DROPPED)
+    for name, code in AXES.items():
+        assert getattr(side, name) == code, name
+
+
+@pytest.mark.unit
+def test_the_drivers_axis_roles_and_properties_are_the_kernels():
+    p = ds4_protocol
+    assert p.EV_MSC == EV_MSC and p.INPUT_PROP_ACCELEROMETER == INPUT_PROP_ACCELEROMETER
+    assert p.STICKS == (AXES['ABS_X'], AXES['ABS_Y'], AXES['ABS_RX'], AXES['ABS_RY'])
+    assert p.TRIGGERS == (AXES['ABS_Z'], AXES['ABS_RZ'])
+    assert p.GAMEPAD_KEYS == frozenset(CODES.values())
+    assert p.GAMEPAD_ABS == frozenset(AXES.values())
+    assert ds4_emulator.ABSINFO == ABSINFO
 
 
 @pytest.mark.unit
@@ -59,10 +109,10 @@ def test_sticks_triggers_and_hat_in_the_enbarr_ds4_layout():
 
 
 @pytest.mark.unit
-@pytest.mark.parametrize('name', list(BUTTON_CODES))
+@pytest.mark.parametrize('name', list(CODES))
 def test_every_button_lands_on_its_layout_index(name):
     d = decoder()
-    d.feed(pack((EV_KEY, BUTTON_CODES[name], 1), (EV_SYN, SYN_REPORT, 0)))
+    d.feed(pack((EV_KEY, CODES[name], 1), (EV_SYN, SYN_REPORT, 0)))
     _, buttons = d.joy()
     assert [n for n, b in zip(LAYOUT.buttons, buttons) if b] == [name]
 
@@ -70,18 +120,18 @@ def test_every_button_lands_on_its_layout_index(name):
 @pytest.mark.unit
 def test_a_frame_applies_only_at_syn_report_and_split_records_are_reassembled():
     d = decoder()
-    data = pack((EV_KEY, BUTTON_CODES['cross'], 1), (EV_SYN, SYN_REPORT, 0))
+    data = pack((EV_KEY, CODES['cross'], 1), (EV_SYN, SYN_REPORT, 0))
     assert not d.feed(data[:10]) and d.partial == 10
     assert not d.feed(data[10:24])  # the key, no SYN_REPORT yet
     assert not d.pressed
-    assert d.feed(data[24:]) and d.pressed == {BUTTON_CODES['cross']} and d.partial == 0
+    assert d.feed(data[24:]) and d.pressed == {CODES['cross']} and d.partial == 0
 
 
 @pytest.mark.unit
 def test_corrupted_records_are_dropped_and_counted():
     d = decoder()
     assert not d.feed(pack((0x1f, 0, 7), (EV_KEY, 0x2ff, 1), (EV_ABS, 0x28, 5),
-                           (EV_ABS, 0, 999), (EV_KEY, BUTTON_CODES['cross'], 7),
+                           (EV_ABS, 0, 999), (EV_KEY, CODES['cross'], 7),
                            (EV_SYN, SYN_REPORT, 0)))
     assert d.bad_events == 5 and not d.pressed and d.values[0] == 128
 
@@ -89,15 +139,16 @@ def test_corrupted_records_are_dropped_and_counted():
 @pytest.mark.unit
 def test_syn_dropped_discards_up_to_the_next_report_and_asks_for_the_state():
     d = decoder()
-    d.feed(pack((EV_ABS, 0, 0), (EV_SYN, 3, 0), (EV_ABS, 1, 0), (EV_SYN, SYN_REPORT, 0)))
+    d.feed(pack((EV_ABS, 0, 0), (EV_SYN, SYN_DROPPED, 0), (EV_ABS, 1, 0),
+                (EV_SYN, SYN_REPORT, 0)))
     assert d.dropped == 1 and d.resync_due and d.values[0] == 128 and d.values[1] == 128
 
 
 @pytest.mark.unit
 def test_event_times_going_back_are_counted():
     d = decoder()
-    d.feed(pack((EV_KEY, BUTTON_CODES['cross'], 1), (EV_SYN, SYN_REPORT, 0), t=5.0))
-    d.feed(pack((EV_KEY, BUTTON_CODES['cross'], 0), (EV_SYN, SYN_REPORT, 0), t=4.0))
+    d.feed(pack((EV_KEY, CODES['cross'], 1), (EV_SYN, SYN_REPORT, 0), t=5.0))
+    d.feed(pack((EV_KEY, CODES['cross'], 0), (EV_SYN, SYN_REPORT, 0), t=4.0))
     assert d.out_of_order == 1 and not d.pressed  # applied in the kernel's order
 
 
@@ -144,6 +195,7 @@ class Rig:
         self.emu_node = add(executor, Ds4EmulatorNode(
             node_name=f'emu_{name}', context=context,
             parameter_overrides=[Parameter('name', value=name)]))
+        self.emu_node.start()  # bringup starts the emulators first
         self.emu = self.emu_node.emulator
         self.emu.absent, self.emu.wrong_identity = absent, wrong
         self.joys: list[Joy] = []
@@ -279,10 +331,13 @@ def test_the_emulator_reports_what_it_wrote(context, executor, spin):
     assert int(values['events']) >= 2 and int(values['opens']) == 1
 
 
-def test_emulator_unregisters_on_destroy(context):
+def test_emulator_offers_its_device_from_start_until_destroyed(context):
     from enbarr_plugins import emulation
     node = Ds4EmulatorNode(node_name='emu_x', context=context,
                            parameter_overrides=[Parameter('name', value='x')])
+    with pytest.raises(DeviceError):  # constructing it offers nothing
+        emulation.lookup('evdev', 'emulated:x')
+    node.start()
     assert emulation.lookup('evdev', 'emulated:x') is node.emulator
     node.destroy_node()
     with pytest.raises(DeviceError):
@@ -345,3 +400,51 @@ def test_auto_picks_the_gamepad_node_not_the_motion_sensors(monkeypatch):
     with pytest.raises(DeviceError, match=r'auto: no DualShock 4 gamepad .*event2: cannot open: '
                        r'Permission denied; /dev/input/event3 \(.*Motion Sensors\)'):
         ds4_evdev.open_device('auto')
+
+
+class _Recorder:
+    """A publisher that also keeps what it publishes."""
+
+    def __init__(self, pub: Any, sink: list[Any]) -> None:
+        self._pub, self._sink = pub, sink
+
+    def publish(self, msg: Any) -> None:
+        self._sink.append(msg)
+        self._pub.publish(msg)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._pub, name)
+
+
+@pytest.mark.node
+def test_constructing_the_driver_opens_and_publishes_nothing(context, executor, spin,
+                                                              monkeypatch):
+    sent: list[Any] = []
+    real = Ds4EvdevNode.create_topic_publisher
+    monkeypatch.setattr(Ds4EvdevNode, 'create_topic_publisher',
+                        lambda self, spec: _Recorder(real(self, spec), sent))
+    emu_node = add(executor, Ds4EmulatorNode(
+        node_name='emu_quiet', context=context,
+        parameter_overrides=[Parameter('name', value='quiet')]))
+    emu_node.start()
+    node = add(executor, Ds4EvdevNode(
+        node_name='joystick', context=context,
+        parameter_overrides=[Parameter('device', value='emulated:quiet')]))
+    assert emu_node.emulator.opens == 0 and sent == [] and not node.connected
+    said_true = lambda: any(isinstance(m, Bool) and m.data for m in sent)  # noqa: E731
+    real_safe_state = Ds4EvdevNode.safe_state
+
+    def late_safe_state(self: Ds4EvdevNode) -> None:
+        # Between opening and starting, give the reader its first heartbeats (they must not
+        # say True yet) before the safe state says False: the order must not rest on luck.
+        deadline = time.monotonic() + 0.2
+        while not said_true() and time.monotonic() < deadline:
+            time.sleep(0.005)
+        real_safe_state(self)
+
+    monkeypatch.setattr(Ds4EvdevNode, 'safe_state', late_safe_state)
+    node.start()
+    assert emu_node.emulator.opens == 1 and node.connected
+    assert spin(executor, said_true, TIMEOUT)
+    said = [m.data for m in sent if isinstance(m, Bool)]
+    assert said[0] is False and said[said.index(True):].count(False) == 0, said

@@ -38,7 +38,9 @@ class Rig:
     applied: list[JointState]
 
 
-def rig(context: Any, executor: Any, timeout: float = 10.0, **extra: Any) -> Rig:
+def rig(context: Any, executor: Any, timeout: float = 10.0, start: bool = True,
+        **extra: Any) -> Rig:
+    """The sim Arduino, a duty publisher and a listener; started (its neutral dropped)."""
     node = add(executor, SimArduinoNode(
         node_name='arduino', context=context,
         parameter_overrides=overrides({'command_timeout': timeout, **extra})))
@@ -47,6 +49,9 @@ def rig(context: Any, executor: Any, timeout: float = 10.0, **extra: Any) -> Rig
     applied: list[JointState] = []
     p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
     LinkBus.of(context).connect()
+    if start:
+        node.start()
+        applied.clear()
     return Rig(node, pub, applied)
 
 
@@ -63,6 +68,9 @@ def chain(context, executor):
     applied: list[JointState] = []
     p.create_topic_subscription(topics.SIM_AZIMUTH_COMMAND, applied.append)
     LinkBus.of(context).connect()
+    pwm.start()
+    arduino.start()
+    applied.clear()
     return pwm, arduino, pub, applied
 
 
@@ -97,6 +105,14 @@ def test_sim_arduino_zero_thrust_is_the_dead_band_middle(chain):
     assert not arduino.neutral
     pub.publish(azimuth_msg([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
     assert list(applied[-1].effort) == [0.0, 0.0, 0.0] and arduino.neutral
+
+
+def test_sim_arduino_publishes_nothing_until_started_then_neutral(context, executor):
+    r = rig(context, executor, start=False)
+    assert r.applied == [] and r.node.neutral
+    r.node.start()
+    assert len(r.applied) == 1 and list(r.applied[0].effort) == [0.0] * 3
+    assert list(r.applied[0].position) == pytest.approx([0.0] * 3, abs=1e-12)
 
 
 def test_sim_arduino_applies_duties_in_channel_order(context, executor):

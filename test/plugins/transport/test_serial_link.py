@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import time
 
 import pytest
 
 from enbarr_core.framework.errors import DeviceError
+from enbarr_plugins.transport import serial_link
 from enbarr_plugins.transport.serial_link import (
     FrameDecoder, SerialLink, START, crc16_ccitt_false, encode_frame, open_serial)
 
@@ -164,3 +166,87 @@ def test_a_closed_port_is_a_device_error(pty):
         link.read_frames()
     with pytest.raises(DeviceError, match=f'{name}: write failed'):
         link.write_frame(b'x')
+
+
+# -- a vanished USB serial node: steer to /dev/serial/by-id ---------------------------------
+
+class _Unplugged:
+    """A port whose device was unplugged, failing the way pyserial does (an errno inside)."""
+
+    def __init__(self, code: int) -> None:
+        self.code = code
+        self.in_waiting = 0
+
+    def _fail(self) -> None:
+        import serial
+        try:
+            raise OSError(self.code, os.strerror(self.code))
+        except OSError as err:  # pyserial raises its own error inside the handler
+            raise serial.SerialException(f'read failed: {err}')  # noqa: B904 - as pyserial
+
+    def read(self, n: int) -> bytes:
+        self._fail()
+        return b''
+
+    def write(self, data: bytes) -> int:
+        self._fail()
+        return 0
+
+
+@pytest.fixture
+def by_id(tmp_path, monkeypatch):
+    d = tmp_path / 'by-id'
+    d.mkdir()
+    (d / 'usb-Arduino__www.arduino.cc__0042_7543331373935161D021-if00').touch()
+    monkeypatch.setattr(serial_link, 'BY_ID_DIR', d)
+    return d
+
+
+@pytest.mark.parametrize('code', [errno.EIO, errno.ENODEV])
+def test_a_vanished_usb_port_suggests_its_by_id_link(by_id, monkeypatch, code):
+    monkeypatch.setattr(serial_link, '_node_exists', lambda path: True)  # still listed
+    link = SerialLink(_Unplugged(code), '/dev/ttyUSB0')
+    for action in (link.read_frames, lambda: link.write_frame(b'x')):
+        with pytest.raises(DeviceError) as info:
+            action()
+        text = str(info.value)
+        assert text.startswith('/dev/ttyUSB0: ') and '/dev/ttyUSB0 is gone' in text, text
+        assert f'{by_id}/usb-<vendor>_<model>_<serial>-if00' in text
+        assert 'present now: usb-Arduino__www.arduino.cc__0042_7543331373935161D021-if00' in text
+
+
+def test_opening_a_usb_port_that_is_not_there_suggests_by_id(by_id):
+    with pytest.raises(DeviceError, match=r'/dev/ttyACM97: cannot open .*/dev/ttyACM97 is gone'
+                       r'.*another /dev/ttyUSBn or /dev/ttyACMn.*docs/hardware.md'):
+        open_serial('/dev/ttyACM97')
+
+
+def test_no_by_id_hint_for_other_errors_and_other_names(by_id, monkeypatch):
+    monkeypatch.setattr(serial_link, '_node_exists', lambda path: True)
+    denied = OSError(errno.EACCES, 'Permission denied')
+    assert serial_link.vanished_port_hint('/dev/ttyUSB0', denied) == ''  # there, not ours
+    gone = OSError(errno.ENODEV, 'No such device')
+    assert serial_link.vanished_port_hint('/dev/ttyUSB0', gone) != ''
+    for stable in (f'{by_id}/usb-x-if00', '/dev/pts/3', '/dev/ttyS0', '/dev/ttyUSB'):
+        assert serial_link.vanished_port_hint(stable, gone) == '', stable
+    monkeypatch.setattr(serial_link, '_node_exists', lambda path: False)
+    assert serial_link.vanished_port_hint('/dev/ttyACM1') != ''  # the node itself is gone
+
+
+def test_a_closed_pty_gets_no_by_id_hint(pty):
+    _, name = pty
+    link = SerialLink.open(name, timeout=0.05)
+    link.serial.close()
+    with pytest.raises(DeviceError) as info:
+        link.read_frames()
+    assert 'by-id' not in str(info.value)
+
+
+def test_a_missing_by_id_link_lists_the_links_present(by_id):
+    # The profile's placeholder, or a board with another serial number.
+    with pytest.raises(DeviceError) as info:
+        open_serial(f'{by_id}/usb-Arduino__www.arduino.cc__0042_SERIAL-if00')
+    text = str(info.value)
+    assert 'no such link' in text and ('links present now: '
+                                       'usb-Arduino__www.arduino.cc__0042_7543331373935161D021'
+                                       '-if00') in text, text
