@@ -4,10 +4,10 @@ Driver side (``I2cImuNode``): the ``bus`` parameter (``'1'``, ``'/dev/i2c-1'``,
 ``'emulated[:NAME]'``), the chain's source thread, publishing ``imu/mag`` then
 ``imu/data_raw`` (the contract of ``enbarr_plugins.imu.sim``), and the faults:
 
-- the device is opened (identity checked, ranges and rates written) on the node's own loop
-  thread once the node is started, never on the executor: a stalled bus costs the adapter
-  timeout (``i2c_timeout``) on that thread only. Before ``start()`` (the node's constructor)
-  the first attempt runs in place, so an absent device is reported at once;
+- nothing is opened before ``start()``. There the first attempt runs in place, before the
+  loop starts, so an absent device is reported at once; every later attempt (a reconnect)
+  runs on the node's own loop thread, never on the executor: a stalled bus costs the adapter
+  timeout (``i2c_timeout``) on that thread only;
 - a failed transfer (NACK, stall = ``ETIMEDOUT``, short read) is a ``DeviceError`` naming bus,
   address and register: ``device_fault`` -> ``/diagnostics`` ERROR, log, retry with backoff;
 - no new sample (data-ready bits clear) for ``data_timeout``: a fault naming the status
@@ -435,6 +435,9 @@ class ChipEmulator:
 class EmulatorNode(EnbarrNode):
     """Base of the IMU emulator nodes: chips on the shared emulated bus, ``sim/imu`` bridge.
 
+    The chips are plugged into the bus when the node starts, and unplugged when it is
+    destroyed.
+
     Parameters ``name`` (the bus: ``emulated:NAME`` in the driver), ``magnetic_field`` (Earth
     field in odom, ENU, like ``sim_imu``) and ``seed``. ``/diagnostics`` reports what the chips
     received (register reads and writes, samples made).
@@ -455,15 +458,20 @@ class EmulatorNode(EnbarrNode):
                       read_only=True),
         ]
         self.bind_settings(common + list(specs), build, self._apply)
-        s = self.settings
-        self.bus: FakeI2cBus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
+        self.bus: FakeI2cBus | None = None   # the shared emulated bus, once started
         self.chips: dict[int, ChipEmulator] = self.make_chips()
-        for address, chip in self.chips.items():
-            self.bus.attach(address, chip)
         for chip in self.chips.values():
-            chip.set_truth(level_truth(s.magnetic_field))
+            chip.set_truth(level_truth(self.settings.magnetic_field))
         self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Put the chips on the shared emulated bus (a profile check builds, never starts)."""
+        if self.bus is None:
+            self.bus = emulation.get_or_create('i2c', self.settings.name, FakeI2cBus)
+            for address, chip in self.chips.items():
+                self.bus.attach(address, chip)
+        super().start()
 
     def _apply(self, settings: Any) -> None:
         self.settings = settings
@@ -482,9 +490,12 @@ class EmulatorNode(EnbarrNode):
             chip.set_truth(truth)
 
     def _report(self) -> None:
+        bus = self.bus
+        if bus is None or not self.started:
+            return
         values: dict[str, Any] = {'bus': f'emulated:{self.settings.name}'}
         for address, chip in self.chips.items():
-            attached = self.bus.devices.get(address) is chip
+            attached = bus.devices.get(address) is chip
             values[f'0x{address:02x}'] = (
                 f'{"attached" if attached else "unplugged"}, reads {chip.reads}, writes '
                 f'{chip.writes}, samples {chip.samples}, faulty replies {chip.errors}')
@@ -492,11 +503,13 @@ class EmulatorNode(EnbarrNode):
 
     def destroy_node(self) -> None:
         """Unplug the chips; withdraw the bus when nothing else sits on it."""
-        for address, chip in self.chips.items():
-            if self.bus.devices.get(address) is chip:
-                self.bus.detach(address)
-        if not self.bus.devices:
-            emulation.unregister('i2c', self.settings.name, self.bus)
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            for address, chip in self.chips.items():
+                if bus.devices.get(address) is chip:
+                    bus.detach(address)
+            if not bus.devices:
+                emulation.unregister('i2c', self.settings.name, bus)
         super().destroy_node()
 
 

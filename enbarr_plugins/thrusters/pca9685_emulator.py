@@ -34,8 +34,8 @@ the pulse stops for ``signal_timeout`` (the forum: "3-10 seconds"), and maps the
 linearly outside the dead band to the thruster's ``max_forward``/``max_reverse`` (the common
 ``thrusters`` parameters; a linear stand-in for the T200's curve).
 
-``Pca9685EmulatorNode`` attaches the chip at ``address`` on the shared emulated bus
-``emulated:<name>`` (the IMU emulator sits on the same one), and at ``rate`` publishes the
+``Pca9685EmulatorNode``, once started, attaches the chip at ``address`` on the shared emulated
+bus ``emulated:<name>`` (the IMU emulator sits on the same one), and at ``rate`` publishes the
 thrust the ESCs produce on ``sim/thrust`` (for ``rov_simulator``) and the pulse of every
 thruster's channel on ``emulator/pca9685`` (``sensor_msgs/JointState``: name = thruster,
 position = pulse width [us], 0 = no pulse).
@@ -350,14 +350,26 @@ class Pca9685EmulatorNode(EnbarrNode):
         s = self.settings
         self.chip = Pca9685Emulator(s.oscillator)
         self.escs = [EscModel(e) for e in s.escs]
-        self.bus: FakeI2cBus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
-        self.bus.attach(s.address, self.chip)
+        self.bus: FakeI2cBus | None = None   # the shared emulated bus, once started
         self.thrust = np.zeros(len(self.names))
         self.pulses = np.zeros(len(self.names))
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
         self._pulse_pub = self.create_topic_publisher(EMULATOR_PCA9685)
         self.loop = self.create_rate_loop(s.rate, self.tick)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Put the chip on the shared emulated bus, then start publishing its outputs.
+
+        The chip is plugged in here, not in the constructor: a profile check builds the node
+        and must leave no bus behind. It stays plugged in until the node is destroyed (the
+        drivers write their neutral pulses after every node has stopped).
+        """
+        if self.bus is None:
+            s = self.settings
+            self.bus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
+            self.bus.attach(s.address, self.chip)
+        super().start()
 
     def _build(self, v: dict[str, Any]) -> EmulatorSettings:
         channels = tuple(v[f'pca9685.channels.{n}'] for n in self.names)
@@ -392,6 +404,8 @@ class Pca9685EmulatorNode(EnbarrNode):
         self._pulse_pub.publish(pulses)
 
     def _report(self) -> None:
+        if not self.started:
+            return
         c = self.chip
         self.publish_diagnostics(0, 'emulating a PCA9685', {
             'bus': f'emulated:{self.settings.name}', 'address': f'0x{self.settings.address:02x}',
@@ -406,15 +420,17 @@ class Pca9685EmulatorNode(EnbarrNode):
         The last report shows the drivers' safe state (bringup destroys emulators after the
         drivers, before the recorders).
         """
-        if not self.loop.running:
-            try:
-                self.tick()
-            except Exception as err:  # noqa: BLE001 - the unplugging must still happen
-                self.get_logger().warn(f'last output report failed: {err!r}')
-        if self.bus.devices.get(self.settings.address) is self.chip:
-            self.bus.detach(self.settings.address)
-        if not self.bus.devices:
-            emulation.unregister('i2c', self.settings.name, self.bus)
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            if not self.loop.running:
+                try:
+                    self.tick()
+                except Exception as err:  # noqa: BLE001 - the unplugging must still happen
+                    self.get_logger().warn(f'last output report failed: {err!r}')
+            if bus.devices.get(self.settings.address) is self.chip:
+                bus.detach(self.settings.address)
+            if not bus.devices:
+                emulation.unregister('i2c', self.settings.name, bus)
         super().destroy_node()
 
 

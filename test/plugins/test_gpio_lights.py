@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from support.devices import MockFactories, pass_time
 from support.nodes import TIMEOUT, add
 from support.rov import io_msg, io_probe
 
@@ -19,9 +20,12 @@ from support.rov import overrides
 FAST_RETRY = {'reconnect.initial_delay': 0.05, 'reconnect.max_delay': 0.1}
 
 
-def lights(context: Any, executor: Any, **extra: Any) -> GpioLightsNode:
-    return add(executor, GpioLightsNode(context=context, parameter_overrides=overrides(
+def lights(context: Any, executor: Any, start: bool = True, **extra: Any) -> GpioLightsNode:
+    node = add(executor, GpioLightsNode(context=context, parameter_overrides=overrides(
         {'pin': 12, 'pin_factory': 'mock', **FAST_RETRY, **extra})))
+    if start:
+        node.start()
+    return node
 
 
 def level(node: GpioLightsNode) -> bool:
@@ -33,6 +37,19 @@ def rig(context, executor):
     node = lights(context, executor)
     pub, states = io_probe(context, executor)
     return node, pub, states
+
+
+def test_a_constructed_node_claims_no_pin_until_started(context, executor, spin,
+                                                        monkeypatch):
+    factories = MockFactories(monkeypatch)
+    node = lights(context, executor, start=False, initial=True)
+    pub, states = io_probe(context, executor)
+    pass_time(executor, spin, node)
+    assert factories.made == [] and node.factory is None and not node.connected
+    assert states == [] and node.faults == 0
+    node.start()
+    assert len(factories.made) == 1 and [p.info.name for p in factories.pins()] == ['GPIO12']
+    assert level(node) is True                     # the initial level, set when opened
 
 
 def test_sets_the_pin_and_reports_the_level(rig):
@@ -87,6 +104,7 @@ def test_lgpio_without_a_gpio_chip_is_a_clear_device_error(context, executor):
         pins.make_factory('lgpio')
     node = add(executor, GpioLightsNode(context=context, parameter_overrides=overrides(
         {'pin': 12, 'pin_factory': 'lgpio'})))
+    node.start()
     assert not node.connected and 'GPIO12 (lgpio)' not in node.last_fault  # named by err
     assert 'pin_factory lgpio' in node.last_fault
 

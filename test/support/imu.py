@@ -13,6 +13,7 @@ from enbarr_core.framework.kinematics import quat_from_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.transport.i2c import FakeI2cBus
+from support.devices import diagnostics_of
 
 TIMEOUT = 10.0
 _names = itertools.count()
@@ -22,15 +23,15 @@ class Rig:
     """Emulator node, driver node, and a probe that publishes truth and records samples."""
 
     def __init__(self, context: Any, executor: Any, driver: type, emulator_class: type, *,
-                 emulator: bool = True, **params: Any) -> None:
+                 emulator: bool = True, start: bool = True, **params: Any) -> None:
         self.context, self.executor = context, executor
         self.emulator_class = emulator_class
         self.name = f'imu-node-{next(_names)}'
         self.raw: list[Imu] = []
         self.mag: list[Any] = []
-        self.diag: list[Any] = []
         self.probe = EnbarrNode('probe', context=context)
         executor.add_node(self.probe)
+        self.diag = diagnostics_of(self.probe, 'imu')
         self.truth_pub = self.probe.create_topic_publisher(topics.SIM_IMU)
         self.probe.create_topic_subscription(topics.IMU_RAW, self.raw.append)
         self.probe.create_topic_subscription(topics.IMU_MAG, self.mag.append)
@@ -43,13 +44,17 @@ class Rig:
             context=context, parameter_overrides=[Parameter(k, value=v)
                                                   for k, v in overrides.items()])
         executor.add_node(self.driver)
-        self.driver.start()
+        if start:
+            self.driver.start()
 
-    def add_emulator(self) -> Any:
+    def add_emulator(self, start: bool = True) -> Any:
+        """Build the emulator node (and start it: its chips go on the bus then)."""
         node = self.emulator_class(context=self.context, parameter_overrides=[
             Parameter('name', value=self.name),
             Parameter('gyro_bias', value=[0.0, 0.0, 0.0])])
         self.executor.add_node(node)
+        if start:
+            node.start()
         self.emulator = node
         return node
 
