@@ -70,20 +70,11 @@ import time
 from typing import Any
 
 import numpy as np
-from sensor_msgs.msg import JointState
 
-from enbarr_core.allocation.layout_params import declare_thrusters
-from enbarr_core.framework.driver import REPORT_PERIOD, ActuatorDriver
 from enbarr_core.framework.errors import DeviceError
-from enbarr_core.framework.health import InputHealth, worst
-from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
-from enbarr_core.framework.stamps import (
-    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy)
-from enbarr_interfaces.fastmsg import new
-from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.thrusters.sim import accept_command
+from enbarr_plugins.thrusters.common import MAX_FUTURE_SPEC, ThrusterDriver
 from enbarr_plugins.transport.i2c import MAX_BLOCK, I2cDevice, open_i2c
 
 # -- registers (data sheet Rev. 4, table 4 and 7.3) ---------------------------------------------
@@ -334,8 +325,7 @@ SPECS = [
               's', 0.0, 30.0),
     ParamSpec('verify_period', 1.0, 'How often MODE1 is read back to catch a reset chip', 's',
               0.05, 60.0),
-    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE, 'Commands stamped further ahead of the '
-              'node clock are refused (time policy)', 's', 0.0, 1.0),
+    MAX_FUTURE_SPEC,
 ]
 
 
@@ -397,14 +387,10 @@ def open_device(bus: str, address: int) -> tuple[I2cDevice, bool]:
 
 # -- the node ------------------------------------------------------------------------------
 
-class Pca9685ThrustersNode(ActuatorDriver):
+class Pca9685ThrustersNode(ThrusterDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
-        self.neutral = True
-        self.gate = StampGate()
-        self.health = InputHealth()
-        self._health_values: dict[str, int] = {}
         self.chip: Pca9685 | None = None
         self._owns_bus = False
         self._cond = threading.Condition()
@@ -413,28 +399,19 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self._thread: threading.Thread | None = None
         self._fault: DeviceError | None = None
         self._armed_ns = 0
-        super().__init__(node_name, timeout_message='thruster commands stopped: thrusters '
-                         'neutral', **kwargs)
-        self.thrusters = declare_thrusters(self)
-        self.names = [t.name for t in self.thrusters]
-        self._index = {n: i for i, n in enumerate(self.names)}
+        super().__init__(node_name, **kwargs)
         self.settings: Pca9685Settings
         SettingsBinding(self, SPECS + pulse_specs(self.names),
                         lambda v: Pca9685Settings.build(self.names, v), self._apply)
         self.device = f'{self.settings.bus} 0x{self.settings.address:02x}'
-        self.latency = LatencyLog()
-        self.command = np.zeros(len(self.names))   # latest accepted, normalized
         self.applied = np.zeros(len(self.names))   # last written to the chip
-        self.refused = 0
-        self.clipped = 0
         self.held_arming = 0
         self.written: bytes = b''                  # last channel block written
-        self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
-        self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
+        self.subscribe_commands()
 
     def _apply(self, settings: Pca9685Settings) -> None:
         self.settings = settings
-        self.gate.policy = StampPolicy(settings.max_future)
+        self.commands.set_max_future(settings.max_future)
 
     # -- device ------------------------------------------------------------------------------
     def open_device(self) -> None:
@@ -523,11 +500,7 @@ class Pca9685ThrustersNode(ActuatorDriver):
             cmd = np.zeros(len(self.names))
         self.written = chip.write(self.settings.counts(cmd))
         self.applied = cmd
-        out = new(JointState)
-        out.name, out.effort = self.names, cmd.tolist()
-        convert.ns_to_stamp(self.now_ns(), out.header.stamp)
-        out.header.frame_id = topics.BODY_FRAME
-        self._output_pub.publish(out)
+        self.publish_output(cmd, self.now_ns())
 
     def _hand_over(self, cmd: np.ndarray) -> None:
         with self._cond:
@@ -543,21 +516,11 @@ class Pca9685ThrustersNode(ActuatorDriver):
             self.device_fault(fault)
 
     # -- commands ----------------------------------------------------------------------------
-    def _on_command(self, msg: JointState) -> None:
-        now_ns = self.now_ns()
-        taken = accept_command(self, msg, now_ns)  # the checks of every thruster plugin
-        if taken is None:
-            return
-        cmd, stamp_ns = taken
-        with self.commanding():
-            self.command = cmd
-            self.neutral = not np.any(cmd)
-            self._hand_over(cmd)
-        self.latency.add(now_ns - stamp_ns)
-
-    def is_neutral(self) -> bool:
-        """Whether every thruster is commanded to neutral."""
-        return self.neutral
+    def apply(self, command: np.ndarray, now_ns: int) -> None:
+        """Hand an accepted command to the writer (the watchdog's lock held)."""
+        self.command = command
+        self.neutral = not np.any(command)
+        self._hand_over(command)
 
     def write_neutral(self) -> None:
         """Hand neutral to the writer (it writes within one PWM period when connected)."""
@@ -565,18 +528,12 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self.command = np.zeros(len(self.names))
         self._hand_over(self.command)
 
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, degraded while commands are refused."""
-        level, message, self._health_values = self.health.report(REPORT_PERIOD)
-        return worst(super().status(), (level, message))
-
     def status_values(self) -> dict[str, Any]:
         """Return the driver counters."""
         chip = self.chip
-        return {**super().status_values(), 'armed': self.armed, 'refused': self.refused,
-                'clipped': self.clipped, 'held_arming': self.held_arming,
-                'writes': chip.writes if chip else 0,
-                'i2c_errors': chip.device.errors if chip else 0, **self._health_values}
+        return {**super().status_values(), 'armed': self.armed,
+                'held_arming': self.held_arming, 'writes': chip.writes if chip else 0,
+                'i2c_errors': chip.device.errors if chip else 0}
 
 
 # -- enbarr check-device pca9685 -------------------------------------------------------------
