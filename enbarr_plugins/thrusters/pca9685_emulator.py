@@ -1,7 +1,8 @@
 """Emulator of a PCA9685 PWM controller with ESCs and thrusters on its channels.
 
 ``Pca9685Emulator`` is the chip's register file behind ``transport.i2c.FakeI2cBus``, written
-from the NXP PCA9685 product data sheet (Rev. 4, 16 April 2015), section 7.3:
+from the NXP PCA9685 product data sheet (Rev. 4, 16 April 2015), section 7.3, with its own
+copy of the register map:
 
 - power-on state: MODE1 0x11 (SLEEP, ALLCALL), MODE2 0x04 (OUTDRV), every LEDn full off
   (LEDn_OFF_H 0x10), PRE_SCALE 0x1E (200 Hz);
@@ -60,10 +61,19 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_interfaces.topics import SENSOR_QOS, TopicSpec
 from enbarr_plugins import emulation
-from enbarr_plugins.thrusters.pca9685 import (
-    ALL_LED_ON_L, CHANNELS, COUNTS, DEFAULT_ADDRESS, FULL, LED0_ON_L, MODE1, MODE2,
-    OSCILLATOR, PRE_SCALE, PRESCALE_MIN, RESTART, SLEEP, AI, WAKE_DELAY)
 from enbarr_plugins.transport.i2c import FakeI2cBus
+
+# The data sheet's registers and bits (table 4, 7.3), typed again for the emulator: it imports
+# neither the driver nor its protocol module, so that neither can hide the other's mistake.
+MODE1, MODE2, LED0_ON_L, ALL_LED_ON_L, PRE_SCALE = 0x00, 0x01, 0x06, 0xFA, 0xFE
+RESTART, AI, SLEEP = 0x80, 0x20, 0x10          # MODE1
+FULL = 0x10                                    # bit 4 of LEDn_ON_H / LEDn_OFF_H
+CHANNELS = 16
+COUNTS = 4096                                  # counter steps of one PWM period
+PRESCALE_MIN = 3                               # the hardware clamps PRE_SCALE below 3
+OSCILLATOR = 25e6                              # internal oscillator, nominal [Hz]
+WAKE_DELAY = 500e-6                            # oscillator start-up after waking [s]
+DEFAULT_ADDRESS = 0x40                         # A5..A0 = 0
 
 #: What the emulated chip outputs, for end-to-end checks of the bytes it received.
 EMULATOR_PCA9685 = TopicSpec(
@@ -73,7 +83,7 @@ EMULATOR_PCA9685 = TopicSpec(
     fast=True)
 
 LAST_LED = LED0_ON_L + 4 * CHANNELS - 1   # 0x45
-POWER_ON = {MODE1: 0x11, MODE2: 0x04, PRE_SCALE: 0x1E}
+POWER_ON = {MODE1: 0x11, MODE2: 0x04, PRE_SCALE: 0x1E}   # SLEEP | ALLCALL, OUTDRV, 200 Hz
 
 
 class Pca9685Emulator:

@@ -14,7 +14,8 @@ from enbarr_core.bringup.cli import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.io import pins
-from enbarr_plugins.io.gpio_lights import GpioLightsNode, check_device
+from enbarr_plugins.io.check import check_gpio
+from enbarr_plugins.io.gpio_lights import GpioLightsNode
 from support.rov import overrides
 
 FAST_RETRY = {'reconnect.initial_delay': 0.05, 'reconnect.max_delay': 0.1}
@@ -117,12 +118,12 @@ def test_bad_pin_factory_names_the_parameter(context):
 
 @pytest.mark.unit
 def test_check_device_reads_a_mock_pin_and_fails_without_a_chip(capsys):
-    lines = check_device(CheckTarget(device='emulated', name='12'))
+    lines = check_gpio(CheckTarget(device='emulated', name='12'))
     assert lines[1] == 'GPIO12: input, level low'
     with pytest.raises(DeviceError, match='pin_factory lgpio'):
-        check_device(CheckTarget(name='12'))
+        check_gpio(CheckTarget(name='12'))
     with pytest.raises(DeviceError, match='--name'):
-        check_device(CheckTarget(device='emulated', name='pin12'))
+        check_gpio(CheckTarget(device='emulated', name='pin12'))
     assert main(['check-device', 'gpio', '--device', 'emulated', '--name', '12']) == 0
     assert 'GPIO12: input, level low' in capsys.readouterr().out
     assert main(['check-device', 'gpio', '--name', '12']) == 2

@@ -15,7 +15,9 @@ from enbarr_interfaces import convert
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import fxos8700
-from enbarr_plugins.imu.common import Bus, G, Truth, wait_sample
+from enbarr_plugins.imu.check import check_fxos8700, wait_sample
+from enbarr_plugins.imu.chip_emulator import Truth
+from enbarr_plugins.imu.common import Bus, G
 from enbarr_plugins.imu.fxos8700 import Fxos8700ImuNode
 from enbarr_plugins.imu.fxos8700_emulator import attach_fxos8700, Fxos8700EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
@@ -108,7 +110,7 @@ def test_big_endian_14_bit_accel_and_si_values(fake_bus):
 
 
 def test_check_device_and_command_line(capsys):
-    lines = fxos8700.check_device(CheckTarget(bus='emulated'))
+    lines = check_fxos8700(CheckTarget(bus='emulated'))
     assert 'WHO_AM_I 0xc7' in lines[0] and 'WHO_AM_I 0xd7' in lines[0]
     assert cli.main(['check-device', 'fxos8700', '--bus', 'emulated']) == 0
     assert 'FXOS8700CQ at' in capsys.readouterr().out

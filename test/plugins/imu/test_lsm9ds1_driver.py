@@ -17,7 +17,9 @@ from enbarr_interfaces import convert
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import lsm9ds1
-from enbarr_plugins.imu.common import Bus, G, Truth, wait_sample
+from enbarr_plugins.imu.check import check_lsm9ds1, wait_sample
+from enbarr_plugins.imu.chip_emulator import Truth
+from enbarr_plugins.imu.common import Bus, G
 from enbarr_plugins.imu.lsm9ds1 import Lsm9ds1ImuNode
 from enbarr_plugins.imu.lsm9ds1_emulator import attach_lsm9ds1, Lsm9ds1EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
@@ -112,11 +114,11 @@ def test_magnetometer_bursts_need_the_sub_address_msb(fake_bus):
 
 
 def test_check_device_against_the_emulator_and_an_absent_bus():
-    lines = lsm9ds1.check_device(CheckTarget(bus='emulated'))
+    lines = check_lsm9ds1(CheckTarget(bus='emulated'))
     assert 'WHO_AM_I 0x68' in lines[0] and 'WHO_AM_I 0x3d' in lines[0]
     assert any(line.startswith('accel [m/s^2] (FLU):') for line in lines)
     with pytest.raises(DeviceError, match='i2c-97'):
-        lsm9ds1.check_device(CheckTarget(bus='97'))
+        check_lsm9ds1(CheckTarget(bus='97'))
 
 
 def test_check_device_command_line(capsys):
