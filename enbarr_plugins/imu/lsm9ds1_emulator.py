@@ -45,7 +45,7 @@ ACCEL_ONLY_RATE = {1: 10.0, 2: 50.0, 3: 119.0, 4: 238.0, 5: 476.0, 6: 952.0}
 #: FS_G code -> [dps/LSB]; FS_XL code -> [g/LSB]; FS (magnetometer) code -> [gauss/LSB].
 GYRO_LSB = {0: 8.75e-3, 1: 17.50e-3, 3: 70e-3}
 ACCEL_LSB = {0: 0.061e-3, 2: 0.122e-3, 3: 0.244e-3, 1: 0.732e-3}
-MAG_LSB = {0: 0.146e-3, 1: 0.292e-3, 2: 0.438e-3, 3: 0.584e-3}
+MAG_LSB = {0: 0.14e-3, 1: 0.29e-3, 2: 0.43e-3, 3: 0.58e-3}
 #: DO code -> magnetometer rate [Hz].
 MAG_RATE = {0: 0.625, 1: 1.25, 2: 2.5, 3: 5.0, 4: 10.0, 5: 20.0, 6: 40.0, 7: 80.0}
 #: FLU -> the magnetometer's own axes (X opposite the accelerometer's).

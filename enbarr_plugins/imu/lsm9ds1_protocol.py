@@ -11,6 +11,15 @@ Linux (``drivers/iio/imu/st_lsm6dsx/st_lsm6dsx_core.c``, the LSM9DS1 entry;
 emulator keeps its own copy (``lsm9ds1_emulator.py``) so that neither can hide the other's
 mistake.
 
+Magnetometer sensitivity: Table 3 gives 0.14, 0.29, 0.43 and 0.58 mgauss/LSB at +-4, 8, 12 and
+16 gauss (typical), and ST's reference driver uses the same factors
+(``lsm9ds1_from_fs4gauss_to_mG`` ... ``fs16gauss``). Linux uses 146, 292, 438 and 584
+ugauss/LSB: st_magn_core.c serves the LSM9DS1 magnetometer with the settings entry of the
+LIS3MDL (the same magnetometer; its own data sheet gives 6842 LSB/gauss at +-4 gauss, and
+1/6842 gauss = 0.146 mgauss). This driver follows the LSM9DS1's data sheet. With Linux's
+factor every field magnitude reads 4.3 % higher at +-4 gauss; a heading does not change.
+Either is a typical value of the part: calibrate the unit's magnetometer (hard and soft iron).
+
 Two I2C devices in one package: accelerometer + gyroscope at 0x6B (0x6A with SDO_AG low),
 magnetometer at 0x1E (0x1C with SDO_M low); each has WHO_AM_I at 0x0F.
 """
@@ -63,9 +72,9 @@ ACCEL_RANGE = {2.0: (0, 0.061e-3), 4.0: (2, 0.122e-3), 8.0: (3, 0.244e-3),
                16.0: (1, 0.732e-3)}
 #: Magnetometer output data rate [Hz] -> DO code.
 MAG_ODR = {0.625: 0, 1.25: 1, 2.5: 2, 5.0: 3, 10.0: 4, 20.0: 5, 40.0: 6, 80.0: 7}
-#: Magnetometer full scale [gauss] -> (FS code, sensitivity [gauss/LSB]); Linux st_magn.
-MAG_RANGE = {4.0: (0, 0.146e-3), 8.0: (1, 0.292e-3), 12.0: (2, 0.438e-3),
-             16.0: (3, 0.584e-3)}
+#: Magnetometer full scale [gauss] -> (FS code, sensitivity [gauss/LSB]); Table 3 M_GN (see
+#: the module docstring for Linux's 0.146).
+MAG_RANGE = {4.0: (0, 0.14e-3), 8.0: (1, 0.29e-3), 12.0: (2, 0.43e-3), 16.0: (3, 0.58e-3)}
 GAUSS = 1e-4  # [T]
 
 #: Magnetometer axes -> the accelerometer/gyroscope axes (the data sheet's figure of the

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import itertools
 import time
 from typing import Any
@@ -12,11 +14,23 @@ from sensor_msgs.msg import Imu
 from enbarr_core.framework.kinematics import quat_from_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, topics
+from enbarr_plugins import emulation
 from enbarr_plugins.transport.i2c import FakeI2cBus
 from support.devices import diagnostics_of
 
 TIMEOUT = 10.0
 _names = itertools.count()
+
+
+@contextmanager
+def registered(bus: FakeI2cBus) -> Iterator[str]:
+    """``bus`` as an emulated bus of this process: yields the drivers' ``bus`` parameter."""
+    name = f'imu-unit-{next(_names)}'
+    emulation.register('i2c', name, bus)
+    try:
+        yield f'emulated:{name}'
+    finally:
+        emulation.unregister('i2c', name)
 
 
 class Rig:

@@ -100,7 +100,7 @@ def test_registers_hold_chip_axes_and_the_driver_returns_flu(fake_bus):
     accel_x = int.from_bytes(ag.registers[0x28:0x2A], 'little', signed=True)
     assert accel_x == pytest.approx(-G / (0.122e-3 * G), abs=200)  # chip X register, LSB
     mag_x = int.from_bytes(m.registers[0x28:0x2A], 'little', signed=True)
-    assert mag_x == pytest.approx(-3e-5 / 1.46e-8, abs=100)        # chip mag X = -FLU x
+    assert mag_x == pytest.approx(-3e-5 / 1.4e-8, abs=100)         # chip mag X = -FLU x
     np.testing.assert_allclose(sample.accel, truth.accel, atol=0.1)
     np.testing.assert_allclose(sample.gyro, truth.gyro, atol=0.02)
     np.testing.assert_allclose(sample.mag, truth.mag, atol=3e-6)
