@@ -151,18 +151,49 @@ BUS_SPECS = [
 ]
 
 
+def noise_specs(gyro: float, accel: float, mag: float) -> list[ParamSpec]:
+    """Return the noise parameters of the published covariances, with a board's defaults.
+
+    ``gyro`` [dps/sqrt(Hz)] and ``accel`` [g/sqrt(Hz)] are white noise densities, ``mag``
+    [T] an RMS per sample.
+    """
+    return [
+        ParamSpec('gyro_noise_density', gyro, 'Gyro white noise density (covariance)',
+                  'deg/s/sqrt(Hz)', 0.0, 10.0),
+        ParamSpec('accel_noise_density', accel, 'Accelerometer white noise density '
+                  '(covariance)', 'g/sqrt(Hz)', 0.0, 0.1),
+        ParamSpec('mag_noise', mag, 'Magnetometer noise, RMS per sample (covariance)', 'T',
+                  0.0, 1e-4),
+    ]
+
+
 @dataclass(frozen=True)
 class I2cImuSettings:
-    """The settings every I2C IMU driver has (``BUS_SPECS``); a board's settings add theirs."""
+    """The settings every I2C IMU driver has (``BUS_SPECS``, ``noise_specs``).
+
+    A board's settings add theirs.
+    """
 
     bus: str
-    rate: float          # poll (chain) rate [Hz]
-    i2c_timeout: float   # [s]
-    data_timeout: float  # [s]
+    rate: float                 # poll (chain) rate [Hz]
+    i2c_timeout: float          # [s]
+    data_timeout: float         # [s]
+    gyro_noise_density: float   # [dps/sqrt(Hz)]
+    accel_noise_density: float  # [g/sqrt(Hz)]
+    mag_noise: float            # [T]
+
+    def noise(self, gyro_odr: float, accel_odr: float) -> Noise:
+        """Return the noise per sample at these output data rates [Hz].
+
+        sigma = density * sqrt(bandwidth), the bandwidth taken as ODR / 2.
+        """
+        return Noise(gyro=self.gyro_noise_density * DEG * math.sqrt(gyro_odr / 2.0),
+                     accel=self.accel_noise_density * G * math.sqrt(accel_odr / 2.0),
+                     mag=self.mag_noise)
 
 
-def bus_settings(v: Mapping[str, Any], fastest: float, rates: str) -> dict[str, Any]:
-    """Return the ``BUS_SPECS`` fields of ``v``; ``ValueError`` naming the parameter.
+def common_settings(v: Mapping[str, Any], fastest: float, rates: str) -> dict[str, Any]:
+    """Return the ``I2cImuSettings`` fields of ``v``; ``ValueError`` naming the parameter.
 
     ``fastest`` [Hz] is the chips' sample rate that the poll ``rate`` may not exceed;
     ``rates`` says which parameters set it, for the message.
@@ -171,8 +202,9 @@ def bus_settings(v: Mapping[str, Any], fastest: float, rates: str) -> dict[str, 
     if v['rate'] > fastest:
         raise ValueError(f'rate: {v["rate"]:g} Hz polls faster than the chips make samples '
                          f'({rates}); choose rate <= {fastest:g} Hz')
-    return {'bus': v['bus'], 'rate': v['rate'], 'i2c_timeout': v['i2c_timeout'],
-            'data_timeout': v['data_timeout']}
+    return {name: v[name] for name in ('bus', 'rate', 'i2c_timeout', 'data_timeout',
+                                       'gyro_noise_density', 'accel_noise_density',
+                                       'mag_noise')}
 
 
 S = TypeVar('S', bound=I2cImuSettings)

@@ -27,15 +27,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-import math
 from typing import Any
 
 import numpy as np
 
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins.imu.common import (
-    Bus, bus_settings, check_address, choice, DEG, G, I2cImuNode, I2cImuSettings, ImuChips,
-    ImuSample, Noise, parameter_defaults)
+    Bus, check_address, common_settings, choice, DEG, G, I2cImuNode, I2cImuSettings, ImuChips,
+    ImuSample, noise_specs, Noise, parameter_defaults)
 from enbarr_plugins.imu.fxos8700_protocol import (
     ACCEL_ODR, ACCEL_RANGE, ACTIVE, ADDRESS, CTRL_REG0, CTRL_REG1, CTRL_REG2, FXAS_WHO_AM_I,
     FXAS_WHO_AM_I_VALUE, FXOS_WHO_AM_I, FXOS_WHO_AM_I_VALUE, G_ACTIVE, G_CTRL_REG1,
@@ -54,18 +53,13 @@ SPECS = [
               '12.5', 'Hz', read_only=True),
     ParamSpec('gyro_range', 500.0, 'Gyroscope full scale: 250, 500, 1000 or 2000', 'deg/s',
               read_only=True),
-    ParamSpec('gyro_noise_density', 0.025, 'Gyro noise density (covariance)',
-              'deg/s/sqrt(Hz)', 0.0, 10.0),
-    ParamSpec('accel_noise_density', 126e-6, 'Accelerometer noise density (covariance)',
-              'g/sqrt(Hz)', 0.0, 0.1),
-    ParamSpec('mag_noise', 1e-6, 'Magnetometer noise, RMS per sample (covariance)', 'T', 0.0,
-              1e-4),
+    *noise_specs(gyro=0.025, accel=126e-6, mag=1e-6),
 ]
 
 
 @dataclass(frozen=True)
 class Fxos8700Settings(I2cImuSettings):
-    """Settings of ``Fxos8700ImuNode`` (``BUS_SPECS`` of common + ``SPECS``)."""
+    """Settings of ``Fxos8700ImuNode`` (the common ones of ``I2cImuSettings`` + ``SPECS``)."""
 
     address: int
     gyro_address: int
@@ -73,24 +67,19 @@ class Fxos8700Settings(I2cImuSettings):
     accel_range: float          # [g]
     gyro_odr: float             # [Hz]
     gyro_range: float           # [dps]
-    gyro_noise_density: float   # [dps/sqrt(Hz)]
-    accel_noise_density: float  # [g/sqrt(Hz)]
-    mag_noise: float            # [T]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> Fxos8700Settings:
         """Build from the parameters; ``ValueError`` names the parameter and the allowed set."""
         odr = choice('odr', v['odr'], list(ACCEL_ODR))
         gyro_odr = choice('gyro_odr', v['gyro_odr'], list(GYRO_ODR))
-        return cls(**bus_settings(v, min(odr, gyro_odr),
+        return cls(**common_settings(v, min(odr, gyro_odr),
                                   f'odr {odr:g} Hz, gyro_odr {gyro_odr:g} Hz'),
                    address=check_address('address', v['address']),
                    gyro_address=check_address('gyro_address', v['gyro_address']), odr=odr,
                    accel_range=choice('accel_range', v['accel_range'], list(ACCEL_RANGE)),
                    gyro_odr=gyro_odr,
-                   gyro_range=choice('gyro_range', v['gyro_range'], list(GYRO_RANGE)),
-                   gyro_noise_density=v['gyro_noise_density'],
-                   accel_noise_density=v['accel_noise_density'], mag_noise=v['mag_noise'])
+                   gyro_range=choice('gyro_range', v['gyro_range'], list(GYRO_RANGE)))
 
 
 def default_settings(**changes: Any) -> Fxos8700Settings:
@@ -163,10 +152,7 @@ class Fxos8700Chips(ImuChips):
 
     def noise(self) -> Noise:
         """Return the noise per sample of the configuration."""
-        s = self.s
-        return Noise(gyro=s.gyro_noise_density * DEG * math.sqrt(s.gyro_odr / 2.0),
-                     accel=s.accel_noise_density * G * math.sqrt(s.odr / 2.0),
-                     mag=s.mag_noise)
+        return self.s.noise(self.s.gyro_odr, self.s.odr)
 
 
 class Fxos8700ImuNode(I2cImuNode):

@@ -31,15 +31,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-import math
 from typing import Any
 
 import numpy as np
 
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins.imu.common import (
-    Bus, bus_settings, check_address, choice, DEG, G, I2cImuNode, I2cImuSettings, ImuChips,
-    ImuSample, Noise, parameter_defaults)
+    Bus, check_address, common_settings, choice, DEG, G, I2cImuNode, I2cImuSettings, ImuChips,
+    ImuSample, noise_specs, Noise, parameter_defaults)
 from enbarr_plugins.imu.lsm9ds1_protocol import (
     ACCEL_RANGE, ADDRESS_AG, ADDRESS_M, AUTO_INCREMENT_M, BDU, CTRL_REG1_G, CTRL_REG1_M,
     CTRL_REG2_M, CTRL_REG3_M, CTRL_REG4, CTRL_REG4_M, CTRL_REG5_M, CTRL_REG5_XL, CTRL_REG6_XL,
@@ -62,18 +61,13 @@ SPECS = [
               '40 or 80', 'Hz', read_only=True),
     ParamSpec('mag_range', 4.0, 'Magnetometer full scale: 4, 8, 12 or 16', 'gauss',
               read_only=True),
-    ParamSpec('gyro_noise_density', 0.015, 'Gyro white noise density (covariance)',
-              'deg/s/sqrt(Hz)', 0.0, 10.0),
-    ParamSpec('accel_noise_density', 200e-6, 'Accelerometer noise density (covariance)',
-              'g/sqrt(Hz)', 0.0, 0.1),
-    ParamSpec('mag_noise', 4e-7, 'Magnetometer noise, RMS per sample (covariance)', 'T', 0.0,
-              1e-4),
+    *noise_specs(gyro=0.015, accel=200e-6, mag=4e-7),
 ]
 
 
 @dataclass(frozen=True)
 class Lsm9ds1Settings(I2cImuSettings):
-    """Settings of ``Lsm9ds1ImuNode`` (``BUS_SPECS`` of common + ``SPECS``)."""
+    """Settings of ``Lsm9ds1ImuNode`` (the common ones of ``I2cImuSettings`` + ``SPECS``)."""
 
     address: int
     mag_address: int
@@ -82,23 +76,18 @@ class Lsm9ds1Settings(I2cImuSettings):
     accel_range: float          # [g]
     mag_odr: float              # [Hz]
     mag_range: float            # [gauss]
-    gyro_noise_density: float   # [dps/sqrt(Hz)]
-    accel_noise_density: float  # [g/sqrt(Hz)]
-    mag_noise: float            # [T]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> Lsm9ds1Settings:
         """Build from the parameters; ``ValueError`` names the parameter and the allowed set."""
         odr = choice('odr', v['odr'], list(GYRO_ODR))
-        return cls(**bus_settings(v, odr, f'odr {odr:g} Hz'),
+        return cls(**common_settings(v, odr, f'odr {odr:g} Hz'),
                    address=check_address('address', v['address']),
                    mag_address=check_address('mag_address', v['mag_address']),
                    odr=odr, gyro_range=choice('gyro_range', v['gyro_range'], list(GYRO_RANGE)),
                    accel_range=choice('accel_range', v['accel_range'], list(ACCEL_RANGE)),
                    mag_odr=choice('mag_odr', v['mag_odr'], list(MAG_ODR)),
-                   mag_range=choice('mag_range', v['mag_range'], list(MAG_RANGE)),
-                   gyro_noise_density=v['gyro_noise_density'],
-                   accel_noise_density=v['accel_noise_density'], mag_noise=v['mag_noise'])
+                   mag_range=choice('mag_range', v['mag_range'], list(MAG_RANGE)))
 
 
 def default_settings(**changes: Any) -> Lsm9ds1Settings:
@@ -171,11 +160,8 @@ class Lsm9ds1Chips(ImuChips):
         return ImuSample(gyro, accel, mag)
 
     def noise(self) -> Noise:
-        """Return the noise per sample of the configuration (density * sqrt(ODR / 2))."""
-        s = self.s
-        bw = math.sqrt(s.odr / 2.0)
-        return Noise(gyro=s.gyro_noise_density * DEG * bw,
-                     accel=s.accel_noise_density * G * bw, mag=s.mag_noise)
+        """Return the noise per sample of the configuration."""
+        return self.s.noise(self.s.odr, self.s.odr)
 
 
 class Lsm9ds1ImuNode(I2cImuNode):

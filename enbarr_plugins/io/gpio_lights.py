@@ -24,7 +24,7 @@ from enbarr_core.framework.params import ParamSpec
 
 from enbarr_plugins.io.base import IoPluginNode
 from enbarr_plugins.io.pins import (
-    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, make_factory)
+    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, open_outputs, Output)
 
 SPECS = [
     ParamSpec('pin', 12, 'BCM pin number; the executor name is gpio_<pin>', '', 0, 27,
@@ -71,16 +71,9 @@ class GpioLightsNode(IoPluginNode):
 
     def open_device(self) -> None:
         """Open the pin factory and the pin as an output at the level last asked for."""
-        from gpiozero import DigitalOutputDevice
-        factory = make_factory(self.settings.pin_factory)
-        try:
-            self.output = DigitalOutputDevice(self.settings.pin,
-                                              active_high=self.settings.active_high,
-                                              initial_value=self.level, pin_factory=factory)
-        except gpio_errors() as err:
-            close_quietly(factory)
-            raise DeviceError(f'{self.device}: cannot use the pin as an output: {err}') from err
-        self.factory = factory
+        s = self.settings
+        self.factory, (self.output,) = open_outputs(
+            s.pin_factory, [Output(s.pin, s.active_high, self.level)], self.device)
 
     def close_device(self) -> None:
         """Release the pin and the factory."""

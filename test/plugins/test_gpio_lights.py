@@ -129,3 +129,15 @@ def test_check_device_reads_a_mock_pin_and_fails_without_a_chip(capsys):
     assert main(['check-device', 'gpio', '--name', '12']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'lgpio' in err[0]
+
+
+@pytest.mark.unit
+def test_a_pin_that_cannot_be_claimed_closes_the_others_and_names_the_device(monkeypatch):
+    factories = MockFactories(monkeypatch)
+    with pytest.raises(DeviceError, match=r'^STEP5/DIR5 \(mock\): cannot use the pins as '
+                                          'outputs'):
+        pins.open_outputs('mock', [pins.Output(5), pins.Output(5)], 'STEP5/DIR5 (mock)')
+    assert len(factories.made) == 1 and factories.made[0].pins == {}   # released, closed
+    factory, (a, none) = pins.open_outputs('mock', [pins.Output(6, initial=True),
+                                                    pins.Output(-1)], 'GPIO6 (mock)')
+    assert a.value == 1 and none is None and factory.pin(6).state is True

@@ -8,6 +8,7 @@ import itertools
 import time
 from typing import Any
 
+import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 
@@ -20,6 +21,15 @@ from support.devices import diagnostics_of
 
 TIMEOUT = 10.0
 _names = itertools.count()
+
+
+def close_in_scale(measured: Any, expected: Any, tolerance: float) -> None:
+    """Assert every component within ``tolerance`` x the largest expected one.
+
+    For readings through an emulator that adds (seeded) noise of a fixed size per component.
+    """
+    np.testing.assert_allclose(measured, expected, rtol=0.0,
+                               atol=tolerance * np.abs(expected).max())
 
 
 @contextmanager

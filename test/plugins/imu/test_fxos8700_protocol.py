@@ -36,7 +36,7 @@ from enbarr_plugins.imu.chip_emulator import Truth
 from enbarr_plugins.imu.common import Bus
 from enbarr_plugins.imu.fxos8700_emulator import attach_fxos8700
 from enbarr_plugins.transport.i2c import FakeI2cBus
-from support.imu import registered
+from support.imu import close_in_scale, registered
 
 G = 9.80665          # [m/s^2]
 
@@ -96,8 +96,7 @@ def chips():
 
 
 def close(measured: np.ndarray, expected: np.ndarray) -> None:
-    np.testing.assert_allclose(measured, expected, rtol=0.0,
-                               atol=TOLERANCE * np.abs(expected).max())
+    close_in_scale(measured, expected, TOLERANCE)
 
 
 def test_the_emulators_answer_the_identities(chips):

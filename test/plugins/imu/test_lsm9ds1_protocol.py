@@ -30,7 +30,7 @@ from enbarr_plugins.imu.chip_emulator import Truth
 from enbarr_plugins.imu.common import Bus
 from enbarr_plugins.imu.lsm9ds1_emulator import attach_lsm9ds1
 from enbarr_plugins.transport.i2c import FakeI2cBus
-from support.imu import registered
+from support.imu import close_in_scale, registered
 
 G = 9.80665          # [m/s^2] standard gravity, the data sheet's g
 GAUSS = 1e-4         # [T]
@@ -98,8 +98,7 @@ def chip():
 
 
 def close(measured: np.ndarray, expected: np.ndarray) -> None:
-    np.testing.assert_allclose(measured, expected, rtol=0.0,
-                               atol=TOLERANCE * np.abs(expected).max())
+    close_in_scale(measured, expected, TOLERANCE)
 
 
 def words(data: bytes) -> np.ndarray:
