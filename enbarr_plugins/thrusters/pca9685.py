@@ -11,12 +11,14 @@ sheet Rev. 4). The internal oscillator is 25 MHz nominal but varies between chip
 
 What the driver does:
 
-- **open** (``Pca9685.open``): read MODE1; sleep with AI set (SUB/ALLCALL off, as the Linux
-  driver does, against address collisions), MODE2 = OUTDRV, PRE_SCALE; write every channel to
-  its neutral pulse (unmapped channels full off) in auto-increment blocks while asleep; then
-  read back MODE1, MODE2, PRE_SCALE and the channel block. The PCA9685 has no identity
-  register: a device that does not hold what was written (another chip at 0x40, a bus that
-  returns garbage) is refused with the bus, address and values read. Then wake and restart.
+- **open** (``Pca9685.open``), when the node starts (building it touches nothing, so a
+  profile check leaves a running chip alone): read MODE1; sleep with AI set (SUB/ALLCALL
+  off, as the Linux driver does, against address collisions), MODE2 = OUTDRV, PRE_SCALE;
+  write every channel to its neutral pulse (unmapped channels full off) in auto-increment
+  blocks while asleep; then read back MODE1, MODE2, PRE_SCALE and the channel block. The
+  PCA9685 has no identity register: a device that does not hold what was written (another
+  chip at 0x40, a bus that returns garbage) is refused with the bus, address and values
+  read. Then wake and restart.
 - **arming**: an ESC arms only after it saw its neutral pulse for a while (Blue Robotics:
   1500 us for about a second before driving, and a new arming after the signal stopped for a
   few seconds: discuss.bluerobotics.com threads 380 and 2214). After every connect or
