@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 import itertools
+import math
 import time
 from typing import Any
 
@@ -21,6 +22,16 @@ from support.devices import diagnostics_of
 
 TIMEOUT = 10.0
 _names = itertools.count()
+
+
+def assert_ranges(table: Any, typed: dict[float, tuple[int, float]], unit: float) -> None:
+    """Assert a protocol module's full-scale table (full scale -> (code, sensitivity)) is
+    ``typed``: the same full scales, codes, and sensitivities (typed ones x ``unit``)."""
+    assert set(table) == set(typed)
+    for full_scale, (code, lsb) in typed.items():
+        assert table[full_scale][0] == code, full_scale
+        assert math.isclose(table[full_scale][1], lsb * unit, rel_tol=1e-9), (
+            full_scale, table[full_scale][1], lsb * unit)
 
 
 def close_in_scale(measured: Any, expected: Any, tolerance: float) -> None:
