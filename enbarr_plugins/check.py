@@ -23,15 +23,15 @@ from typing import Callable
 #: KIND -> 'module:function', the ``check_device`` of each device this package drives.
 #: One line per kind.
 CHECKS: dict[str, str] = {
-    'pca9685': 'enbarr_plugins.thrusters.pca9685:check_device',
-    'lsm9ds1': 'enbarr_plugins.imu.lsm9ds1:check_device',
-    'fxos8700': 'enbarr_plugins.imu.fxos8700:check_device',
+    'pca9685': 'enbarr_plugins.thrusters.check:check_pca9685',
+    'lsm9ds1': 'enbarr_plugins.imu.check:check_lsm9ds1',
+    'fxos8700': 'enbarr_plugins.imu.check:check_fxos8700',
     'arduino': 'enbarr_plugins.arduino.check:check_device',
     'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
     'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
     'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
     'ds4': 'enbarr_plugins.joystick.check:check_device',
-    'gpio': 'enbarr_plugins.io.gpio_lights:check_device',
+    'gpio': 'enbarr_plugins.io.check:check_gpio',
 }
 
 

@@ -1,13 +1,13 @@
-"""What the I2C IMU drivers (LSM9DS1, FXOS8700 + FXAS21002C) and their emulators share.
+"""What the I2C IMU drivers (LSM9DS1, FXOS8700 + FXAS21002C) share.
 
-Driver side (``I2cImuNode``): the ``bus`` parameter (``'1'``, ``'/dev/i2c-1'``,
-``'emulated[:NAME]'``), the chain's source thread, publishing ``imu/mag`` then
-``imu/data_raw`` (the contract of ``enbarr_plugins.imu.sim``), and the faults:
+``I2cImuNode``: the ``bus`` parameter (``'1'``, ``'/dev/i2c-1'``, ``'emulated[:NAME]'``), the
+chain's source thread, publishing ``imu/mag`` then ``imu/data_raw`` (the contract of
+``enbarr_plugins.imu.sim``), and the faults:
 
-- the device is opened (identity checked, ranges and rates written) on the node's own loop
-  thread once the node is started, never on the executor: a stalled bus costs the adapter
-  timeout (``i2c_timeout``) on that thread only. Before ``start()`` (the node's constructor)
-  the first attempt runs in place, so an absent device is reported at once;
+- nothing is opened before ``start()``. There the first attempt runs in place, before the
+  loop starts, so an absent device is reported at once; every later attempt (a reconnect)
+  runs on the node's own loop thread, never on the executor: a stalled bus costs the adapter
+  timeout (``i2c_timeout``) on that thread only;
 - a failed transfer (NACK, stall = ``ETIMEDOUT``, short read) is a ``DeviceError`` naming bus,
   address and register: ``device_fault`` -> ``/diagnostics`` ERROR, log, retry with backoff;
 - no new sample (data-ready bits clear) for ``data_timeout``: a fault naming the status
@@ -17,37 +17,32 @@ Driver side (``I2cImuNode``): the ``bus`` parameter (``'1'``, ``'/dev/i2c-1'``,
   sample is dropped and counted, and ``MAX_CORRUPT`` in a row are a fault. I2C register reads
   carry no sequence numbers, so out-of-order frames do not exist on this transport.
 
+``ImuChips``: the chips of one board. Opening checks each chip's WHO_AM_I, writes the
+configuration and reads it back (a chip that does not hold what was written is refused).
+
 Samples are stamped on the node clock right after the read (``docs/architecture.md``, Time).
 Covariances: white noise density x sqrt(bandwidth), the bandwidth taken as ODR/2.
-
-Emulator side (``ChipEmulator``): a register file behind ``FakeI2cBus`` that makes a new
-sample every 1/ODR seconds (monotonic clock) of the configured output data rate from the
-latest truth (``sim/imu``: orientation, angular velocity, specific force in ``imu_link``)
-with seeded white noise and a constant bias, so data-ready bits behave like the chip's.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
-import struct
 import threading
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from sensor_msgs.msg import Imu, MagneticField
 
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
-from enbarr_core.framework.kinematics import quat_to_rotmat
-from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.transport.i2c import FakeI2cBus, I2cDevice, open_i2c
+from enbarr_plugins.transport.i2c import I2cDevice, open_i2c
 
 #: Standard gravity [m/s^2] (the chips' "g").
 G = 9.80665
@@ -143,31 +138,6 @@ class Noise:
     mag: float    # [T]
 
 
-class ImuChips:
-    """The chips of one IMU board behind a driver: what ``I2cImuNode`` calls.
-
-    ``open`` checks identities and writes the configuration; ``read`` returns the new sample,
-    None when the data-ready bits say there is none (``status`` keeps the byte read), and
-    raises ``DeviceError`` on a failed transfer; ``corrupt`` is set when the read was
-    implausible (status 0xff).
-    """
-
-    status = 0
-    corrupt = False
-
-    def open(self) -> list[str]:
-        """Check identities, configure; return what was found (for logs and check-device)."""
-        raise NotImplementedError
-
-    def read(self) -> ImuSample | None:
-        """Return the new sample, or None (see the class doc)."""
-        raise NotImplementedError
-
-    def noise(self) -> Noise:
-        """Return the noise of the configured ranges and rates."""
-        raise NotImplementedError
-
-
 BUS_SPECS = [
     ParamSpec('bus', '1', "I2C bus: a number ('1'), a device ('/dev/i2c-1') or "
               "'emulated[:NAME]' (this package's emulator in the same process)",
@@ -181,19 +151,149 @@ BUS_SPECS = [
 ]
 
 
+def noise_specs(gyro: float, accel: float, mag: float) -> list[ParamSpec]:
+    """Return the noise parameters of the published covariances, with a board's defaults.
+
+    ``gyro`` [dps/sqrt(Hz)] and ``accel`` [g/sqrt(Hz)] are white noise densities, ``mag``
+    [T] an RMS per sample.
+    """
+    return [
+        ParamSpec('gyro_noise_density', gyro, 'Gyro white noise density (covariance)',
+                  'deg/s/sqrt(Hz)', 0.0, 10.0),
+        ParamSpec('accel_noise_density', accel, 'Accelerometer white noise density '
+                  '(covariance)', 'g/sqrt(Hz)', 0.0, 0.1),
+        ParamSpec('mag_noise', mag, 'Magnetometer noise, RMS per sample (covariance)', 'T',
+                  0.0, 1e-4),
+    ]
+
+
+@dataclass(frozen=True)
+class I2cImuSettings:
+    """The settings every I2C IMU driver has (``BUS_SPECS``, ``noise_specs``).
+
+    A board's settings add theirs.
+    """
+
+    bus: str
+    rate: float                 # poll (chain) rate [Hz]
+    i2c_timeout: float          # [s]
+    data_timeout: float         # [s]
+    gyro_noise_density: float   # [dps/sqrt(Hz)]
+    accel_noise_density: float  # [g/sqrt(Hz)]
+    mag_noise: float            # [T]
+
+    def noise(self, gyro_odr: float, accel_odr: float) -> Noise:
+        """Return the noise per sample at these output data rates [Hz].
+
+        sigma = density * sqrt(bandwidth), the bandwidth taken as ODR / 2.
+        """
+        return Noise(gyro=self.gyro_noise_density * DEG * math.sqrt(gyro_odr / 2.0),
+                     accel=self.accel_noise_density * G * math.sqrt(accel_odr / 2.0),
+                     mag=self.mag_noise)
+
+
+def common_settings(v: Mapping[str, Any], fastest: float, rates: str) -> dict[str, Any]:
+    """Return the ``I2cImuSettings`` fields of ``v``; ``ValueError`` naming the parameter.
+
+    ``fastest`` [Hz] is the chips' sample rate that the poll ``rate`` may not exceed;
+    ``rates`` says which parameters set it, for the message.
+    """
+    parse_bus(v['bus'])
+    if v['rate'] > fastest:
+        raise ValueError(f'rate: {v["rate"]:g} Hz polls faster than the chips make samples '
+                         f'({rates}); choose rate <= {fastest:g} Hz')
+    return {name: v[name] for name in ('bus', 'rate', 'i2c_timeout', 'data_timeout',
+                                       'gyro_noise_density', 'accel_noise_density',
+                                       'mag_noise')}
+
+
+S = TypeVar('S', bound=I2cImuSettings)
+
+
+def parameter_defaults(specs: Sequence[ParamSpec], build: Callable[[dict[str, Any]], S],
+                       **changes: Any) -> S:
+    """Build a board's settings from the parameter defaults and ``changes`` (check-device)."""
+    values = {spec.name: spec.default for spec in [*BUS_SPECS, *specs]}
+    values.update(changes)
+    return build(values)
+
+
+class ImuChips:
+    """The chips of one IMU board behind a driver: what ``I2cImuNode`` calls.
+
+    A board names its chips' identities (``identities``), its configuration (``config``: the
+    register writes in order) and what it found (``describe``); ``open`` checks, writes and
+    reads back. ``read`` returns the new sample, None when the data-ready bits say there is
+    none (``status`` keeps the byte read), and raises ``DeviceError`` on a failed transfer;
+    ``corrupt`` is set when the read was implausible (status 0xff).
+    """
+
+    def __init__(self, bus: Bus, settings: Any) -> None:
+        self.s = settings
+        self.status = 0
+        self.corrupt = False
+
+    @staticmethod
+    def addresses(settings: Any) -> tuple[int, ...]:
+        """Return the addresses of the board's chips in ``settings`` (for messages)."""
+        raise NotImplementedError
+
+    def identities(self) -> list[tuple[I2cDevice, int, int, str]]:
+        """Return (device, WHO_AM_I register, expected value, chip name) of every chip."""
+        raise NotImplementedError
+
+    def config(self) -> list[tuple[I2cDevice, int, int]]:
+        """Return the (device, register, value) writes of the configuration, in order."""
+        raise NotImplementedError
+
+    def describe(self) -> list[str]:
+        """Return what was found and configured (for logs and check-device)."""
+        raise NotImplementedError
+
+    def open(self) -> list[str]:
+        """Check identities, configure and read the configuration back; ``describe()``.
+
+        A register written twice (a standby write before an active one) is checked for the
+        last value written.
+        """
+        for dev, register, expected, chip in self.identities():
+            check_identity(dev, register, expected, chip)
+        writes = self.config()
+        for dev, register, value in writes:
+            dev.write_u8(register, value)
+        final = {(dev.address, register): (dev, value) for dev, register, value in writes}
+        for (_, register), (dev, value) in final.items():
+            read = dev.read_u8(register)
+            if read != value:
+                raise DeviceError(f'{dev.name}: register 0x{register:02x} reads 0x{read:02x} '
+                                  f'after writing 0x{value:02x}')
+        return self.describe()
+
+    def read(self) -> ImuSample | None:
+        """Return the new sample, or None (see the class doc)."""
+        raise NotImplementedError
+
+    def noise(self) -> Noise:
+        """Return the noise of the configured ranges and rates."""
+        raise NotImplementedError
+
+
 class I2cImuNode(SensorDriver):
     """The driver node of an I2C IMU board: the chain's source; see the module docstring.
 
-    Subclasses give their parameter specs and settings builder and ``make_chips(bus)``.
+    A board's node gives its parameter specs (beyond ``BUS_SPECS``), its settings builder
+    and its ``ImuChips`` class (built as ``chips(bus, settings)``).
     """
 
     def __init__(self, node_name: str, specs: Sequence[ParamSpec],
-                 build: Callable[[dict[str, Any]], Any], **kwargs: Any) -> None:
+                 build: Callable[[dict[str, Any]], I2cImuSettings], chips: type[ImuChips],
+                 **kwargs: Any) -> None:
         super().__init__(node_name, device='i2c', **kwargs)
         self.settings: Any
+        self._chips_class = chips
         self.bind_settings(list(BUS_SPECS) + list(specs), build, self._apply)
         s = self.settings
-        self.device = f'{s.bus} {self.addresses_text()}'
+        self.device = f'{s.bus} ' + '+'.join(f'0x{a:02x}' for a in chips.addresses(s))
         self._raw_pub = self.create_topic_publisher(topics.IMU_RAW)
         self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
         self._bus: Bus | None = None
@@ -210,15 +310,6 @@ class I2cImuNode(SensorDriver):
         self.settings = settings
         self._data_timeout_ns = int(settings.data_timeout * 1e9)
 
-    # -- what a board implements --------------------------------------------------------------
-    def addresses_text(self) -> str:
-        """Return the chip addresses, for messages ('0x6b+0x1e')."""
-        raise NotImplementedError
-
-    def make_chips(self, bus: Bus) -> ImuChips:
-        """Return the board's chips on ``bus`` (not yet opened)."""
-        raise NotImplementedError
-
     # -- device lifecycle ---------------------------------------------------------------------
     def connect(self) -> bool:
         """Open the device on the loop thread once it runs (see the module docstring)."""
@@ -231,7 +322,7 @@ class I2cImuNode(SensorDriver):
         """Open the bus, check the identities and configure the chips."""
         s = self.settings
         bus = Bus(s.bus, s.i2c_timeout)
-        chips = self.make_chips(bus)
+        chips = self._chips_class(bus, s)
         try:
             found = chips.open()
         except DeviceError:
@@ -320,247 +411,3 @@ class I2cImuNode(SensorDriver):
         self.stop()
         self.close_device()
         super().destroy_node()
-
-
-# -- emulator side ---------------------------------------------------------------------------
-
-def encode(values: Sequence[float], lsb: float, *, big_endian: bool, bits: int = 16) -> bytes:
-    """Return ``values / lsb`` as saturated two's-complement words (left-justified if < 16).
-
-    Plain ``struct`` on three numbers: a third of the cost of numpy at this size.
-    """
-    top = 1 << (bits - 1)
-    shift = 16 - bits
-    words = [max(-top, min(top - 1, round(float(v) / lsb))) << shift for v in values]
-    return struct.pack('>3h' if big_endian else '<3h', *words)
-
-
-@dataclass
-class Truth:
-    """What the emulated chips measure, in ``imu_link`` (FLU)."""
-
-    gyro: np.ndarray   # [rad/s]
-    accel: np.ndarray  # specific force [m/s^2]
-    mag: np.ndarray    # [T]
-
-
-def level_truth(magnetic_field: Sequence[float]) -> Truth:
-    """At rest and level, heading east (identity orientation in ENU)."""
-    return Truth(np.zeros(3), np.array([0.0, 0.0, G]), np.asarray(magnetic_field, float))
-
-
-class ChipEmulator:
-    """Base of one emulated chip: registers, faults, samples at the configured ODR.
-
-    A subclass sets ``registers`` defaults, implements ``odr()`` (0: powered down) and
-    ``sample(truth, rng)`` (write the output registers, set the data-ready bits), and the
-    chip's ``read``/``write`` rules. ``lock`` guards the registers (the bridge writes the truth
-    from the executor thread while the driver reads on its loop thread).
-
-    Faults: ``set_identity`` (the WHO_AM_I value it answers), ``data_ready_stuck`` (no new
-    sample ever: the driver sees stale data), ``corrupt`` (reads return 0xff: SDA stuck high),
-    ``truncate`` (a burst comes one byte short).
-    NACKs, stalls and unplugging are faults of the bus (``FakeI2cBus.nack/stall/detach``).
-    """
-
-    def __init__(self, seed: int) -> None:
-        self.lock = threading.Lock()
-        self.registers = bytearray(256)
-        self.rng = np.random.default_rng(seed)
-        self.truth = level_truth([0.0, 1.8e-5, -4.8e-5])
-        self.data_ready_stuck = False
-        self.corrupt = False
-        self.truncate = False
-        self.reads = 0
-        self.errors = 0  # faulty replies given (corrupt, truncated)
-        self.writes = 0
-        self.samples = 0
-        self._next_ns = 0
-
-    def odr(self) -> float:
-        """Return the configured output data rate [Hz] (0: powered down)."""
-        raise NotImplementedError
-
-    def read_registers(self, register: int, length: int) -> bytes:
-        """Return ``length`` bytes from ``register`` by the chip's rules (lock held)."""
-        raise NotImplementedError
-
-    def write_registers(self, register: int, data: bytes) -> None:
-        """Take a write by the chip's rules (lock held)."""
-        raise NotImplementedError
-
-    def read(self, register: int, length: int) -> bytes:
-        """Answer a read (``RegisterEmulator``): faults first, then due samples, then data."""
-        with self.lock:
-            self.reads += 1
-            if self.corrupt:
-                self.errors += 1
-                return b'\xff' * length
-            self.update()
-            data = self.read_registers(register, length)
-            if self.truncate and length > 1:
-                self.errors += 1
-                return data[:-1]
-            return data
-
-    def write(self, register: int, data: bytes) -> None:
-        """Take a write (``RegisterEmulator``)."""
-        with self.lock:
-            self.writes += 1
-            self.write_registers(register, data)
-
-    def sample(self) -> None:
-        """Write one new sample of ``self.truth`` into the output registers (lock held)."""
-        raise NotImplementedError
-
-    def set_truth(self, truth: Truth) -> None:
-        """Take the latest truth (the next samples measure it)."""
-        self.truth = truth
-
-    def update(self) -> None:
-        """Make the samples due since the last call (lock held)."""
-        rate = self.odr()
-        if rate <= 0.0 or self.data_ready_stuck:
-            return
-        now = time.monotonic_ns()
-        if now >= self._next_ns:
-            period = int(1e9 / rate)
-            self._next_ns += period
-            if self._next_ns <= now:  # first sample, or late: no burst of old samples
-                self._next_ns = now + period
-            self.sample()
-            self.samples += 1
-
-
-class EmulatorNode(EnbarrNode):
-    """Base of the IMU emulator nodes: chips on the shared emulated bus, ``sim/imu`` bridge.
-
-    Parameters ``name`` (the bus: ``emulated:NAME`` in the driver), ``magnetic_field`` (Earth
-    field in odom, ENU, like ``sim_imu``) and ``seed``. ``/diagnostics`` reports what the chips
-    received (register reads and writes, samples made).
-    """
-
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
-
-    def __init__(self, node_name: str, specs: Sequence[ParamSpec],
-                 build: Callable[[dict[str, Any]], Any], **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.settings: Any
-        common = [
-            ParamSpec('name', 'default', "Name of the emulated bus (the driver's bus: "
-                      "'emulated' for 'default', else 'emulated:NAME')", read_only=True),
-            ParamSpec('magnetic_field', [0.0, 1.8e-5, -4.8e-5], 'Earth field in odom (ENU)',
-                      'T', -1e-3, 1e-3),
-            ParamSpec('seed', 1, 'Seed of the noise generator', '', 0, 2**31 - 1,
-                      read_only=True),
-        ]
-        self.bind_settings(common + list(specs), build, self._apply)
-        s = self.settings
-        self.bus: FakeI2cBus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
-        self.chips: dict[int, ChipEmulator] = self.make_chips()
-        for address, chip in self.chips.items():
-            self.bus.attach(address, chip)
-        for chip in self.chips.values():
-            chip.set_truth(level_truth(s.magnetic_field))
-        self.create_topic_subscription(topics.SIM_IMU, self._on_truth)
-        self.create_periodic(1.0, self._report)
-
-    def _apply(self, settings: Any) -> None:
-        self.settings = settings
-        self._field = np.asarray(settings.magnetic_field, dtype=float)
-
-    def make_chips(self) -> dict[int, ChipEmulator]:
-        """Return the chips of the board by address."""
-        raise NotImplementedError
-
-    def _on_truth(self, msg: Imu) -> None:
-        q = convert.quaternion_to_array(msg.orientation)
-        truth = Truth(convert.vector3_to_array(msg.angular_velocity),
-                      convert.vector3_to_array(msg.linear_acceleration),
-                      quat_to_rotmat(q).T @ self._field)
-        for chip in self.chips.values():
-            chip.set_truth(truth)
-
-    def _report(self) -> None:
-        values: dict[str, Any] = {'bus': f'emulated:{self.settings.name}'}
-        for address, chip in self.chips.items():
-            attached = self.bus.devices.get(address) is chip
-            values[f'0x{address:02x}'] = (
-                f'{"attached" if attached else "unplugged"}, reads {chip.reads}, writes '
-                f'{chip.writes}, samples {chip.samples}, faulty replies {chip.errors}')
-        self.publish_diagnostics(0, 'emulating', values)
-
-    def destroy_node(self) -> None:
-        """Unplug the chips; withdraw the bus when nothing else sits on it."""
-        for address, chip in self.chips.items():
-            if self.bus.devices.get(address) is chip:
-                self.bus.detach(address)
-        if not self.bus.devices:
-            emulation.unregister('i2c', self.settings.name, self.bus)
-        super().destroy_node()
-
-
-def wait_sample(chips: ImuChips, timeout: float) -> ImuSample:
-    """Poll ``chips`` until a sample with a magnetometer reading comes (check-device)."""
-    deadline = time.monotonic() + timeout
-    gyro_accel = None
-    while time.monotonic() < deadline:
-        sample = chips.read()
-        if sample is not None:
-            if sample.mag is not None:
-                return sample
-            gyro_accel = sample
-        time.sleep(0.005)
-    if gyro_accel is not None:
-        raise DeviceError(f'no magnetometer sample within {timeout:g} s (accel/gyro work)')
-    raise DeviceError(f'no new sample within {timeout:g} s (status 0x{chips.status:02x}: '
-                      'data-ready never set)')
-
-
-def sample_lines(sample: ImuSample) -> list[str]:
-    """Return one sample in SI units, for check-device."""
-    def fmt(v: np.ndarray, scale: float = 1.0) -> str:
-        return ' '.join(f'{x * scale:+.3f}' for x in v)
-    lines = [f'gyro [rad/s] (FLU): {fmt(sample.gyro)}',
-             f'accel [m/s^2] (FLU): {fmt(sample.accel)}']
-    if sample.mag is not None:
-        lines.append(f'mag [uT] (FLU): {fmt(sample.mag, 1e6)}')
-    return lines
-
-
-def check_imu(target: Any, default_settings: Callable[..., Any],
-              make_chips: Callable[[Bus, Any], ImuChips],
-              attach: Callable[[FakeI2cBus, Any], None]) -> list[str]:
-    """``enbarr check-device`` of an I2C IMU: identities, configuration, one sample in SI.
-
-    ``default_settings(**changes)`` builds the driver's settings, ``make_chips(bus, s)`` its
-    chips, ``attach(fake_bus, s)`` puts the emulated chips on a fake bus (``--bus emulated``:
-    a private emulated bus for the check, withdrawn afterwards).
-    """
-    value = target.bus or '1'
-    changes: dict[str, Any] = {'bus': value}
-    if target.address is not None:
-        changes['address'] = target.address
-    try:
-        s = default_settings(**changes)
-    except ValueError as err:
-        raise DeviceError(str(err)) from err
-    name = None
-    if emulation.is_emulated(value):
-        name = f'check-device-{time.monotonic_ns()}'
-        fake = FakeI2cBus()
-        attach(fake, s)
-        emulation.register('i2c', name, fake)
-        s = default_settings(**{**changes, 'bus': f'emulated:{name}'})
-    try:
-        bus = Bus(s.bus, min(target.timeout, 1.0))
-        try:
-            chips = make_chips(bus, s)
-            lines = chips.open()
-            sample = wait_sample(chips, target.timeout)
-        finally:
-            bus.close()
-    finally:
-        if name is not None:
-            emulation.unregister('i2c', name)
-    return lines + sample_lines(sample)

@@ -20,8 +20,9 @@ from enbarr_interfaces import convert, topics
 class IoPluginNode(DeviceNode):
     """Base of IO plugins; see the module docstring.
 
-    Subclasses set ``executor_name``, implement ``act(value) -> str | None`` (a refusal)
-    and call ``connect()`` at the end of their ``__init__``.
+    Subclasses set ``executor_name`` and implement ``act(value) -> str | None`` (a refusal);
+    a real one opens its pins in ``open_device`` (``DeviceNode.start``), never in its
+    constructor.
     """
 
     executor_name: str = ''

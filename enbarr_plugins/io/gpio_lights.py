@@ -22,10 +22,9 @@ from typing import Any
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 
-from enbarr_plugins import emulation
 from enbarr_plugins.io.base import IoPluginNode
 from enbarr_plugins.io.pins import (
-    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, make_factory)
+    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, open_outputs, Output)
 
 SPECS = [
     ParamSpec('pin', 12, 'BCM pin number; the executor name is gpio_<pin>', '', 0, 27,
@@ -72,16 +71,9 @@ class GpioLightsNode(IoPluginNode):
 
     def open_device(self) -> None:
         """Open the pin factory and the pin as an output at the level last asked for."""
-        from gpiozero import DigitalOutputDevice
-        factory = make_factory(self.settings.pin_factory)
-        try:
-            self.output = DigitalOutputDevice(self.settings.pin,
-                                              active_high=self.settings.active_high,
-                                              initial_value=self.level, pin_factory=factory)
-        except gpio_errors() as err:
-            close_quietly(factory)
-            raise DeviceError(f'{self.device}: cannot use the pin as an output: {err}') from err
-        self.factory = factory
+        s = self.settings
+        self.factory, (self.output,) = open_outputs(
+            s.pin_factory, [Output(s.pin, s.active_high, self.level)], self.device)
 
     def close_device(self) -> None:
         """Release the pin and the factory."""
@@ -104,30 +96,3 @@ class GpioLightsNode(IoPluginNode):
             return None
         self.publish_state(value)
         return None
-
-
-def check_device(target: Any) -> list[str]:
-    """Read one pin (``--name``, default 12) through gpiozero; ``emulated``: MockFactory.
-
-    The pin is only read (claimed as an input while reading, as gpiozero does).
-    """
-    name = target.name or '12'
-    if not name.isdigit():
-        raise DeviceError(f'--name: a BCM pin number (0..27), got {name!r}')
-    pin_number = int(name)
-    given = target.device or target.bus or target.port
-    factory_name = 'mock' if given and emulation.is_emulated(given) else 'lgpio'
-    factory = make_factory(factory_name)
-    pin = None
-    try:
-        try:
-            pin = factory.pin(pin_number)
-            level = pin.state
-            function = pin.function
-            board = factory.board_info
-        except gpio_errors() as err:
-            raise DeviceError(f'GPIO{pin_number} ({factory_name}): cannot read: {err}') from err
-        return [f'GPIO ({factory_name}): {board.model} rev {board.revision}',
-                f'GPIO{pin_number}: {function}, level {"high" if level else "low"}']
-    finally:
-        close_quietly(pin, factory)

@@ -10,6 +10,8 @@ References: gpiozero 2.0 documentation, "API - Pins" (``gpiozero.pins.lgpio.LGPI
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from enbarr_core.framework.errors import DeviceError
@@ -69,3 +71,34 @@ def close_quietly(*things: Any) -> None:
             thing.close()
         except Exception:  # noqa: BLE001 - closing goes on whatever the device says
             pass
+
+
+@dataclass(frozen=True)
+class Output:
+    """One GPIO output a driver claims."""
+
+    pin: int                  # BCM number; -1: not wired (nothing is claimed)
+    active_high: bool = True  # False: the load is on while the pin is low
+    initial: bool = False     # the level (on/off) it starts at
+
+
+def open_outputs(factory_name: str, outputs: Sequence[Output],
+                 device: str) -> tuple[Any, list[Any]]:
+    """Open the pin factory and ``outputs`` as gpiozero ``DigitalOutputDevice``s.
+
+    Returns the factory and one device per output (None where the pin is -1). A pin that
+    cannot be claimed closes what was opened and raises ``DeviceError`` naming ``device``; a
+    factory that cannot be opened raises ``make_factory``'s.
+    """
+    from gpiozero import DigitalOutputDevice
+    factory = make_factory(factory_name)
+    opened: list[Any] = []
+    try:
+        for out in outputs:
+            opened.append(None if out.pin < 0 else DigitalOutputDevice(
+                out.pin, active_high=out.active_high, initial_value=out.initial,
+                pin_factory=factory))
+    except gpio_errors() as err:
+        close_quietly(*opened, factory)
+        raise DeviceError(f'{device}: cannot use the pins as outputs: {err}') from err
+    return factory, opened

@@ -35,7 +35,7 @@ from enbarr_core.framework.params import ParamSpec
 
 from enbarr_plugins.io.base import IoPluginNode
 from enbarr_plugins.io.pins import (
-    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, make_factory)
+    PIN_FACTORY_SPEC, check_factory_name, close_quietly, gpio_errors, open_outputs, Output)
 
 SPECS = [
     ParamSpec('executor', '', 'Executor name this stepper answers to (default: node name)',
@@ -115,22 +115,10 @@ class StepperNode(IoPluginNode):
     # -- device ------------------------------------------------------------------------------
     def open_device(self) -> None:
         """Open the pins (motor disabled) and start the stepping thread."""
-        from gpiozero import DigitalOutputDevice
         s = self.settings
-        factory = make_factory(s.pin_factory)
-        opened: list[Any] = []
-        try:
-            for pin, active_high in ((s.step_pin, True), (s.dir_pin, True),
-                                     (s.enable_pin, not s.enable_active_low)):
-                if pin < 0:
-                    opened.append(None)
-                    continue
-                opened.append(DigitalOutputDevice(pin, active_high=active_high,
-                                                  initial_value=False, pin_factory=factory))
-        except gpio_errors() as err:
-            close_quietly(*opened, factory)
-            raise DeviceError(f'{self.device}: cannot use the pins as outputs: {err}') from err
-        self.factory = factory
+        self.factory, opened = open_outputs(s.pin_factory, [
+            Output(s.step_pin), Output(s.dir_pin),
+            Output(s.enable_pin, active_high=not s.enable_active_low)], self.device)
         self._pins = (opened[0], opened[1], opened[2])
         self._fault = None
         with self._cond:

@@ -5,26 +5,20 @@ thruster, same validation, time policy, ``InputHealth`` and clipping counts) and
 (``thruster_output``: what was written to the chip, neutral included), but the commands become
 ESC pulse widths on the chip's channels.
 
-Registers (NXP PCA9685 product data sheet, Rev. 4, 16 April 2015, section 7.3 "Register
-definitions", checked against Linux ``drivers/pwm/pwm-pca9685.c``):
-MODE1 0x00 (RESTART 0x80, AI 0x20 auto-increment, SLEEP 0x10, ALLCALL 0x01; power-on 0x11),
-MODE2 0x01 (OUTDRV 0x04 totem-pole outputs; power-on 0x04), LEDn_ON_L/ON_H/OFF_L/OFF_H at
-0x06 + 4n, bit 4 of ON_H = full on, bit 4 of OFF_H = full off (it wins), ALL_LED 0xFA-0xFD,
-PRE_SCALE 0xFE (power-on 0x1E), writable only while MODE1.SLEEP is set (7.3.5). The PWM period
-is 4096 counts of the oscillator divided by prescale + 1, so
-``prescale = round(osc / (4096 f)) - 1`` (equation 1, 3..255). Waking: clear SLEEP, wait
-500 us for the oscillator, then write 1 to RESTART if it reads 1 (7.3.1.1). The internal
-oscillator is 25 MHz nominal but varies between chips (``oscillator`` calibrates it: measure
-a pulse with a scope and scale).
+Registers, bits and the prescale/counts arithmetic: ``pca9685_protocol.py`` (NXP PCA9685 data
+sheet Rev. 4). The internal oscillator is 25 MHz nominal but varies between chips
+(``oscillator`` calibrates it: measure a pulse with a scope and scale).
 
 What the driver does:
 
-- **open** (``Pca9685.open``): read MODE1; sleep with AI set (SUB/ALLCALL off, as the Linux
-  driver does, against address collisions), MODE2 = OUTDRV, PRE_SCALE; write every channel to
-  its neutral pulse (unmapped channels full off) in auto-increment blocks while asleep; then
-  read back MODE1, MODE2, PRE_SCALE and the channel block. The PCA9685 has no identity
-  register: a device that does not hold what was written (another chip at 0x40, a bus that
-  returns garbage) is refused with the bus, address and values read. Then wake and restart.
+- **open** (``Pca9685.open``), when the node starts (building it touches nothing, so a
+  profile check leaves a running chip alone): read MODE1; sleep with AI set (SUB/ALLCALL
+  off, as the Linux driver does, against address collisions), MODE2 = OUTDRV, PRE_SCALE;
+  write every channel to its neutral pulse (unmapped channels full off) in auto-increment
+  blocks while asleep; then read back MODE1, MODE2, PRE_SCALE and the channel block. The
+  PCA9685 has no identity register: a device that does not hold what was written (another
+  chip at 0x40, a bus that returns garbage) is refused with the bus, address and values
+  read. Then wake and restart.
 - **arming**: an ESC arms only after it saw its neutral pulse for a while (Blue Robotics:
   1500 us for about a second before driving, and a new arming after the signal stopped for a
   few seconds: discuss.bluerobotics.com threads 380 and 2214). After every connect or
@@ -70,81 +64,16 @@ import time
 from typing import Any
 
 import numpy as np
-from sensor_msgs.msg import JointState
 
-from enbarr_core.allocation.layout_params import declare_thrusters
-from enbarr_core.framework.driver import REPORT_PERIOD, ActuatorDriver
 from enbarr_core.framework.errors import DeviceError
-from enbarr_core.framework.health import InputHealth, worst
-from enbarr_core.framework.node import LatencyLog
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
-from enbarr_core.framework.stamps import (
-    SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy)
-from enbarr_interfaces.fastmsg import new
-from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.thrusters.sim import accept_command
+from enbarr_plugins.thrusters.common import MAX_FUTURE_SPEC, ThrusterDriver
+from enbarr_plugins.thrusters.pca9685_protocol import (
+    AI, CHANNELS, counts_for, channel_bytes, DEFAULT_ADDRESS, frequency_of, FULL, COUNTS,
+    led_register, LED0_ON_L, MODE1, MODE2, OSCILLATOR, OUTDRV, PRE_SCALE, prescale_for,
+    pulse_of, RESTART, SLEEP, WAKE_DELAY)
 from enbarr_plugins.transport.i2c import MAX_BLOCK, I2cDevice, open_i2c
-
-# -- registers (data sheet Rev. 4, table 4 and 7.3) ---------------------------------------------
-MODE1 = 0x00
-MODE2 = 0x01
-LED0_ON_L = 0x06
-ALL_LED_ON_L = 0xFA
-PRE_SCALE = 0xFE
-RESTART = 0x80
-AI = 0x20
-SLEEP = 0x10
-ALLCALL = 0x01
-OUTDRV = 0x04
-FULL = 0x10            # bit 4 of LEDn_ON_H (full on) / LEDn_OFF_H (full off)
-COUNTS = 4096          # one PWM period
-CHANNELS = 16
-PRESCALE_MIN, PRESCALE_MAX = 3, 255
-OSCILLATOR = 25e6      # internal oscillator, nominal [Hz]
-WAKE_DELAY = 500e-6    # oscillator start-up after SLEEP is cleared [s]
-DEFAULT_ADDRESS = 0x40
-
-#: Channel registers of a channel that is off: ON = 0, OFF = full off.
-OFF_BYTES = bytes((0, 0, 0, FULL))
-
-
-def led_register(channel: int) -> int:
-    """Return the LEDn_ON_L register of ``channel`` (0..15)."""
-    return LED0_ON_L + 4 * channel
-
-
-def prescale_for(frequency: float, oscillator: float = OSCILLATOR) -> int:
-    """PRE_SCALE for a PWM ``frequency`` [Hz] (data sheet equation 1); ValueError outside."""
-    prescale = round(oscillator / (COUNTS * frequency)) - 1
-    if not PRESCALE_MIN <= prescale <= PRESCALE_MAX:
-        raise ValueError(f'frequency: {frequency} Hz needs prescale {prescale}, outside '
-                         f'{PRESCALE_MIN}..{PRESCALE_MAX} (with a {oscillator:.4g} Hz '
-                         'oscillator: about 24..1526 Hz)')
-    return prescale
-
-
-def frequency_of(prescale: int, oscillator: float = OSCILLATOR) -> float:
-    """PWM frequency [Hz] that ``prescale`` gives."""
-    return oscillator / (COUNTS * (prescale + 1))
-
-
-def counts_for(pulse_us: float, prescale: int, oscillator: float = OSCILLATOR) -> int:
-    """Return the counts of one period (0..4095) that make a ``pulse_us`` [us] pulse."""
-    return min(COUNTS - 1, max(0, round(pulse_us * 1e-6 * oscillator / (prescale + 1))))
-
-
-def pulse_of(counts: int, prescale: int, oscillator: float = OSCILLATOR) -> float:
-    """Pulse width [us] of ``counts``."""
-    return counts * (prescale + 1) / oscillator * 1e6
-
-
-def channel_bytes(counts: int | None) -> bytes:
-    """LEDn_ON_L..OFF_H of a pulse of ``counts`` starting at count 0 (None: full off)."""
-    if counts is None:
-        return OFF_BYTES
-    return bytes((0, 0, counts & 0xFF, (counts >> 8) & 0x0F))
-
 
 class Pca9685:
     """The chip's registers, over one ``I2cDevice``; every failure is a ``DeviceError``."""
@@ -334,8 +263,7 @@ SPECS = [
               's', 0.0, 30.0),
     ParamSpec('verify_period', 1.0, 'How often MODE1 is read back to catch a reset chip', 's',
               0.05, 60.0),
-    ParamSpec('max_future', SAME_CLOCK_MAX_FUTURE, 'Commands stamped further ahead of the '
-              'node clock are refused (time policy)', 's', 0.0, 1.0),
+    MAX_FUTURE_SPEC,
 ]
 
 
@@ -397,14 +325,10 @@ def open_device(bus: str, address: int) -> tuple[I2cDevice, bool]:
 
 # -- the node ------------------------------------------------------------------------------
 
-class Pca9685ThrustersNode(ActuatorDriver):
+class Pca9685ThrustersNode(ThrusterDriver):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'thruster_control', **kwargs: Any) -> None:
-        self.neutral = True
-        self.gate = StampGate()
-        self.health = InputHealth()
-        self._health_values: dict[str, int] = {}
         self.chip: Pca9685 | None = None
         self._owns_bus = False
         self._cond = threading.Condition()
@@ -413,28 +337,19 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self._thread: threading.Thread | None = None
         self._fault: DeviceError | None = None
         self._armed_ns = 0
-        super().__init__(node_name, timeout_message='thruster commands stopped: thrusters '
-                         'neutral', **kwargs)
-        self.thrusters = declare_thrusters(self)
-        self.names = [t.name for t in self.thrusters]
-        self._index = {n: i for i, n in enumerate(self.names)}
+        super().__init__(node_name, **kwargs)
         self.settings: Pca9685Settings
         SettingsBinding(self, SPECS + pulse_specs(self.names),
                         lambda v: Pca9685Settings.build(self.names, v), self._apply)
         self.device = f'{self.settings.bus} 0x{self.settings.address:02x}'
-        self.latency = LatencyLog()
-        self.command = np.zeros(len(self.names))   # latest accepted, normalized
         self.applied = np.zeros(len(self.names))   # last written to the chip
-        self.refused = 0
-        self.clipped = 0
         self.held_arming = 0
         self.written: bytes = b''                  # last channel block written
-        self._output_pub = self.create_topic_publisher(topics.THRUSTER_OUTPUT)
-        self.create_topic_subscription(topics.THRUSTER_COMMANDS, self._on_command)
+        self.subscribe_commands()
 
     def _apply(self, settings: Pca9685Settings) -> None:
         self.settings = settings
-        self.gate.policy = StampPolicy(settings.max_future)
+        self.commands.set_max_future(settings.max_future)
 
     # -- device ------------------------------------------------------------------------------
     def open_device(self) -> None:
@@ -523,11 +438,7 @@ class Pca9685ThrustersNode(ActuatorDriver):
             cmd = np.zeros(len(self.names))
         self.written = chip.write(self.settings.counts(cmd))
         self.applied = cmd
-        out = new(JointState)
-        out.name, out.effort = self.names, cmd.tolist()
-        convert.ns_to_stamp(self.now_ns(), out.header.stamp)
-        out.header.frame_id = topics.BODY_FRAME
-        self._output_pub.publish(out)
+        self.publish_output(cmd, self.now_ns())
 
     def _hand_over(self, cmd: np.ndarray) -> None:
         with self._cond:
@@ -543,21 +454,11 @@ class Pca9685ThrustersNode(ActuatorDriver):
             self.device_fault(fault)
 
     # -- commands ----------------------------------------------------------------------------
-    def _on_command(self, msg: JointState) -> None:
-        now_ns = self.now_ns()
-        taken = accept_command(self, msg, now_ns)  # the checks of every thruster plugin
-        if taken is None:
-            return
-        cmd, stamp_ns = taken
-        with self.commanding():
-            self.command = cmd
-            self.neutral = not np.any(cmd)
-            self._hand_over(cmd)
-        self.latency.add(now_ns - stamp_ns)
-
-    def is_neutral(self) -> bool:
-        """Whether every thruster is commanded to neutral."""
-        return self.neutral
+    def apply(self, command: np.ndarray, now_ns: int) -> None:
+        """Hand an accepted command to the writer (the watchdog's lock held)."""
+        self.command = command
+        self.neutral = not np.any(command)
+        self._hand_over(command)
 
     def write_neutral(self) -> None:
         """Hand neutral to the writer (it writes within one PWM period when connected)."""
@@ -565,58 +466,9 @@ class Pca9685ThrustersNode(ActuatorDriver):
         self.command = np.zeros(len(self.names))
         self._hand_over(self.command)
 
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, degraded while commands are refused."""
-        level, message, self._health_values = self.health.report(REPORT_PERIOD)
-        return worst(super().status(), (level, message))
-
     def status_values(self) -> dict[str, Any]:
         """Return the driver counters."""
         chip = self.chip
-        return {**super().status_values(), 'armed': self.armed, 'refused': self.refused,
-                'clipped': self.clipped, 'held_arming': self.held_arming,
-                'writes': chip.writes if chip else 0,
-                'i2c_errors': chip.device.errors if chip else 0, **self._health_values}
-
-
-# -- enbarr check-device pca9685 -------------------------------------------------------------
-
-def check_device(target: Any) -> list[str]:
-    """Open the PCA9685 named by ``target``, print MODE1, PRE_SCALE, frequency, channel 0.
-
-    Reads only: the chip is not reconfigured (a running vessel's thrusters keep their pulses).
-    ``emulated`` starts an emulator in this process. ``DeviceError`` when absent or wrong.
-    """
-    bus = target.bus or '1'
-    address = target.address if target.address is not None else DEFAULT_ADDRESS
-    emulator = None
-    if emulation.is_emulated(bus):
-        from enbarr_plugins.thrusters.pca9685_emulator import start_check_emulator
-        emulator = start_check_emulator(bus, address)
-    try:
-        try:
-            device, owned = open_device(bus, address)
-        except ValueError as err:
-            raise DeviceError(str(err)) from err
-        chip = Pca9685(device)
-        try:
-            state = chip.read_state(0)
-        finally:
-            if owned:
-                chip.close()
-        if state['mode2'] & 0xE0 or state['prescale'] < PRESCALE_MIN:
-            # MODE2 bits 7..5 are reserved (read 0); PRE_SCALE is never below 3.
-            raise DeviceError(f'{chip.name}: not a PCA9685: MODE2 0x{state["mode2"]:02x}, '
-                              f'PRE_SCALE 0x{state["prescale"]:02x}')
-        pulse = state['pulse']
-        pulse_text = ('full off' if pulse == 0.0 else 'full on' if math.isinf(pulse)
-                      else f'{pulse:.0f} us')
-        return [f'PCA9685 at {chip.name}',
-                f'MODE1 0x{state["mode1"]:02x} ({"asleep" if state["mode1"] & SLEEP else "awake"}'
-                f'{", auto-increment" if state["mode1"] & AI else ""})',
-                f'PRE_SCALE {state["prescale"]} -> {state["frequency"]:.1f} Hz (25 MHz '
-                'oscillator)',
-                f'channel 0: {pulse_text}']
-    finally:
-        if emulator is not None:
-            emulator()
+        return {**super().status_values(), 'armed': self.armed,
+                'held_arming': self.held_arming, 'writes': chip.writes if chip else 0,
+                'i2c_errors': chip.device.errors if chip else 0}

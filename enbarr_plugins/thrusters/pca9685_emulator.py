@@ -1,7 +1,8 @@
 """Emulator of a PCA9685 PWM controller with ESCs and thrusters on its channels.
 
 ``Pca9685Emulator`` is the chip's register file behind ``transport.i2c.FakeI2cBus``, written
-from the NXP PCA9685 product data sheet (Rev. 4, 16 April 2015), section 7.3:
+from the NXP PCA9685 product data sheet (Rev. 4, 16 April 2015), section 7.3, with its own
+copy of the register map:
 
 - power-on state: MODE1 0x11 (SLEEP, ALLCALL), MODE2 0x04 (OUTDRV), every LEDn full off
   (LEDn_OFF_H 0x10), PRE_SCALE 0x1E (200 Hz);
@@ -34,8 +35,8 @@ the pulse stops for ``signal_timeout`` (the forum: "3-10 seconds"), and maps the
 linearly outside the dead band to the thruster's ``max_forward``/``max_reverse`` (the common
 ``thrusters`` parameters; a linear stand-in for the T200's curve).
 
-``Pca9685EmulatorNode`` attaches the chip at ``address`` on the shared emulated bus
-``emulated:<name>`` (the IMU emulator sits on the same one), and at ``rate`` publishes the
+``Pca9685EmulatorNode``, once started, attaches the chip at ``address`` on the shared emulated
+bus ``emulated:<name>`` (the IMU emulator sits on the same one), and at ``rate`` publishes the
 thrust the ESCs produce on ``sim/thrust`` (for ``rov_simulator``) and the pulse of every
 thruster's channel on ``emulator/pca9685`` (``sensor_msgs/JointState``: name = thruster,
 position = pulse width [us], 0 = no pulse).
@@ -60,10 +61,19 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_interfaces.topics import SENSOR_QOS, TopicSpec
 from enbarr_plugins import emulation
-from enbarr_plugins.thrusters.pca9685 import (
-    ALL_LED_ON_L, CHANNELS, COUNTS, DEFAULT_ADDRESS, FULL, LED0_ON_L, MODE1, MODE2,
-    OSCILLATOR, PRE_SCALE, PRESCALE_MIN, RESTART, SLEEP, AI, WAKE_DELAY)
 from enbarr_plugins.transport.i2c import FakeI2cBus
+
+# The data sheet's registers and bits (table 4, 7.3), typed again for the emulator: it imports
+# neither the driver nor its protocol module, so that neither can hide the other's mistake.
+MODE1, MODE2, LED0_ON_L, ALL_LED_ON_L, PRE_SCALE = 0x00, 0x01, 0x06, 0xFA, 0xFE
+RESTART, AI, SLEEP = 0x80, 0x20, 0x10          # MODE1
+FULL = 0x10                                    # bit 4 of LEDn_ON_H / LEDn_OFF_H
+CHANNELS = 16
+COUNTS = 4096                                  # counter steps of one PWM period
+PRESCALE_MIN = 3                               # the hardware clamps PRE_SCALE below 3
+OSCILLATOR = 25e6                              # internal oscillator, nominal [Hz]
+WAKE_DELAY = 500e-6                            # oscillator start-up after waking [s]
+DEFAULT_ADDRESS = 0x40                         # A5..A0 = 0
 
 #: What the emulated chip outputs, for end-to-end checks of the bytes it received.
 EMULATOR_PCA9685 = TopicSpec(
@@ -73,7 +83,7 @@ EMULATOR_PCA9685 = TopicSpec(
     fast=True)
 
 LAST_LED = LED0_ON_L + 4 * CHANNELS - 1   # 0x45
-POWER_ON = {MODE1: 0x11, MODE2: 0x04, PRE_SCALE: 0x1E}
+POWER_ON = {MODE1: 0x11, MODE2: 0x04, PRE_SCALE: 0x1E}   # SLEEP | ALLCALL, OUTDRV, 200 Hz
 
 
 class Pca9685Emulator:
@@ -350,14 +360,26 @@ class Pca9685EmulatorNode(EnbarrNode):
         s = self.settings
         self.chip = Pca9685Emulator(s.oscillator)
         self.escs = [EscModel(e) for e in s.escs]
-        self.bus: FakeI2cBus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
-        self.bus.attach(s.address, self.chip)
+        self.bus: FakeI2cBus | None = None   # the shared emulated bus, once started
         self.thrust = np.zeros(len(self.names))
         self.pulses = np.zeros(len(self.names))
         self._thrust_pub = self.create_topic_publisher(topics.SIM_THRUST)
         self._pulse_pub = self.create_topic_publisher(EMULATOR_PCA9685)
         self.loop = self.create_rate_loop(s.rate, self.tick)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Put the chip on the shared emulated bus, then start publishing its outputs.
+
+        The chip is plugged in here, not in the constructor: a profile check builds the node
+        and must leave no bus behind. It stays plugged in until the node is destroyed (the
+        drivers write their neutral pulses after every node has stopped).
+        """
+        if self.bus is None:
+            s = self.settings
+            self.bus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
+            self.bus.attach(s.address, self.chip)
+        super().start()
 
     def _build(self, v: dict[str, Any]) -> EmulatorSettings:
         channels = tuple(v[f'pca9685.channels.{n}'] for n in self.names)
@@ -392,6 +414,8 @@ class Pca9685EmulatorNode(EnbarrNode):
         self._pulse_pub.publish(pulses)
 
     def _report(self) -> None:
+        if not self.started:
+            return
         c = self.chip
         self.publish_diagnostics(0, 'emulating a PCA9685', {
             'bus': f'emulated:{self.settings.name}', 'address': f'0x{self.settings.address:02x}',
@@ -406,15 +430,17 @@ class Pca9685EmulatorNode(EnbarrNode):
         The last report shows the drivers' safe state (bringup destroys emulators after the
         drivers, before the recorders).
         """
-        if not self.loop.running:
-            try:
-                self.tick()
-            except Exception as err:  # noqa: BLE001 - the unplugging must still happen
-                self.get_logger().warn(f'last output report failed: {err!r}')
-        if self.bus.devices.get(self.settings.address) is self.chip:
-            self.bus.detach(self.settings.address)
-        if not self.bus.devices:
-            emulation.unregister('i2c', self.settings.name, self.bus)
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            if not self.loop.running:
+                try:
+                    self.tick()
+                except Exception as err:  # noqa: BLE001 - the unplugging must still happen
+                    self.get_logger().warn(f'last output report failed: {err!r}')
+            if bus.devices.get(self.settings.address) is self.chip:
+                bus.detach(self.settings.address)
+            if not bus.devices:
+                emulation.unregister('i2c', self.settings.name, bus)
         super().destroy_node()
 
 

@@ -26,6 +26,9 @@ FRONT = ('front_right', 'front_left', 'rear_right', 'rear_left')
 NEUTRAL = 1500.0   # [us], the ESC's stop pulse (pca9685_emulator esc.neutral)
 DEAD_BAND = 25.0   # [us] half width
 DURATION = 21.0    # [s]: the script ends at 16 s; the rest is margin for a slow start
+#: [s] The driver opens the chip when bringup starts it and holds every thruster neutral for
+#: this long (the ESCs arm on neutral); the script's dive starts at once.
+ARMING = PROFILE.node('thruster_control').parameters['arming_time']
 
 
 @pytest.fixture(scope='module')
@@ -66,10 +69,19 @@ def test_the_drivers_stayed_connected_and_the_escs_armed(run: dict[str, Any]) ->
     assert int(last['pwm_emulator']['transfers']) > 100
 
 
+def test_every_esc_is_held_neutral_while_arming(run: dict[str, Any]) -> None:
+    """The first ``arming_time`` after start: whatever the script commands (a dive), every
+    channel outputs the ESC's stop pulse."""
+    window = _window(run, 0.2, ARMING - 0.3)
+    assert window
+    for p in window:
+        assert all(abs(v - NEUTRAL) <= DEAD_BAND for v in p.values()), p
+
+
 def test_diving_drives_the_vertical_escs_down(run: dict[str, Any]) -> None:
-    """0-4 s: dive at 0.2 m/s (FLU z up): the vertical thrusters push down, their pulses
-    below the ESC dead band, the horizontal ones about neutral."""
-    window = _window(run, 1.5, 3.5)
+    """Armed, until 4 s: dive at 0.2 m/s (FLU z up): the vertical thrusters push down, their
+    pulses below the ESC dead band, the horizontal ones about neutral."""
+    window = _window(run, ARMING + 0.5, 3.5)
     assert window
     for p in window:
         assert all(p[n] < NEUTRAL - DEAD_BAND for n in VERTICAL), p
@@ -85,9 +97,10 @@ def test_driving_forward_drives_the_horizontal_escs_ahead(run: dict[str, Any]) -
 
 
 def test_the_vehicle_dove_and_drove(run: dict[str, Any]) -> None:
+    """The dive has the 4 s of the script less the arming (at most 0.2 m/s x 2 s = 0.4 m)."""
     odom = [m.pose.pose.position for _, m in run['msgs']['/sim/odometry']]
-    assert min(p.z for p in odom) < -1.0          # from 0.5 m down
-    assert max(p.x for p in odom) > 1.0           # ahead
+    assert min(p.z for p in odom) < odom[0].z - 0.1   # down from where it started
+    assert max(p.x for p in odom) > 1.0               # ahead
 
 
 def test_the_imu_driver_read_the_emulated_chip(run: dict[str, Any]) -> None:

@@ -18,6 +18,7 @@ from enbarr_plugins.io.sim_stepper import SimStepperNode
 def gpio(context, executor):
     node = add(executor, SimGpioNode(node_name='lights', context=context,
                                      parameter_overrides=[Parameter('pin', value=12)]))
+    node.start()
     pub, states = io_probe(context, executor)
     return node, pub, states
 
@@ -62,6 +63,7 @@ def stepper(context, executor):
                                             Parameter('executor', value='manipulator'),
                                             Parameter('max_rate', value=400.0),
                                             Parameter('max_position', value=500)]))
+    node.start()
     pub, states = io_probe(context, executor)
     assert node.executor_name == 'manipulator'
     return node, pub, states

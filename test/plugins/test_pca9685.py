@@ -13,6 +13,8 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.thrusters import pca9685 as pca
+from enbarr_plugins.thrusters import pca9685_protocol as proto
+from enbarr_plugins.thrusters.check import check_pca9685
 from enbarr_plugins.thrusters.pca9685_emulator import (
     EscModel, EscSpec, Pca9685Emulator, WrongDevice)
 from enbarr_plugins.transport.i2c import FakeI2cBus, I2cDevice
@@ -21,23 +23,23 @@ from enbarr_plugins.transport.i2c import FakeI2cBus, I2cDevice
 @pytest.mark.parametrize('frequency, prescale', [(50.0, 121), (400.0, 14), (200.0, 30),
                                                  (1526.0, 3), (24.0, 253)])
 def test_prescale_follows_equation_1_of_the_data_sheet(frequency, prescale):
-    assert pca.prescale_for(frequency) == prescale
+    assert proto.prescale_for(frequency) == prescale
     # The power-on value 0x1E is 200 Hz (data sheet 7.3.5).
-    assert pca.prescale_for(200.0) == 0x1E
+    assert proto.prescale_for(200.0) == 0x1E
 
 
 def test_prescale_outside_3_255_is_refused():
     with pytest.raises(ValueError, match='frequency: 2000'):
-        pca.prescale_for(2000.0)
+        proto.prescale_for(2000.0)
     with pytest.raises(ValueError, match='frequency: 20'):
-        pca.prescale_for(20.0)
+        proto.prescale_for(20.0)
 
 
 def test_pulse_counts_round_trip():
-    assert pca.counts_for(1500.0, 121) == round(1500.0 / (122 / 25.0))
-    assert pca.pulse_of(pca.counts_for(1500.0, 121), 121) == pytest.approx(1500.0, abs=2.5)
-    assert pca.channel_bytes(307) == bytes([0, 0, 307 & 0xFF, 1])
-    assert pca.channel_bytes(None) == bytes([0, 0, 0, 0x10])
+    assert proto.counts_for(1500.0, 121) == round(1500.0 / (122 / 25.0))
+    assert proto.pulse_of(proto.counts_for(1500.0, 121), 121) == pytest.approx(1500.0, abs=2.5)
+    assert proto.channel_bytes(307) == bytes([0, 0, 307 & 0xFF, 1])
+    assert proto.channel_bytes(None) == bytes([0, 0, 0, 0x10])
 
 
 def test_pulse_calibration_dead_band_and_reversal():
@@ -127,7 +129,7 @@ def test_driver_chip_opens_the_emulator_and_refuses_a_wrong_device():
     driver = pca.Pca9685(dev)
     state = driver.open(50.0, {0: 307, 2: 400})
     assert state['prescale'] == 121 and state['mode1_before'] == 0x11
-    time.sleep(pca.WAKE_DELAY * 2)
+    time.sleep(proto.WAKE_DELAY * 2)
     assert chip.pulse_us(0) == pytest.approx(307 * 122 / 25.0)
     assert chip.pulse_us(1) == 0.0                          # unmapped: full off
     driver.verify()
@@ -178,7 +180,7 @@ def test_esc_arms_on_the_neutral_the_chip_output_before_anyone_sampled_it():
 # -- enbarr check-device pca9685 ------------------------------------------------------------------
 
 def test_check_device_reads_the_emulated_chip():
-    lines = pca.check_device(CheckTarget(bus='emulated:check'))
+    lines = check_pca9685(CheckTarget(bus='emulated:check'))
     assert lines[0] == 'PCA9685 at emulated:check 0x40'
     assert 'MODE1 0x11 (asleep)' in lines[1]
     assert lines[2].startswith('PRE_SCALE 30 -> 196.9 Hz')
@@ -192,11 +194,11 @@ def test_check_device_refuses_a_wrong_device_and_an_absent_bus():
     bus.attach(0x40, WrongDevice(0xFF))
     try:
         with pytest.raises(DeviceError, match='emulated:wrong 0x40: not a PCA9685: MODE2 0xff'):
-            pca.check_device(CheckTarget(bus='emulated:wrong'))
+            check_pca9685(CheckTarget(bus='emulated:wrong'))
     finally:
         emulation.unregister('i2c', 'wrong')
     with pytest.raises(DeviceError, match='i2c-57: cannot open /dev/i2c-57'):
-        pca.check_device(CheckTarget(bus='57'))
+        check_pca9685(CheckTarget(bus='57'))
 
 
 def test_check_device_command_line(capsys):

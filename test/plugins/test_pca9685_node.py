@@ -10,14 +10,14 @@ import itertools
 import threading
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
+from support.devices import diagnostics_of, pass_time
 from support.nodes import TIMEOUT, add, probe
 from support.rov import layout_overrides, sim_parameters
 
-from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins import emulation
@@ -55,7 +55,7 @@ class Rig:
     """Emulator (optional at start), driver and a controller, in one process."""
 
     def __init__(self, context: Any, executor: Any, spin: Any, *, emulator: bool = True,
-                 **extra: Any) -> None:
+                 start: bool = True, **extra: Any) -> None:
         self.context, self.executor, self.spin = context, executor, spin
         self.bus_name = f't{next(_bus_names)}'
         self.emulator: Pca9685EmulatorNode | None = None
@@ -71,22 +71,21 @@ class Rig:
         self.outputs: list[JointState] = []
         self.thrusts: list[JointState] = []
         self.pulses: list[JointState] = []
-        self.diagnostics: list[Any] = []
         p.create_topic_subscription(topics.THRUSTER_OUTPUT, self.outputs.append)
         p.create_topic_subscription(topics.SIM_THRUST, self.thrusts.append)
         p.create_subscription(JointState, EMULATOR_PCA9685.name, self.pulses.append,
                               EMULATOR_PCA9685.qos)
-        p.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name,
-                              lambda m: self.diagnostics.extend(
-                                  s for s in m.status if s.hardware_id == 'thruster_control'),
-                              topics.DIAGNOSTICS.qos)
+        self.diagnostics = diagnostics_of(p, 'thruster_control')
         LinkBus.of(context).connect()
+        if start:
+            self.node.start()
 
     def start_emulator(self, **extra: Any) -> Pca9685EmulatorNode:
         self.emulator = add(self.executor, Pca9685EmulatorNode(
             context=self.context, parameter_overrides=layout_overrides(
                 **CHANNELS, name=self.bus_name, rate=50.0, **{'esc.arming_time': 0.2},
                 **extra)))
+        self.emulator.start()
         return self.emulator
 
     @property
@@ -126,6 +125,28 @@ class Rig:
 @pytest.fixture
 def rig(context, executor, spin) -> Rig:
     return Rig(context, executor, spin)
+
+
+def test_a_constructed_driver_touches_nothing_until_started(context, executor, spin):
+    """Building the node (bringup --check) must not put a running vessel's chip to sleep."""
+    rig = Rig(context, executor, spin, start=False)
+    pass_time(executor, spin, rig.probe)
+    assert list(rig.bus.log) == []                 # not one transfer: the chip is untouched
+    assert rig.chip.regs[0x00] == 0x11             # MODE1 still at its power-on value
+    assert rig.outputs == [] and rig.diagnostics == []
+    assert not rig.node.connected and rig.node.faults == 0
+    rig.node.start()
+    assert rig.bus.log[0] == ('read', ADDRESS, 0x00, bytes([0x11]))   # MODE1 first
+    assert rig.until(lambda: rig.outputs and rig.outputs[-1].effort.tolist() == [0.0] * 8)
+
+
+def test_an_emulator_plugs_its_chip_in_when_started(context, executor):
+    node = add(executor, Pca9685EmulatorNode(context=context, parameter_overrides=(
+        layout_overrides(**CHANNELS, name='unstarted'))))
+    with pytest.raises(DeviceError, match="no i2c emulator named 'unstarted'"):
+        emulation.lookup('i2c', 'emulated:unstarted')
+    node.start()
+    assert emulation.lookup('i2c', 'emulated:unstarted').devices[ADDRESS] is node.chip
 
 
 def test_configures_the_chip_as_the_data_sheet_says(rig):
@@ -331,11 +352,7 @@ def test_channels_are_required(context):
 def test_emulator_reports_what_it_received(rig):
     rig.command(CMD)
     assert rig.until(lambda: rig.wrote(expected_block(CMD)))
-    seen: list[Any] = []
-    rig.probe.create_subscription(
-        DiagnosticArray, topics.DIAGNOSTICS.name,
-        lambda m: seen.extend(s for s in m.status if s.hardware_id == 'pca9685_emulator'),
-        topics.DIAGNOSTICS.qos)
+    seen = diagnostics_of(rig.probe, 'pca9685_emulator')
     assert rig.until(lambda: seen)
     values = {kv.key: kv.value for kv in seen[-1].values}
     assert int(values['transfers']) > 5 and values['prescale'] == str(PRESCALE)

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
+from support.devices import pass_time
 from support.nodes import TIMEOUT, add, probe
 from support.rov import layout_overrides, sim_parameters
 from support.saucer import SimClock
@@ -26,7 +27,7 @@ CMD = [0.5, -0.5, 1.0, -1.0, 0.0, 0.25, -0.25, 0.1]
 class Controller:
     """The thrusters (no motor lag, 0.1 s watchdog) and a controller commanding them."""
 
-    def __init__(self, context: Any, executor: Any) -> None:
+    def __init__(self, context: Any, executor: Any, start: bool = True) -> None:
         self.node = add(executor, SimThrustersNode(
             node_name='thruster_control', context=context,
             parameter_overrides=layout_overrides(time_constant=0.0, command_timeout=0.1)))
@@ -37,6 +38,8 @@ class Controller:
         p.create_topic_subscription(topics.THRUSTER_OUTPUT, self.outputs.append)
         p.create_topic_subscription(topics.SIM_THRUST, self.thrusts.append)
         LinkBus.of(context).connect()
+        if start:
+            self.node.start()
 
     def command(self, efforts: list[float], names: list[str] = NAMES) -> None:
         msg = JointState(name=list(names), effort=[float(e) for e in efforts])
@@ -51,11 +54,22 @@ def rig(context, executor) -> Controller:
 
 def test_starts_neutral_with_the_profile_names(rig):
     assert rig.node.names == NAMES and rig.node.neutral
+    assert rig.outputs[-1].effort.tolist() == [0.0] * len(NAMES)   # neutral went out at start
+
+
+def test_a_constructed_node_publishes_nothing_until_started(context, executor, spin):
+    rig = Controller(context, executor, start=False)
+    pass_time(executor, spin, rig.probe)
+    assert rig.outputs == [] and rig.thrusts == [] and rig.node.timeouts == 0
+    rig.node.start()
+    assert len(rig.outputs) == len(rig.thrusts) == 1
+    assert not np.any(rig.outputs[0].effort) and not np.any(rig.thrusts[0].effort)
 
 
 def test_command_becomes_output_and_thrust(rig):
+    n = len(rig.outputs)            # the neutral of start()
     rig.command(CMD)
-    assert len(rig.outputs) == 1 and len(rig.thrusts) == 1
+    assert len(rig.outputs) == len(rig.thrusts) == n + 1
     assert rig.outputs[-1].name == NAMES and rig.thrusts[-1].name == NAMES
     assert rig.outputs[-1].effort.tolist() == pytest.approx(CMD)
     expected = [c * (51.5 if c >= 0 else 40.2) for c in CMD]
@@ -299,6 +313,7 @@ def sim_time_thrusters(context: Any, executor: Any, command_timeout: float) -> A
     pub = probe(context, executor, 'controller').create_topic_publisher(
         topics.THRUSTER_COMMANDS)
     LinkBus.of(context).connect()
+    node.start()
     pub.publish(JointState(name=node.names, effort=[0.5] * len(node.names)))
     assert not node.neutral
     return node, clock

@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 from rclpy.parameter import Parameter
+from support.devices import MockFactories, pass_time
 from support.nodes import TIMEOUT, add
 from support.rov import io_msg, io_probe, overrides
 
@@ -21,18 +22,37 @@ def rising_edges(pin: Any) -> int:
     return sum(1 for a, b in zip(states, states[1:]) if b and not a)
 
 
-@pytest.fixture
-def rig(context, executor):
-    node = add(executor, StepperNode(context=context, parameter_overrides=overrides({
+def stepper(context: Any, executor: Any) -> StepperNode:
+    return add(executor, StepperNode(context=context, parameter_overrides=overrides({
         'executor': 'manipulator', 'pin_factory': 'mock', 'max_rate': 2000.0,
         'min_position': -100, 'max_position': 500, 'reconnect.initial_delay': 0.05,
         'reconnect.max_delay': 0.1})))
+
+
+@pytest.fixture
+def rig(context, executor):
+    node = stepper(context, executor)
+    node.start()
     pub, states = io_probe(context, executor)
     return node, pub, states
 
 
 def pin(node: StepperNode, number: int) -> Any:
     return node.factory.pin(number)
+
+
+def test_a_constructed_node_claims_no_pin_until_started(context, executor, spin,
+                                                        monkeypatch):
+    factories = MockFactories(monkeypatch)
+    node = stepper(context, executor)
+    pub, states = io_probe(context, executor)
+    pass_time(executor, spin, node)
+    assert factories.made == [] and node.factory is None and not node.connected
+    pub.publish(io_msg('manipulator', 10))       # refused: nothing to step with yet
+    assert node.refused == 1 and states == [] and node.faults == 0
+    node.start()
+    assert sorted(p.info.name for p in factories.pins()) == ['GPIO18', 'GPIO23', 'GPIO24']
+    assert pin(node, ENABLE).state is True and rising_edges(pin(node, STEP)) == 0
 
 
 def test_steps_counts_pulses_with_direction_and_enable(executor, spin, rig):
@@ -102,6 +122,7 @@ def test_a_failing_pin_is_a_fault_then_it_resumes(executor, spin, rig):
 
 def test_lgpio_without_a_gpio_chip_is_a_clear_device_error(context, executor):
     node = add(executor, StepperNode(context=context, parameter_overrides=overrides({})))
+    node.start()
     assert not node.connected and 'pin_factory lgpio' in node.last_fault
 
 

@@ -2,35 +2,71 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import itertools
+import math
 import time
 from typing import Any
 
+import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 
 from enbarr_core.framework.kinematics import quat_from_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, topics
+from enbarr_plugins import emulation
 from enbarr_plugins.transport.i2c import FakeI2cBus
+from support.devices import diagnostics_of
 
 TIMEOUT = 10.0
 _names = itertools.count()
+
+
+def assert_ranges(table: Any, typed: dict[float, tuple[int, float]], unit: float) -> None:
+    """Assert a protocol module's full-scale table (full scale -> (code, sensitivity)) is
+    ``typed``: the same full scales, codes, and sensitivities (typed ones x ``unit``)."""
+    assert set(table) == set(typed)
+    for full_scale, (code, lsb) in typed.items():
+        assert table[full_scale][0] == code, full_scale
+        assert math.isclose(table[full_scale][1], lsb * unit, rel_tol=1e-9), (
+            full_scale, table[full_scale][1], lsb * unit)
+
+
+def close_in_scale(measured: Any, expected: Any, tolerance: float) -> None:
+    """Assert every component within ``tolerance`` x the largest expected one.
+
+    For readings through an emulator that adds (seeded) noise of a fixed size per component.
+    """
+    np.testing.assert_allclose(measured, expected, rtol=0.0,
+                               atol=tolerance * np.abs(expected).max())
+
+
+@contextmanager
+def registered(bus: FakeI2cBus) -> Iterator[str]:
+    """``bus`` as an emulated bus of this process: yields the drivers' ``bus`` parameter."""
+    name = f'imu-unit-{next(_names)}'
+    emulation.register('i2c', name, bus)
+    try:
+        yield f'emulated:{name}'
+    finally:
+        emulation.unregister('i2c', name)
 
 
 class Rig:
     """Emulator node, driver node, and a probe that publishes truth and records samples."""
 
     def __init__(self, context: Any, executor: Any, driver: type, emulator_class: type, *,
-                 emulator: bool = True, **params: Any) -> None:
+                 emulator: bool = True, start: bool = True, **params: Any) -> None:
         self.context, self.executor = context, executor
         self.emulator_class = emulator_class
         self.name = f'imu-node-{next(_names)}'
         self.raw: list[Imu] = []
         self.mag: list[Any] = []
-        self.diag: list[Any] = []
         self.probe = EnbarrNode('probe', context=context)
         executor.add_node(self.probe)
+        self.diag = diagnostics_of(self.probe, 'imu')
         self.truth_pub = self.probe.create_topic_publisher(topics.SIM_IMU)
         self.probe.create_topic_subscription(topics.IMU_RAW, self.raw.append)
         self.probe.create_topic_subscription(topics.IMU_MAG, self.mag.append)
@@ -43,13 +79,17 @@ class Rig:
             context=context, parameter_overrides=[Parameter(k, value=v)
                                                   for k, v in overrides.items()])
         executor.add_node(self.driver)
-        self.driver.start()
+        if start:
+            self.driver.start()
 
-    def add_emulator(self) -> Any:
+    def add_emulator(self, start: bool = True) -> Any:
+        """Build the emulator node (and start it: its chips go on the bus then)."""
         node = self.emulator_class(context=self.context, parameter_overrides=[
             Parameter('name', value=self.name),
             Parameter('gyro_bias', value=[0.0, 0.0, 0.0])])
         self.executor.add_node(node)
+        if start:
+            node.start()
         self.emulator = node
         return node
 

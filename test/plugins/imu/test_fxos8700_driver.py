@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -12,27 +11,35 @@ from enbarr_core.bringup import cli
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
 from enbarr_interfaces import convert
-from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu import fxos8700
-from enbarr_plugins.imu.common import Bus, G, Truth, wait_sample
+from enbarr_plugins.imu.check import check_fxos8700, wait_sample
+from enbarr_plugins.imu.chip_emulator import Truth
+from enbarr_plugins.imu.common import Bus, G
 from enbarr_plugins.imu.fxos8700 import Fxos8700ImuNode
 from enbarr_plugins.imu.fxos8700_emulator import attach_fxos8700, Fxos8700EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
-from support.imu import Rig
+from support.imu import registered, Rig
 
 FIELD = np.array([0.0, 1.8e-5, -4.8e-5])
-_names = itertools.count()
 
 
 @pytest.fixture
 def fake_bus():
-    name = f'fxos-unit-{next(_names)}'
     bus = FakeI2cBus()
     am, g = attach_fxos8700(bus)
-    emulation.register('i2c', name, bus)
-    yield f'emulated:{name}', bus, am, g
-    emulation.unregister('i2c', name)
+    with registered(bus) as value:
+        yield value, bus, am, g
+
+
+def test_covariances_follow_each_chips_own_rate(fake_bus):
+    """Gyro noise at gyro_odr, accelerometer noise at odr: data sheet densities x sqrt(ODR/2)."""
+    value = fake_bus[0]
+    s = fxos8700.default_settings(bus=value, odr=100.0, gyro_odr=400.0, rate=100.0)
+    n = fxos8700.Fxos8700Chips(Bus(value, 0.05), s).noise()
+    assert n.gyro == pytest.approx(0.025 * math.pi / 180 * math.sqrt(400 / 2))
+    assert n.accel == pytest.approx(126e-6 * 9.80665 * math.sqrt(100 / 2))
+    assert n.mag == 1e-6
 
 
 def test_ranges_and_rates_go_to_the_data_sheet_registers_in_standby(fake_bus):
@@ -108,7 +115,7 @@ def test_big_endian_14_bit_accel_and_si_values(fake_bus):
 
 
 def test_check_device_and_command_line(capsys):
-    lines = fxos8700.check_device(CheckTarget(bus='emulated'))
+    lines = check_fxos8700(CheckTarget(bus='emulated'))
     assert 'WHO_AM_I 0xc7' in lines[0] and 'WHO_AM_I 0xd7' in lines[0]
     assert cli.main(['check-device', 'fxos8700', '--bus', 'emulated']) == 0
     assert 'FXOS8700CQ at' in capsys.readouterr().out
