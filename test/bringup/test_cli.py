@@ -112,8 +112,9 @@ def test_unknown_common_parameter(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize('node,param,value,expected', [
-    ('control_loop', 'level_gain', '-1.0', 'out of range Min: 0.0, Max: 100.0, value: -1.0'),
-    ('imu', 'gyro_noise', '-1', 'out of range Min: 0.0, Max: 1.0, value: -1.0'),
+    # Before: rclpy's words, 'Invalid parameter value (-1.0) for parameter. Reason: ...'.
+    ('control_loop', 'level_gain', '-1.0', 'level_gain = -1.0 is outside [0.0, 100.0]'),
+    ('imu', 'gyro_noise', '-1', 'gyro_noise = -1.0 is outside [0.0, 1.0]'),
     ('control_loop', 'kp', '[1.0, 1.0, -1.0, 1.0, 1.0, 1.0]',
      'kp[2] = -1.0 is outside [0.0, 10000.0]'),
 ])
@@ -129,7 +130,7 @@ def test_out_of_range_value(tmp_path: Path, node: str, param: str, value: str,
     # The file and key that set the value, not the file that named the plugin.
     assert line.startswith(f'enbarr bringup: error: {path}: nodes.{node}.parameters.{param}: '
                            f'node {node!r}: parameter ')
-    assert expected in line
+    assert expected in line and 'Invalid parameter value' not in line
 
 
 def test_wrong_type_names_expected_type(tmp_path: Path) -> None:
@@ -141,14 +142,15 @@ def test_wrong_type_names_expected_type(tmp_path: Path) -> None:
         """)
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
     assert line == (f'enbarr bringup: error: {path}: nodes.control_loop.parameters.level_gain: '
-                    "node 'control_loop': parameter 'level_gain': expected a float, got 'fast'")
+                    "node 'control_loop': parameter 'level_gain': expected a float, got "
+                    "'fast'")
 
 
 def test_wrong_type_via_set(tmp_path: Path) -> None:
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--check', '--set',
                           'control_loop.kp=[a, b, c, d, e, f]', cwd=tmp_path))
     assert "--set: nodes.control_loop.parameters.kp: node 'control_loop': parameter 'kp': " \
-        "expected a list of float, got ['a', 'b', 'c', 'd', 'e', 'f']" in line
+        "expected a list of floats, got ['a', 'b', 'c', 'd', 'e', 'f']" in line
 
 
 def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
