@@ -813,11 +813,13 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
 
 
 def with_record(profile: Profile, path: str, topics: Sequence[str] = (),
-                split_size: float | None = None, split_seconds: float | None = None) -> Profile:
-    """Return the profile with recording to ``path`` switched on (``--record``).
+                split_size: float | None = None, split_seconds: float | None = None,
+                origin: str = '--output') -> Profile:
+    """Return the profile with recording to ``path`` switched on (``--output``).
 
     ``split_size`` [MB] and ``split_seconds`` (``--record-split-size / -seconds``) override
-    the profile's; the rest of its ``record`` section is kept.
+    the profile's; the rest of its ``record`` section is kept. ``origin`` is what an error
+    about the recording names (``profile.where('record.path')``).
     """
     for t in topics:
         reason = topic_name_problem(t)
@@ -832,7 +834,8 @@ def with_record(profile: Profile, path: str, topics: Sequence[str] = (),
     return replace(profile, record=replace(
         old, path=path, topics=tuple(topics) or old.topics,
         split_size=old.split_size if split_size is None else split_size,
-        split_seconds=old.split_seconds if split_seconds is None else split_seconds))
+        split_seconds=old.split_seconds if split_seconds is None else split_seconds),
+        origins={**profile.origins, 'record.path': origin})
 
 
 def apply_environment(profile: Profile, environ: Any = os.environ) -> None:

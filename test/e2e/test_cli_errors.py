@@ -44,23 +44,60 @@ def test_scenario_output_that_cannot_be_a_directory(tmp_path: Path, a_file: Path
 
 
 @pytest.mark.parametrize('where', ['file', 'under_file', 'proc'])
-def test_bringup_record_that_cannot_be_a_directory(tmp_path: Path, a_file: Path,
+def test_bringup_output_that_cannot_be_a_directory(tmp_path: Path, a_file: Path,
                                                    where: str) -> None:
     # Before: the message blamed 'enbarr_sim.yaml: parameters.thruster_names'.
     out = {'file': a_file, 'under_file': a_file / 'sub', 'proc': Path('/proc/enbarr/x')}[where]
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '1',
-                          '--record', str(out), cwd=tmp_path))
-    assert 'error: --record: ' in line and str(out) in line, line
+                          '--output', str(out), cwd=tmp_path))
+    assert 'error: --output: ' in line and str(out) in line, line
     assert 'thruster_names' not in line
 
 
 def test_bad_record_topic_is_refused(tmp_path: Path) -> None:
     # Before: accepted; the run recorded nothing of it and exited 0.
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '1',
-                          '--record', str(tmp_path / 'bag'), '--record-topic', 'bad topic!',
+                          '--output', str(tmp_path / 'bag'), '--record-topic', 'bad topic!',
                           cwd=tmp_path))
     assert '--record-topic' in line and "'bad topic!'" in line, line
     assert not (tmp_path / 'bag').exists()
+
+
+def test_old_record_spelling_works_with_one_notice(tmp_path: Path, a_file: Path) -> None:
+    # --record DIR is --output DIR now: the same run (here refused the same way), one notice.
+    r = enbarr('bringup', '--profile', 'enbarr_sim', '--duration', '1', '--record',
+               str(a_file), cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 2, r.stderr
+    assert lines[0] == 'enbarr bringup: warning: --record is deprecated; use --output'
+    assert lines[1].startswith('enbarr bringup: error: --output: ') and str(a_file) in lines[1]
+
+
+@pytest.mark.parametrize('command', [
+    ['bringup', '--profile', 'enbarr_sim'],
+    ['scenario', 'box_path'],
+    ['chaos', '--profile', 'enbarr_sim'],
+])
+def test_a_duration_too_long_to_wait_is_refused(tmp_path: Path, command: list[str]) -> None:
+    # Before: scenario --duration 1e308 ended in an OverflowError traceback.
+    line = refused(enbarr(*command, '--duration', '1e308', cwd=tmp_path), command[0])
+    assert '--duration must be at most' in line and 'got 1e+308' in line, line
+
+
+def test_a_scenario_duration_too_long_in_the_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / 'long.yaml'
+    path.write_text('include: [box_path.yaml]\nscenario: {duration: 1e308}\n')
+    (tmp_path / 'box_path.yaml').write_text(
+        (Path(__file__).parents[2] / 'params' / 'scenarios' / 'box_path.yaml').read_text()
+        .replace('../saucer_sim.yaml', 'saucer_sim'))
+    line = refused(enbarr('scenario', str(path), cwd=tmp_path), 'scenario')
+    assert 'scenario.duration: must be > 0 and at most' in line, line
+
+
+def test_check_device_timeout_too_long_is_refused(tmp_path: Path) -> None:
+    line = refused(enbarr('check-device', 'pca9685', '--bus', 'emulated', '--timeout',
+                          '1e308', cwd=tmp_path), 'check-device')
+    assert '--timeout must be at most 3600 s' in line, line
 
 
 @pytest.mark.parametrize('value', ['inf', 'nan', '1e9'])
