@@ -95,16 +95,16 @@ class Tree:
     def reap_children(self, timeout: float = 15.0) -> bool:
         """Wait for every group process to end (SIGKILL what is left); True if none was."""
         deadline = time.monotonic() + timeout
-        alive = self.child_pids()
-        while alive and time.monotonic() < deadline:
-            alive = [p for p in alive if alive(p)]
+        left = self.child_pids()
+        while left and time.monotonic() < deadline:
+            left = [p for p in left if alive(p)]
             time.sleep(0.1)
-        for p in alive:
+        for p in left:
             try:
                 os.kill(p, signal.SIGKILL)
             except ProcessLookupError:
                 pass
-        return not alive
+        return not left
 
 
 def alive(pid: int) -> bool:
