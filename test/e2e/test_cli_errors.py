@@ -141,3 +141,38 @@ def test_not_utf8_and_binary_profiles(tmp_path: Path) -> None:
     path.write_bytes(bytes(range(256)) * 4)
     line = refused(enbarr('bringup', '--check', '--profile', str(path), cwd=tmp_path))
     assert 'not UTF-8' in line and len(line) < 600
+
+
+# -- profile values that used to reach ROS (the trust issue) -----------------------------------
+@pytest.mark.parametrize('section, says', [
+    # Before: passed, then the supervisor's sleep(nan) raised ValueError at the first restart.
+    ('groups: {main: {restart_delay: .nan}}', 'groups.main.restart_delay: expected a number '
+     'with 0 <= value <= 3600, got nan'),
+    # Before: a Fast-DDS error spew (99999) or a traceback (abc), exit code 1.
+    ('environment: {ROS_DOMAIN_ID: 99999}', 'environment.ROS_DOMAIN_ID: expected an integer '
+     'from 0 to 232'),
+    ('environment: {ROS_DOMAIN_ID: abc}', "environment.ROS_DOMAIN_ID: expected an integer "
+     "from 0 to 232 (Fast-DDS maps the domain to UDP ports; higher ones do not fit), got "
+     "'abc'"),
+    # Before: RCLInvalidROSArgsError with a traceback.
+    ("nodes: {imu: {remappings: {imu/data_raw: 'imu//x'}}}", "nodes.imu.remappings: "
+     "'imu//x' is not a valid topic name to remap: topic name must not contain repeated '/'"),
+    ("nodes: {imu: {remappings: {imu/data_raw: 'imu/{x}'}}}", "nodes.imu.remappings: "
+     "'imu/{x}' is not a valid topic name to remap: unknown substitution: {x}"),
+    ('nodes: {dp_contrl: {parameters: {kp: [1.0, 1.0, 1.0]}}}', "nodes.dp_contrl: no plugin "
+     "(did you mean the node 'dp_control'?)"),
+])
+def test_profile_mistakes_are_one_line_before_ros_starts(tmp_path: Path, section: str,
+                                                         says: str) -> None:
+    base = 'saucer_sim' if 'dp_contrl' in section else 'enbarr_sim'
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'include: [{base}]\n{section}\n')
+    line = refused(enbarr('bringup', '--profile', str(path), '--check', cwd=tmp_path))
+    assert line.startswith(f'enbarr bringup: error: {path}: {says}'), line
+
+
+def test_a_set_value_with_an_exponent_is_a_number(tmp_path: Path) -> None:
+    # Before: '1e1' was the string '1e1' (YAML 1.1) and refused as not a float.
+    r = enbarr('bringup', '--profile', 'enbarr_sim', '--check', '--set',
+               'control_loop.level_gain=1e1', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
