@@ -537,7 +537,7 @@ def environment_problem(name: str, value: str) -> str | None:
     if '\0' in value:
         return 'a value cannot hold a NUL character'
     if name == 'ROS_DOMAIN_ID':
-        if not re.fullmatch(r'[0-9]+', value) or int(value) > MAX_DOMAIN_ID:
+        if not re.fullmatch(r'[0-9]{1,3}', value) or int(value) > MAX_DOMAIN_ID:
             return (f'expected an integer from 0 to {MAX_DOMAIN_ID} (Fast-DDS maps the domain '
                     f'to UDP ports; higher ones do not fit), got {_show(value)}')
     elif name == 'ROS_AUTOMATIC_DISCOVERY_RANGE':
@@ -593,10 +593,8 @@ def topic_name_problem(name: Any, *, remap: bool = False) -> str | None:
 
 def _rclpy_reason(err: Exception) -> str:
     """Return rclpy's reason without its restatement of the name and its caret line."""
-    text = str(err).split('\n')[0].strip().rstrip(':')
-    for prefix in ('Invalid topic name: ', 'Invalid topic name:'):
-        text = text.removeprefix(prefix)
-    return re.sub(r"^topic name '.*' is invalid: ", '', text)
+    text = str(err).split('\n')[0].strip().rstrip(':').removeprefix('Invalid topic name:')
+    return re.sub(r"^topic name '.*' is invalid: ", '', text.strip())
 
 
 def _expect_mapping(value: Any, where: str, key: str) -> None:
@@ -611,8 +609,8 @@ def _expect_number(d: dict[str, Any], k: str, where: str, key: str, *, high: flo
         return
     v = d[k]
     ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-    if isinstance(v, bool) or not ok or not math.isfinite(v) or not 0 <= v <= high \
-            or (positive and v == 0):
+    # The comparisons refuse NaN (every one is false) and do not overflow on a huge integer.
+    if isinstance(v, bool) or not ok or not 0 <= v <= high or (positive and v == 0):
         what = 'an integer' if integer else 'a number'
         low = '0 <' if positive else '0 <='
         raise ProfileError(f'expected {what} with {low} value <= {high:.0f}, got {_show(v)}',

@@ -27,6 +27,8 @@ BOOL_TAG = 'tag:yaml.org,2002:bool'
 INT_TAG = 'tag:yaml.org,2002:int'
 FLOAT_TAG = 'tag:yaml.org,2002:float'
 
+#: The longest integer read [digits]: ROS integers have 19 at most.
+MAX_INT_DIGITS = 100
 #: YAML 1.2 core schema, section 10.3.2: the only booleans.
 BOOL_12 = re.compile(r'^(?:true|True|TRUE|false|False|FALSE)$')
 
@@ -47,8 +49,16 @@ class Yaml12Loader(_Base):  # type: ignore[misc, valid-type]
     """PyYAML's safe loader resolving plain ints, floats and booleans as YAML 1.2 (core)."""
 
     def construct_yaml_int(self, node: Any) -> int:
-        """Construct a 1.2 int: decimal (leading zeros are decimal), ``0o`` octal, ``0x`` hex."""
+        """Construct a 1.2 int: decimal (leading zeros are decimal), ``0o`` octal, ``0x`` hex.
+
+        More than ``MAX_INT_DIGITS`` digits is a YAML error at the value's line: Python
+        refuses to convert past 4300 digits, and nothing a profile holds needs a twentieth.
+        """
         text = self.construct_scalar(node)
+        if len(text) > MAX_INT_DIGITS:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'an integer of {len(text)} digits (at most {MAX_INT_DIGITS})',
+                node.start_mark)
         if text.startswith('0o'):
             return int(text[2:], 8)
         if text.startswith('0x'):

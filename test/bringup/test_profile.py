@@ -1022,3 +1022,20 @@ def test_remap_check_agrees_with_rcl(context: object) -> None:
             if rcl_ok != (ours is None):
                 disagree.append((rule, rcl_ok, ours))
     assert not disagree
+
+
+def test_huge_integers_are_refused_without_a_traceback(tmp_path: Path) -> None:
+    # Python refuses int() past 4300 digits and float() of a huge int: a ValueError or an
+    # OverflowError traceback each, before.
+    path = write(tmp_path / 'p.yaml', NODE.replace(
+        'sim_imu}', 'sim_imu, parameters: {rate: ' + '1' * 5000 + '}}'))
+    assert str(load_error(path)) == (f'{path}: line 2, column 45: invalid YAML: an integer of '
+                                     '5000 digits (at most 100)')
+    path = write(tmp_path / 'q.yaml', NODE + 'groups: {main: {restart_limit: ' + '9' * 90
+                 + '}}\n')
+    assert 'groups.main.restart_limit: expected an integer with 0 <= value <= 10000' in str(
+        load_error(path))
+    path = write(tmp_path / 'r.yaml', NODE + 'environment: {ROS_DOMAIN_ID: "' + '1' * 5000
+                 + '"}\n')
+    assert 'environment.ROS_DOMAIN_ID: expected an integer from 0 to 232' in str(
+        load_error(path))
