@@ -65,7 +65,7 @@ def add_recorder(profile: Profile) -> Profile:
         params['topics'] = list(r.topics)
     group = RECORDER_GROUP if len(profile.group_names()) > 1 else profile.nodes[0].group
     node = NodeSpec(name=RECORDER_NODE, plugin='recorder', parameters=params, group=group,
-                    origin='--record')
+                    origin=profile.where('record.path'))
     groups = dict(profile.groups)
     groups.setdefault(group, GroupSpec(group))
     return replace(profile, nodes=(*profile.nodes, node), groups=groups)
@@ -140,7 +140,7 @@ def blame(profile: Profile, spec: NodeSpec, parameter: str | None) -> tuple[str,
     keys += [(f'parameters.{k}', k) for k in profile.parameters if k not in spec.parameters]
     rank = {f: i for i, f in enumerate(profile.files)}
     rank['--set'] = len(profile.files)
-    rank.setdefault(spec.origin, len(profile.files) + 1)  # a node no file named: '--record'
+    rank.setdefault(spec.origin, len(profile.files) + 1)  # a node no file named: '--output'
     from_files = f'nodes.{spec.name}' in profile.origins
 
     def where(k: str) -> str:

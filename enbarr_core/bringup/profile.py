@@ -3,7 +3,8 @@
 A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
 
     profile: enbarr_sim                  # a name for logs
-    description: ...
+    description: ...                     # one line, shown by ``enbarr list``
+    fragment: false                      # true: include-only (bringup refuses to run it)
     include: [core.yaml]                 # merged first, in order; this file overrides them
     environment: {ROS_AUTOMATIC_DISCOVERY_RANGE: LOCALHOST}   # set before ROS starts
     parameters: {...}                    # given to every node (like '/**' in a ROS params file)
@@ -19,13 +20,15 @@ A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
     record: {path: bags/run, topics: [], flush_seconds: 1.0, split_size: 0, split_seconds: 0}
 
 Everything is checked before any node starts; an error names the file, the key path and
-what was expected.
+what was expected. YAML is read with 1.2 numbers (``enbarr_core.framework.yaml12``: ``1e9``
+is a float); every number must be finite and within its key's range.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+import ipaddress
 import math
 import os
 from pathlib import Path
@@ -36,18 +39,36 @@ from typing import Any
 
 import yaml
 
-from enbarr_core.framework import registry
+from enbarr_core.framework import registry, yaml12
 from enbarr_core.framework.errors import ProfileError, RegistryError
 
-TOP_KEYS = ('profile', 'description', 'include', 'environment', 'parameters', 'nodes',
-            'groups', 'record', 'scenario')
+#: The top-level keys of a profile file. A new section adds its key here and its per-file
+#: check to ``_check_structure``; any other key is refused with the list (and a close match).
+TOP_KEYS = ('profile', 'description', 'fragment', 'include', 'environment', 'parameters',
+            'nodes', 'groups', 'record', 'scenario')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
 RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds')
 DEFAULT_GROUP = 'main'
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 _NAMESPACE = re.compile(r'^(/?[A-Za-z][A-Za-z0-9_]*)*/?$')
-_TOPIC = re.compile(r'^[~/A-Za-z_][A-Za-z0-9_/~{}]*$')
+
+#: The ranges of the profile's own numbers: (low, high, what) with ``low`` excluded when the
+#: value must be positive. A supervisor that sleeps ``restart_delay`` or a recorder that waits
+#: ``flush_seconds`` must be given a time it can wait; the bounds are far beyond any use.
+MAX_RESTART_LIMIT = 10_000          # restarts of a group
+MAX_WAIT_S = 3_600.0                # [s] restart_delay, flush_seconds
+MAX_SPLIT_SIZE_MB = 1_000_000.0     # [MB] a bag file (1 TB)
+MAX_SPLIT_S = 1_000_000.0           # [s] of messages in one bag file (11.6 days)
+#: ROS parameters are 64-bit: a larger integer cannot be sent (rclpy raises deep inside).
+INT64 = (-(1 << 63), (1 << 63) - 1)
+
+#: ROS_DOMAIN_ID: Fast-DDS maps the domain to UDP ports (7400 + 250 domain + ...); on Linux
+#: 232 is the highest domain whose ports fit (ROS 2 docs, "The ROS_DOMAIN_ID").
+MAX_DOMAIN_ID = 232
+DISCOVERY_RANGES = ('SUBNET', 'LOCALHOST', 'OFF', 'SYSTEM_DEFAULT')
+_ENV_NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+_HOST_LABEL = re.compile(r'^(?!-)[A-Za-z0-9-]{1,63}(?<!-)$')
 
 
 @dataclass(frozen=True)
@@ -154,32 +175,45 @@ def resolve_profile(ref: str, relative_to: Path | None = None) -> Path:
     for c in candidates:
         if c.is_file():
             return c.resolve()
-    installed = sorted({f.stem for d in search_dirs() for f in d.glob('*.yaml')})
+    runnable = [p.name for p in installed_profiles() if not p.fragment]
     raise ProfileError(
-        f'profile {_show(ref)} not found (looked in: '
+        f'profile {_show(ref)} not found{did_you_mean(ref, runnable)} (looked in: '
         f'{", ".join(str(c.parent) for c in candidates)}); '
-        f'installed profiles: {", ".join(installed) or "none"}')
+        f'installed profiles: {", ".join(runnable) or "none"}')
 
 
 # -- loading ---------------------------------------------------------------------------------
-def load_profile(ref: str, overrides: Sequence[str] = ()) -> Profile:
-    """Load, merge and validate a profile; apply ``--set node.param=value`` overrides."""
+def load_profile(ref: str, overrides: Sequence[str] = (), *,
+                 allow_fragment: bool = False) -> Profile:
+    """Load, merge and validate a profile; apply ``--set node.param=value`` overrides.
+
+    A fragment (``fragment: true``, include-only) is refused unless ``allow_fragment`` (to
+    read its parameters, as a test does).
+    """
     path = resolve_profile(ref)
     origins: dict[str, str] = {}
     files: list[str] = []
-    merged = _load_merged(path, (), origins, files)
+    merged = _load_merged(path, (), origins, files, allow_fragment=allow_fragment)
     for item in overrides:
         _apply_set(merged, item, origins)
     return _build(merged, str(path), origins, tuple(files))
 
 
 def _load_merged(path: Path, stack: tuple[Path, ...], origins: dict[str, str],
-                 files: list[str]) -> dict[str, Any]:
+                 files: list[str], *, allow_fragment: bool = True) -> dict[str, Any]:
     if path in stack:
         chain = ' -> '.join(str(p) for p in (*stack, path))
         raise ProfileError(f'include cycle: {chain}', path=str(path))
     raw = _read_yaml(path)
     where = str(path)
+    # A file's own marks, never merged into the profiles that include it.
+    fragment = raw.pop('fragment', False)
+    if not isinstance(fragment, bool):
+        raise ProfileError('expected true or false', path=where, key='fragment')
+    if fragment and not allow_fragment:
+        raise ProfileError(f'a fragment, only for include: [{path.stem}] in a vessel '
+                           'profile; run one that includes it (enbarr list profiles)',
+                           path=where)
     includes = raw.pop('include', None) or []
     if isinstance(includes, str):
         includes = [includes]
@@ -218,13 +252,13 @@ class _Refused(Exception):
         self.mark = mark
 
 
-# libyaml when PyYAML has it: the pure-Python scanner takes ~100 s for a 256 KiB profile on a
-# loaded Pi-class core; libyaml ~4 s. Both parse the same YAML 1.1.
-_Loader: Any = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+# The one YAML loader of what users write (libyaml's parser when PyYAML has it, YAML 1.2
+# numbers): profiles, scenarios and --set values all come through here.
+_Loader: Any = yaml12.Yaml12Loader
 
 
 class _ProfileLoader(_Loader):  # type: ignore[misc, valid-type]
-    """``SafeLoader`` that refuses duplicate keys (merge keys ``<<`` aside)."""
+    """``Yaml12Loader`` that refuses duplicate keys (merge keys ``<<`` aside)."""
 
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         if isinstance(node, yaml.MappingNode):
@@ -368,19 +402,13 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
     """Per-file checks of shape and types (semantics come after the merge)."""
     for key in raw:
         if key not in TOP_KEYS:
-            raise ProfileError(f'unknown key; expected one of: {", ".join(TOP_KEYS)}',
-                               path=where, key=str(key))
+            _unknown_key(key, TOP_KEYS, where, str(key))
     for key in ('profile', 'description'):
         if key in raw and not isinstance(raw[key], str):
             raise ProfileError(f'expected a string, got {_kind(raw[key])}', path=where, key=key)
     env = raw.get('environment')
     if env is not None:
-        _expect_mapping(env, where, 'environment')
-        for k, v in env.items():
-            if not isinstance(v, (str, int, float, bool)):
-                raise ProfileError(f'expected a scalar, got {_kind(v)}', path=where,
-                                   key=f'environment.{k}')
-        raw['environment'] = {str(k): str(v) for k, v in env.items()}
+        raw['environment'] = _check_environment(env, where)
     if 'parameters' in raw:
         raw['parameters'] = _flatten_parameters(raw['parameters'], where, 'parameters')
     nodes = raw.get('nodes')
@@ -396,8 +424,7 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
             _expect_mapping(node, where, key)
             for k in node:
                 if k not in NODE_KEYS:
-                    raise ProfileError(f'unknown key; expected one of: {", ".join(NODE_KEYS)}',
-                                       path=where, key=f'{key}.{k}')
+                    _unknown_key(k, NODE_KEYS, where, f'{key}.{k}')
             for k in ('plugin', 'namespace', 'group'):
                 if k in node and not isinstance(node[k], str):
                     raise ProfileError(f'expected a string, got {_kind(node[k])}', path=where,
@@ -415,8 +442,10 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                 _expect_mapping(remaps, where, f'{key}.remappings')
                 for src, dst in remaps.items():
                     for t in (src, dst):
-                        if not isinstance(t, str) or not _TOPIC.match(t):
-                            raise ProfileError(f'{_show(t)} is not a valid topic name', path=where,
+                        reason = topic_name_problem(t, remap=True)
+                        if reason:
+                            raise ProfileError(f'{_show(t)} is not a valid topic name to remap: '
+                                               f'{reason}', path=where,
                                                key=f'{key}.remappings')
             if 'parameters' in node:
                 node['parameters'] = _flatten_parameters(node['parameters'], where,
@@ -431,12 +460,12 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
             if g is None:
                 g = groups[gname] = {}
             _expect_mapping(g, where, gkey)
-            for k, v in g.items():
+            for k in g:
                 if k not in GROUP_KEYS:
-                    raise ProfileError(f'unknown key; expected one of: {", ".join(GROUP_KEYS)}',
-                                       path=where, key=f'{gkey}.{k}')
-            _expect_number(g, 'restart_limit', where, gkey, integer=True)
-            _expect_number(g, 'restart_delay', where, gkey)
+                    _unknown_key(k, GROUP_KEYS, where, f'{gkey}.{k}')
+            _expect_number(g, 'restart_limit', where, gkey, high=MAX_RESTART_LIMIT,
+                           integer=True)
+            _expect_number(g, 'restart_delay', where, gkey, high=MAX_WAIT_S)
     if 'scenario' in raw:
         _expect_mapping(raw['scenario'], where, 'scenario')
     record = raw.get('record')
@@ -448,16 +477,124 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                                    'every flush_seconds; split it with split_size (MB) or '
                                    'split_seconds', path=where, key='record.segment_seconds')
             if k not in RECORD_KEYS:
-                raise ProfileError(f'unknown key; expected one of: {", ".join(RECORD_KEYS)}',
-                                   path=where, key=f'record.{k}')
+                _unknown_key(k, RECORD_KEYS, where, f'record.{k}')
         if 'path' in record and not isinstance(record['path'], str):
             raise ProfileError('expected a directory path', path=where, key='record.path')
         t = record.get('topics', [])
         if not isinstance(t, list) or not all(isinstance(x, str) for x in t):
             raise ProfileError('expected a list of topic names', path=where, key='record.topics')
-        _expect_number(record, 'flush_seconds', where, 'record', positive=True)
-        _expect_number(record, 'split_size', where, 'record')
-        _expect_number(record, 'split_seconds', where, 'record')
+        for x in t:
+            reason = topic_name_problem(x)
+            if reason:
+                raise ProfileError(f'{_show(x)} is not a valid topic name: {reason}',
+                                   path=where, key='record.topics')
+        _expect_number(record, 'flush_seconds', where, 'record', high=MAX_WAIT_S,
+                       positive=True)
+        _expect_number(record, 'split_size', where, 'record', high=MAX_SPLIT_SIZE_MB)
+        _expect_number(record, 'split_seconds', where, 'record', high=MAX_SPLIT_S)
+
+
+def _unknown_key(key: Any, allowed: Sequence[str], where: str, path: str) -> None:
+    """Refuse ``key``, naming a close match among ``allowed`` and listing them all."""
+    raise ProfileError(f'unknown key{did_you_mean(str(key), allowed)}; expected one of: '
+                       f'{", ".join(allowed)}', path=where, key=path)
+
+
+def did_you_mean(word: str, candidates: Sequence[str], what: str = '') -> str:
+    """Return `` (did you mean 'x'?)`` for the closest of ``candidates``, or ``''``."""
+    return registry.did_you_mean(word, candidates, what)
+
+
+def _check_environment(env: Any, where: str) -> dict[str, str]:
+    """Return the ``environment`` section as strings, the ROS variables' values checked."""
+    _expect_mapping(env, where, 'environment')
+    out: dict[str, str] = {}
+    for k, v in env.items():
+        key = f'environment.{k}'
+        if not isinstance(k, str) or not _ENV_NAME.match(k):
+            raise ProfileError('an environment variable name is letters, digits and _ and '
+                               'does not start with a digit', path=where, key=key)
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ProfileError(f'expected a finite number, got {v}', path=where, key=key)
+        if not isinstance(v, (str, int, float, bool)):
+            raise ProfileError(f'expected a scalar, got {_kind(v)}', path=where, key=key)
+        text = str(v)
+        reason = environment_problem(k, text)
+        if reason:
+            raise ProfileError(reason, path=where, key=key)
+        out[k] = text
+    return out
+
+
+def environment_problem(name: str, value: str) -> str | None:
+    """Why ``value`` cannot be the environment variable ``name``, or None.
+
+    Any value is a string without NUL (the C environment ends a value there). The ROS
+    variables a profile may set are checked as ROS reads them: ``ROS_DOMAIN_ID`` an integer
+    0-232, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` one of SUBNET, LOCALHOST, OFF, SYSTEM_DEFAULT,
+    ``ROS_STATIC_PEERS`` a ``;``-separated list of hosts (names or IP addresses).
+    """
+    if '\0' in value:
+        return 'a value cannot hold a NUL character'
+    if name == 'ROS_DOMAIN_ID':
+        if not re.fullmatch(r'[0-9]{1,3}', value) or int(value) > MAX_DOMAIN_ID:
+            return (f'expected an integer from 0 to {MAX_DOMAIN_ID} (Fast-DDS maps the domain '
+                    f'to UDP ports; higher ones do not fit), got {_show(value)}')
+    elif name == 'ROS_AUTOMATIC_DISCOVERY_RANGE':
+        if value not in DISCOVERY_RANGES:
+            return (f'expected one of {", ".join(DISCOVERY_RANGES)}'
+                    f'{did_you_mean(value.upper(), DISCOVERY_RANGES)}, got {_show(value)}')
+    elif name == 'ROS_STATIC_PEERS' and value:
+        for peer in value.split(';'):
+            if not _is_host(peer.strip()):
+                return (f'expected hosts (names or IP addresses) separated by ";", got '
+                        f'{_show(peer)} in {_show(value)}')
+    return None
+
+
+def _is_host(text: str) -> bool:
+    """Whether ``text`` is an IPv4/IPv6 address or a DNS host name (RFC 1123)."""
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        pass
+    labels = text[:-1].split('.') if text.endswith('.') else text.split('.')
+    return 0 < len(text) <= 253 and all(_HOST_LABEL.match(label) for label in labels)
+
+
+def topic_name_problem(name: Any, *, remap: bool = False) -> str | None:
+    """Why ``name`` is not a valid ROS 2 topic name (``remap``: in a remap rule), or None.
+
+    rclpy's own checks (``validate_topic_name``, then ``validate_full_topic_name`` of the
+    name expanded for a node ``/n``), and for a remap rule what rcl's remap lexer refuses on
+    top: substitutions (``{node}``), a reserved ``__`` and a ``~`` not followed by ``/``.
+    """
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    from rclpy.validate_topic_name import validate_topic_name
+
+    if not isinstance(name, str):
+        return f'expected a string, got {_kind(name)}'
+    try:
+        validate_topic_name(name)
+        validate_full_topic_name(expand_topic_name(name, 'n', '/'))
+    except Exception as err:  # noqa: BLE001 - rclpy raises several types, each with a reason
+        return _rclpy_reason(err)
+    if remap:
+        if '{' in name or '}' in name:
+            return 'a remap rule takes no substitutions ({...})'
+        if '__' in name:
+            return '"__" is reserved in a remap rule'
+        if name.startswith('~') and not name.startswith('~/'):
+            return 'a remap rule takes "~" only as "~/"'
+    return None
+
+
+def _rclpy_reason(err: Exception) -> str:
+    """Return rclpy's reason without its restatement of the name and its caret line."""
+    text = str(err).split('\n')[0].strip().rstrip(':').removeprefix('Invalid topic name:')
+    return re.sub(r"^topic name '.*' is invalid: ", '', text.strip())
 
 
 def _expect_mapping(value: Any, where: str, key: str) -> None:
@@ -465,16 +602,19 @@ def _expect_mapping(value: Any, where: str, key: str) -> None:
         raise ProfileError(f'expected a mapping, got {_kind(value)}', path=where, key=key)
 
 
-def _expect_number(d: dict[str, Any], k: str, where: str, key: str, *, integer: bool = False,
-                   positive: bool = False) -> None:
+def _expect_number(d: dict[str, Any], k: str, where: str, key: str, *, high: float,
+                   integer: bool = False, positive: bool = False) -> None:
+    """Refuse ``d[k]`` unless a finite number in ``[0, high]`` (``(0, high]``: positive)."""
     if k not in d:
         return
     v = d[k]
     ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-    if isinstance(v, bool) or not ok or v < 0 or (positive and v == 0):
-        what = 'a non-negative integer' if integer else (
-            'a positive number' if positive else 'a non-negative number')
-        raise ProfileError(f'expected {what}, got {_show(v)}', path=where, key=f'{key}.{k}')
+    # The comparisons refuse NaN (every one is false) and do not overflow on a huge integer.
+    if isinstance(v, bool) or not ok or not 0 <= v <= high or (positive and v == 0):
+        what = 'an integer' if integer else 'a number'
+        low = '0 <' if positive else '0 <='
+        raise ProfileError(f'expected {what} with {low} value <= {high:.0f}, got {_show(v)}',
+                           path=where, key=f'{key}.{k}')
 
 
 def _kind(v: Any) -> str:
@@ -502,6 +642,7 @@ def _flatten_parameters(params: Any, where: str, key: str) -> dict[str, Any]:
 
 def _parameter_value(v: Any, where: str, key: str) -> Any:
     if isinstance(v, (bool, int, float, str)):
+        _check_parameter_number(v, where, key)
         return v
     if isinstance(v, list):
         if not v:
@@ -510,11 +651,26 @@ def _parameter_value(v: Any, where: str, key: str) -> Any:
         if all(isinstance(x, bool) for x in v) or all(isinstance(x, str) for x in v):
             return list(v)
         if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            for i, x in enumerate(v):
+                _check_parameter_number(x, where, key, f'[{i}]')
             return list(v) if all(isinstance(x, int) for x in v) else [float(x) for x in v]
         raise ProfileError('a list parameter holds values of one type (numbers, strings or '
                            f'booleans), got {_show(v)}', path=where, key=key)
     raise ProfileError(f'expected a number, string, boolean or list of them, got {_kind(v)}',
                        path=where, key=key)
+
+
+def _check_parameter_number(v: Any, where: str, key: str, index: str = '') -> None:
+    """Refuse a parameter number that is not finite or does not fit a ROS (64-bit) integer.
+
+    Its range is the node's to check (``ParamSpec``); these two no node could be given.
+    """
+    at = f'element {index}: ' if index else ''
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ProfileError(f'{at}expected a finite number, got {v}', path=where, key=key)
+    if isinstance(v, int) and not isinstance(v, bool) and not INT64[0] <= v <= INT64[1]:
+        raise ProfileError(f'{at}{_show(v)} does not fit a 64-bit ROS integer', path=where,
+                           key=key)
 
 
 def _deep_merge(dst: dict[str, Any], src: dict[str, Any], prefix: str,
@@ -591,8 +747,14 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
         where = _origin(origins, key, path)
         plugin = n.get('plugin')
         if not plugin:
-            raise ProfileError('every node needs a plugin (a registered node name); known: '
-                               + ', '.join(sorted(known)), path=where, key=key)
+            # Most often a typo in the name of a node an included file declares (dp_contrl
+            # for dp_control): that file's nodes come first, the plugin list after.
+            declared = [m for m, spec in nodes_raw.items() if m != name and spec.get('plugin')]
+            hint = did_you_mean(name, declared, 'the node ')
+            raise ProfileError(f'no plugin{hint}; a new node needs one (a registered node '
+                               f'name, enbarr list nodes): {", ".join(sorted(known))}',
+                               path=_origin(origins, f'nodes.{name}', path),
+                               key=f'nodes.{name}' if hint else key)
         if plugin not in known:
             try:
                 registry.resolve(plugin)
@@ -649,28 +811,69 @@ def _origin(origins: Mapping[str, str], key: str, default: str) -> str:
 
 
 def with_record(profile: Profile, path: str, topics: Sequence[str] = (),
-                split_size: float | None = None, split_seconds: float | None = None) -> Profile:
-    """Return the profile with recording to ``path`` switched on (``--record``).
+                split_size: float | None = None, split_seconds: float | None = None,
+                origin: str = '--output') -> Profile:
+    """Return the profile with recording to ``path`` switched on (``--output``).
 
     ``split_size`` [MB] and ``split_seconds`` (``--record-split-size / -seconds``) override
-    the profile's; the rest of its ``record`` section is kept.
+    the profile's; the rest of its ``record`` section is kept. ``origin`` is what an error
+    about the recording names (``profile.where('record.path')``).
     """
     for t in topics:
-        if not _TOPIC.match(t):
-            raise ProfileError(f'--record-topic {_show(t)}: not a valid topic name')
-    for option, v in (('--record-split-size', split_size),
-                      ('--record-split-seconds', split_seconds)):
-        if v is not None and not (v >= 0 and math.isfinite(v)):
-            raise ProfileError(f'{option} must be a non-negative number (0: no split), '
+        reason = topic_name_problem(t)
+        if reason:
+            raise ProfileError(f'--record-topic {_show(t)}: not a valid topic name: {reason}')
+    for option, v, high in (('--record-split-size', split_size, MAX_SPLIT_SIZE_MB),
+                            ('--record-split-seconds', split_seconds, MAX_SPLIT_S)):
+        if v is not None and not (math.isfinite(v) and 0 <= v <= high):
+            raise ProfileError(f'{option} must be a number from 0 (no split) to {high:.0f}, '
                                f'got {v}')
     old = profile.record or RecordSpec(path=path)
     return replace(profile, record=replace(
         old, path=path, topics=tuple(topics) or old.topics,
         split_size=old.split_size if split_size is None else split_size,
-        split_seconds=old.split_seconds if split_seconds is None else split_seconds))
+        split_seconds=old.split_seconds if split_seconds is None else split_seconds),
+        origins={**profile.origins, 'record.path': origin})
 
 
 def apply_environment(profile: Profile, environ: Any = os.environ) -> None:
     """Set the profile's ``environment`` before ROS starts (overrides what is set)."""
     for k, v in profile.environment.items():
         environ[k] = v
+
+
+# -- listing ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ProfileSummary:
+    """What ``enbarr list`` shows of one profile file: its own keys, nothing merged."""
+
+    name: str          # the bare name (the file's stem)
+    path: Path
+    description: str   # '' when it has none; the reason when it cannot be read
+    fragment: bool     # include-only
+    readable: bool = True
+
+
+def summarize(path: Path) -> ProfileSummary:
+    """Read ``path``'s own ``description`` and ``fragment`` (no include, no validation)."""
+    try:
+        raw = _read_yaml(path)
+    except ProfileError as err:
+        return ProfileSummary(path.stem, path, f'unreadable: {err}', False, readable=False)
+    description = raw.get('description')
+    return ProfileSummary(path.stem, path, description if isinstance(description, str) else '',
+                          raw.get('fragment') is True)
+
+
+def installed_profiles(subdir: str = '') -> list[ProfileSummary]:
+    """Summarize the profiles (``subdir='scenarios'``: the scenarios) that bare names find.
+
+    Sorted by name; a name in several search directories is the first one's (as
+    ``resolve_profile`` finds it).
+    """
+    found: dict[str, ProfileSummary] = {}
+    for d in search_dirs():
+        for f in sorted((d / subdir).glob('*.yaml')):
+            if f.stem not in found:
+                found[f.stem] = summarize(f)
+    return [found[name] for name in sorted(found)]

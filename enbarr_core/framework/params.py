@@ -35,7 +35,9 @@ from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
-from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
+from rclpy.exceptions import (
+    InvalidParameterTypeException, InvalidParameterValueException,
+    ParameterUninitializedException)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -200,10 +202,15 @@ def _named(message: str, specs: Mapping[str, ParamSpec]) -> str | None:
     return head if head in specs else None
 
 
+#: How a refusal names a type: 'expected an integer, got 2.5'.
+_TYPE_NAMES = {bool: ('a boolean', 'booleans'), int: ('an integer', 'integers'),
+               float: ('a float', 'floats'), str: ('a string', 'strings')}
+
+
 def _type_text(spec: ParamSpec) -> str:
     if spec.is_array:
-        return f'a list of {(spec.element or type(spec.default[0])).__name__}'
-    return f'a {type(spec.default).__name__}'
+        return f'a list of {_TYPE_NAMES[spec.element or type(spec.default[0])][1]}'
+    return _TYPE_NAMES[type(spec.default)][0]
 
 
 def _declare(node: Node, spec: ParamSpec) -> None:
@@ -239,7 +246,17 @@ def _declare(node: Node, spec: ParamSpec) -> None:
         node.declare_parameter(spec.name, coerced, spec.descriptor(), ignore_override=True)
     except ConfigurationError:
         raise
-    except Exception as err:  # rclpy refuses values out of the declared range
+    except InvalidParameterValueException as err:
+        # rclpy refused the value against the descriptor's range, in its own words ('Invalid
+        # parameter value (-0.3) for parameter. Reason: ...'): say it as every refusal here
+        # says it, naming the node, the parameter, the value and the range.
+        given = _given_value(node, spec)
+        value = _coerce(spec, given)
+        value = given if value is None else value
+        reason = spec.check(value) or f'{spec.name} = {value!r} is refused'
+        raise ConfigurationError(f'node {node.get_name()!r}: parameter {reason}',
+                                 parameter=spec.name) from err
+    except Exception as err:  # any other refusal of rclpy's: its reason is all there is
         raise ConfigurationError(f'{where}: {err}', parameter=spec.name) from err
 
 

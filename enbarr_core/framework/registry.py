@@ -12,6 +12,7 @@ ones.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 import difflib
 import functools
@@ -114,10 +115,8 @@ def resolve(name: str) -> type[Any]:
     known = entries()
     entry = known.get(name)
     if entry is None:
-        close = difflib.get_close_matches(name, known, n=1)
-        hint = f' (did you mean {close[0]!r}?)' if close else ''
-        raise RegistryError(
-            f'unknown node {name!r}{hint}; known nodes: {", ".join(sorted(known))}')
+        raise RegistryError(f'unknown node {name!r}{did_you_mean(name, known)}; known nodes: '
+                            f'{", ".join(sorted(known))}')
     module_name, _, attr = entry.target.partition(':')
     try:
         obj: Any = importlib.import_module(module_name)
@@ -128,3 +127,13 @@ def resolve(name: str) -> type[Any]:
             f'node {name!r} ({entry.origin}) points at {entry.target!r}, '
             f'which cannot be loaded: {err}') from err
     return obj
+
+
+def did_you_mean(word: str, candidates: Iterable[str], what: str = '') -> str:
+    """Return `` (did you mean WHAT'x'?)`` naming the closest of ``candidates``, or ``''``.
+
+    The one wording of every suggestion (a plugin, a node, a key): ``difflib``'s closest
+    match above its default similarity cutoff (0.6).
+    """
+    close = difflib.get_close_matches(word, list(candidates), n=1)
+    return f' (did you mean {what}{close[0]!r}?)' if close else ''

@@ -1,1 +1,1 @@
-"""Tools: headless scenarios on simulated time, their metrics, and the benchmarks."""
+"""Tools: headless scenarios on simulated time and their metrics, and fault injection (chaos/)."""

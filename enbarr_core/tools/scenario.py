@@ -1,4 +1,4 @@
-"""``enbarr scenario NAME``: a simulated scenario run headless, faster than real time.
+"""A simulated scenario run headless, faster than real time (``enbarr scenario NAME``).
 
 A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenario`` section::
 
@@ -28,15 +28,14 @@ thrust over time.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-import json
 import math
 from pathlib import Path
 import time
 from typing import Any
 
+from enbarr_core.commands.arguments import MAX_SECONDS
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
@@ -54,51 +53,6 @@ class ScenarioSpec:
     settle_time: float | None = None  # [s] after automatic began (station_keeping only)
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the ``enbarr scenario`` options to ``p``."""
-    p.add_argument('name', help='scenario name (params/scenarios/NAME.yaml) or path')
-    p.add_argument('--output', metavar='DIR', help='where the bag and the PNG go (default: '
-                   'runs/scenario-NAME-<time>)')
-    p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
-                   help='override a node parameter; VALUE is YAML (repeatable)')
-    p.add_argument('--duration', type=float, metavar='S',
-                   help="simulated seconds (default: the scenario's own)")
-    p.add_argument('--no-plot', action='store_true', help='skip the PNG')
-    p.add_argument('--record-all', action='store_true',
-                   help='record every topic (default: what the metrics and the plot read, '
-                   "plus the scenario's record.topics)")
-    p.epilog = (
-        'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
-        'modes, thrust_saturation_s (every kind; a run scenario has only these); '
-        'station keeping: position/heading error RMS and max '
-        "over the fixed window from the scenario's settle_time after automatic began "
-        '(window_s), time_to_settle_s (errors inside settle_band from then on), settled, '
-        'settled_in_time, the same errors over the whole automatic period (overall_*) and '
-        'dropout_position_error_max_m (with motion-capture dropouts); '
-        'path: cross_track_rms_m (active leg, to the arrival), cross_track_max_m, '
-        'all_waypoints_visited (in order), path_time_s, final_position_error_m; then '
-        'scenario, simulated_s, wall_s, real_time_factor, cpu_s, bag, plot.')
-
-
-def main(args: argparse.Namespace) -> int:
-    """Run ``enbarr scenario`` and print its metrics as one JSON line."""
-    from enbarr_core.bringup.cli import check_seconds
-    check_seconds('--duration', args.duration)
-    if args.output is not None:
-        out = Path(args.output)
-        if out.exists() and not out.is_dir():
-            raise EnbarrError(f'--output {out}: exists and is not a directory')
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise EnbarrError(f'--output {out}: cannot create the directory: '
-                              f'{err.strerror or err}') from err
-    result = run(args.name, args.output, args.set, plot=not args.no_plot,
-                 duration=args.duration, record_all=args.record_all)
-    print(json.dumps(result))
-    return 0
-
-
 def scenario_spec(profile: Any) -> ScenarioSpec:
     """Read and check the profile's ``scenario`` section."""
     raw = profile.scenario
@@ -109,9 +63,9 @@ def scenario_spec(profile: Any) -> ScenarioSpec:
         raise ProfileError(f'unknown key {unknown[0]!r}; expected: {", ".join(SCENARIO_KEYS)}',
                            path=profile.path, key='scenario')
     duration = _number(raw.get('duration'), profile, 'duration', 'simulated seconds > 0')
-    if not duration > 0:
-        raise ProfileError(f'must be > 0 (simulated seconds), got {duration}',
-                           path=profile.path, key='scenario.duration')
+    if not 0 < duration <= MAX_SECONDS:
+        raise ProfileError(f'must be > 0 and at most {MAX_SECONDS:.0f} (simulated seconds), '
+                           f'got {duration}', path=profile.path, key='scenario.duration')
     kind = raw.get('kind', 'station_keeping')
     if kind not in SCENARIO_KINDS:
         raise ProfileError(f'must be one of {", ".join(SCENARIO_KINDS)}, got {kind!r}',

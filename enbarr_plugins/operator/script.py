@@ -3,10 +3,12 @@
 The lines an operator stand-in (scripted surface commands, a scripted joystick) plays back.
 
 A script is a list of lines ``'<time> <verb> <args...>'``, the time in seconds from the start,
-blank lines ignored::
+blank lines and lines starting with ``#`` ignored; ``# text`` after a step is its note, which
+the scripted surface logs when the step plays (a demo says what a step is there to show)::
 
     '0.0  twist 0.0 0.0 -0.2 0.0 0.0 0.0'
     '4.0  io gpio_12 true'
+    '6.0  io manipulator true  # a refusal on purpose: a stepper takes steps'
     '9.0  stop'
 
 The caller names its verbs, each with a function that turns the arguments into a typed value
@@ -19,7 +21,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
+import re
 from typing import Any
+
+#: A step's note: ``#`` after white space, to the end of the line.
+_NOTE = re.compile(r'\s#')
 
 #: A verb's parser: its arguments -> the step's value; ``ValueError(reason)`` when they do not
 #: fit (the reason is shown after the verb: ``'takes 6 numbers'``).
@@ -34,6 +40,7 @@ class Step:
     verb: str
     value: Any    # what the verb's parser made of the arguments
     line: int     # index of the line in the script, for messages
+    note: str = ''  # the line's '# ...' text, logged when the step plays
 
 
 def parse_script(lines: Sequence[str], verbs: Mapping[str, VerbParser], *,
@@ -46,7 +53,13 @@ def parse_script(lines: Sequence[str], verbs: Mapping[str, VerbParser], *,
     out: list[Step] = []
     expected = ', '.join(f'"{v}"' for v in verbs)
     for i, line in enumerate(lines):
-        parts = line.split()
+        if line.lstrip().startswith('#'):
+            continue
+        text, note = line, ''
+        found = _NOTE.search(line)
+        if found:
+            text, note = line[:found.start()], line[found.end():].strip()
+        parts = text.split()
         if not parts:
             continue
         where = f'{name}[{i}] {line!r}'
@@ -66,7 +79,7 @@ def parse_script(lines: Sequence[str], verbs: Mapping[str, VerbParser], *,
             value = parser(parts[2:])
         except ValueError as err:
             raise ValueError(f'{where}: {verb} {err}') from None
-        out.append(Step(t, verb, value, i))
+        out.append(Step(t, verb, value, i, note))
     return tuple(out)
 
 

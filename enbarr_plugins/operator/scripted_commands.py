@@ -6,6 +6,9 @@ The ``script`` parameter is a list of timed lines, times in seconds from the sta
     '4.0  io gpio_12 true'                   # io request: executor, value (YAML scalar)
     '9.0  stop'                              # stop sending velocity commands
 
+An io value is read as a profile's values are (YAML 1.2: ``1e3`` is a number). A line's note
+(``# text`` after the step, ``operator.script``) is logged with the step when it plays.
+
 The current velocity goal is sent at ``rate`` with a fresh stamp, as a surface station does;
 after ``stop`` nothing more is sent, so the command receiver's failsafe takes over.
 """
@@ -18,10 +21,10 @@ from typing import Any
 
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter
-import yaml
 
 from enbarr_interfaces import convert, topics
 
+from enbarr_core.framework import yaml12
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_plugins.operator.script import Step, no_arguments, numbers, parse_script
@@ -38,7 +41,7 @@ class IoRequest:
 def _io(args: Sequence[str]) -> IoRequest:
     if len(args) != 2:
         raise ValueError('takes an executor and one value')
-    value = yaml.safe_load(args[1])
+    value = yaml12.load(args[1])   # as a profile or --set reads a value: 1e3 is a number
     try:
         convert.python_to_parameter_value(value)
     except TypeError:
@@ -111,6 +114,7 @@ class ScriptedCommandsNode(EnbarrNode):
         while self._next < len(self.script) and self.script[self._next].time <= elapsed:
             step = self.script[self._next]
             self._next += 1
+            note = f' ({step.note})' if step.note else ''
             if step.verb == 'twist':
                 self._nu = step.value
             elif step.verb == 'stop':
@@ -119,7 +123,10 @@ class ScriptedCommandsNode(EnbarrNode):
                 io: IoRequest = step.value
                 self._io_pub.publish(Parameter(
                     name=io.executor, value=convert.python_to_parameter_value(io.value)))
-                self.get_logger().info(f'io request {io.executor} = {io.value!r}')
+                self.get_logger().info(f'io request {io.executor} = {io.value!r}{note}')
+                continue
+            if note:
+                self.get_logger().info(f'{step.verb} at {step.time:g} s{note}')
         if self._nu is not None:
             msg = TwistStamped()
             convert.ns_to_stamp(now, msg.header.stamp)

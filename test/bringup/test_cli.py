@@ -112,8 +112,9 @@ def test_unknown_common_parameter(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize('node,param,value,expected', [
-    ('control_loop', 'level_gain', '-1.0', 'out of range Min: 0.0, Max: 100.0, value: -1.0'),
-    ('imu', 'gyro_noise', '-1', 'out of range Min: 0.0, Max: 1.0, value: -1.0'),
+    # Before: rclpy's words, 'Invalid parameter value (-1.0) for parameter. Reason: ...'.
+    ('control_loop', 'level_gain', '-1.0', 'level_gain = -1.0 is outside [0.0, 100.0]'),
+    ('imu', 'gyro_noise', '-1', 'gyro_noise = -1.0 is outside [0.0, 1.0]'),
     ('control_loop', 'kp', '[1.0, 1.0, -1.0, 1.0, 1.0, 1.0]',
      'kp[2] = -1.0 is outside [0.0, 10000.0]'),
 ])
@@ -129,7 +130,7 @@ def test_out_of_range_value(tmp_path: Path, node: str, param: str, value: str,
     # The file and key that set the value, not the file that named the plugin.
     assert line.startswith(f'enbarr bringup: error: {path}: nodes.{node}.parameters.{param}: '
                            f'node {node!r}: parameter ')
-    assert expected in line
+    assert expected in line and 'Invalid parameter value' not in line
 
 
 def test_wrong_type_names_expected_type(tmp_path: Path) -> None:
@@ -141,14 +142,15 @@ def test_wrong_type_names_expected_type(tmp_path: Path) -> None:
         """)
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
     assert line == (f'enbarr bringup: error: {path}: nodes.control_loop.parameters.level_gain: '
-                    "node 'control_loop': parameter 'level_gain': expected a float, got 'fast'")
+                    "node 'control_loop': parameter 'level_gain': expected a float, got "
+                    "'fast'")
 
 
 def test_wrong_type_via_set(tmp_path: Path) -> None:
     line = refused(enbarr('bringup', '--profile', 'enbarr_sim', '--check', '--set',
                           'control_loop.kp=[a, b, c, d, e, f]', cwd=tmp_path))
     assert "--set: nodes.control_loop.parameters.kp: node 'control_loop': parameter 'kp': " \
-        "expected a list of float, got ['a', 'b', 'c', 'd', 'e', 'f']" in line
+        "expected a list of floats, got ['a', 'b', 'c', 'd', 'e', 'f']" in line
 
 
 def test_thruster_layout_that_cannot_yaw(tmp_path: Path) -> None:
@@ -177,26 +179,53 @@ def test_negative_duration(tmp_path: Path) -> None:
 
 
 def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
-    line = refused(enbarr('bringup', '--profile', 'does_not_exist', '--check', cwd=tmp_path))
-    assert "profile 'does_not_exist' not found" in line
+    line = refused(enbarr('bringup', '--profile', 'enbarr_simm', '--check', cwd=tmp_path))
+    assert "profile 'enbarr_simm' not found (did you mean 'enbarr_sim'?)" in line
     installed = line.split('installed profiles: ')[1].split(', ')
-    assert {'core', 'enbarr_sim'} <= set(installed)
+    assert 'enbarr_sim' in installed and 'core' not in installed
+
+
+def test_a_fragment_is_refused(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'core', '--check', cwd=tmp_path))
+    assert line == (f'enbarr bringup: error: {Path(SIM).parent / "core.yaml"}: a fragment, only '
+                    'for include: [core] in a vessel profile; run one that includes it (enbarr '
+                    'list profiles)')
 
 
 @pytest.fixture(scope='module')
 def listed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
-    """The output of ``enbarr list nodes`` and ``list profiles``, run once."""
+    """The output of ``enbarr list`` and of ``list WHAT`` for each section, run once."""
     cwd = tmp_path_factory.mktemp('list')
     out = {}
-    for what in ('nodes', 'profiles'):
-        r = enbarr('list', what, cwd=cwd)
+    for what in ('', 'nodes', 'profiles', 'scenarios', 'commands'):
+        r = enbarr('list', *([what] if what else []), cwd=cwd)
         assert r.returncode == 0, r.stderr
+        assert r.stderr == ''
         out[what] = r.stdout
     return out
 
 
+def rows(text: str) -> dict[str, str]:
+    """The ``  name  text`` rows of a listing, by name."""
+    return {line.split()[0]: line.split(None, 1)[1] if len(line.split()) > 1 else ''
+            for line in text.splitlines() if line.startswith('  ')}
+
+
+def sections(text: str) -> dict[str, list[str]]:
+    """The names listed under each section heading (a line that does not start with spaces)."""
+    out: dict[str, list[str]] = {}
+    heading = ''
+    for line in text.splitlines():
+        if line and not line.startswith(' '):
+            heading = line.split(' (')[0]
+            out[heading] = []
+        elif line.strip():
+            out[heading].append(line.split()[0])
+    return out
+
+
 def test_list_nodes_names_every_builtin(listed: dict[str, str]) -> None:
-    names = [line.split()[0] for line in listed['nodes'].splitlines()]
+    names = list(rows(listed['nodes']))
     for name in ('attitude_filter', 'command_receiver', 'velocity_control',
                  'thruster_converter', 'rov_simulator', 'scripted_commands', 'recorder',
                  'sim_imu', 'sim_thrusters', 'sim_stepper', 'sim_gpio'):
@@ -204,23 +233,54 @@ def test_list_nodes_names_every_builtin(listed: dict[str, str]) -> None:
 
 
 def test_list_nodes_is_sorted(listed: dict[str, str]) -> None:
-    names = [line.split()[0] for line in listed['nodes'].splitlines()]
+    names = list(rows(listed['nodes']))
     assert names == sorted(names)
 
 
 def test_list_nodes_shows_target_and_origin(listed: dict[str, str]) -> None:
-    assert 'enbarr_plugins.imu.sim:SimImuNode  (builtin)' in listed['nodes']
+    assert rows(listed['nodes'])['sim_imu'] == 'enbarr_plugins.imu.sim:SimImuNode  (builtin)'
 
 
-def test_list_profiles_names_the_installed_files(listed: dict[str, str]) -> None:
-    rows = [line.split() for line in listed['profiles'].splitlines()]
-    assert ['enbarr_sim', SIM] in rows
-    assert ['core', str(Path(SIM).parent / 'core.yaml')] in rows
+def test_list_profiles_separates_fragments_and_describes_each(listed: dict[str, str]) -> None:
+    # Before: one list of file paths, fragments (core, saucer_core) among runnable profiles.
+    found = sections(listed['profiles'])
+    assert list(found) == ['Profiles', 'Fragments']
+    assert {'enbarr_sim', 'saucer_sim', 'skiff_sim', 'enbarr_rov'} <= set(found['Profiles'])
+    assert found['Fragments'] == ['core', 'saucer_core', 'skiff_core']
+    described = rows(listed['profiles'])
+    assert described['enbarr_sim'] == ('Enbarr ROV, everything simulated, scripted surface '
+                                       'commands.')
+    assert described['core'] == 'Core nodes of an Enbarr ROV (no plugins).'
+    assert all(described.values())
 
 
-def test_list_profiles_rows_are_existing_files(listed: dict[str, str]) -> None:
-    rows = [line.split() for line in listed['profiles'].splitlines()]
-    assert all(Path(path).is_file() and path.endswith(f'/{name}.yaml') for name, path in rows)
+def test_list_scenarios_names_every_shipped_scenario(listed: dict[str, str]) -> None:
+    shipped = sorted(p.stem for p in (Path(__file__).parents[2] / 'params' / 'scenarios')
+                     .glob('*.yaml'))
+    described = rows(listed['scenarios'])
+    assert sorted(described) == shipped and all(described.values())
+
+
+def test_list_commands_names_every_command(listed: dict[str, str]) -> None:
+    commands = rows(listed['commands'])
+    assert list(commands) == ['bringup', 'list', 'scenario', 'chaos', 'bench', 'check-device',
+                              'bag']
+    assert commands['bringup'] == 'run a vessel profile  (builtin)'
+
+
+def test_list_alone_lists_every_section(listed: dict[str, str]) -> None:
+    # Before: 'the following arguments are required: what'.
+    assert list(sections(listed[''])) == ['Profiles', 'Fragments', 'Scenarios', 'Nodes',
+                                          'Commands']
+    assert listed[''] == '\n\n'.join(listed[w].rstrip('\n') for w in (
+        'profiles', 'scenarios', 'nodes', 'commands')) + '\n'
+
+
+def test_list_help_explains_each_section(tmp_path: Path) -> None:
+    r = enbarr('list', '--help', cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    for what in ('profiles', 'scenarios', 'nodes', 'commands', 'include-only'):
+        assert what in r.stdout
 
 
 @pytest.fixture(scope='module')
@@ -231,22 +291,24 @@ def bringup_help(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_bringup_help_lists_the_options(bringup_help: str) -> None:
-    for option in ('--profile', '--duration', '--record', '--set', '--check'):
+    for option in ('--profile', '--duration', '--output', '--record-topic', '--set', '--check'):
         assert option in bringup_help
 
 
-def test_bringup_help_hides_the_internal_group_option(bringup_help: str) -> None:
+def test_bringup_help_hides_internal_and_old_options(bringup_help: str) -> None:
     assert '--group' not in bringup_help  # internal: the supervisor's children
+    assert '--record ' not in bringup_help and '--record DIR' not in bringup_help  # old
 
 
 def test_scenario_help_lists_every_shipped_scenario(tmp_path: Path) -> None:
     r = enbarr('scenario', '--help', cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    text = ' '.join(r.stdout.split())  # argparse wraps the description
+    text = ' '.join(r.stdout.split())  # the description is wrapped
     shipped = sorted(p.stem for p in (Path(__file__).parents[2] / 'params' / 'scenarios')
                      .glob('*.yaml'))
     assert 'skiff_station_keeping' in shipped
-    assert f'Scenarios (params/scenarios/): {", ".join(shipped)}.' in text
+    assert (f'Scenarios (params/scenarios/; enbarr list scenarios describes them): '
+            f'{", ".join(shipped)}.') in text
 
 
 def test_bringup_requires_profile(tmp_path: Path) -> None:

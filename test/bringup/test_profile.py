@@ -108,8 +108,8 @@ def test_with_record_takes_the_split_options() -> None:
     rec = profiles.with_record(load_profile(SIM), 'bags/x', [], 50.0, 600.0)
     assert rec.record is not None
     assert (rec.record.split_size, rec.record.split_seconds) == (50.0, 600.0)
-    with pytest.raises(ProfileError, match='--record-split-size must be a non-negative '
-                                           'number'):
+    with pytest.raises(ProfileError, match=r'--record-split-size must be a number from 0 '
+                                           r'\(no split\) to 1000000, got -1.0'):
         profiles.with_record(load_profile(SIM), 'bags/x', [], -1.0)
 
 
@@ -285,8 +285,9 @@ def test_unknown_top_key_lists_allowed_keys(tmp_path: Path) -> None:
           imu: {plugin: sim_imu}
         """)
     err = load_error(path)
-    assert str(err) == (f'{path}: nodez: unknown key; expected one of: profile, description, '
-                        'include, environment, parameters, nodes, groups, record, scenario')
+    assert str(err) == (f"{path}: nodez: unknown key (did you mean 'nodes'?); expected one of: "
+                        'profile, description, fragment, include, environment, parameters, '
+                        'nodes, groups, record, scenario')
     assert (err.path, err.key) == (path, 'nodez')
 
 
@@ -296,8 +297,9 @@ def test_unknown_node_key_lists_allowed_keys(tmp_path: Path) -> None:
           imu: {plugin: sim_imu, params: {rate: 100.0}}
         """)
     err = load_error(path)
-    assert str(err) == (f'{path}: nodes.imu.params: unknown key; expected one of: plugin, '
-                        'namespace, remappings, parameters, group, enabled')
+    assert str(err) == (f"{path}: nodes.imu.params: unknown key (did you mean 'parameters'?); "
+                        'expected one of: plugin, namespace, remappings, parameters, group, '
+                        'enabled')
 
 
 def test_missing_plugin_lists_known_names(tmp_path: Path) -> None:
@@ -306,8 +308,9 @@ def test_missing_plugin_lists_known_names(tmp_path: Path) -> None:
           imu: {namespace: sensors}
         """)
     err = load_error(path)
-    assert str(err).startswith(f'{path}: nodes.imu.plugin: every node needs a plugin')
-    assert 'known: arduino_emulator, arduino_pwm, attitude_filter, azimuth_allocation,' in str(err)
+    assert str(err).startswith(f'{path}: nodes.imu.plugin: no plugin; a new node needs one (a '
+                               'registered node name, enbarr list nodes): arduino_emulator, '
+                               'arduino_pwm, attitude_filter, azimuth_allocation,')
     assert 'sim_imu' in str(err)
 
 
@@ -368,7 +371,8 @@ def test_profile_not_found_lists_installed(tmp_path: Path) -> None:
     err = load_error('does_not_exist')
     assert "profile 'does_not_exist' not found" in str(err)
     installed = str(err).split('installed profiles: ')[1].split(', ')
-    assert {'core', 'enbarr_sim'} <= set(installed) and installed == sorted(installed)
+    assert 'enbarr_sim' in installed and installed == sorted(installed)
+    assert 'core' not in installed  # a fragment: not something to run
 
 
 def test_empty_list_parameter(tmp_path: Path) -> None:
@@ -513,7 +517,8 @@ def test_bad_remapping(tmp_path: Path) -> None:
           imu: {plugin: sim_imu, remappings: {imu/data: 'bad topic'}}
         """)
     assert str(load_error(path)) == (
-        f"{path}: nodes.imu.remappings: 'bad topic' is not a valid topic name")
+        f"{path}: nodes.imu.remappings: 'bad topic' is not a valid topic name to remap: topic "
+        "name must not contain characters other than alphanumerics, '_', '~', '{', or '}'")
 
 
 def test_group_with_no_nodes(tmp_path: Path) -> None:
@@ -536,7 +541,8 @@ def test_group_settings_are_checked(tmp_path: Path) -> None:
           main: {restart_limit: 1.5}
         """)
     assert str(load_error(path)) == (
-        f'{path}: groups.main.restart_limit: expected a non-negative integer, got 1.5')
+        f'{path}: groups.main.restart_limit: expected an integer with 0 <= value <= 10000, '
+        'got 1.5')
 
 
 def test_record_without_path(tmp_path: Path) -> None:
@@ -568,7 +574,7 @@ def test_record_flush_seconds_must_be_positive(tmp_path: Path) -> None:
         record: {path: bags/run, flush_seconds: 0}
         """)
     assert str(load_error(bad)) == (
-        f'{bad}: record.flush_seconds: expected a positive number, got 0')
+        f'{bad}: record.flush_seconds: expected a number with 0 < value <= 3600, got 0')
 
 
 def test_record_split_must_not_be_negative(tmp_path: Path) -> None:
@@ -578,7 +584,7 @@ def test_record_split_must_not_be_negative(tmp_path: Path) -> None:
         record: {path: bags/run, split_size: -5}
         """)
     assert str(load_error(bad)) == (
-        f'{bad}: record.split_size: expected a non-negative number, got -5')
+        f'{bad}: record.split_size: expected a number with 0 <= value <= 1000000, got -5')
 
 
 def test_record_segment_seconds_is_renamed(tmp_path: Path) -> None:
@@ -788,3 +794,248 @@ def test_alias_bomb_in_a_set_value_is_refused() -> None:
 def test_set_value_too_long_is_refused() -> None:
     err = load_error(SIM, ('imu.p=' + 'x' * 100_000,))
     assert 'longer than' in str(err) and len(str(err)) < 1000
+
+
+# -- every number finite and in range -------------------------------------------------------
+NODE = 'nodes:\n  imu: {plugin: sim_imu}\n'
+
+
+@pytest.mark.parametrize('section, value, says', [
+    # .nan passed 'v < 0' and crashed the supervisor on the first restart (sleep(nan)).
+    ('groups: {main: {restart_delay: .nan}}', '.nan', 'groups.main.restart_delay: expected a '
+     'number with 0 <= value <= 3600, got nan'),
+    ('groups: {main: {restart_delay: .inf}}', '.inf', 'groups.main.restart_delay: expected a '
+     'number with 0 <= value <= 3600, got inf'),
+    ('groups: {main: {restart_delay: 1e308}}', '1e308', 'groups.main.restart_delay: '),
+    ('groups: {main: {restart_limit: 100001}}', '', 'groups.main.restart_limit: expected an '
+     'integer with 0 <= value <= 10000, got 100001'),
+    ('record: {path: b, flush_seconds: .nan}', '', 'record.flush_seconds: expected a number '
+     'with 0 < value <= 3600, got nan'),
+    ('record: {path: b, split_size: .inf}', '', 'record.split_size: expected a number with '
+     '0 <= value <= 1000000, got inf'),
+    ('record: {path: b, split_seconds: -.inf}', '', 'record.split_seconds: expected a number '
+     'with 0 <= value <= 1000000, got -inf'),
+])
+def test_profile_numbers_must_be_finite_and_in_range(tmp_path: Path, section: str, value: str,
+                                                     says: str) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + section + '\n')
+    assert str(load_error(path)).startswith(f'{path}: {says}')
+
+
+@pytest.mark.parametrize('value, says', [
+    ('.nan', 'expected a finite number, got nan'),
+    ('-.inf', 'expected a finite number, got -inf'),
+    ('1e400', 'expected a finite number, got inf'),  # overflows to inf as it is read
+    ('[1.0, .nan]', 'element [1]: expected a finite number, got nan'),
+    ('9223372036854775808', '9223372036854775808 does not fit a 64-bit ROS integer'),
+    ('[1, -9223372036854775809]', 'element [1]: -9223372036854775809 does not fit'),
+])
+def test_parameter_numbers_must_be_finite_and_fit(tmp_path: Path, value: str, says: str) -> None:
+    path = write(tmp_path / 'p.yaml', NODE.replace('sim_imu}', 'sim_imu, parameters: {rate: '
+                                                   + value + '}}'))
+    assert str(load_error(path)).startswith(f'{path}: nodes.imu.parameters.rate: {says}')
+    err = load_error(SIM, (f'imu.rate={value}',))
+    assert str(err).startswith(f'--set: imu.rate: {says}')
+
+
+def test_largest_ros_integers_are_accepted(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', NODE.replace(
+        'sim_imu}', 'sim_imu, parameters: {a: 9223372036854775807, b: -9223372036854775808}}'))
+    assert load_profile(path).node('imu').parameters == {'a': (1 << 63) - 1, 'b': -(1 << 63)}
+
+
+# -- YAML 1.2 numbers ---------------------------------------------------------------------------
+@pytest.mark.parametrize('text, value', [
+    ('1e9', 1e9),              # YAML 1.1 (PyYAML) read this as the string '1e9'
+    ('[1e3, 2]', [1000.0, 2.0]),
+    ('-2.5E-3', -0.0025),
+    ('012', 12),               # decimal in 1.2, octal 10 in 1.1
+    ('0x1f', 31),
+    ('0o17', 15),
+    ('1_000', '1_000'),        # 1000 in 1.1, a string in 1.2
+    ('1:20', '1:20'),          # sexagesimal 80 in 1.1
+    ('true', True),
+    ('FALSE', False),
+    ('off', 'off'),            # False in 1.1: ROS_AUTOMATIC_DISCOVERY_RANGE: OFF was 'False'
+    ('yes', 'yes'),
+])
+def test_set_values_are_read_as_yaml_1_2(text: str, value: object) -> None:
+    prof = load_profile(SIM, (f'control_loop.max_gap={text}',))
+    got = prof.node('control_loop').parameters['max_gap']
+    assert got == value and type(got) is type(value)
+
+
+def test_profile_files_are_read_as_yaml_1_2(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', """
+        nodes:
+          imu: {plugin: sim_imu, parameters: {rate: 4e2, gyro_noise: [1e-3, 2e-3, 0.5]}}
+        groups: {main: {restart_delay: 5e-1}}
+        """)
+    prof = load_profile(path)
+    assert prof.node('imu').parameters == {'rate': 400.0, 'gyro_noise': [1e-3, 2e-3, 0.5]}
+    assert prof.groups['main'].restart_delay == 0.5
+
+
+# -- environment -----------------------------------------------------------------------------
+@pytest.mark.parametrize('name, value, says', [
+    # Before: 99999 ended in a Fast-DDS error spew, 'abc' in a traceback.
+    ('ROS_DOMAIN_ID', '99999', 'expected an integer from 0 to 232'),
+    ('ROS_DOMAIN_ID', 'abc', "expected an integer from 0 to 232 (Fast-DDS maps the domain to "
+     "UDP ports; higher ones do not fit), got 'abc'"),
+    ('ROS_DOMAIN_ID', '233', 'expected an integer from 0 to 232'),
+    ('ROS_DOMAIN_ID', '-1', "got '-1'"),
+    ('ROS_DOMAIN_ID', '4.0', "got '4.0'"),
+    ('ROS_DOMAIN_ID', 'true', "got 'True'"),
+    ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'localhost', "expected one of SUBNET, LOCALHOST, OFF, "
+     "SYSTEM_DEFAULT (did you mean 'LOCALHOST'?), got 'localhost'"),
+    ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'NETWORK', 'expected one of SUBNET, LOCALHOST, OFF'),
+    ('ROS_STATIC_PEERS', '"127.0.0.1;bad host"', "expected hosts (names or IP addresses) "
+     "separated by \";\", got 'bad host'"),
+    ('ROS_STATIC_PEERS', '"localhost:7400"', "got 'localhost:7400'"),
+    ('ROS_STATIC_PEERS', '"a;;b"', "got ''"),
+    ('ANY_VARIABLE', '"a\\0b"', 'a value cannot hold a NUL character'),
+    ('ANY_VARIABLE', '.nan', 'expected a finite number, got nan'),
+    ('ANY_VARIABLE', '[1, 2]', 'expected a scalar, got a list'),
+    ('1BAD', '1', 'an environment variable name is letters, digits and _'),
+])
+def test_environment_values_are_checked(tmp_path: Path, name: str, value: str,
+                                        says: str) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + f'environment: {{{name}: {value}}}\n')
+    err = load_error(path)
+    assert str(err).startswith(f'{path}: environment.{name}: '), str(err)
+    assert says in str(err) and err.key == f'environment.{name}'
+
+
+@pytest.mark.parametrize('name, value', [
+    ('ROS_DOMAIN_ID', '0'), ('ROS_DOMAIN_ID', '232'), ('ROS_DOMAIN_ID', '"42"'),
+    ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SUBNET'), ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF'),
+    ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT'),
+    ('ROS_STATIC_PEERS', '"127.0.0.1;::1;localhost;vessel-1.lan"'), ('ROS_STATIC_PEERS', '""'),
+    ('OTHER', '3.5'),
+])
+def test_good_environment_values_pass_as_strings(tmp_path: Path, name: str,
+                                                 value: str) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + f'environment: {{{name}: {value}}}\n')
+    env = load_profile(path).environment
+    assert list(env) == [name] and isinstance(env[name], str)
+
+
+# -- remappings and recorded topics: ROS 2 name rules -----------------------------------------
+@pytest.mark.parametrize('target', [
+    # Before: each passed the profile check, then RCLInvalidROSArgsError with a traceback.
+    'imu//x', 'imu/', 'a~b', 'imu/{x}',
+    '{node}/x', 'a__b', '~x', '~', '1a', '', 'a.b',
+])
+def test_bad_remap_targets_are_refused(tmp_path: Path, target: str) -> None:
+    path = write(tmp_path / 'p.yaml',
+                 NODE.replace('sim_imu}', f"sim_imu, remappings: {{imu/data: '{target}'}}}}"))
+    err = load_error(path)
+    assert str(err).startswith(f'{path}: nodes.imu.remappings: {target!r} is not a valid topic '
+                               'name to remap: '), str(err)
+
+
+@pytest.mark.parametrize('name', ['imu/data', '/imu/data', '~/data', 'a/_b', 'A', 'rt/x'])
+def test_good_remaps_pass(tmp_path: Path, name: str) -> None:
+    path = write(tmp_path / 'p.yaml',
+                 NODE.replace('sim_imu}', f"sim_imu, remappings: {{'{name}': '{name}'}}}}"))
+    assert load_profile(path).node('imu').remappings == ((name, name),)
+
+
+def test_recorded_topics_are_checked(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + "record: {path: b, topics: ['/imu//data']}\n")
+    assert str(load_error(path)) == (f"{path}: record.topics: '/imu//data' is not a valid topic "
+                                     "name: topic name must not contain repeated '/'")
+    with pytest.raises(ProfileError, match="--record-topic 'imu/': not a valid topic name: "
+                                           'topic name must not end with a forward slash'):
+        profiles.with_record(load_profile(SIM), 'bags/x', ['imu/'])
+
+
+# -- a typo in a node's name ------------------------------------------------------------------
+def test_node_name_typo_suggests_the_declared_node(tmp_path: Path) -> None:
+    # Before: 'every node needs a plugin ...' and the list of plugins, nothing about the typo.
+    path = write(tmp_path / 'p.yaml', """
+        include: [saucer_sim]
+        nodes:
+          dp_contrl:
+            parameters: {kp: [1.0, 1.0, 1.0]}
+        """)
+    err = load_error(path)
+    assert str(err).startswith(f"{path}: nodes.dp_contrl: no plugin (did you mean the node "
+                               "'dp_control'?); a new node needs one"), str(err)
+
+
+def test_top_level_typo_suggests_the_key(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + 'enviroment: {ROS_DOMAIN_ID: 3}\n')
+    assert "enviroment: unknown key (did you mean 'environment'?)" in str(load_error(path))
+
+
+# -- fragments (include-only) -----------------------------------------------------------------
+def test_a_fragment_is_refused_to_run_and_fine_to_include() -> None:
+    err = load_error('core')
+    assert str(err) == (f'{CORE}: a fragment, only for include: [core] in a vessel profile; '
+                        'run one that includes it (enbarr list profiles)')
+    assert load_profile('core', allow_fragment=True).node_names()[0] == 'command_receiver'
+    assert load_profile('enbarr_sim').files[0] == CORE  # including it is what it is for
+
+
+def test_fragment_must_be_boolean(tmp_path: Path) -> None:
+    path = write(tmp_path / 'p.yaml', NODE + 'fragment: yes please\n')
+    assert str(load_error(path)) == f'{path}: fragment: expected true or false'
+
+
+def test_installed_profiles_tell_fragments_and_descriptions() -> None:
+    listed = {p.name: p for p in profiles.installed_profiles()}
+    assert {n for n, p in listed.items() if p.fragment} == {'core', 'saucer_core', 'skiff_core'}
+    assert listed['enbarr_sim'].description == (
+        'Enbarr ROV, everything simulated, scripted surface commands.')
+    assert all(p.description and p.readable for p in listed.values())
+    scenarios = {p.name: p for p in profiles.installed_profiles('scenarios')}
+    assert 'box_path' in scenarios and all(p.description for p in scenarios.values())
+
+
+def test_an_unreadable_file_is_listed_with_its_reason(tmp_path: Path) -> None:
+    bad = tmp_path / 'broken.yaml'
+    bad.write_text('nodes: [\n')
+    s = profiles.summarize(bad)
+    assert not s.readable and s.description.startswith(f'unreadable: {bad}: line ')
+
+
+# Names whose verdict rcl itself gives below: the profile check must refuse exactly those rcl
+# refuses in a remap rule (either side), so that no remap reaches a node to fail there.
+REMAP_NAMES = ['imu//x', 'imu/', 'a~b', 'imu/{x}', 'imu/{node}', '~/x', '~', '/a', 'a', '1a',
+               'a b', '_a', '~x', '/', '//a', 'a/~/b', '{node}', '{ns}/a', 'a/_b', 'a__b',
+               '/a/b/', 'A', 'a/1b', 'rt/a', 'a{', 'a}b', '~/{node}', 'a.b', '', 'a/b_c/d9']
+
+
+def test_remap_check_agrees_with_rcl(context: object) -> None:
+    from rclpy.node import Node
+    disagree = []
+    for name in REMAP_NAMES:
+        for rule in (f'{name}:=x', f'x:={name}'):
+            try:
+                Node('n', namespace='/ns', context=context,
+                     cli_args=['--ros-args', '-r', rule]).destroy_node()
+                rcl_ok = True
+            except Exception:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError, not public
+                rcl_ok = False
+            ours = profiles.topic_name_problem(name, remap=True)
+            if rcl_ok != (ours is None):
+                disagree.append((rule, rcl_ok, ours))
+    assert not disagree
+
+
+def test_huge_integers_are_refused_without_a_traceback(tmp_path: Path) -> None:
+    # Python refuses int() past 4300 digits and float() of a huge int: a ValueError or an
+    # OverflowError traceback each, before.
+    path = write(tmp_path / 'p.yaml', NODE.replace(
+        'sim_imu}', 'sim_imu, parameters: {rate: ' + '1' * 5000 + '}}'))
+    assert str(load_error(path)) == (f'{path}: line 2, column 45: invalid YAML: an integer of '
+                                     '5000 digits (at most 100)')
+    path = write(tmp_path / 'q.yaml', NODE + 'groups: {main: {restart_limit: ' + '9' * 90
+                 + '}}\n')
+    assert 'groups.main.restart_limit: expected an integer with 0 <= value <= 10000' in str(
+        load_error(path))
+    path = write(tmp_path / 'r.yaml', NODE + 'environment: {ROS_DOMAIN_ID: "' + '1' * 5000
+                 + '"}\n')
+    assert 'environment.ROS_DOMAIN_ID: expected an integer from 0 to 232' in str(
+        load_error(path))

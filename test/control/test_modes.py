@@ -17,7 +17,8 @@ from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
 from enbarr_interfaces.modes import Mode
 from enbarr_core.control.joy_layouts import mapping_from_params
 
-SAUCER_JOY = {k: v for k, v in load_profile('saucer_core').parameters.items()
+SAUCER_JOY = {k: v for k, v in
+              load_profile('saucer_core', allow_fragment=True).parameters.items()
               if k.startswith('joy.')}
 DS4, _ = mapping_from_params({**SAUCER_JOY, 'joy.layout': 'joydev'})
 TAU_MAX = (1.0, 2.0, 0.5)

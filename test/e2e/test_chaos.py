@@ -18,8 +18,8 @@ pytestmark = pytest.mark.e2e
 @pytest.fixture(scope='module')
 def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, dict, str, Path]:
     out = tmp_path_factory.mktemp('chaos') / 'run'
-    result = enbarr('chaos', 'enbarr_sim', '--faults', 'sigkill,sigstop', '--json',
-                    '--out', str(out), timeout=240)
+    result = enbarr('chaos', '--profile', 'enbarr_sim', '--faults', 'sigkill,sigstop', '--json',
+                    '--output', str(out), timeout=240)
     lines = result.stdout.strip().splitlines()
     assert len(lines) == 1, (result.stdout, result.stderr[-3000:])
     return result.returncode, json.loads(lines[0]), result.stderr, out

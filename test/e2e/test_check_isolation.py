@@ -196,7 +196,7 @@ def test_a_check_and_a_refused_run_leave_a_running_vessel_in_guidance(tmp_path: 
     # Generous staleness limits: on a loaded machine the other processes' start can starve
     # the vessel of CPU long enough to trip the joystick or estimate timeout, which is not
     # what this test is about (a contested joystick and a latched mode do not wait for them).
-    vessel = subprocess.Popen([*ENBARR, 'bringup', '--profile', 'saucer_sim', '--record',
+    vessel = subprocess.Popen([*ENBARR, 'bringup', '--profile', 'saucer_sim', '--output',
                                str(bag), '--set', 'dp_control.joy_timeout=5.0', '--set',
                                'dp_control.estimate_max_age=5.0'],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

@@ -105,7 +105,7 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     script = '[' + ', '.join(f"'{line}'" for line in SCRIPT) + ']'
     proc = subprocess.run(
         # 24 s: the script takes 17 s; the rest is margin for a slow start
-        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '24', '--record',
+        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '24', '--output',
          str(bag), '--set', f'surface.script={script}',
          '--set', f'simulator.initial.rpy=[0.0, 0.0, {INITIAL_YAW}]'],
         capture_output=True, text=True, timeout=120)
@@ -383,7 +383,7 @@ def _last_outputs(bag: Path) -> list[Any]:
 def test_duration_end_leaves_thrusters_neutral(tmp_path: Path) -> None:
     bag = tmp_path / 'bag'
     proc = subprocess.run(
-        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '4', '--record',
+        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--duration', '4', '--output',
          str(bag), '--set', DRIVE_SCRIPT], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert _ends_neutral_after_driving(_last_outputs(bag))
@@ -393,7 +393,7 @@ def test_duration_end_leaves_thrusters_neutral(tmp_path: Path) -> None:
 def test_signal_leaves_thrusters_neutral(tmp_path: Path, sig: signal.Signals) -> None:
     bag = tmp_path / 'bag'
     proc = subprocess.Popen(
-        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--record', str(bag), '--set',
+        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--output', str(bag), '--set',
          DRIVE_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         _wait_for(lambda: _flushed(bag, 2.0), 60, 'two seconds flushed (three flushes)')
@@ -409,7 +409,7 @@ def test_signal_leaves_thrusters_neutral(tmp_path: Path, sig: signal.Signals) ->
 def test_sigkill_leaves_a_readable_bag(tmp_path: Path) -> None:
     bag = tmp_path / 'bag'
     proc = subprocess.Popen(
-        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--record', str(bag)],
+        [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--output', str(bag)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         _wait_for(lambda: _flushed(bag, 1.0), 60, 'a second flushed (two flushes)')

@@ -36,7 +36,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     bag = tmp_path_factory.mktemp('rov_emulated') / 'bag'
     proc = subprocess.run(
         [*ENBARR, 'bringup', '--profile', 'enbarr_rov_emulated', '--duration', str(DURATION),
-         '--record', str(bag)], capture_output=True, text=True, timeout=150)
+         '--output', str(bag)], capture_output=True, text=True, timeout=150)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return {'msgs': read_bag(bag), 'log': proc.stderr + proc.stdout}
 

@@ -48,7 +48,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     record = [a for t in TOPICS for a in ('--record-topic', t)]
     proc = subprocess.run(
         [*ENBARR, 'bringup', '--profile', 'saucer_emulated', '--duration', str(DURATION),
-         '--record', str(bag), *record, '--set', f'ds4_emulator.script={script}'],
+         '--output', str(bag), *record, '--set', f'ds4_emulator.script={script}'],
         capture_output=True, text=True, timeout=150)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return {'msgs': read_bag(bag), 'log': proc.stderr + proc.stdout}

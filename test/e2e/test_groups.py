@@ -56,7 +56,7 @@ def crash_run(tmp_path_factory: pytest.TempPathFactory) -> CrashRun:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--record',
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
                              str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     out = Output(proc)
@@ -130,7 +130,7 @@ def test_sigint_stops_every_group(tmp_path: Path) -> None:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--record',
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
                              str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     out = Output(proc)

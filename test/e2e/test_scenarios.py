@@ -158,7 +158,7 @@ def test_azimuth_layout_that_cannot_yaw_is_refused(tmp_path: Path) -> None:
 def test_saucer_sim_duration_end_leaves_pwm_neutral(tmp_path: Path) -> None:
     bag = tmp_path / 'bag'
     proc = subprocess.run([*ENBARR, 'bringup', '--profile', 'saucer_sim', '--duration', '4',
-                           '--record', str(bag)], capture_output=True, text=True, timeout=120)
+                           '--output', str(bag)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     duty = [m for _, m in read_bag(bag)['/pwm/duty_cycle']]
     assert {m.layout.dim[0].label for m in duty} == {'duty_cycle_percent'}

@@ -58,7 +58,7 @@ def orphan_run(tmp_path_factory: pytest.TempPathFactory) -> OrphanRun:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--record',
+    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
                              str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     out = Output(proc)
@@ -205,7 +205,7 @@ def test_the_bag_reads_up_to_its_last_flush(full_disk_run: FullDiskRun) -> None:
 
 def test_too_little_free_space_refuses_the_run(tmp_path: Path) -> None:
     with small_disk(tmp_path, '2m') as disk:
-        run = subprocess.run([*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--record',
+        run = subprocess.run([*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--output',
                               str(disk / 'bag'), '--duration', '5'], capture_output=True,
                              text=True, timeout=120)
     assert run.returncode == 2, run.stderr[-3000:]

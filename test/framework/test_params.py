@@ -64,7 +64,7 @@ def test_integer_override_from_the_command_line(context):
 
 
 def test_coerced_value_keeps_its_range(context):
-    with pytest.raises(ConfigurationError, match="parameter 'gain'") as info:
+    with pytest.raises(ConfigurationError, match=r'parameter gain = 20.0 is outside') as info:
         make(context, [Parameter('gain', value=20)])
     assert info.value.parameter == 'gain'
 
@@ -83,13 +83,14 @@ def test_wrong_type_names_parameter_expected_type_and_value(context):
 
 
 def test_float_override_of_an_integer_is_refused(context):
-    with pytest.raises(ConfigurationError, match=r"parameter 'count': expected a int, got 2.5"):
+    with pytest.raises(ConfigurationError,
+                       match=r"parameter 'count': expected an integer, got 2.5"):
         make(context, [Parameter('count', value=2.5)])
 
 
 def test_wrong_array_type_is_refused(context):
     with pytest.raises(ConfigurationError,
-                       match=r"parameter 'bias': expected a list of float, got \['a', 'b'\]"):
+                       match=r"parameter 'bias': expected a list of floats, got \['a', 'b'\]"):
         make(context, [Parameter('bias', value=['a', 'b'])])
 
 
@@ -103,3 +104,17 @@ def test_a_settings_error_names_its_parameter(context):
         node.bind_settings(SPECS, build, lambda s: None)
     assert info.value.parameter == 'bias'
     node.destroy_node()
+
+
+@pytest.mark.parametrize('override, message', [
+    # Before: "parameter 'gain': Invalid parameter value (-0.3) for parameter. Reason:
+    # Parameter gain out of range Min: 0.0, Max: 10.0, value: -0.3" (rclpy's words).
+    (Parameter('gain', value=-0.3), "node 'tuned': parameter gain = -0.3 is outside [0.0, 10.0]"),
+    (Parameter('gain', value=20), "node 'tuned': parameter gain = 20.0 is outside [0.0, 10.0]"),
+    (Parameter('count', value=101), "node 'tuned': parameter count = 101 is outside [0, 100]"),
+    (Parameter('gain', value=float('nan')), "node 'tuned': parameter gain = nan is not finite"),
+])
+def test_a_refused_value_is_named_in_our_words(context, override, message):
+    with pytest.raises(ConfigurationError) as info:
+        make(context, [override])
+    assert str(info.value) == message and info.value.parameter == override.name

@@ -112,7 +112,7 @@ def test_saucer_flies_through_the_emulated_board(tmp_path):
     profile = tmp_path / 'saucer_emulated.yaml'
     profile.write_text(PROFILE.format(root=ROOT))
     bag = tmp_path / 'bag'
-    result = enbarr('bringup', '--profile', str(profile), '--duration', '8', '--record',
+    result = enbarr('bringup', '--profile', str(profile), '--duration', '8', '--output',
                     str(bag), '--record-topic', '/pwm/duty_cycle', '--record-topic',
                     '/emulator/arduino', '--record-topic', '/sim/odometry', cwd=ROOT,
                     timeout=120)

@@ -13,7 +13,8 @@ from enbarr_core.control.modes import ModeManager
 from enbarr_interfaces.modes import Mode
 from enbarr_core.control.joy_layouts import get_layout, LAYOUTS, mapping_from_params
 
-SAUCER = {k: v for k, v in load_profile('saucer_core').parameters.items()
+SAUCER = {k: v for k, v in
+          load_profile('saucer_core', allow_fragment=True).parameters.items()
           if k.startswith('joy.')}
 TAU_MAX = (1.0, 2.0, 0.5)
 EXPECTED = {'triangle': Mode.AUTOMATIC, 'square': Mode.GUIDANCE}

@@ -60,3 +60,26 @@ def test_numbers_within_bounds():
 def test_settings_parse_the_script_once():
     settings = ScriptedCommandsSettings.from_params({'script': LINES, 'rate': 10.0})
     assert len(settings.script) == 4 and settings.rate == 10.0
+
+
+def test_a_note_after_a_step_is_kept_and_a_comment_line_skipped():
+    steps = parse_script(['# the demo', '1.0 io manipulator true  # a refusal on purpose',
+                          '2.0 stop #quiet'], VERBS)
+    assert steps == (Step(1.0, 'io', IoRequest('manipulator', True), 1,
+                          'a refusal on purpose'),
+                     Step(2.0, 'stop', None, 2, 'quiet'))
+
+
+def test_a_hash_inside_a_word_is_no_note():
+    assert parse_script(['1.0 io name a#b'], VERBS)[0].value == IoRequest('name', 'a#b')
+
+
+@pytest.mark.parametrize('text, value', [
+    ('1e3', 1000.0),   # YAML 1.1 (yaml.safe_load) read the string '1e3'
+    ('off', 'off'),    # ... and False
+    ('true', True),
+    ('400', 400),
+])
+def test_io_values_are_read_as_profile_values(text, value):
+    got = parse_script([f'1.0 io manipulator {text}'], VERBS)[0].value.value
+    assert got == value and type(got) is type(value)

@@ -36,7 +36,7 @@ SERVO_LIMIT = math.radians(114.0)
 
 PROFILE = load_profile('saucer_sim')
 COMMON = dict(PROFILE.parameters)  # layout, pwm tables, vessel, joystick layout
-CORE = load_profile('saucer_core')  # the nodes' own parameters, without the sim's path
+CORE = load_profile('saucer_core', allow_fragment=True)  # the nodes' own parameters
 
 
 def node_parameters(node: str, profile: Any = CORE) -> dict[str, Any]:

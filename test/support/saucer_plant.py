@@ -49,7 +49,7 @@ def profile_settings(node: str, specs, from_params, profile: str = 'saucer_core'
     ``specs``, the profile's common parameters and the node's own, through ``from_params``.
     """
     from enbarr_core.bringup.profile import load_profile
-    p = load_profile(profile)
+    p = load_profile(profile, allow_fragment=True)
     spec = next(n for n in p.nodes if n.name == node)
     values = {s.name: s.default for s in specs}
     given = {**p.parameters, **spec.parameters}
@@ -79,7 +79,7 @@ def vessel_params():
     from enbarr_core.simulation.vessel3dof_simulator_node import (
         SPECS, Vessel3DofSimulatorSettings)
     from enbarr_core.bringup.profile import load_profile
-    p = load_profile('saucer_core')
+    p = load_profile('saucer_core', allow_fragment=True)
     values = {s.name: s.default for s in SPECS}
     values.update({k: v for k, v in p.parameters.items() if k in values})
     return Vessel3DofSimulatorSettings.from_params(values).vessel

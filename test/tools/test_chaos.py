@@ -1,11 +1,11 @@
 """``enbarr chaos``: the judging rules on synthetic observations (they pass a safe outcome and
 fail each unsafe one), the split profile a run is built on, and the command line's refusals.
-The real run is in test/e2e/test_chaos.py.
+The real run is in test/e2e/test_chaos.py; the parameter storm against nodes in
+test/tools/test_chaos_storm.py.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -14,8 +14,9 @@ import pytest
 from enbarr_core.bringup.cli import main as enbarr_main
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError
-from enbarr_core.tools import chaos
-from enbarr_core.tools import chaos_judge as judge
+from enbarr_core.tools.chaos import judge, plan as chaos
+from enbarr_core.tools.chaos.storm import Call
+from enbarr_core.tools.chaos.tree import NEUTRAL_LOG
 
 S = 1_000_000_000   # ns per s
 T0 = 100 * S        # the fault
@@ -174,30 +175,92 @@ def test_split_profile_of_the_saucer_knows_its_buttons(tmp_path: Path) -> None:
 
 
 def test_profile_without_plugins_is_refused(tmp_path: Path) -> None:
+    only_core = tmp_path / 'only_core.yaml'
+    only_core.write_text('include: [core]\n')
     with pytest.raises(EnbarrError, match='chaos needs core nodes'):
-        chaos.write_split_profile('core', tmp_path)
+        chaos.write_split_profile(str(only_core), tmp_path)
 
 
 @pytest.mark.parametrize('argv, message', [
-    (['--faults', 'sigkil'], '--faults: unknown sigkil; kinds: stamps'),
-    (['--duration', '0'], '--duration must be positive'),
+    (['--profile', 'enbarr_sim', '--faults', 'sigkil'], '--faults: unknown sigkil; kinds: '
+     'stamps'),
+    (['--profile', 'enbarr_sim', '--duration', '0'], '--duration must be a positive finite'),
+    (['--profile', 'enbarr_sim', '--duration', '1e308'], '--duration must be at most 600 s'),
+    ([], '--profile is required (e.g. --profile enbarr_sim)'),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(argv: list[str], message: str,
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    assert enbarr_main(['chaos', 'enbarr_sim', *argv]) == 2
+    assert enbarr_main(['chaos', *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith('enbarr chaos: error: ') and message in err[0]
 
 
-def test_existing_out_directory_is_refused(tmp_path: Path) -> None:
-    args = argparse.Namespace(profile='enbarr_sim', duration=2.0, faults='', out=str(tmp_path),
-                              json=True)
-    with pytest.raises(EnbarrError, match='exists'):
-        chaos.main(args)
+def test_existing_output_directory_is_refused(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    assert enbarr_main(['chaos', '--profile', 'enbarr_sim', '--output', str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f'enbarr chaos: error: --output {tmp_path}: exists; chaos never overwrites a run')
+
+
+def test_old_spellings_still_work_with_a_notice(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    # 'chaos PROFILE' and --out, as before --profile and --output: same run, one notice each.
+    assert enbarr_main(['chaos', 'enbarr_sim', '--out', str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        'enbarr chaos: warning: PROFILE as a positional argument is deprecated; use --profile '
+        'enbarr_sim',
+        'enbarr chaos: warning: --out is deprecated; use --output',
+        f'enbarr chaos: error: --output {tmp_path}: exists; chaos never overwrites a run']
+
+
+def test_two_profiles_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert enbarr_main(['chaos', '--profile', 'enbarr_sim', 'saucer_sim']) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        'enbarr chaos: error: two profiles: --profile enbarr_sim and saucer_sim')
 
 
 def test_a_drivers_neutral_log_line_is_an_observation() -> None:
     log = ('[INFO] [1795376177.2] [dp_control]: mode automatic -> manual (neutral stick)\n'
            '[WARN] [1795376177.885158580] [arduino]: PWM input stopped: outputs neutral\n'
            '[ERROR] [enbarr.bringup]: group control died (signal SIGKILL); restart 2 of 50\n')
-    assert chaos.NEUTRAL_LOG.findall(log) == ['1795376177.885158580']
+    assert NEUTRAL_LOG.findall(log) == ['1795376177.885158580']
+
+
+# -- the parameter storm: every call judged ------------------------------------------------------
+def storm_answers(*oks: bool | None, valid: bool = False) -> list[tuple[Call, bool | None]]:
+    return [(Call('/imu', f'p{i}', 'chaos', valid), ok) for i, ok in enumerate(oks)]
+
+
+def test_a_storm_with_every_invalid_value_refused_passes() -> None:
+    answers = storm_answers(False, False, False) + storm_answers(True, valid=True)
+    v = judge.judge_storm('params', steady(-1, 3), [], T0, T0 + 2 * S, answers, nodes=1)
+    assert v.passed, v.detail
+    assert (v.figures['calls'], v.figures['answered'], v.figures['valid_refused']) == (4, 4, 0)
+
+
+def test_an_unanswered_call_fails_the_storm() -> None:
+    # Before: an unanswered call was skipped, so a storm that lost most of its calls passed
+    # on the ones answered.
+    v = judge.judge_storm('params', steady(-1, 3), [], T0, T0 + 2 * S,
+                          storm_answers(False, None, False), nodes=1)
+    assert not v.passed
+    assert v.detail == "1 of 3 calls unanswered: /imu.p1='chaos'"
+    assert v.figures['answered'] == 2
+
+
+def test_an_accepted_invalid_value_fails_the_storm() -> None:
+    v = judge.judge_storm('params', steady(-1, 3), [], T0, T0 + 2 * S,
+                          storm_answers(False, True), nodes=1)
+    assert not v.passed and "1 invalid values accepted: /imu.p1='chaos'" in v.detail
+
+
+def test_a_valid_value_refused_is_only_counted() -> None:
+    # A read-only parameter refuses its own value too: not unsafe.
+    v = judge.judge_storm('params', steady(-1, 3), [], T0, T0 + 2 * S,
+                          storm_answers(False, valid=True), nodes=1)
+    assert v.passed and v.figures['valid_refused'] == 1
+
+
+def test_a_storm_that_reached_no_node_fails() -> None:
+    v = judge.judge_storm('params', steady(-1, 3), [], T0, T0 + 2 * S, [], nodes=0)
+    assert not v.passed and 'no node answered' in v.detail

@@ -5,10 +5,10 @@ A full mutmut round takes hours here (docs/testing.md), so a module's mutants th
 run are estimated from a uniform random sample of them. Run from the repository root, after
 ``mutmut run`` has generated ``mutants/``:
 
-    python3 tools/mutation_sample.py pick N [--seed S] [--module MODULE]...
+    python3 scripts/mutation_sample.py pick N [--seed S] [--module MODULE]...
         # draw N of each module's not-yet-run mutants (seeded), record the draw in
         # mutants/samples.json and print their names, one a line, for `mutmut run NAME...`
-    python3 tools/mutation_sample.py table
+    python3 scripts/mutation_sample.py table
         # per module: killed / survived / no tests / timeout / not run over all mutants, and
         # for a sampled module the sample's kill share with its 95 % Wilson interval and the
         # module's estimate: (killed outside the draw + share x mutants in the population) / all;

@@ -1,7 +1,7 @@
 """``enbarr bench --profile NAME``: a whole vessel profile, run as a user runs it, measured.
 
 ``enbarr bringup --profile NAME`` runs as a child process tree (LOCALHOST, the bench's
-ROS_DOMAIN_ID, with ``--record`` into a temporary bag directory). After ``--warmup`` seconds
+ROS_DOMAIN_ID, with ``--output`` into a temporary bag directory). After ``--warmup`` seconds
 (start-up and bringup's 3 s discovery wait), the CPU time of every process and thread of the
 tree is read from ``/proc`` at the start and the end of a ``--seconds`` window; then bringup
 is stopped with SIGINT (a recorder closes its bag) and one JSON line is printed:
@@ -36,8 +36,6 @@ Figures depend on the machine and its load: run it alone, and compare runs made 
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 from pathlib import Path
 import platform
@@ -48,7 +46,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import textwrap
 import time
 from typing import Any, NamedTuple
 
@@ -297,7 +294,7 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
     for s in sets:
         cmd += ['--set', s]
     if bag is not None:
-        cmd += ['--record', str(bag)]
+        cmd += ['--output', str(bag)]
     err_path = workdir / f'bringup-{time.monotonic_ns()}.err'
     launched = time.monotonic()
     with open(err_path, 'wb') as err:
@@ -433,41 +430,29 @@ def writer_cpu(run: Run) -> float:
     return sum(c for (_, name), c in run.per_thread.items() if name == 'recorder_writer')
 
 
-def main(args: argparse.Namespace) -> int:
-    """Measure the profile (twice with ``--record``) and print one JSON line."""
-    from enbarr_core.bringup.cli import check_seconds
+def measure(profile: str, sets: list[str], warmup: float, seconds: float,
+            record: bool) -> dict[str, Any]:
+    """Measure ``profile`` (twice with ``record``); return the JSON line's dict."""
     from enbarr_core.bringup.profile import load_profile
-    if args.rate is not None:
-        raise EnbarrError('--rate is for --chain: a profile runs at its own rates '
-                          '(change them with --set NODE.rate=HZ)')
-    seconds = DEFAULT_SECONDS if args.seconds is None else args.seconds
-    warmup = DEFAULT_WARMUP if args.warmup is None else args.warmup
-    check_seconds('--seconds', seconds)
-    check_seconds('--warmup', warmup)
-    prof = load_profile(args.profile, args.set)   # unknown profile, bad --set: one line
+    prof = load_profile(profile, sets)   # unknown profile, bad --set: one line
     attribution = attribute(prof)
-    if args.record and prof.record is not None:
+    if record and prof.record is not None:
         raise EnbarrError(f'{prof.path}: the profile records already (its record section): '
                           'no run without a bag to compare with; drop --record')
     processes = _processes(prof, record=False)
     recorded = _processes(prof, record=True)
-    result: dict[str, Any] = {'profile': prof.name, 'record': bool(args.record),
-                              'warmup': warmup}
+    result: dict[str, Any] = {'profile': prof.name, 'record': record, 'warmup': warmup}
     with tempfile.TemporaryDirectory(prefix='enbarr-bench-') as tmp:
         work = Path(tmp)
-        try:
-            if args.record:
-                bare = run_once(args.profile, args.set, warmup, seconds, None, work, processes)
-                bag = work / 'bag'
-                run = run_once(args.profile, args.set, warmup, seconds, bag, work, recorded)
-                inside, total = recorded_in(bag, *run.window_ns)
-            else:
-                run = run_once(args.profile, args.set, warmup, seconds, None, work,
-                               processes)
-        except KeyboardInterrupt:
-            return 130
+        if record:
+            bare = run_once(profile, sets, warmup, seconds, None, work, processes)
+            bag = work / 'bag'
+            run = run_once(profile, sets, warmup, seconds, bag, work, recorded)
+            inside, total = recorded_in(bag, *run.window_ns)
+        else:
+            run = run_once(profile, sets, warmup, seconds, None, work, processes)
         result.update(figures(run, attribution))
-        if args.record:
+        if record:
             wall_s = (run.window_ns[1] - run.window_ns[0]) * 1e-9
             result['unrecorded'] = figures(bare, attribution)
             result['recorded_messages'] = inside
@@ -485,14 +470,4 @@ def main(args: argparse.Namespace) -> int:
         shutil.rmtree(work / 'bag', ignore_errors=True)
     result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
                         f'{platform.python_version()}'
-    print(json.dumps(result))
-    return 0
-
-
-HELP = textwrap.dedent("""\
-    --profile NAME: run the whole profile under `enbarr bringup` (child processes, LOCALHOST,
-    ROS_DOMAIN_ID as set or random), warm up --warmup s, measure --seconds s from /proc, stop
-    it with SIGINT; one JSON line: the tree's share of a core (x6 for a Pi 4), the busiest
-    threads, per process, RSS at start and end. --record runs it twice back to back, without
-    and with a bag: cpu_us_per_recorded_message = the CPU difference / messages recorded in
-    the window; writer_cpu_us_per_recorded_message = the writer thread alone.""")
+    return result

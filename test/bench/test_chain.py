@@ -1,4 +1,4 @@
-"""The chain benchmark's pure loops (``enbarr_core.tools.bench``): hot and paced.
+"""The chain benchmark's pure loops (``enbarr_core.bench.chain``): hot and paced.
 
 Timing itself is a benchmark's business; these check what each measurement runs: how many
 cycles, at what pacing, and that both chains' loops run.
@@ -11,7 +11,7 @@ from typing import Iterator
 
 import pytest
 
-from enbarr_core.tools import bench
+from enbarr_core.bench import chain as bench
 
 
 def counting() -> tuple[list[float], Iterator[None]]:

@@ -1,4 +1,4 @@
-"""What recording costs per message: ``python -m enbarr_core.recording.bench``.
+"""``enbarr bench --recording``: what recording costs per message.
 
 Composes a source node and a ``RecorderNode`` in one process as bringup does, publishes
 ``--messages`` realistic messages of each hot fast-topic type on the link bus, lets the
@@ -14,12 +14,9 @@ pieces measured alone (``pieces_us``) and the Pi 4 estimate (x6).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 from pathlib import Path
 import statistics
-import sys
 import tempfile
 import time
 import timeit
@@ -27,6 +24,9 @@ from typing import Any
 
 #: A Raspberry Pi 4 core runs CPython about this much slower (docs/benchmarks.md).
 PI4_FACTOR = 6
+DEFAULT_MESSAGES = 8000     # per type in the long run
+DEFAULT_REPEAT = 3          # runs per case; the median is kept
+MIN_MESSAGES = 100
 
 
 def _messages() -> dict[str, tuple[Any, Any]]:
@@ -186,16 +186,12 @@ def _pieces(cases: dict[str, tuple[Any, Any]]) -> dict[str, Any]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the benchmark; print one JSON line."""
-    p = argparse.ArgumentParser(prog='python -m enbarr_core.recording.bench',
-                                description=__doc__.split('\n\n')[0])
-    p.add_argument('--messages', type=int, default=8000,
-                   help='messages per type in the long run (default 8000)')
-    p.add_argument('--repeat', type=int, default=3, help='runs per case; the median is kept')
-    args = p.parse_args(argv)
-    if args.messages < 100 or args.repeat < 1:
-        p.error('--messages must be >= 100 and --repeat >= 1')
+def measure(messages: int = DEFAULT_MESSAGES, repeat: int = DEFAULT_REPEAT) -> dict[str, Any]:
+    """Run the benchmark: ``messages`` per type in the long run, ``repeat`` runs per case."""
+    from enbarr_core.framework.errors import EnbarrError
+    if messages < MIN_MESSAGES or repeat < 1:
+        raise EnbarrError(f'--messages must be >= {MIN_MESSAGES} and --repeat >= 1, got '
+                          f'{messages} and {repeat}')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     import rclpy
     from rclpy.context import Context
@@ -203,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = _messages()
     context = Context()
     rclpy.init(context=context)
-    result: dict[str, Any] = {'messages': args.messages, 'repeat': args.repeat,
+    result: dict[str, Any] = {'messages': messages, 'repeat': repeat,
                               'us_per_message': {}, 'tap_us_per_message': {},
                               'messages_per_second': {}}
     try:
@@ -214,11 +210,11 @@ def main(argv: list[str] | None = None) -> int:
             for gi, (name, group) in enumerate(groups.items()):
                 # Two lengths: the difference is the cost per message, without what a run
                 # costs once (first message of a topic, final flush, thread start and stop).
-                short = max(1, args.messages // (4 * len(group)))
+                short = max(1, messages // (4 * len(group)))
                 long = 4 * short
                 extra = (long - short) * len(group)
                 per, tap, rates = [], [], []
-                for r in range(args.repeat):
+                for r in range(repeat):
                     got = {}
                     for rounds in (short, long):
                         base, base_th, _, _ = _run(context, group, rounds, False,
@@ -226,8 +222,8 @@ def main(argv: list[str] | None = None) -> int:
                         cpu, th, wall, written = _run(context, group, rounds, True,
                                                       Path(tmp) / f'bag{gi}_{r}_{rounds}')
                         if written != rounds * len(group):
-                            raise SystemExit(f'{name}: {written} of {rounds * len(group)} '
-                                             'messages recorded')
+                            raise EnbarrError(f'{name}: {written} of {rounds * len(group)} '
+                                              'messages recorded')
                         got[rounds] = (cpu - base, th - base_th, wall)
                     per.append((got[long][0] - got[short][0]) / extra * 1e6)
                     tap.append((got[long][1] - got[short][1]) / extra * 1e6)
@@ -240,9 +236,4 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.try_shutdown(context=context)
     mixes = [v for k, v in result['us_per_message'].items() if k.startswith('mix')]
     result['pi4_estimate_us_per_message'] = round(max(mixes) * PI4_FACTOR, 1)
-    print(json.dumps(result))
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())
+    return result

@@ -8,7 +8,7 @@ the profiler, then cProfile's top functions (``--sort tottime`` or ``cumulative`
 per-sample work of every node around the algorithms, which ``ros_overhead_ratio`` sums up.
 
     export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_DOMAIN_ID=42
-    .venv/bin/python tools/profile_chain.py saucer --rate 50 --sort cumulative
+    .venv/bin/python scripts/profile_chain.py saucer --rate 50 --sort cumulative
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def main() -> None:
     """Step the chain, print CPU per cycle and the profile."""
     from enbarr_core.bringup.compose import composed
     from enbarr_core.bringup.profile import apply_environment
-    from enbarr_core.tools import bench
+    from enbarr_core.bench import chain as bench
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('chain', choices=sorted(bench.CHAINS))

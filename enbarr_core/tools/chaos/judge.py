@@ -24,7 +24,7 @@ Two kinds of fault, two safe outcomes:
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 #: A fault that removes control must end with the actuators neutral within this [s].
@@ -132,6 +132,35 @@ def judge_kept(fault: str, control_times: Sequence[int],
     else:
         detail = f'control kept (longest pause {gap:.3f} s)'
     return Verdict(fault, KEEPS_CONTROL, not problems, None, detail, figs)
+
+
+def judge_storm(fault: str, control_times: Sequence[int],
+                outputs: Sequence[tuple[int, bool]], start_ns: int, end_ns: int,
+                answers: Sequence[tuple[Any, bool | None]], nodes: int) -> Verdict:
+    """Judge a parameter storm: control kept, no invalid value accepted, every call answered.
+
+    ``answers`` are ``(call, successful)`` pairs, ``successful`` None for a call that got no
+    answer; a call has ``valid`` (the value is the parameter's own) and prints as
+    ``node.parameter=value``. A valid value refused is a figure, not a failure: a read-only
+    parameter refuses any value.
+    """
+    accepted_invalid = [str(c) for c, ok in answers if ok and not c.valid]
+    unanswered = [str(c) for c, ok in answers if ok is None]
+    refused_valid = sum(1 for c, ok in answers if ok is False and c.valid)
+    v = judge_kept(fault, control_times, outputs, start_ns, end_ns,
+                   executed=len(accepted_invalid),
+                   executed_what='invalid values accepted: ' + ', '.join(accepted_invalid[:5]),
+                   figures={'nodes': nodes, 'calls': len(answers),
+                            'answered': len(answers) - len(unanswered),
+                            'valid_refused': refused_valid})
+    if not answers:
+        return replace(v, passed=False, detail='no parameter to set: no node answered')
+    if unanswered:
+        what = f'{len(unanswered)} of {len(answers)} calls unanswered: ' + ', '.join(
+            unanswered[:5])
+        return replace(v, passed=False,
+                       detail=what if v.passed else f'{v.detail}; {what}')
+    return v
 
 
 def skipped(fault: str, expected: str, why: str) -> Verdict:

@@ -24,7 +24,7 @@ from support.cli import enbarr, refused
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError
 from enbarr_core.framework.threads import name_os_threads, os_thread_name
-from enbarr_core.tools import bench_profile as bp
+from enbarr_core.bench import profile_run as bp
 
 TICK = 1.0 / bp.TICKS
 

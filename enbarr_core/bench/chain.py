@@ -1,4 +1,4 @@
-"""``enbarr bench``: the sensor -> actuator chain of a vessel, measured.
+"""``enbarr bench --chain``: the sensor -> actuator chain of a vessel, measured.
 
 ``--chain rov`` (default): simulator -> sim IMU -> attitude filter -> velocity control ->
 thruster converter -> sim thrusters (profile ``enbarr_sim``). ``--chain saucer``: simulator
@@ -20,19 +20,18 @@ allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are
 - saucer only, ``scenario_real_time_factor``: simulated seconds per wall second of the
   headless station-keeping scenario (recording included).
 
-``--profile NAME`` measures a whole profile under ``bringup`` instead (``bench_profile``);
-``--profile NAME --idle`` its fixed cost: the nodes composed in this process and spun, no
-source started (what runs: the supervision tick with its watchdogs and reports, the timers of
-core nodes, parameter services; a source's timer does not), as ``cpu_core_fraction``.
+``--profile NAME`` measures a whole profile under ``bringup`` instead (``profile_run``);
+``--profile NAME --idle`` its fixed cost (``run_idle``, here): the nodes composed in this
+process and spun, no source started (what runs: the supervision tick with its watchdogs and
+reports, the timers of core nodes, parameter services; a source's timer does not), as
+``cpu_core_fraction``.
 
 Figures depend on the machine and its load: run it alone. ``docs/benchmarks.md`` has ours.
 """
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass, replace
-import json
 import os
 import platform
 import tempfile
@@ -59,88 +58,38 @@ CHAINS = {
 }
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the ``enbarr bench`` options to ``p``: a chain (default) or a whole profile."""
-    from enbarr_core.tools import bench_profile
-    what = p.add_mutually_exclusive_group()
-    what.add_argument('--chain', choices=sorted(CHAINS),
-                      help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
-    what.add_argument('--profile', metavar='NAME|PATH',
-                      help='a whole profile under bringup instead (see below)')
-    p.add_argument('--rate', type=float, default=None,
-                   help='--chain: chain rate in Hz (default 400)')
-    p.add_argument('--seconds', type=float, default=None,
-                   help='measured duration: after a 2 s warm-up for --chain (default 10), '
-                   f'after --warmup for --profile (default {bench_profile.DEFAULT_SECONDS:g})')
-    p.add_argument('--warmup', type=float, default=None, metavar='W',
-                   help="--profile: seconds before the window: start-up and bringup's 3 s "
-                   f'discovery wait (default {bench_profile.DEFAULT_WARMUP:g})')
-    p.add_argument('--record', action='store_true',
-                   help='--profile: run it without, then with a bag, back to back; report '
-                   'messages recorded per second and CPU per recorded message')
-    p.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
-                   help='--profile: override a node parameter, as bringup --set (repeatable)')
-    p.add_argument('--idle', action='store_true',
-                   help="--profile: the fixed cost instead: the profile's nodes composed in "
-                   'this process and spun, none of their sources started (nothing flows; '
-                   'watchdogs, reports, core timers and parameter services run), CPU over '
-                   '--seconds after a 3 s warm-up')
-
-
-def main(args: argparse.Namespace) -> int:
-    """Measure the chain (or with ``--profile``, the profile) and print one JSON line."""
-    import math
-
-    from enbarr_core.bringup.cli import check_seconds
+def measure(chain_name: str, rate: float, seconds: float) -> dict[str, Any]:
+    """Measure ``CHAINS[chain_name]`` at ``rate`` [Hz] for ``seconds``; the JSON line's dict."""
     from enbarr_core.framework.errors import EnbarrError, ProfileError
-    if args.profile is not None and args.idle:
-        for option, given in (('--record', args.record), ('--rate', args.rate is not None),
-                              ('--warmup', args.warmup is not None)):
-            if given:
-                raise EnbarrError(f'{option} does not go with --idle: nothing flows there')
-        seconds = 10.0 if args.seconds is None else args.seconds
-        check_seconds('--seconds', seconds)
-        print(json.dumps(run_idle(args.profile, args.set, seconds)))
-        return 0
-    if args.profile is not None:
-        from enbarr_core.tools import bench_profile
-        return bench_profile.main(args)
-    for option, given in (('--record', args.record), ('--set', args.set),
-                          ('--warmup', args.warmup is not None), ('--idle', args.idle)):
-        if given:
-            raise EnbarrError(f'{option} is for --profile; --chain runs the chain alone')
-    args.chain = args.chain or 'rov'
-    args.rate = 400.0 if args.rate is None else args.rate
-    args.seconds = 10.0 if args.seconds is None else args.seconds
-    if not (args.rate > 0 and math.isfinite(args.rate)):
-        raise EnbarrError(f'--rate must be a positive finite number of Hz, got {args.rate}')
-    check_seconds('--seconds', args.seconds)
-    chain = CHAINS[args.chain]
-    result: dict[str, Any] = {'chain': args.chain, 'rate_hz_requested': args.rate}
+    chain = CHAINS[chain_name]
+    result: dict[str, Any] = {'chain': chain_name, 'rate_hz_requested': rate}
     try:
-        result.update(run_ros(chain, args.rate, args.seconds))
+        result.update(run_ros(chain, rate, seconds))
     except ProfileError as err:
         if not (err.key or '').endswith('.rate'):
             raise
-        raise EnbarrError(f'--rate {args.rate:g}: not a rate the {args.chain} chain runs at: '
+        raise EnbarrError(f'--rate {rate:g}: not a rate the {chain_name} chain runs at: '
                           f'{err.__cause__ or err}') from err
-    pure_loop = pure_rov if args.chain == 'rov' else pure_saucer
-    pure = hot(pure_loop(args.rate))
-    paced = paced_cycles(pure_loop(args.rate), args.rate)
+    pure_loop = pure_rov if chain_name == 'rov' else pure_saucer
+    pure = hot(pure_loop(rate))
+    paced = paced_cycles(pure_loop(rate), rate)
     result['pure_s_per_cycle'] = round(pure, 6)
     result['ros_overhead_ratio'] = round(result['cpu_s_per_cycle'] / pure, 2)
     result['pure_paced_s_per_cycle'] = round(paced, 6)
     result['ros_overhead_ratio_paced'] = round(result['cpu_s_per_cycle'] / paced, 2)
-    if args.chain == 'saucer':
+    if chain_name == 'saucer':
         from enbarr_core.tools.scenario import run as run_scenario
         with tempfile.TemporaryDirectory() as tmp:
             r = run_scenario('station_keeping', os.path.join(tmp, 'out'), plot=False,
                              duration=30.0)
         result['scenario_real_time_factor'] = r['real_time_factor']
-    result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
-                        f'{platform.python_version()}'
-    print(json.dumps(result))
-    return 0
+    result['machine'] = machine()
+    return result
+
+
+def machine() -> str:
+    """Describe this machine for a benchmark's JSON line."""
+    return f'{platform.machine()} {os.cpu_count()} cpu, Python {platform.python_version()}'
 
 
 #: Spin before the idle window [s]: discovery's first exchanges, the first reports.
@@ -169,8 +118,7 @@ def run_idle(profile: str, sets: list[str], seconds: float) -> dict[str, Any]:
     return {'profile': prof.name, 'idle': True, 'nodes': nodes,
             'cpu_core_fraction': round(share, 4),
             'pi4_core_fraction_estimate': round(share * 6.0, 3),
-            'machine': f'{platform.machine()} {os.cpu_count()} cpu, Python '
-                       f'{platform.python_version()}'}
+            'machine': machine()}
 
 
 def _overrides(chain: Chain, rate: float) -> list[str]:

@@ -1,0 +1,152 @@
+"""``enbarr bench``: a control chain, a whole profile or the recorder, measured (one JSON line).
+
+The benchmarks are in ``enbarr_core.bench``; this is their command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import json
+
+from enbarr_core.commands import Command
+from enbarr_core.commands.arguments import check_rate, check_seconds
+from enbarr_core.framework.errors import EnbarrError
+
+CHAIN_RATE = 400.0
+CHAIN_SECONDS = 10.0
+IDLE_SECONDS = 10.0
+#: The chain rate a run takes [Hz] (the simulator and sensors refuse far less).
+MAX_RATE = 10_000.0
+
+EPILOG = """\
+--chain (default rov): drive the sensor -> filter -> control -> allocation -> actuator
+chain in one process at --rate for --seconds after a 2 s warm-up; one JSON line of
+figures (rate, latency, CPU per cycle, ROS overhead against the plain algorithms).
+
+--profile NAME: run the whole profile under `enbarr bringup` (child processes, LOCALHOST,
+ROS_DOMAIN_ID as set or random), warm up --warmup s, measure --seconds s from /proc, stop
+it with SIGINT; one JSON line: the tree's share of a core (x6 for a Pi 4), the busiest
+threads, per process, RSS at start and end. --record runs it twice back to back, without
+and with a bag: cpu_us_per_recorded_message = the CPU difference / messages recorded in
+the window; writer_cpu_us_per_recorded_message = the writer thread alone. --idle: the
+profile's fixed cost instead (its nodes composed and spun, no source started).
+
+--recording: what the recorder costs per message, by message type and for the mix of
+each chain (--messages per type, --repeat runs; the median is kept).
+
+docs/benchmarks.md has our figures and how they were taken."""
+
+
+class BenchCommand(Command):
+    """``enbarr bench``."""
+
+    help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
+    description = ('Measure one of: a control chain in one process (--chain, the default), '
+                   'a whole profile as processes (--profile), the recorder (--recording). '
+                   'Figures depend on the machine and its load: run it alone.')
+    epilog = EPILOG
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Declare what to measure and for how long."""
+        from enbarr_core.bench import recording
+        from enbarr_core.bench.profile_run import DEFAULT_SECONDS, DEFAULT_WARMUP
+        what = parser.add_mutually_exclusive_group()
+        what.add_argument('--chain', choices=('rov', 'saucer'),
+                          help='rov: IMU -> thrusters (default); saucer: pose -> PWM')
+        what.add_argument('--profile', metavar='NAME|PATH',
+                          help='a whole profile under bringup instead (see below)')
+        what.add_argument('--recording', action='store_true',
+                          help='the recorder alone: CPU per recorded message')
+        parser.add_argument('--rate', type=float, default=None,
+                            help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
+        parser.add_argument('--seconds', type=float, default=None,
+                            help='measured duration: after a 2 s warm-up for --chain '
+                            f'(default {CHAIN_SECONDS:g}), after --warmup for --profile '
+                            f'(default {DEFAULT_SECONDS:g})')
+        parser.add_argument('--warmup', type=float, default=None, metavar='W',
+                            help="--profile: seconds before the window: start-up and "
+                            f"bringup's 3 s discovery wait (default {DEFAULT_WARMUP:g})")
+        parser.add_argument('--record', action='store_true',
+                            help='--profile: run it without, then with a bag, back to back; '
+                            'report messages recorded per second and CPU per recorded message')
+        parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                            help='--profile: override a node parameter, as bringup --set '
+                            '(repeatable)')
+        parser.add_argument('--idle', action='store_true',
+                            help="--profile: the fixed cost instead: the profile's nodes "
+                            'composed in this process and spun, none of their sources '
+                            'started (nothing flows; watchdogs, reports, core timers and '
+                            'parameter services run), CPU over --seconds after a 3 s warm-up')
+        parser.add_argument('--messages', type=int, default=None, metavar='N',
+                            help='--recording: messages per type in the long run '
+                            f'(default {recording.DEFAULT_MESSAGES})')
+        parser.add_argument('--repeat', type=int, default=None, metavar='N',
+                            help='--recording: runs per case, the median kept '
+                            f'(default {recording.DEFAULT_REPEAT})')
+
+    def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
+        """Measure what was asked and print one JSON line."""
+        if args.recording:
+            result = _recording(args)
+        elif args.profile is not None:
+            result = _idle(args) if args.idle else _profile(args)
+        else:
+            result = _chain(args)
+        print(json.dumps(result))
+        return 0
+
+
+def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
+    """Refuse any of ``options`` that was given, saying ``why``."""
+    given = {'--rate': args.rate is not None, '--seconds': args.seconds is not None,
+             '--warmup': args.warmup is not None, '--record': args.record,
+             '--set': bool(args.set), '--idle': args.idle,
+             '--messages': args.messages is not None, '--repeat': args.repeat is not None}
+    for option in options:
+        if given[option]:
+            raise EnbarrError(f'{option} {why}')
+
+
+def _chain(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import chain
+    _refuse(args, ('--record', '--set', '--warmup', '--idle'),
+            'is for --profile; --chain runs the chain alone')
+    _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    rate = CHAIN_RATE if args.rate is None else args.rate
+    seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
+    check_rate('--rate', rate, MAX_RATE)
+    check_seconds('--seconds', seconds)
+    return chain.measure(args.chain or 'rov', rate, seconds)
+
+
+def _idle(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import chain
+    _refuse(args, ('--record', '--rate', '--warmup'), 'does not go with --idle: nothing '
+            'flows there')
+    _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    seconds = IDLE_SECONDS if args.seconds is None else args.seconds
+    check_seconds('--seconds', seconds)
+    return chain.run_idle(args.profile, args.set, seconds)
+
+
+def _profile(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import profile_run
+    if args.rate is not None:
+        raise EnbarrError('--rate is for --chain: a profile runs at its own rates '
+                          '(change them with --set NODE.rate=HZ)')
+    _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
+    warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
+    check_seconds('--seconds', seconds)
+    check_seconds('--warmup', warmup)
+    return profile_run.measure(args.profile, args.set, warmup, seconds, args.record)
+
+
+def _recording(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import recording
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle'),
+            'is not for --recording (it takes --messages and --repeat)')
+    return recording.measure(
+        recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
+        recording.DEFAULT_REPEAT if args.repeat is None else args.repeat)
