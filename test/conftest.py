@@ -98,13 +98,33 @@ _first, _, _last = os.environ.get('ENBARR_TEST_DOMAINS', '1-100').partition('-')
 _DOMAIN_FIRST, _DOMAIN_COUNT = int(_first), int(_last) - int(_first) + 1
 
 
+def _next_domain() -> str:
+    return str(_DOMAIN_FIRST + next(_domains) % _DOMAIN_COUNT)
+
+
+@pytest.fixture(autouse=True, scope='module')
+def module_domain() -> Iterator[str]:
+    """A fresh ROS_DOMAIN_ID for a module's shared fixtures (a run started once per module).
+
+    Without it they ran in the session's domain, which the per-test domains below also hand
+    out: a run started by a module fixture was refused as a second vessel because a node
+    test before it had a node of the same name in that domain.
+    """
+    old = os.environ['ROS_DOMAIN_ID']
+    os.environ['ROS_DOMAIN_ID'] = domain = _next_domain()
+    try:
+        yield domain
+    finally:
+        os.environ['ROS_DOMAIN_ID'] = old
+
+
 @pytest.fixture(autouse=True)
 def private_domain(monkeypatch: pytest.MonkeyPatch) -> str:
     """A fresh ROS_DOMAIN_ID (1..100) for every test and the processes it starts: a test
     that SIGKILLs a run leaves DDS participants (and shared-memory ports) behind until their
     leases expire, and the next test must not meet them.
     """
-    domain = str(_DOMAIN_FIRST + next(_domains) % _DOMAIN_COUNT)
+    domain = _next_domain()
     monkeypatch.setenv('ROS_DOMAIN_ID', domain)
     return domain
 
