@@ -43,8 +43,10 @@ status, motor on, SCAN) and then streams. Every wait is bounded (``response_time
 ``stall_timeout``); a failure ends the thread with a ``DeviceError`` naming the port and
 what was read, which the supervision timer hands to ``device_fault`` (close, backoff,
 reconnect: STOP and SCAN again, the port looked up again, so a re-plugged device or a new
-emulator pty is found). Scans are published from the reader thread; the executor only runs
-the supervision timer.
+emulator pty is found). Opening the port proves nothing (a dead or wrong device opens too):
+the lidar is back, and the retry delay starts over, on its first whole revolution; bytes
+that make no valid sample for ``stall_timeout`` are a stall like silence. Scans are
+published from the reader thread; the executor only runs the supervision timer.
 """
 
 from __future__ import annotations
@@ -267,6 +269,9 @@ def decode_samples(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     a = np.frombuffer(data, dtype=_SAMPLE_DTYPE)
     return ((a['b0'] & 1).astype(bool), (a['b0'] >> 2).astype(np.int64),
             (a['angle'] >> 1) / 64.0, a['dist'] / 4.0)
+
+
+_NO_SAMPLES = decode_samples(b'')
 
 
 # -- the start-up exchange (shared by the node's reader thread and check_device) -------------
@@ -520,8 +525,8 @@ SPECS = [
     ParamSpec('min_quality', 0, 'Returns of lower quality are ignored', '', 0, 63),
     ParamSpec('response_timeout', 0.5, 'Longest wait for the answer to a request', 's', 0.01,
               10.0),
-    ParamSpec('stall_timeout', 1.0, 'No scan byte for this long is a fault (reconnect)', 's',
-              0.05, 60.0),
+    ParamSpec('stall_timeout', 1.0, 'No valid scan sample for this long is a fault (reconnect)',
+              's', 0.05, 60.0),
 ]
 
 
@@ -549,6 +554,9 @@ class RplidarSettings:
 
 class RplidarNode(SensorDriver):
     """See the module docstring."""
+
+    #: Opening the port only starts the reader: the lidar is back on its first revolution.
+    confirmed_by_open = False
 
     def __init__(self, node_name: str = 'rplidar', **kwargs: Any) -> None:
         super().__init__(node_name, sample_timeout=1.0, **kwargs)
@@ -652,17 +660,22 @@ class RplidarNode(SensorDriver):
             except Exception as err:  # noqa: BLE001 - SerialException, OSError (unplugged)
                 raise DeviceError(f'{name}: read failed (unplugged?): {err}') from err
             now = time.monotonic()
-            if not data:
+            start, quality, angle, dist = self.decoder.feed(data) if data else _NO_SAMPLES
+            if not len(start):
+                # bytes that never make a sample (noise, a wrong device) are no sign of life
                 stall = self.settings.stall_timeout
                 if now - last > stall:
-                    raise DeviceError(f'{name}: no scan data for {stall:.3g} s (stalled)')
+                    raise DeviceError(
+                        f'{name}: no scan data for {stall:.3g} s (stalled)' if not data
+                        else f'{name}: no valid scan sample for {stall:.3g} s '
+                        f'({self.decoder.skipped} bytes skipped: noise on the line?)')
                 continue
             last = now
             stamp_ns = clock.now().nanoseconds
-            start, quality, angle, dist = self.decoder.feed(data)
             if self.settings.min_quality:
                 dist = np.where(quality >= self.settings.min_quality, dist, 0.0)
             for rev in self.assembler.add(start, angle, dist, stamp_ns, period_ns):
+                self.device_confirmed()  # a whole revolution: the lidar is back
                 self._publish(rev)
                 n = len(rev.angle_deg)
                 if n and rev.duration > 0.0:  # the lidar's sample period, measured

@@ -16,8 +16,9 @@ Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, u
 Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
 under the same registered name, opens), ``corrupt(n)`` (the next n samples with S == !S),
 ``truncate(n)`` (the next n samples cut to 3 bytes), ``stall(True)`` (silent: no answer, no
-sample), ``model`` (GET_INFO reports another model, e.g. ``0x61`` an S-series), ``health``
-(GET_HEALTH reports an error; a RESET clears it unless ``health_sticky``).
+sample), ``noise(True)`` (random bytes instead of samples), ``model`` (GET_INFO reports
+another model, e.g. ``0x61`` an S-series), ``health`` (GET_HEALTH reports an error; a RESET
+clears it unless ``health_sticky``).
 
 A pty carries no modem lines: the emulator cannot see DTR, so its motor always "runs"; the
 driver's DTR calls are tested on its pyserial object instead.
@@ -122,6 +123,8 @@ class RplidarEmulator:
         self._corrupt = 0
         self._truncate = 0
         self._stalled = False
+        self._noise = False
+        self._rng = np.random.default_rng(0)
         self._lock = threading.Lock()
         self._master = self._slave = -1
         self._thread: threading.Thread | None = None
@@ -190,6 +193,10 @@ class RplidarEmulator:
     def stall(self, on: bool) -> None:
         """Go silent (no answers, no samples) or speak again."""
         self._stalled = on
+
+    def noise(self, on: bool) -> None:
+        """Stream random bytes instead of samples while scanning (or samples again)."""
+        self._noise = on
 
     def set_pose(self, x: float, y: float, psi: float) -> None:
         """Set the vessel's pose in odom [m, m, rad] (from the simulator)."""
@@ -304,6 +311,10 @@ class RplidarEmulator:
         n = min(due - self._scan_index, 400)
         if n <= 0:
             return
+        if self._noise:
+            self._scan_index += n
+            self._send(self._rng.integers(0, 256, 5 * n, dtype=np.uint8).tobytes())
+            return
         per_rev = max(1, round(self.sample_rate / self.rotation_hz))
         j = np.arange(self._scan_index, self._scan_index + n)
         rev, i = j // per_rev, j % per_rev
@@ -393,7 +404,11 @@ class RplidarEmulatorNode(EnbarrNode):
         self.poses = 0
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Open the pty (the device is plugged in), then start the sources."""
         self.emulator.start()
+        super().start()
 
     def _apply(self, s: RplidarEmulatorSettings) -> None:
         self.settings = s
@@ -415,7 +430,7 @@ class RplidarEmulatorNode(EnbarrNode):
 
     def _report(self) -> None:
         e = self.emulator
-        self.publish_diagnostics(OK, f'serving {e.path}' if e.path else 'unplugged', {
+        self.publish_diagnostics(OK, f'serving {e.path}' if e.path else 'not plugged in', {
             'path': e.path or '', 'commands': ' '.join(f'{k}={v}' for k, v in
                                                        sorted(e.commands.items())),
             'bad_requests': e.bad_requests, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out,

@@ -419,7 +419,11 @@ class QtmEmulatorNode(EnbarrNode):
         self.poses = 0
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Listen on loopback (QTM is up), then start the sources."""
         self.emulator.start()
+        super().start()
 
     def _apply(self, s: QtmEmulatorSettings) -> None:
         self.settings = s
@@ -438,7 +442,8 @@ class QtmEmulatorNode(EnbarrNode):
 
     def _report(self) -> None:
         e = self.emulator
-        self.publish_diagnostics(OK, f'serving tcp://{e.address[0]}:{e.address[1]}', {
+        where = f'serving tcp://{e.address[0]}:{e.address[1]}' if e.address else 'not started'
+        self.publish_diagnostics(OK, where, {
             'connections': e.connections, 'open': len(e._writers),
             'commands': ' '.join(f'{k}={v}' for k, v in sorted(e.commands.items())),
             'frames_sent': e.frames_sent, 'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in,

@@ -34,7 +34,8 @@ Faults: a body QTM does not track (NaN) is counted (``lost``) and not published,
 frame number are dropped and counted (``out_of_order``); a refused connection, a refused
 version, a lost connection or no frame for ``stall_timeout`` are device faults (reconnect
 with backoff); a ``body`` missing from QTM's 6D parameters is a fault that names it and
-lists the known bodies.
+lists the known bodies. Starting the session thread proves nothing: QTM is back, and the
+retry delay starts over, when its first data packet arrives.
 """
 
 from __future__ import annotations
@@ -272,6 +273,9 @@ class QualisysSettings:
 class QualisysNode(SensorDriver):
     """See the module docstring."""
 
+    #: Opening only starts the session thread: QTM is back when its first data packet comes.
+    confirmed_by_open = False
+
     def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.settings: QualisysSettings
@@ -383,6 +387,7 @@ class QualisysNode(SensorDriver):
         """One data packet (on the session thread): publish the body's pose."""
         stamp = self.now_ns()
         self._last_packet = time.monotonic()
+        self.device_confirmed()  # QTM streams (tracking the body or not): it is back
         number = packet.framenumber
         if self._last_frame is not None and number <= self._last_frame:
             self.out_of_order += 1

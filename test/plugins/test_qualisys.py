@@ -9,11 +9,13 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import threading
 
 import numpy as np
 import pytest
 from qtm_rt.packet import QRTPacket
 from rclpy.parameter import Parameter
+from support.devices import free_tcp_port, record_delays, statuses, values
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import odometry_msg
 
@@ -22,6 +24,7 @@ from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
+from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.mocap.qtm_emulator import QtmEmulator, QtmEmulatorNode
 from enbarr_plugins.mocap.qualisys import (
@@ -136,6 +139,7 @@ FAST = [Parameter('reconnect.initial_delay', value=0.05),
 def mocap_pair(context, executor, name='default', body='saucer', **driver):
     emu = add(executor, QtmEmulatorNode(node_name=f'qtm_{name}', context=context,
                                         parameter_overrides=[Parameter('name', value=name)]))
+    emu.start()
     mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
         Parameter('host', value=f'emulated:{name}'), Parameter('body', value=body), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
@@ -266,8 +270,57 @@ def test_absent_at_start_then_started(context, executor, spin):
     assert spin(executor, lambda: mocap.faults >= 1, TIMEOUT)
     assert "no tcp emulator named 'late'" in mocap.last_fault
     add(executor, QtmEmulatorNode(node_name='qtm_late', context=context,
-                                  parameter_overrides=[Parameter('name', value='late')]))
+                                  parameter_overrides=[Parameter('name', value='late')])).start()
     assert spin(executor, lambda: mocap.samples >= 3, TIMEOUT), mocap.last_fault
+
+
+def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executor, spin,
+                                                                monkeypatch):
+    """``bringup --check`` builds every node: no connection to QTM, no server, until start."""
+    import qtm_rt
+    connects: list[tuple[str, int]] = []
+    real_connect = qtm_rt.connect
+    monkeypatch.setattr(qtm_rt, 'connect', lambda host, port, **kw: connects.append(
+        (host, port)) or real_connect(host, port, **kw))
+    emu = add(executor, QtmEmulatorNode(node_name='qtm_quiet', context=context,
+                                        parameter_overrides=[Parameter('name', value='q')]))
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value='emulated:q'), Parameter('body', value='saucer'), *FAST]))
+    assert emu.emulator.address is None and connects == [] and mocap.state == 'closed'
+    with pytest.raises(DeviceError, match="no tcp emulator named 'q'"):
+        emulation.lookup('tcp', 'emulated:q')             # QTM is not up
+    assert not any(t.name in ('mocap_qtm', 'qtm_emulator') for t in threading.enumerate())
+    emu.start()
+    mocap.start()
+    assert spin(executor, lambda: mocap.samples >= 1, TIMEOUT), mocap.last_fault
+    assert connects == [emu.emulator.address] and emu.emulator.connections == 1
+    assert mocap.confirmed and mocap._backoff.delay == 0.05
+
+
+def test_a_dead_server_backs_off_until_qtm_answers(context, executor, spin):
+    """Nothing listens: every open starts a session thread that fails. The server was never
+    back, so the retry delay doubles to its maximum and /diagnostics never says OK; once QTM
+    listens on that port, its first frame confirms it and the delay starts over."""
+    port = free_tcp_port()
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value=f'127.0.0.1:{port}'), Parameter('body', value='saucer'),
+        *FAST]))
+    delays = record_delays(mocap)
+    seen = statuses(context, executor, 'mocap')
+    mocap.start()
+    assert spin(executor, lambda: len(delays) >= 4, 3 * TIMEOUT), mocap.last_fault
+    assert delays[:4] == [0.05, 0.1, 0.2, 0.2]
+    assert f'127.0.0.1:{port}: cannot connect' in mocap.last_fault
+    assert not mocap.confirmed and seen
+    assert all(s.level != b'\x00' and values(s)['confirmed'] == 'False' for s in seen)
+    emu = QtmEmulator()
+    emu.start(port)
+    try:
+        assert spin(executor, lambda: mocap.samples >= 3, TIMEOUT), mocap.last_fault
+        assert mocap.confirmed and mocap._backoff.delay == 0.05
+        assert mocap._backoff.next_ns is None
+    finally:
+        emu.stop()
 
 
 def test_bad_parameters_are_named(context):

@@ -7,6 +7,7 @@ document (not from the code under test); node tests run the driver on the emulat
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -14,11 +15,13 @@ import pytest
 from rclpy.parameter import Parameter
 import serial
 from sensor_msgs.msg import LaserScan
+from support.devices import NoisyPort, record_delays, statuses, values
 from support.nodes import add, probe, TIMEOUT
 
 from enbarr_core.bringup.cli import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
+from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.lidar import rplidar
 from enbarr_plugins.lidar.rplidar import (
@@ -163,6 +166,7 @@ FAST = [Parameter('reconnect.initial_delay', value=0.05),
 def lidar_pair(context, executor, name='default', **driver):
     emu = add(executor, RplidarEmulatorNode(node_name=f'emu_{name}', context=context,
                                             parameter_overrides=[Parameter('name', value=name)]))
+    emu.start()
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value=f'emulated:{name}'), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
@@ -263,6 +267,7 @@ def test_absent_at_start_then_plugged_in(context, executor, spin):
     assert 'no serial emulator named' in error.message
     emu = add(executor, RplidarEmulatorNode(node_name='emu_late', context=context,
                                             parameter_overrides=[Parameter('name', value='late')]))
+    emu.start()
     assert spin(executor, lambda: lidar.revolutions >= 2, TIMEOUT), lidar.last_fault
     assert lidar.connected and emu.emulator.commands['SCAN'] >= 1
 
@@ -316,6 +321,49 @@ def test_wrong_identity_and_health_error(context, executor, spin):
     e.unplug()
     e.replug()
     assert spin(executor, lambda: 'persists after RESET' in lidar.last_fault, TIMEOUT)
+
+
+def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executor, spin,
+                                                                monkeypatch):
+    """``bringup --check`` builds every node: no port opened, no pty made, until start."""
+    opened: list[str] = []
+    real_open = rplidar.open_serial
+    monkeypatch.setattr(rplidar, 'open_serial',
+                        lambda path, *a, **k: opened.append(path) or real_open(path, *a, **k))
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_quiet', context=context,
+                                            parameter_overrides=[Parameter('name', value='q')]))
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='emulated:q'), *FAST]))
+    assert emu.emulator.path is None and opened == [] and lidar.state == 'closed'
+    with pytest.raises(DeviceError, match="no serial emulator named 'q'"):
+        emulation.lookup('serial', 'emulated:q')       # nothing plugged in
+    assert not any(t.name == 'rplidar_reader' for t in threading.enumerate())
+    emu.start()
+    lidar.start()
+    assert opened == [emu.emulator.path]
+    assert spin(executor, lambda: lidar.revolutions >= 1, TIMEOUT), lidar.last_fault
+    # the first revolution confirmed the device: the retry delay is back to its start
+    assert lidar.confirmed and lidar._backoff.delay == 0.05
+
+
+def test_a_port_that_only_sends_noise_backs_off(context, executor, spin):
+    """A device that opens but never answers (noise on the line) is not "back" on every
+    open: the retry delay doubles up to its maximum, /diagnostics never says OK."""
+    port = NoisyPort()
+    try:
+        lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+            Parameter('port', value=port.path), Parameter('response_timeout', value=0.1),
+            *FAST]))
+        delays = record_delays(lidar)
+        seen = statuses(context, executor, 'rplidar')
+        lidar.start()
+        assert spin(executor, lambda: len(delays) >= 4, 3 * TIMEOUT), lidar.last_fault
+        assert delays[:4] == [0.05, 0.1, 0.2, 0.2]
+        assert 'no answer to GET_INFO' in lidar.last_fault and port.path in lidar.last_fault
+        assert not lidar.confirmed and seen
+        assert all(s.level != b'\x00' and values(s)['confirmed'] == 'False' for s in seen)
+    finally:
+        port.close()
 
 
 def test_bad_parameters_are_named(context):
