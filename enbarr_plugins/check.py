@@ -20,9 +20,9 @@ CHECKS: dict[str, str] = {
     'lsm9ds1': 'enbarr_plugins.imu.lsm9ds1:check_device',
     'fxos8700': 'enbarr_plugins.imu.fxos8700:check_device',
     'arduino': 'enbarr_plugins.arduino.link:check_device',
-    'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
-    'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
-    'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
+    'rplidar': 'enbarr_plugins.lidar.check:check_device',
+    'camera': 'enbarr_plugins.camera.check:check_device',
+    'qualisys': 'enbarr_plugins.mocap.check:check_device',
     'ds4': 'enbarr_plugins.joystick.ds4_evdev:check_device',
     'gpio': 'enbarr_plugins.io.gpio_lights:check_device',
 }

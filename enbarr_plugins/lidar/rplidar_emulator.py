@@ -3,8 +3,9 @@
 ``RplidarEmulator`` serves the master side of a pty (``os.openpty``, raw) on its own thread;
 a driver opens the slave path with pyserial exactly like ``/dev/ttyUSB0``. It answers STOP,
 RESET, SCAN, GET_INFO and GET_HEALTH with the descriptors and payloads of the Slamtec
-protocol document (see ``enbarr_plugins.lidar.rplidar`` for the layout and its sources): an
-A1M8 (model ``0x18``), firmware 1.29, hardware 7; SCAN streams 5-byte samples at
+protocol document (see ``enbarr_plugins.lidar.rplidar_protocol`` for the layout and its
+sources; this module keeps its own copy of the bytes): an A1M8 (model ``0x18``), firmware
+1.29, hardware 7; SCAN streams 5-byte samples at
 ``sample_rate`` (2000 samples/s, the A1's legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so
 about 364 samples a revolution), the start flag on the first sample of each revolution.
 
@@ -49,13 +50,47 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.lidar.rplidar import (
-    ANS_TYPE_DEVHEALTH, ANS_TYPE_DEVINFO, ANS_TYPE_MEASUREMENT, CMD_GET_HEALTH, CMD_GET_INFO,
-    CMD_RESET, CMD_SCAN, CMD_STOP, CMDFLAG_HAS_PAYLOAD, encode_descriptor, encode_sample,
-    MODE_MULTI, MODE_SINGLE, Mount, RANGE_MAX, RANGE_MIN, STATUS_ERROR, STATUS_OK, SYNC)
+from enbarr_plugins.lidar.scan import Mount
 
-#: FORCE_SCAN (answered like SCAN).
-CMD_FORCE_SCAN = 0x21
+# The emulator's own copy of the bytes, typed from Slamtec's "RPLIDAR Interface Protocol and
+# Application Notes" (A1 & A2, rev 1.1) and the SDK's sl_lidar_cmd.h / sl_lidar_protocol.h,
+# not imported from the driver's protocol module: a wrong constant there must meet a device
+# that speaks the document. test_rplidar_protocol pins both to the document's numbers.
+SYNC = 0xA5                 # request and descriptor start byte
+ANS_SYNC = 0x5A             # second descriptor byte
+CMDFLAG_HAS_PAYLOAD = 0x80  # requests with SIZE, PAYLOAD and CHECKSUM
+CMD_STOP = 0x25
+CMD_SCAN = 0x20
+CMD_FORCE_SCAN = 0x21       # answered like SCAN
+CMD_RESET = 0x40
+CMD_GET_INFO = 0x50
+CMD_GET_HEALTH = 0x52
+ANS_TYPE_DEVINFO = 0x04
+ANS_TYPE_DEVHEALTH = 0x06
+ANS_TYPE_MEASUREMENT = 0x81
+MODE_SINGLE, MODE_MULTI = 0, 1  # send mode, the descriptor's top two bits
+STATUS_OK, STATUS_ERROR = 0, 2
+#: A1M8 range [m] (Slamtec, "RPLIDAR A1 Introduction and Datasheet"): no return outside it.
+RANGE_MIN, RANGE_MAX = 0.15, 12.0
+
+
+def encode_descriptor(length: int, mode: int, dtype: int) -> bytes:
+    """Encode a response descriptor: A5 5A, u32 length | mode << 30, data type (7 bytes)."""
+    return bytes((SYNC, ANS_SYNC)) + struct.pack('<IB', (length & 0x3FFFFFFF) | (mode << 30),
+                                                  dtype)
+
+
+def encode_sample(start: bool, quality: int, angle_deg: float, distance_mm: float) -> bytes:
+    """Encode one SCAN sample (5 bytes).
+
+    quality << 2 | !S << 1 | S, then angle_q6 << 1 | C (the check bit C always 1), then
+    distance_q2, little-endian.
+    """
+    s = 1 if start else 0
+    angle_q6 = int(round(angle_deg * 64.0)) & 0x7FFF
+    dist_q2 = min(0xFFFF, max(0, int(round(distance_mm * 4.0))))
+    return struct.pack('<BHH', (quality & 0x3F) << 2 | (s ^ 1) << 1 | s,
+                       angle_q6 << 1 | 1, dist_q2)
 
 
 @dataclass(frozen=True)

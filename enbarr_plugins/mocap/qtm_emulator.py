@@ -3,9 +3,9 @@
 ``QtmEmulator`` runs an asyncio TCP server on its own thread (127.0.0.1, an ephemeral port)
 and speaks the QTM RT protocol as documented by Qualisys ("QTM Real-time Server Protocol
 Documentation") and as the ``qtm-rt`` client expects it (``qtm_rt/protocol.py``,
-``qtm_rt/receiver.py``, ``qtm_rt/packet.py``): every packet is a little-endian header (u32
-size including the header, u32 type: 0 error, 1 command, 2 XML, 3 data, 4 no more data,
-6 event) and its body, strings NUL-terminated. On a connection it sends the command
+``qtm_rt/receiver.py``, ``qtm_rt/packet.py``), framed by ``qtm_protocol``: every packet is
+a little-endian header (u32 size including the header, u32 type) and its body, strings
+NUL-terminated. On a connection it sends the command
 "QTM RT Interface connected"; it answers
 
 - ``Version 1.xx`` with "Version set to 1.xx" (1.8 to 1.25; an error packet otherwise, and
@@ -44,7 +44,6 @@ import asyncio
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
-import struct
 import threading
 import time
 from typing import Any
@@ -57,25 +56,13 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.mocap.qualisys import QtmFrame
+from enbarr_plugins.mocap.qtm_frame import QtmFrame
+from enbarr_plugins.mocap.qtm_protocol import (
+    COMPONENT_6D, COMPONENT_6D_EULER, COMPONENT_HEADER, DATA_HEADER, EVENT_CONNECTED, HEADER,
+    packet, PACKET_COMMAND, PACKET_DATA, PACKET_ERROR, PACKET_EVENT, PACKET_XML, SIX_D_BODY,
+    SIX_D_EULER_BODY, SIX_D_HEADER, text_packet, WELCOME)
 
-PACKET_ERROR, PACKET_COMMAND, PACKET_XML, PACKET_DATA, PACKET_NO_MORE_DATA = 0, 1, 2, 3, 4
-PACKET_EVENT = 6
-COMPONENT_6D, COMPONENT_6D_EULER = 5, 6
-EVENT_CONNECTED = 1
-WELCOME = 'QTM RT Interface connected'
 VERSIONS = ((1, 8), (1, 25))  # oldest, newest served
-_HEADER = struct.Struct('<II')
-
-
-def packet(ptype: int, body: bytes) -> bytes:
-    """One QTM RT packet: header (size including itself, type) and body."""
-    return _HEADER.pack(_HEADER.size + len(body), ptype) + body
-
-
-def text_packet(ptype: int, text: str) -> bytes:
-    """Encode a command, error or XML packet: the text NUL-terminated."""
-    return packet(ptype, text.encode() + b'\0')
 
 
 def euler_deg(r: np.ndarray) -> tuple[float, float, float]:
@@ -224,10 +211,10 @@ class QtmEmulator:
         self._write(writer, text_packet(PACKET_COMMAND, WELCOME))
         try:
             while True:
-                size, ptype = _HEADER.unpack(await reader.readexactly(_HEADER.size))
-                if size < _HEADER.size or size > 1 << 20:
+                size, ptype = HEADER.unpack(await reader.readexactly(HEADER.size))
+                if size < HEADER.size or size > 1 << 20:
                     break  # not QTM RT framing: hang up as QTM would
-                body = await reader.readexactly(size - _HEADER.size)
+                body = await reader.readexactly(size - HEADER.size)
                 self.bytes_in += size
                 if ptype == PACKET_COMMAND:
                     self._command(body.rstrip(b'\0').decode(errors='replace'), writer, state)
@@ -354,17 +341,17 @@ class QtmEmulator:
             else:
                 p, r = pos_mm, r_qtm
             if component == COMPONENT_6D:
-                bodies += struct.pack('<3f9f', *p, *r.T.reshape(9))  # column-major
+                bodies += SIX_D_BODY.pack(*p, *r.T.reshape(9))  # column-major
             else:
                 angles = (math.nan,) * 3 if not np.isfinite(r).all() else euler_deg(r)
-                bodies += struct.pack('<3f3f', *p, *angles)
-        comp = struct.pack('<ihh', len(self.bodies), 0, 0) + bodies
+                bodies += SIX_D_EULER_BODY.pack(*p, *angles)
+        comp = SIX_D_HEADER.pack(len(self.bodies), 0, 0) + bodies
         number = self.frame_number()
         if self._old_frame:
             self._old_frame = False
             number = max(0, number - 10)
-        body = (struct.pack('<qII', int((time.monotonic() - self._t0) * 1e6), number, 1)
-                + struct.pack('<II', 8 + len(comp), component) + comp)
+        body = (DATA_HEADER.pack(int((time.monotonic() - self._t0) * 1e6), number, 1)
+                + COMPONENT_HEADER.pack(COMPONENT_HEADER.size + len(comp), component) + comp)
         return packet(PACKET_DATA, body)
 
 

@@ -26,9 +26,11 @@ from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.mocap.check import check_device
 from enbarr_plugins.mocap.qtm_emulator import QtmEmulator, QtmEmulatorNode
-from enbarr_plugins.mocap.qualisys import (
-    body_index, body_names, check_device, QtmFrame, QualisysNode, rotmat_to_quat)
+from enbarr_plugins.mocap.qtm_frame import QtmFrame
+from enbarr_plugins.mocap.qtm_protocol import body_names
+from enbarr_plugins.mocap.qualisys import body_index, QualisysNode, rotmat_to_quat
 
 # -- unit ---------------------------------------------------------------------------------
 

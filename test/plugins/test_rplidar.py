@@ -1,7 +1,8 @@
-"""RPLidar A1 driver against its pty emulator: the bytes, the scans, every fault, resume.
+"""RPLidar A1 driver against its pty emulator: the scans, every fault, resume, the check.
 
-Unit tests check the protocol against bytes written by hand from the Slamtec protocol
-document (not from the code under test); node tests run the driver on the emulator's pty.
+The protocol itself is held to the documents in test_rplidar_protocol.py, the revolution and
+its rays in test_lidar_scan.py; here the emulator's answers are checked against bytes
+written by hand from the Slamtec protocol document, and the driver runs on its pty.
 """
 
 from __future__ import annotations
@@ -24,87 +25,12 @@ from enbarr_interfaces import topics
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.lidar import rplidar
-from enbarr_plugins.lidar.rplidar import (
-    bin_revolution, check_device, decode_descriptor, Descriptor, encode_descriptor, Mount,
-    request, RevolutionAssembler, RplidarNode, ScanDecoder)
+from enbarr_plugins.lidar.check import check_device
+from enbarr_plugins.lidar.rplidar import RplidarNode
+from enbarr_plugins.lidar.rplidar_protocol import ScanDecoder
 from enbarr_plugins.lidar.rplidar_emulator import Basin, RplidarEmulator, RplidarEmulatorNode
 
-# -- unit: the protocol, from the document's bytes --------------------------------------------
-
-
-def test_requests_and_descriptors_are_the_documented_bytes():
-    assert request(0x50) == bytes.fromhex('a5 50')  # GET_INFO: no payload, no checksum
-    assert request(0x25) == bytes.fromhex('a5 25')
-    # EXPRESS_SCAN with 5 zero bytes: checksum = A5 ^ 82 ^ 05 ^ 0 ... = 0x22
-    assert request(0x82, bytes(5)) == bytes.fromhex('a5 82 05 00 00 00 00 00 22')
-    assert encode_descriptor(5, 1, 0x81) == bytes.fromhex('a5 5a 05 00 00 40 81')
-    assert encode_descriptor(20, 0, 0x04) == bytes.fromhex('a5 5a 14 00 00 00 04')
-    assert decode_descriptor(bytes.fromhex('a5 5a 03 00 00 00 06')) == Descriptor(3, 0, 6)
-    with pytest.raises(ValueError, match='not a response descriptor'):
-        decode_descriptor(bytes.fromhex('a5 a5 03 00 00 00 06'))
-
-
-def test_a_scan_sample_decodes_as_the_document_says():
-    # start, quality 47, 90 deg (q6 5760), 1000 mm (q2 4000): BD 01 2D A0 0F
-    sample = bytes.fromhex('bd 01 2d a0 0f')
-    assert rplidar.encode_sample(True, 47, 90.0, 1000.0) == sample
-    start, quality, angle, dist = ScanDecoder().feed(sample)
-    assert start.tolist() == [True] and quality.tolist() == [47]
-    assert angle.tolist() == [90.0] and dist.tolist() == [1000.0]
-
-
-def test_the_decoder_resynchronises_after_garbage_corruption_and_truncation():
-    good = [rplidar.encode_sample(k == 0, 30, 10.0 * k, 500.0 + k) for k in range(20)]
-    broken = bytes((good[5][0] & 0xFC,)) + good[5][1:]   # S == !S
-    stream = (b'\x00\x00' + b''.join(good[:5]) + broken + b''.join(good[6:10])
-              + good[10][:3] + b''.join(good[11:]))        # a truncated sample
-    dec = ScanDecoder()
-    out = [dec.feed(stream[i:i + 7]) for i in range(0, len(stream), 7)]  # any split
-    dist = np.concatenate([o[3] for o in out])
-    assert dec.sync_losses >= 3 and dec.skipped >= 2
-    # every good sample is found again after each loss; the truncated sample's header is
-    # intact, so it takes two bytes of the next one (the protocol has no checksum): one
-    # bogus distance, one sample lost, then in step again
-    d = dist.tolist()
-    assert d[:9] == [500.0 + k for k in (*range(5), *range(6, 10))]
-    assert d[10:] == [500.0 + k for k in range(12, 20)]
-
-
-def test_mount_and_flip_put_returns_in_base_link():
-    # one return at the lidar's 0 deg, 1 m; lidar 0.5 m ahead: 1.5 m straight ahead
-    r = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(0.5, 0.0, 0.0), 360)
-    assert r[180] == pytest.approx(1.5) and np.isinf(np.delete(r, 180)).all()
-    # 90 deg clockwise is the right side (-y) upright, the left side (+y) upside down
-    up = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(), 360)
-    flipped = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(flip=True), 360)
-    assert up[90] == pytest.approx(2.0) and flipped[270] == pytest.approx(2.0)
-    # yaw: the 0 deg mark pointing left
-    left = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(yaw=math.pi / 2), 360)
-    assert left[270] == pytest.approx(1.0)
-    # no return (0) stays inf; the nearest of two returns in one ray wins
-    r = bin_revolution(np.array([0.0, 0.2, 0.1]), np.array([0.0, 3000.0, 2000.0]), Mount(), 360)
-    assert r[180] == pytest.approx(2.0)
-
-
-def test_revolutions_start_at_a_start_flag():
-    asm = RevolutionAssembler(min_samples=3)
-    a = np.arange(6) * 60.0
-    assert asm.add(np.array([0, 0, 1, 0, 0, 0], bool), a, a + 1, 100) == []  # before: dropped
-    revs = asm.add(np.array([0, 1, 0], bool), a[:3], a[:3] + 1, 200)
-    assert len(revs) == 1 and revs[0].stamp_ns == 100
-    assert revs[0].angle_deg.tolist() == [120.0, 180.0, 240.0, 300.0, 0.0]
-    assert revs[0].duration == pytest.approx(1e-7)
-    # a start flag too soon after the last (a stream out of step) and an angle >= 360 deg:
-    # ignored and counted
-    revs = asm.add(np.array([0, 1, 0, 0, 1], bool), np.array([10.0, 20.0, 400.0, 30.0, 40.0]),
-                   np.ones(5), 300)
-    assert len(revs) == 1 and revs[0].angle_deg.tolist() == [60.0, 120.0, 10.0]
-    assert asm.false_starts == 1 and asm.invalid == 1
-    # a start read with 3 samples after it was taken 3 sample periods before the read
-    revs = asm.add(np.array([0, 0, 0, 1, 0, 0, 0], bool), np.zeros(7), np.ones(7), 10_000, 1000)
-    assert revs[0].stamp_ns == 300 and revs[0].duration == pytest.approx((7000 - 300) * 1e-9)
-    revs = asm.add(np.array([1, 0], bool), np.zeros(2), np.ones(2), 20_000, 1000)
-    assert revs[0].stamp_ns == 7000 and revs[0].duration == pytest.approx(12_000e-9)
+# -- unit: the emulator's bytes, from the document -------------------------------------------
 
 
 def test_the_emulator_answers_with_the_documented_bytes():

@@ -22,6 +22,7 @@ from enbarr_interfaces import topics
 from enbarr_plugins import emulation
 from enbarr_plugins.camera import opencv_camera
 from enbarr_plugins.camera.calibration import load_calibration
+from enbarr_plugins.camera.check import check_device
 from enbarr_plugins.camera.emulator import CameraEmulatorNode
 from enbarr_plugins.camera.pattern_video import read_counter
 from enbarr_plugins.camera.opencv_camera import CameraNode
@@ -66,7 +67,7 @@ def test_a_malformed_calibration_names_file_and_key(tmp_path, change, key):
 
 
 def test_check_device_and_command_line(capsys):
-    lines = opencv_camera.check_device(CheckTarget(device='emulated'))
+    lines = check_device(CheckTarget(device='emulated'))
     assert lines == ['camera emulated: 640x480 at 15 fps (FFMPEG)', 'one frame: 640x480 bgr8']
     assert cli.main(['check-device', 'camera', '--device', 'emulated']) == 0
     assert '640x480' in capsys.readouterr().out
@@ -75,7 +76,7 @@ def test_check_device_and_command_line(capsys):
     assert err == ['enbarr check-device: error: camera /nonexistent/video.avi: no such video '
                    'file /nonexistent/video.avi']
     with pytest.raises(DeviceError, match='/dev/video9: cannot open'):
-        opencv_camera.check_device(CheckTarget(device='/dev/video9'))
+        check_device(CheckTarget(device='/dev/video9'))
 
 
 class Rig:
@@ -205,7 +206,7 @@ def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executo
     start."""
     captures: list[Any] = []
     real_capture = cv2.VideoCapture
-    monkeypatch.setattr(opencv_camera.cv2, 'VideoCapture',
+    monkeypatch.setattr(cv2, 'VideoCapture',
                         lambda *a: captures.append(a[0]) or real_capture(*a))
     emulator = CameraEmulatorNode(context=context, parameter_overrides=[
         Parameter('name', value='quiet'), Parameter('width', value=320),
