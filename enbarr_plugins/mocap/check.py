@@ -8,8 +8,11 @@ emulator.
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 from typing import Any
+
+import qtm_rt
 
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
@@ -17,7 +20,7 @@ from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.mocap.qtm_emulator import QtmEmulator
 from enbarr_plugins.mocap.qtm_protocol import DEFAULT_PORT
 from enbarr_plugins.mocap.qualisys import (
-    body_index, open_session, parse_host, pose_of, read_bodies, tcp_address)
+    body_index, open_session, parse_host, pose_of, qtm_said, read_bodies, tcp_address)
 
 #: The protocol version the check negotiates.
 VERSION = '1.25'
@@ -33,9 +36,14 @@ def check_device(target: CheckTarget) -> list[str]:
         emulator = QtmEmulator()
         host, port = emulator.start()
     port = port or DEFAULT_PORT
+    # qtm-rt logs its own lines (connected, disconnected, the error it met); the check says
+    # what went wrong in its one line, as every check-device does
+    qtm_log = logging.getLogger('qtm_rt')
+    propagate, qtm_log.propagate = qtm_log.propagate, False
     try:
         return asyncio.run(_check(host, port, target))
     finally:
+        qtm_log.propagate = propagate
         if emulator is not None:
             emulator.stop()
 
@@ -50,7 +58,10 @@ async def _check(host: str, port: int, target: CheckTarget) -> list[str]:
         try:
             packet: Any = await conn.get_current_frame(components=['6d'])
         except asyncio.TimeoutError as err:
-            raise DeviceError(f'{where}: no answer to GetCurrentFrame 6D') from err
+            raise DeviceError(f'{where}: no answer to GetCurrentFrame 6D (is QTM '
+                              'measuring?)') from err
+        except qtm_rt.QRTCommandException as err:
+            raise DeviceError(f'{where}: GetCurrentFrame 6D refused: {qtm_said(err)}') from err
     finally:
         conn.disconnect()
     lines = [f'{where}: QTM RT protocol {VERSION}, 6D bodies: {", ".join(names)}']

@@ -31,7 +31,7 @@ Faults: ``refuse(True)`` (the server stops listening: connections are refused), 
 (every connection is closed), ``stall(True)`` (no data packet, the connection open),
 ``nan(True)`` (the tracked body not tracked: NaN), ``wrong_version`` (every Version refused),
 ``bodies`` without the driver's body (an unknown body), ``send_old_frame()`` (the next packet
-repeats an older frame number).
+repeats an older frame number), ``refusals`` (a command answered with an error packet).
 
 ``QtmEmulatorNode`` wraps it for profiles: registers its (host, port) as the ``tcp``
 emulator ``name`` (``host: emulated`` in the driver), follows ``sim/odometry`` and reports
@@ -95,6 +95,8 @@ class QtmEmulator:
         self.bytes_out = 0
         # faults
         self.wrong_version = False
+        #: command name (lower case) -> the error text QTM answers it with instead
+        self.refusals: dict[str, str] = {}
         self._stalled = False
         self._nan = False
         self._old_frame = False
@@ -243,7 +245,9 @@ class QtmEmulator:
         name = words[0].lower() if words else ''
         self._count(name or '(empty)')
         args = [w.lower() for w in words[1:]]
-        if name == 'version':
+        if name in self.refusals:
+            self._error(writer, self.refusals[name])
+        elif name == 'version':
             if not args:
                 major, minor = state['version']
                 self._write(writer, text_packet(PACKET_COMMAND, f'Version is {major}.{minor}'))

@@ -99,6 +99,14 @@ class _LastQtmError(logging.Handler):
         self.last = record.getMessage()
 
 
+def qtm_said(err: BaseException) -> str:
+    """Return QTM's words of an error packet (qtm-rt's ``QRTCommandException`` holds bytes)."""
+    value = getattr(err, 'value', None)
+    if isinstance(value, bytes):
+        return value.rstrip(b'\0').decode(errors='replace')
+    return str(value if value is not None else err)
+
+
 def tcp_address(host: str, port: int) -> str:
     """``tcp://HOST:PORT``: how faults name the QTM server."""
     return f'tcp://{host}:{port}'
@@ -134,7 +142,7 @@ async def read_bodies(conn: Any, where: str) -> list[str]:
     except asyncio.TimeoutError as err:
         raise DeviceError(f'{where}: no answer to GetParameters 6D') from err
     except qtm_rt.QRTCommandException as err:
-        raise DeviceError(f'{where}: GetParameters 6D refused: {err}') from err
+        raise DeviceError(f'{where}: GetParameters 6D refused: {qtm_said(err)}') from err
     try:
         return body_names(xml_text)
     except ET.ParseError as err:
@@ -311,7 +319,7 @@ class QualisysNode(SensorDriver):
                 raise DeviceError(f'{where}: no frame within {s.timeout} s of StreamFrames '
                                   '(is QTM measuring?)') from err
             except qtm_rt.QRTCommandException as err:
-                raise DeviceError(f'{where}: StreamFrames refused: {err}') from err
+                raise DeviceError(f'{where}: StreamFrames refused: {qtm_said(err)}') from err
             self.state = 'streaming'
             self.get_logger().info(f'{where}: streaming {s.body!r} (6D bodies: '
                                    f'{", ".join(self.bodies)})')

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from qtm_rt.packet import QRTPacket
 from rclpy.parameter import Parameter
+from support.cli import enbarr, refused
 from support.devices import free_tcp_port, record_delays, statuses, values
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import odometry_msg
@@ -131,6 +132,40 @@ def test_check_device_command_line(capsys):
     assert main(['check-device', 'qualisys', '--host', '127.0.0.1:1']) == 2
     err = capsys.readouterr().err.strip()
     assert '127.0.0.1:1' in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize('command, refused', [('getcurrentframe', 'GetCurrentFrame 6D'),
+                                               ('getparameters', 'GetParameters 6D')])
+def test_check_device_when_qtm_answers_with_an_error(capsys, command, refused):
+    """A QTM that answers a command with an error packet: one line naming the command and
+    QTM's words, exit 2 (not a traceback)."""
+    emu = QtmEmulator()
+    host, port = emu.start()
+    emu.refusals[command] = 'emulated refusal'
+    try:
+        with pytest.raises(DeviceError, match=rf'{refused} refused: emulated refusal$'):
+            check_device(CheckTarget(host=f'{host}:{port}'))
+        assert main(['check-device', 'qualisys', '--host', f'{host}:{port}']) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f'enbarr check-device: error: tcp://{host}:{port}: {refused} refused: '
+                       'emulated refusal']
+    finally:
+        emu.stop()
+
+
+@pytest.mark.e2e
+def test_the_check_device_command_when_qtm_answers_with_an_error():
+    """The real command, a process of its own, against a QTM that refuses GetCurrentFrame."""
+    emu = QtmEmulator()
+    host, port = emu.start()
+    emu.refusals['getcurrentframe'] = 'emulated refusal'
+    try:
+        line = refused(enbarr('check-device', 'qualisys', '--host', f'{host}:{port}'),
+                       'check-device')
+    finally:
+        emu.stop()
+    assert line.endswith(f'tcp://{host}:{port}: GetCurrentFrame 6D refused: emulated refusal')
+    assert emu.commands.get('getcurrentframe') == 1
 
 
 # -- node tests -----------------------------------------------------------------------------
