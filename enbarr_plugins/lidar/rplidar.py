@@ -8,14 +8,17 @@ Motor: on the A1 USB adapter the motor runs while DTR is *not* asserted (the SDK
 ``setMotorSpeed``: speed 0 -> ``setDTR(true)``, otherwise ``setDTR(false)``; pyserial
 asserts DTR on open, so the motor is off until the driver clears it).
 
-Frames: the lidar reports angles clockwise from its own 0 deg mark; ``mount`` (x, y [m], yaw
-[rad] of the 0 deg mark in ``base_link``) and ``flip`` (mounted upside down: the rotation
-looks counter-clockwise from above) put each return in ``base_link`` (FLU), and the returns
-of one revolution are binned by their bearing from the ``base_link`` origin into ``bins``
-rays of a fixed increment (the nearest return wins, ``inf`` where none). The scan's stamp is the
-node-clock time at which the revolution's first sample arrived (the read's time less one
+Frames: the scan is published in the lidar's own frame (``frame_id``, ``laser`` by default),
+as a real driver publishes it; where the lidar sits on the vessel is the frame tree's
+business (the profile's ``laser`` frame), and consumers transform the scan. The frame's x
+points along the lidar's 0 deg mark and its z up from the lidar's base, so the lidar's
+clockwise angles become counter-clockwise bearings (REP-103); mounted upside down, the frame
+is rolled by pi. The returns of one revolution are binned by bearing into ``bins`` rays of a
+fixed increment from -pi (``scan.bin_revolution``). The scan's stamp is the node-clock time
+at which the revolution's first sample (the 0 deg mark) arrived (the read's time less one
 sample period per sample read after it); ``scan_time`` the measured revolution;
-``time_increment`` is 0 (rays re-binned in the vessel frame have no order).
+``time_increment`` is 0 (the rays are binned, and the revolution starts mid-array at 0 rad
+and runs clockwise, which ``time_increment`` cannot say).
 
 Threads: ``open_device`` opens the port and starts a reader thread, which runs the start-up
 exchange (STOP, GET_INFO with the identity check, GET_HEALTH with one RESET on an error
@@ -53,7 +56,7 @@ from enbarr_plugins.lidar.rplidar_protocol import (
     DESCRIPTOR_SIZE, DeviceInfo, Health, HEALTH_SIZE, INFO_SIZE, MODE_MULTI, MODE_SINGLE,
     NO_SAMPLES, RANGE_MAX, RANGE_MIN, request, SAMPLE_PERIOD_NS, SAMPLE_SIZE, ScanDecoder,
     STATUS_ERROR, STATUS_WARNING, SYNC, ANS_SYNC)
-from enbarr_plugins.lidar.scan import bin_revolution, Mount, RevolutionAssembler
+from enbarr_plugins.lidar.scan import bin_revolution, RevolutionAssembler
 from enbarr_plugins.transport.serial_link import open_serial
 
 #: Extra wait for the first sample after SCAN [s]: the motor, started with SCAN, must reach
@@ -193,11 +196,9 @@ def resolve_port(port: str) -> str:
 SPECS = [
     ParamSpec('port', '/dev/ttyUSB0', "Serial port of the lidar's USB adapter, or emulated[:NAME]",
               read_only=True),
-    ParamSpec('mount.x', 0.0, "Lidar centre ahead of base_link's origin", 'm', -20.0, 20.0),
-    ParamSpec('mount.y', 0.0, "Lidar centre left of base_link's origin", 'm', -20.0, 20.0),
-    ParamSpec('mount.yaw', 0.0, "Direction of the lidar's 0 deg mark, CCW from base_link +x",
-              'rad', -math.pi, math.pi),
-    ParamSpec('flip', False, 'Mounted upside down (the rotation then looks CCW from above)'),
+    ParamSpec('frame_id', topics.LASER_FRAME, "The lidar's own frame, in which the scan is "
+              'published (x along its 0 deg mark, z up from its base); the frame tree places '
+              'it on the vessel', read_only=True),
     ParamSpec('bins', 360, 'Rays per revolution in the published scan (fixed increment '
               '2 pi / bins)', '', 36, 7200, read_only=True),
     ParamSpec('min_quality', 0, 'Returns of lower quality are ignored', '', 0, 63),
@@ -213,7 +214,7 @@ class RplidarSettings:
     """Settings of ``RplidarNode`` (see ``SPECS``)."""
 
     port: str
-    mount: Mount
+    frame_id: str
     bins: int
     min_quality: int
     response_timeout: float  # [s]
@@ -224,10 +225,12 @@ class RplidarSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
         if not v['port'].strip():
             raise ValueError('port: empty; a serial port such as /dev/ttyUSB0, or emulated')
-        return cls(v['port'], Mount(v['mount.x'], v['mount.y'], v['mount.yaw'],
-                                    bool(v['flip'])),
-                   int(v['bins']), int(v['min_quality']), v['response_timeout'],
-                   v['stall_timeout'])
+        frame_id = v['frame_id'].strip()
+        if not frame_id or frame_id.startswith('/') or ' ' in frame_id:
+            raise ValueError(f"frame_id: a frame name such as 'laser' (no leading '/', no "
+                             f"spaces), got {v['frame_id']!r}")
+        return cls(v['port'], frame_id, int(v['bins']), int(v['min_quality']),
+                   v['response_timeout'], v['stall_timeout'])
 
 
 class RplidarNode(SensorDriver):
@@ -365,17 +368,16 @@ class RplidarNode(SensorDriver):
         s = self.settings
         msg = LaserScan()
         convert.ns_to_stamp(rev.stamp_ns, msg.header.stamp)
-        msg.header.frame_id = topics.SCAN.frame
+        msg.header.frame_id = s.frame_id
         inc = 2.0 * math.pi / s.bins
         msg.angle_min = -math.pi
         msg.angle_increment = inc
         msg.angle_max = -math.pi + (s.bins - 1) * inc
         msg.time_increment = 0.0
         msg.scan_time = rev.duration
-        offset = math.hypot(s.mount.x, s.mount.y)
-        msg.range_min = max(0.0, RANGE_MIN - offset)
-        msg.range_max = RANGE_MAX + offset
-        msg.ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.mount, s.bins).tolist()
+        msg.range_min = RANGE_MIN
+        msg.range_max = RANGE_MAX
+        msg.ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.bins).tolist()
         self._pub.publish(msg)
         self.revolutions += 1
         self.sample_received()

@@ -10,8 +10,8 @@ sources; this module keeps its own copy of the bytes): an A1M8 (model ``0x18``),
 about 364 samples a revolution), the start flag on the first sample of each revolution.
 
 Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, usually from
-``sim/odometry``, and the mounting pose, the same convention as the driver's ``mount`` and
-``flip``) against a basin: the walls of a rectangle and circular obstacles. No return
+``sim/odometry``, and the mounting pose ``mount``/``flip``, the profile's ``laser`` frame)
+against a basin: the walls of a rectangle and circular obstacles. No return
 (distance 0, quality 0) beyond 12 m or nearer than 0.15 m.
 
 Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
@@ -50,7 +50,6 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-from enbarr_plugins.lidar.scan import Mount
 
 # The emulator's own copy of the bytes, typed from Slamtec's "RPLIDAR Interface Protocol and
 # Application Notes" (A1 & A2, rev 1.1) and the SDK's sl_lidar_cmd.h / sl_lidar_protocol.h,
@@ -91,6 +90,26 @@ def encode_sample(start: bool, quality: int, angle_deg: float, distance_mm: floa
     dist_q2 = min(0xFFFF, max(0, int(round(distance_mm * 4.0))))
     return struct.pack('<BHH', (quality & 0x3F) << 2 | (s ^ 1) << 1 | s,
                        angle_q6 << 1 | 1, dist_q2)
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where the emulated lidar sits on the vessel: its 0 deg mark's pose in ``base_link``.
+
+    x, y [m], yaw [rad]; ``flip``: mounted upside down (the rotation then looks
+    counter-clockwise from above). The same pose as the profile's ``laser`` frame: the
+    emulator measures the basin from there, the driver publishes in ``laser``.
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    flip: bool = False
+
+    def world_angles(self, angle_deg: np.ndarray) -> np.ndarray:
+        """Bearing in ``base_link`` [rad, CCW] of the lidar's clockwise angles [deg]."""
+        theta = np.radians(angle_deg)
+        return self.yaw + (theta if self.flip else -theta)
 
 
 @dataclass(frozen=True)
@@ -381,10 +400,13 @@ SPECS = [
               'x_max, y_max in odom (default: the NTNU MC-lab, 40 x 6.45 m, centred)', 'm'),
     ParamSpec('basin.circles', [0.0], 'Circular obstacles x, y, r, x, y, r, ... in odom; '
               '[0.0]: none', 'm'),
-    ParamSpec('mount.x', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
-    ParamSpec('mount.y', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
-    ParamSpec('mount.yaw', 0.0, "Lidar mount, as the driver's", 'rad', -math.pi, math.pi),
-    ParamSpec('flip', False, "Mounted upside down, as the driver's"),
+    ParamSpec('mount.x', 0.0, "Lidar centre ahead of base_link's origin (the laser frame's x)",
+              'm', -20.0, 20.0),
+    ParamSpec('mount.y', 0.0, "Lidar centre left of base_link's origin (the laser frame's y)",
+              'm', -20.0, 20.0),
+    ParamSpec('mount.yaw', 0.0, "Direction of the lidar's 0 deg mark, CCW from base_link +x "
+              "(the laser frame's yaw)", 'rad', -math.pi, math.pi),
+    ParamSpec('flip', False, 'Mounted upside down (the laser frame rolled by pi)'),
     ParamSpec('rotation_hz', 5.5, 'Rotation rate (A1: about 5.5 Hz)', 'Hz', 1.0, 15.0,
               read_only=True),
     ParamSpec('sample_rate', 2000.0, 'Samples per second (A1 SCAN: 2000)', '1/s', 100.0,

@@ -5,48 +5,36 @@ Pure numpy, no ROS: the driver calls it with what the protocol decoder cut.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 from typing import NamedTuple
 
 import numpy as np
 
 
-@dataclass(frozen=True)
-class Mount:
-    """Pose of the lidar's 0 deg mark in ``base_link``: x, y [m], yaw [rad].
+def bearing(angle_deg: np.ndarray) -> np.ndarray:
+    """Return the bearings [rad] in the lidar's frame of its clockwise angles [deg].
 
-    ``flip``: mounted upside down.
+    Counter-clockwise about the lidar's z from its 0 deg mark, in [-pi, pi).
     """
-
-    x: float = 0.0
-    y: float = 0.0
-    yaw: float = 0.0
-    flip: bool = False
-
-    def world_angles(self, angle_deg: np.ndarray) -> np.ndarray:
-        """Bearing in ``base_link`` [rad, CCW] of the lidar's clockwise angles [deg]."""
-        theta = np.radians(angle_deg)
-        return self.yaw + (theta if self.flip else -theta)
+    theta = np.radians(np.asarray(angle_deg, dtype=float))
+    return (math.pi - theta) % (2.0 * math.pi) - math.pi
 
 
-def bin_revolution(angle_deg: np.ndarray, distance_mm: np.ndarray, mount: Mount,
-                   bins: int) -> np.ndarray:
-    """Ranges [m] of ``bins`` rays from -pi, CCW, from the ``base_link`` origin (inf: none).
+def bin_revolution(angle_deg: np.ndarray, distance_mm: np.ndarray, bins: int) -> np.ndarray:
+    """Ranges [m] of ``bins`` rays from -pi, counter-clockwise, in the lidar's own frame.
 
-    Each return is placed in ``base_link`` with the mount pose, then given to the ray nearest
-    its bearing; the nearest return of a ray wins.
+    The lidar's frame (``laser``): x along its 0 deg mark, z up from its base, so that its
+    clockwise angles are counter-clockwise bearings with the sign turned (REP-103). Each
+    return goes to the ray nearest its bearing; the nearest return of a ray wins; inf where
+    none.
     """
     r = np.asarray(distance_mm, dtype=float) * 1e-3
     valid = r > 0.0
-    phi = mount.world_angles(np.asarray(angle_deg, dtype=float)[valid])
-    r = r[valid]
-    px = mount.x + r * np.cos(phi)
-    py = mount.y + r * np.sin(phi)
     inc = 2.0 * math.pi / bins
-    idx = np.rint((np.arctan2(py, px) + math.pi) / inc).astype(np.int64) % bins
+    phi = bearing(np.asarray(angle_deg, dtype=float)[valid])
+    idx = np.rint((phi + math.pi) / inc).astype(np.int64) % bins
     ranges = np.full(bins, np.inf)
-    np.minimum.at(ranges, idx, np.hypot(px, py))
+    np.minimum.at(ranges, idx, r[valid])
     return ranges
 
 

@@ -2,27 +2,27 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
-from enbarr_plugins.lidar.scan import bin_revolution, Mount, RevolutionAssembler
+from enbarr_plugins.lidar.scan import bearing, bin_revolution, RevolutionAssembler
 
 
-def test_mount_and_flip_put_returns_in_base_link():
-    # one return at the lidar's 0 deg, 1 m; lidar 0.5 m ahead: 1.5 m straight ahead
-    r = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(0.5, 0.0, 0.0), 360)
-    assert r[180] == pytest.approx(1.5) and np.isinf(np.delete(r, 180)).all()
-    # 90 deg clockwise is the right side (-y) upright, the left side (+y) upside down
-    up = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(), 360)
-    flipped = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(flip=True), 360)
-    assert up[90] == pytest.approx(2.0) and flipped[270] == pytest.approx(2.0)
-    # yaw: the 0 deg mark pointing left
-    left = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(yaw=math.pi / 2), 360)
-    assert left[270] == pytest.approx(1.0)
+def test_rays_are_in_the_lidars_own_frame():
+    """x along the 0 deg mark, z up: the lidar's clockwise angles are bearings with the sign
+    turned (REP-103); nothing of where the lidar sits on the vessel enters."""
+    r = bin_revolution(np.array([0.0]), np.array([1000.0]), 360)
+    assert r[180] == pytest.approx(1.0) and np.isinf(np.delete(r, 180)).all()  # ray 180: 0 rad
+    # 90 deg clockwise is -pi/2 (ray 90), 270 deg clockwise +pi/2 (ray 270)
+    r = bin_revolution(np.array([90.0, 270.0]), np.array([2000.0, 3000.0]), 360)
+    assert r[90] == pytest.approx(2.0) and r[270] == pytest.approx(3.0)
+    # just short of a full turn is just left of the mark; the ray at -pi takes 180 deg
+    r = bin_revolution(np.array([359.0, 180.0]), np.array([1500.0, 2500.0]), 360)
+    assert r[181] == pytest.approx(1.5) and r[0] == pytest.approx(2.5)
+    assert np.degrees(bearing(np.array([0.0, 90.0, 180.0, 359.0]))) == pytest.approx(
+        [0.0, -90.0, -180.0, 1.0])
     # no return (0) stays inf; the nearest of two returns in one ray wins
-    r = bin_revolution(np.array([0.0, 0.2, 0.1]), np.array([0.0, 3000.0, 2000.0]), Mount(), 360)
+    r = bin_revolution(np.array([0.0, 0.2, 0.1]), np.array([0.0, 3000.0, 2000.0]), 360)
     assert r[180] == pytest.approx(2.0)
 
 

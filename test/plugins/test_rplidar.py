@@ -126,12 +126,12 @@ def more_scans(spin, executor, scans, n=2):
     return spin(executor, lambda: len(scans) >= target, TIMEOUT)
 
 
-def test_scans_in_the_vessel_frame(context, executor, spin):
+def test_scans_in_the_lidars_own_frame(context, executor, spin):
     emu, lidar, scans = lidar_pair(context, executor)
     emu.emulator.set_pose(0.0, 1.0, 0.0)
     assert more_scans(spin, executor, scans, 3), lidar.last_fault
     s = scans[-1]
-    assert s.header.frame_id == 'base_link' and len(s.ranges) == 360
+    assert s.header.frame_id == 'laser' and len(s.ranges) == 360
     assert s.angle_min == pytest.approx(-math.pi) and s.range_max == pytest.approx(12.0)
     # 5.5 Hz on average (one scan may stretch when the machine is loaded)
     assert all(x.scan_time > 0.0 for x in scans)
@@ -151,6 +151,30 @@ def test_scans_in_the_vessel_frame(context, executor, spin):
     assert spin(executor, lambda: statuses, TIMEOUT)
     values = {kv.key: kv.value for kv in statuses[-1].values}
     assert 'GET_INFO=' in values['commands'] and int(values['samples_sent']) > 700
+
+
+def test_the_driver_leaves_the_mount_to_the_frame_tree(context, executor, spin):
+    """The A1 sits 0.5 m ahead of base_link with its 0 deg mark to port (the laser frame's
+    pose): the scan stays in the lidar's frame, named by frame_id, unrotated."""
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_turned', context=context,
+                                            parameter_overrides=[
+        Parameter('name', value='turned'), Parameter('mount.x', value=0.5),
+        Parameter('mount.yaw', value=math.pi / 2)]))
+    emu.start()
+    emu.emulator.set_pose(0.0, 1.0, 0.0)
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='emulated:turned'), Parameter('frame_id', value='lidar_top'),
+        *FAST]))
+    lidar.start()
+    scans: list[LaserScan] = []
+    probe(context, executor).create_subscription(LaserScan, topics.SCAN.name, scans.append,
+                                                 topics.SCAN.qos)
+    assert more_scans(spin, executor, scans, 2), lidar.last_fault
+    s = scans[-1]
+    assert s.header.frame_id == 'lidar_top'
+    assert ray(s, 0.0) == pytest.approx(2.225, abs=0.02)    # the mark points at the port wall
+    assert ray(s, 180.0) == pytest.approx(4.225, abs=0.02)  # behind the mark: starboard wall
+    assert np.isinf(ray(s, 90.0)) and np.isinf(ray(s, -90.0))  # along the basin: > 12 m
 
 
 def test_the_motor_runs_through_dtr(context, executor, spin, monkeypatch):
@@ -297,3 +321,5 @@ def test_bad_parameters_are_named(context):
         RplidarNode(context=context, parameter_overrides=[Parameter('bins', value=5)])
     with pytest.raises(ConfigurationError, match='port'):
         RplidarNode(context=context, parameter_overrides=[Parameter('port', value=' ')])
+    with pytest.raises(ConfigurationError, match="frame_id: .*got '/laser'"):
+        RplidarNode(context=context, parameter_overrides=[Parameter('frame_id', value='/laser')])
