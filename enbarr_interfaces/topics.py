@@ -179,8 +179,8 @@ SIM_AZIMUTH_COMMAND = TopicSpec(
 SCAN = TopicSpec(
     'scan', LaserScan, SENSOR_QOS, 'm, rad', LASER_FRAME,
     "One lidar revolution in the lidar's own frame (the driver's frame_id; the frame tree "
-    'places it on the vessel): angle_min..angle_max counter-clockwise from +x, inf where '
-    'nothing returned.')
+    'places it on the vessel): angle_min..angle_max counter-clockwise from +x; REP-117: '
+    '-inf too close, +inf no return, NaN no sample.')
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', 'camera_optical_frame',
     'Camera frames as captured (OpenCV, V4L2 or a video file).')

@@ -14,7 +14,8 @@ business (the profile's ``laser`` frame), and consumers transform the scan. The 
 points along the lidar's 0 deg mark and its z up from the lidar's base, so the lidar's
 clockwise angles become counter-clockwise bearings (REP-103); mounted upside down, the frame
 is rolled by pi. The returns of one revolution are binned by bearing into ``bins`` rays of a
-fixed increment from -pi (``scan.bin_revolution``). The scan's stamp is the node-clock time
+fixed increment from -pi (``scan.bin_revolution``; special values as REP-117 defines them:
+-inf too close, +inf no return, NaN no sample). The scan's stamp is the node-clock time
 at which the revolution's first sample (the 0 deg mark) arrived (the read's time less one
 sample period per sample read after it); ``scan_time`` the measured revolution;
 ``time_increment`` is 0 (the rays are binned, and the revolution starts mid-array at 0 rad
@@ -201,7 +202,8 @@ SPECS = [
               'it on the vessel', read_only=True),
     ParamSpec('bins', 360, 'Rays per revolution in the published scan (fixed increment '
               '2 pi / bins)', '', 36, 7200, read_only=True),
-    ParamSpec('min_quality', 0, 'Returns of lower quality are ignored', '', 0, 63),
+    ParamSpec('min_quality', 0, 'Returns of lower quality are taken as erroneous (NaN where '
+              'nothing else fell in the ray)', '', 0, 63),
     ParamSpec('response_timeout', 0.5, 'Longest wait for the answer to a request', 's', 0.01,
               10.0),
     ParamSpec('stall_timeout', 1.0, 'No valid scan sample for this long is a fault (reconnect)',
@@ -353,8 +355,8 @@ class RplidarNode(SensorDriver):
                 continue
             last = now
             stamp_ns = clock.now().nanoseconds
-            if self.settings.min_quality:
-                dist = np.where(quality >= self.settings.min_quality, dist, 0.0)
+            if self.settings.min_quality:  # too weak to trust: erroneous (REP-117: NaN)
+                dist = np.where(quality >= self.settings.min_quality, dist, np.nan)
             for rev in self.assembler.add(start, angle, dist, stamp_ns, period_ns):
                 self.device_confirmed()  # a whole revolution: the lidar is back
                 self._publish(rev)
@@ -377,7 +379,8 @@ class RplidarNode(SensorDriver):
         msg.scan_time = rev.duration
         msg.range_min = RANGE_MIN
         msg.range_max = RANGE_MAX
-        msg.ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.bins).tolist()
+        msg.ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.bins, RANGE_MIN,
+                                    RANGE_MAX).tolist()
         self._pub.publish(msg)
         self.revolutions += 1
         self.sample_received()
@@ -406,4 +409,5 @@ class RplidarNode(SensorDriver):
                 'skipped_bytes': self.decoder.skipped,
                 'dropped_revolutions': self.assembler.dropped,
                 'false_starts': self.assembler.false_starts,
+                'missed_starts': self.assembler.missed_starts,
                 'invalid_samples': self.assembler.invalid}

@@ -20,32 +20,53 @@ def bearing(angle_deg: np.ndarray) -> np.ndarray:
     return (math.pi - theta) % (2.0 * math.pi) - math.pi
 
 
-def bin_revolution(angle_deg: np.ndarray, distance_mm: np.ndarray, bins: int) -> np.ndarray:
+def bin_revolution(angle_deg: np.ndarray, distance_mm: np.ndarray, bins: int,
+                   range_min: float, range_max: float) -> np.ndarray:
     """Ranges [m] of ``bins`` rays from -pi, counter-clockwise, in the lidar's own frame.
 
     The lidar's frame (``laser``): x along its 0 deg mark, z up from its base, so that its
     clockwise angles are counter-clockwise bearings with the sign turned (REP-103). Each
-    return goes to the ray nearest its bearing; the nearest return of a ray wins; inf where
-    none.
+    sample goes to the ray nearest its bearing. What a ray holds follows REP-117
+    ("Informational Distance Measurements"): the nearest return within
+    [``range_min``, ``range_max``] [m]; else -inf if a return came too close to measure;
+    else +inf if nothing returned (distance 0, the protocol's invalid measurement, read as
+    no return as the ROS drivers do) or only beyond ``range_max``; NaN where no sample
+    fell (or only erroneous ones, NaN distances). A return outside the range is never
+    the nearest.
     """
     r = np.asarray(distance_mm, dtype=float) * 1e-3
-    valid = r > 0.0
     inc = 2.0 * math.pi / bins
-    phi = bearing(np.asarray(angle_deg, dtype=float)[valid])
-    idx = np.rint((phi + math.pi) / inc).astype(np.int64) % bins
+    idx = np.rint((bearing(angle_deg) + math.pi) / inc).astype(np.int64) % bins
+    valid = (r >= range_min) & (r <= range_max)
+    too_close = (r > 0.0) & (r < range_min)
+    no_return = (r == 0.0) | (r > range_max)
     ranges = np.full(bins, np.inf)
-    np.minimum.at(ranges, idx, r[valid])
+    np.minimum.at(ranges, idx[valid], r[valid])
+    measured = np.zeros(bins, dtype=bool)
+    measured[idx[valid]] = True
+    close = np.zeros(bins, dtype=bool)
+    close[idx[too_close]] = True
+    empty = np.ones(bins, dtype=bool)
+    empty[idx[valid | too_close | no_return]] = False
+    ranges[~measured & close] = -np.inf
+    ranges[empty] = np.nan
     return ranges
 
 
 class RevolutionAssembler:
-    """Collects samples between start flags; ``add`` returns finished revolutions.
+    """Collects samples into revolutions; ``add`` returns the finished ones.
 
-    Samples before the first start flag are dropped (a partial revolution), as the SDK does.
-    The protocol has no checksum, so a stream out of step can pass bogus samples with start
-    flags: a start flag less than ``min_samples`` after the last one is ignored and counted
-    (``false_starts``), samples at angles of 360 deg or more are dropped (``invalid``), and a
-    revolution longer than ``max_samples`` (start flags lost) is dropped (``dropped``).
+    The lidar turns one way: within a revolution the angles increase, and a new revolution
+    begins where the angle falls back (the 360 -> 0 deg wrap), which is where the lidar sets
+    the start flag (the protocol document: a new 360 deg scan). A start flag elsewhere is
+    no start (a stream out of step passed a bogus one; counted in ``false_starts``); a wrap
+    without one still is (its sample was lost; ``missed_starts``). So the angles of every
+    revolution increase, and a revolution is never split in two.
+
+    Samples before the first start are dropped (a partial revolution), as the SDK does;
+    samples at angles of 360 deg or more are dropped (``invalid``); a revolution of fewer
+    than ``min_samples`` samples (most of it lost) or more than ``max_samples`` is dropped
+    (``dropped``).
     """
 
     class Revolution(NamedTuple):
@@ -61,8 +82,10 @@ class RevolutionAssembler:
         self.max_samples = max_samples
         self.dropped = 0
         self.false_starts = 0
+        self.missed_starts = 0
         self.invalid = 0
         self._stamp: int | None = None
+        self._last = math.nan          # angle of the last sample [deg], nan: none yet
         self._angles: list[np.ndarray] = []
         self._dists: list[np.ndarray] = []
         self._count = 0
@@ -74,21 +97,34 @@ class RevolutionAssembler:
         Sample k of m is taken ``(m - 1 - k) * period_ns`` earlier (the lidar's sample
         period), which dates a revolution's first sample within a read.
         """
+        start = np.asarray(start, dtype=bool)
+        angle_deg = np.asarray(angle_deg, dtype=float)
+        distance_mm = np.asarray(distance_mm, dtype=float)
         ok = angle_deg < 360.0
         if not ok.all():
             self.invalid += int((~ok).sum())
             start, angle_deg, distance_mm = start[ok], angle_deg[ok], distance_mm[ok]
+        m = len(angle_deg)
+        if not m:
+            return []
+        before = np.empty(m)
+        before[0] = self._last
+        before[1:] = angle_deg[:-1]
+        wrap = angle_deg <= before            # False against nan: the very first sample
+        first = np.isnan(before)
+        begins = wrap | (first & start)       # a stream starts: its start flag counts
+        self.false_starts += int((start & ~begins).sum())
+        self.missed_starts += int((wrap & ~start).sum())
+        self._last = float(angle_deg[-1])
         out = []
         pos = 0
-        m = len(start)
-        for k in np.flatnonzero(start):
+        for k in np.flatnonzero(begins):
             t = stamp_ns - (m - 1 - int(k)) * period_ns
             if self._stamp is not None:
-                if self._count + (k - pos) < self.min_samples:
-                    self.false_starts += 1
-                    continue
                 self._append(angle_deg[pos:k], distance_mm[pos:k])
-                if self._stamp is not None:
+                if self._count < self.min_samples:
+                    self.dropped += 1
+                else:
                     out.append(self.Revolution(
                         self._stamp, max(0.0, (t - self._stamp) * 1e-9),
                         np.concatenate(self._angles), np.concatenate(self._dists)))
@@ -102,6 +138,7 @@ class RevolutionAssembler:
     def reset(self) -> None:
         """Forget the revolution in progress (a new stream starts); the counters stay."""
         self._stamp = None
+        self._last = math.nan
         self._angles, self._dists, self._count = [], [], 0
 
     def _append(self, a: np.ndarray, d: np.ndarray) -> None:
@@ -114,4 +151,3 @@ class RevolutionAssembler:
             self.dropped += 1
             self._stamp = None
             self._angles, self._dists, self._count = [], [], 0
-

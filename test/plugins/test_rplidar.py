@@ -104,9 +104,10 @@ def lidar_pair(context, executor, name='default', **driver):
 
 
 def ray(scan, bearing_deg):
-    """The range near ``bearing_deg`` (the nearest of 3 rays: ~364 samples fill 360 rays)."""
+    """The range near ``bearing_deg``: the nearest of 3 rays (~364 samples fill 360 rays;
+    NaN, no sample, only where none of the 3 has one)."""
     k = round((math.radians(bearing_deg) - scan.angle_min) / scan.angle_increment)
-    return min(scan.ranges[(k + d) % len(scan.ranges)] for d in (-1, 0, 1))
+    return float(np.fmin.reduce([scan.ranges[(k + d) % len(scan.ranges)] for d in (-1, 0, 1)]))
 
 
 def record_faults(driver):
@@ -314,6 +315,20 @@ def test_a_port_that_only_sends_noise_backs_off(context, executor, spin):
         assert all(s.level != b'\x00' and values(s)['confirmed'] == 'False' for s in seen)
     finally:
         port.close()
+
+
+def test_noise_after_the_handshake_is_a_stall_and_backs_off(context, executor, spin):
+    """An A1 that answers GET_INFO and SCAN, then streams bytes that make no sample: a fault
+    (bytes alone are no sign of life), and the retry delay grows."""
+    emu, lidar, scans = lidar_pair(context, executor, stall_timeout=0.2)
+    emu.emulator.noise(True)
+    delays = record_delays(lidar)
+    assert spin(executor, lambda: len(delays) >= 2, 3 * TIMEOUT), lidar.last_fault
+    assert delays[:2] == [0.05, 0.1]
+    assert 'no valid scan sample for 0.2 s' in lidar.last_fault and not scans
+    emu.emulator.noise(False)
+    assert more_scans(spin, executor, scans, 2), lidar.last_fault
+    assert lidar.confirmed and lidar._backoff.delay == 0.05
 
 
 def test_bad_parameters_are_named(context):

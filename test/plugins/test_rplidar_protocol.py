@@ -9,13 +9,17 @@ the emulator's own copy are held to them: neither may borrow the other's.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
 from enbarr_plugins.lidar import rplidar_emulator as emulator
 from enbarr_plugins.lidar import rplidar_protocol as protocol
 from enbarr_plugins.lidar.rplidar_protocol import (
-    decode_descriptor, Descriptor, DeviceInfo, Health, request, ScanDecoder)
+    decode_descriptor, Descriptor, DeviceInfo, Health, RANGE_MAX, RANGE_MIN, request,
+    ScanDecoder)
+from enbarr_plugins.lidar.scan import bin_revolution, RevolutionAssembler
 
 #: (name, value, where the number is written), typed from the sources above.
 DOCUMENTED = [
@@ -85,26 +89,29 @@ def test_a_scan_sample_decodes_as_the_document_says():
     # start, quality 47, 90 deg (q6 5760), 1000 mm (q2 4000): BD 01 2D A0 0F
     sample = bytes.fromhex('bd 01 2d a0 0f')
     assert emulator.encode_sample(True, 47, 90.0, 1000.0) == sample
-    start, quality, angle, dist = ScanDecoder().feed(sample)
+    # the decoder takes a sample once it and the samples after it fit together
+    after = b''.join(emulator.encode_sample(False, 47, 90.0 + k, 1000.0) for k in range(1, 4))
+    start, quality, angle, dist = ScanDecoder().feed(sample + after)
     assert start.tolist() == [True] and quality.tolist() == [47]
     assert angle.tolist() == [90.0] and dist.tolist() == [1000.0]
 
 
 def test_the_decoder_resynchronises_after_garbage_corruption_and_truncation():
-    good = [emulator.encode_sample(k == 0, 30, 10.0 * k, 500.0 + k) for k in range(20)]
-    broken = bytes((good[5][0] & 0xFC,)) + good[5][1:]   # S == !S
-    stream = (b'\x00\x00' + b''.join(good[:5]) + broken + b''.join(good[6:10])
-              + good[10][:3] + b''.join(good[11:]))        # a truncated sample
+    good = [emulator.encode_sample(k == 0, 30, 1.0 * k, 500.0 + k) for k in range(60)]
+    broken = bytes((good[20][0] & 0xFC,)) + good[20][1:]   # S == !S
+    stream = (b'\x00\x00\x01' + b''.join(good[:20]) + broken + b''.join(good[21:40])
+              + good[40][:3] + b''.join(good[41:]))        # a truncated sample
     dec = ScanDecoder()
     out = [dec.feed(stream[i:i + 7]) for i in range(0, len(stream), 7)]  # any split
-    dist = np.concatenate([o[3] for o in out])
-    assert dec.sync_losses >= 3 and dec.skipped >= 2
-    # every good sample is found again after each loss; the truncated sample's header is
-    # intact, so it takes two bytes of the next one (the protocol has no checksum): one
-    # bogus distance, one sample lost, then in step again
-    d = dist.tolist()
-    assert d[:9] == [500.0 + k for k in (*range(5), *range(6, 10))]
-    assert d[10:] == [500.0 + k for k in range(12, 20)]
+    dist = np.concatenate([o[3] for o in out]).tolist()
+    assert dec.sync_losses == 2 and dec.skipped >= 3
+    # nothing invented: every distance taken is a sample's own, in order; the truncated one
+    # (its header intact, its distance the next sample's first bytes) is not taken
+    assert dist == sorted(dist) and set(dist) <= {500.0 + k for k in range(60)}
+    assert 540.0 not in dist
+    # in step again after each fault: the samples away from the faults are all there (the
+    # last three wait for the samples after them)
+    assert {500.0 + k for k in (*range(17), *range(24, 37), *range(45, 57))} <= set(dist)
 
 
 def test_an_in_step_sample_with_the_check_bit_cleared_is_not_taken():
@@ -116,3 +123,110 @@ def test_an_in_step_sample_with_the_check_bit_cleared_is_not_taken():
     dec = ScanDecoder()
     _, _, _, dist = dec.feed(b''.join(good[:20]) + bad + b''.join(good[21:]))
     assert 1200.0 not in dist.tolist() and dec.sync_losses == 1
+
+
+def test_samples_whose_angle_does_not_advance_are_no_stream():
+    """Byte runs out of step often read as a constant angle (a quality byte and a distance
+    byte that hardly change): their headers pass, their angles do not turn."""
+    still = [emulator.encode_sample(False, 15, 124.0, 2000.0) for _ in range(20)]
+    back = [emulator.encode_sample(False, 15, 124.0 - k, 2000.0) for k in range(20)]
+    leap = [emulator.encode_sample(False, 15, 30.0 * k, 2000.0) for k in range(12)]
+    for run in (still, back, leap):
+        dec = ScanDecoder()
+        assert dec.feed(b''.join(run))[2].tolist() == [] and dec.skipped > 0
+    # nor in step: a good run, then angles that stand still
+    good = [emulator.encode_sample(False, 15, 100.0 + k, 2000.0) for k in range(10)]
+    stuck = [emulator.encode_sample(False, 15, 110.0, 2000.0) for _ in range(10)]
+    dec = ScanDecoder()
+    # 110 deg fits once, then stands still: it and the two held before it are dropped
+    assert dec.feed(b''.join(good + stuck))[2].tolist() == [100.0 + k for k in range(8)]
+
+
+# -- corruption swept over every position of a revolution -----------------------------------
+PER_REV = 364        # samples a revolution at 5.5 Hz and 2000 samples/s, as the emulator sends
+READ = 500           # bytes a read: 50 ms of the stream
+
+
+def clear_check_bit(sample: bytes) -> bytes:
+    return sample[:1] + bytes((sample[1] & 0xFE,)) + sample[2:]
+
+
+def break_start_pair(sample: bytes) -> bytes:
+    return bytes((sample[0] & 0xFC,)) + sample[1:]       # S == !S == 0
+
+
+def truncate(sample: bytes) -> bytes:
+    return sample[:3]                                    # bytes lost on the line
+
+
+@functools.cache
+def clean_revolutions() -> tuple[tuple[bytes, ...], ...]:
+    """Revolutions of the emulator's samples: a vessel in the MC-lab basin, a buoy ahead."""
+    emu = emulator.RplidarEmulator(basin=emulator.Basin(circles=((1.5, 0.8, 0.3),)))
+    emu.set_pose(0.0, 0.2, 0.3)
+    step = 360.0 / PER_REV
+    revolutions = []
+    for r in range(PER_REV + 4):
+        angles = (np.arange(PER_REV) * step + (r * 0.37) % step) % 360.0
+        dist = emu.ranges_mm(angles)
+        revolutions.append(tuple(
+            emulator.encode_sample(k == 0, 47 if dist[k] > 0 else 0, float(angles[k]),
+                                   float(dist[k])) for k in range(PER_REV)))
+    return tuple(revolutions)
+
+
+def swept_stream(corrupt, run: int) -> tuple[list[list[bytes]], bytes]:
+    """The clean revolutions with, in revolution 2 + p, the samples p .. p + run - 1
+    corrupted, for every position p; returns the samples sent intact and the stream."""
+    revolutions, stream = [], bytearray()
+    for r, clean in enumerate(clean_revolutions()):
+        sent = []
+        for k, sample in enumerate(clean):
+            if 0 <= r - 2 <= k < r - 2 + run:
+                sample = corrupt(sample)
+            else:
+                sent.append(sample)
+            stream += sample
+        revolutions.append(sent)
+    return revolutions, bytes(stream)
+
+
+def as_tuples(samples: list[bytes]) -> list[tuple[float, float]]:
+    """(angle [deg], distance [mm]) of samples, decoded here from the document's layout."""
+    return [(((s[1] | s[2] << 8) >> 1) / 64.0, (s[3] | s[4] << 8) / 4.0) for s in samples]
+
+
+def phantoms(taken: list, sent: list) -> list:
+    """The samples of ``taken`` that are not ``sent`` ones in the order sent."""
+    out, j = [], 0
+    for t in taken:
+        try:
+            j = sent.index(t, j, j + 2 * PER_REV) + 1
+        except ValueError:
+            out.append(t)
+    return out
+
+
+@pytest.mark.parametrize('corrupt, run', [(clear_check_bit, 1), (clear_check_bit, 3),
+                                          (break_start_pair, 1), (truncate, 1)],
+                         ids=['check bit', 'three check bits', 'start pair', 'truncated'])
+def test_corruption_anywhere_in_a_revolution_lets_no_phantom_through(corrupt, run):
+    revolutions, stream = swept_stream(corrupt, run)
+    decoder, assembler = ScanDecoder(), RevolutionAssembler()
+    taken, scans = [], []
+    for i in range(0, len(stream), READ):
+        start, _, angle, dist = decoder.feed(stream[i:i + READ])
+        taken += zip(angle.tolist(), dist.tolist())
+        scans += assembler.add(start, angle, dist, 0)
+    # every sample taken is one that was sent intact, in the order sent
+    assert phantoms(taken, [t for rev in revolutions for t in as_tuples(rev)]) == []
+    assert len(taken) > 0.95 * sum(map(len, revolutions))  # few good samples lost
+    # one scan per revolution (the last is not finished), angles increasing
+    assert len(scans) == len(revolutions) - 1
+    for scan, truth in zip(scans, revolutions):
+        assert (np.diff(scan.angle_deg) > 0).all()
+        ranges = bin_revolution(scan.angle_deg, scan.distance_mm, 360, RANGE_MIN, RANGE_MAX)
+        finite = ranges[np.isfinite(ranges)]
+        assert ((finite >= RANGE_MIN) & (finite <= RANGE_MAX)).all()
+        assert not (ranges == -np.inf).any()   # nothing came that close
+        assert set(finite.tolist()) <= {d * 1e-3 for _, d in as_tuples(truth)}
