@@ -39,7 +39,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import errno
 import math
-import threading
 import time
 from typing import Any
 
@@ -58,6 +57,7 @@ from enbarr_plugins.lidar.rplidar_protocol import (
     NO_SAMPLES, RANGE_MAX, RANGE_MIN, request, SAMPLE_PERIOD_NS, SAMPLE_SIZE, ScanDecoder,
     STATUS_ERROR, STATUS_WARNING, SYNC, ANS_SYNC)
 from enbarr_plugins.lidar.scan import bin_revolution, RevolutionAssembler
+from enbarr_plugins.transport.reader import DeviceThread
 from enbarr_plugins.transport.serial_link import open_serial
 
 #: Extra wait for the first sample after SCAN [s]: the motor, started with SCAN, must reach
@@ -256,9 +256,7 @@ class RplidarNode(SensorDriver):
         self.assembler = RevolutionAssembler()
         self._losses_reported = 0
         self._serial: Any = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._error: DeviceError | None = None
+        self._reader = DeviceThread(f'{self.get_name()}_reader')
         self._pub = self.create_topic_publisher(topics.SCAN)
 
     def _apply(self, settings: RplidarSettings) -> None:
@@ -271,21 +269,14 @@ class RplidarNode(SensorDriver):
         path = resolve_port(port)
         self.device = port if path == port else f'{port} ({path})'
         self._serial = open_serial(path, BAUDRATE, timeout=0.05)
-        self._error = None
-        self._stop.clear()
         self.decoder.reset()
         self.assembler.reset()
         self.state = 'starting'
-        self._thread = threading.Thread(target=self._run, args=(self._serial,),
-                                        name=f'{self.get_name()}_reader', daemon=True)
-        self._thread.start()
+        self._reader.start(self.device, self._run, self._serial)
 
     def close_device(self) -> None:
         """Stop the reader, then STOP and motor off (best effort) and close the port."""
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(2.0)
+        self._reader.stop(2.0)
         ser, self._serial = self._serial, None
         self.state = 'closed'
         if ser is None:
@@ -302,42 +293,35 @@ class RplidarNode(SensorDriver):
 
     def supervise(self) -> None:
         """Hand a failure of the reader thread to ``device_fault`` (executor thread)."""
-        err = self._error
-        if err is not None and self.connected:
-            self._error = None
-            self.device_fault(err)
+        if self.connected:
+            err = self._reader.failure()
+            if err is not None:
+                self.device_fault(err)
 
     def _run(self, ser: Any) -> None:
+        """Run the start-up exchange, then the stream (the reader thread)."""
         name = self.device
-        try:
-            s = self.settings
-            self.info, self.health, resets = handshake(ser, name, s.response_timeout)
-            self.resets += resets
-            if resets:
-                self.get_logger().warn(f'{name}: health error cleared by RESET')
-            elif self.health.status == STATUS_WARNING:
-                self.get_logger().warn(f'{name}: {self.health.describe()}')
-            self.motor_line = start_scan(ser, name, s.response_timeout)
-            if not self.motor_line:
-                self.get_logger().warn(f'{name}: no DTR line (a pty?): the motor is not '
-                                       'switched by this driver')
-            self.get_logger().info(f'{name}: {self.info.describe()}, '
-                                   f'{self.health.describe()}: scanning')
-            self.state = 'scanning'
-            self._stream(ser, name)
-        except DeviceError as err:
-            if not self._stop.is_set():
-                self._error = err
-        except Exception as err:  # noqa: BLE001 - a bug must still reach /diagnostics
-            if not self._stop.is_set():
-                self._error = DeviceError(f'{name}: reader failed: {err!r}')
+        s = self.settings
+        self.info, self.health, resets = handshake(ser, name, s.response_timeout)
+        self.resets += resets
+        if resets:
+            self.get_logger().warn(f'{name}: health error cleared by RESET')
+        elif self.health.status == STATUS_WARNING:
+            self.get_logger().warn(f'{name}: {self.health.describe()}')
+        self.motor_line = start_scan(ser, name, s.response_timeout)
+        if not self.motor_line:
+            self.get_logger().warn(f'{name}: no DTR line (a pty?): the motor is not switched '
+                                   'by this driver')
+        self.get_logger().info(f'{name}: {self.info.describe()}, {self.health.describe()}: '
+                               'scanning')
+        self.state = 'scanning'
+        self._stream(ser, name)
 
     def _stream(self, ser: Any, name: str) -> None:
         last = time.monotonic() + MOTOR_SPINUP  # the first sample waits for the motor
         clock = self.get_clock()
         period_ns = SAMPLE_PERIOD_NS
-        while not self._stop.is_set():
-            self._stop.wait(POLL_PERIOD)  # let samples gather: one read per period
+        while not self._reader.wait(POLL_PERIOD):  # let samples gather: one read per period
             try:
                 data = ser.read(max(1, ser.in_waiting))
             except Exception as err:  # noqa: BLE001 - SerialException, OSError (unplugged)

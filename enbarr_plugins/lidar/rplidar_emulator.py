@@ -42,14 +42,10 @@ import time
 import tty
 from typing import Any
 
-from nav_msgs.msg import Odometry
 import numpy as np
 
-from enbarr_core.framework.driver import OK
-from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
-from enbarr_plugins import emulation
+from enbarr_plugins.emulator_node import commands_line, DeviceEmulatorNode
 
 # The emulator's own copy of the bytes, typed from Slamtec's "RPLIDAR Interface Protocol and
 # Application Notes" (A1 & A2, rev 1.1) and the SDK's sl_lidar_cmd.h / sl_lidar_protocol.h,
@@ -443,58 +439,31 @@ class RplidarEmulatorSettings:
                    v['rotation_hz'], v['sample_rate'], int(v['model']))
 
 
-class RplidarEmulatorNode(EnbarrNode):
+class RplidarEmulatorNode(DeviceEmulatorNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    kind = 'serial'
+    device = 'RPLidar A1'
 
     def __init__(self, node_name: str = 'rplidar_emulator', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.settings: RplidarEmulatorSettings
-        self.emulator: RplidarEmulator | None = None
-        self.bind_settings(SPECS, RplidarEmulatorSettings.from_params, self._apply)
-        s = self.settings
-        self.emulator = RplidarEmulator(basin=s.basin, mount=s.mount,
-                                        rotation_hz=s.rotation_hz, sample_rate=s.sample_rate,
-                                        model=s.model, on_path=self._register,
-                                        on_gone=self._unregister)
-        self.poses = 0
-        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_periodic(1.0, self._report)
+        super().__init__(node_name, SPECS, RplidarEmulatorSettings.from_params, **kwargs)
 
-    def start(self) -> None:
-        """Open the pty (the device is plugged in), then start the sources."""
-        self.emulator.start()
-        super().start()
+    def make_emulator(self, s: RplidarEmulatorSettings, plugged: Callable[[str], None],
+                      unplugged: Callable[[str], None]) -> RplidarEmulator:
+        """Build the A1 on a pty, plugged in (its path offered) on ``start``."""
+        return RplidarEmulator(basin=s.basin, mount=s.mount, rotation_hz=s.rotation_hz,
+                               sample_rate=s.sample_rate, model=s.model, on_path=plugged,
+                               on_gone=unplugged)
 
-    def _apply(self, s: RplidarEmulatorSettings) -> None:
-        self.settings = s
-        if self.emulator is not None:
-            self.emulator.basin, self.emulator.mount, self.emulator.model = (
-                s.basin, s.mount, s.model)
+    def apply(self, s: RplidarEmulatorSettings) -> None:
+        """Basin, mount and model change live."""
+        self.emulator.basin, self.emulator.mount, self.emulator.model = (
+            s.basin, s.mount, s.model)
 
-    def _register(self, path: str) -> None:
-        emulation.register('serial', self.settings.name, path, owner=self)
-        self.get_logger().info(f'RPLidar A1 emulator {self.settings.name!r} on {path}')
-
-    def _unregister(self, path: str) -> None:
-        emulation.unregister('serial', self.settings.name, path)
-
-    def _on_truth(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        self.emulator.set_pose(float(eta[0]), float(eta[1]), float(eta[2]))
-        self.poses += 1
-
-    def _report(self) -> None:
+    def report(self) -> tuple[str, dict[str, Any]]:
+        """Report the pty and what went through it."""
         e = self.emulator
-        self.publish_diagnostics(OK, f'serving {e.path}' if e.path else 'not plugged in', {
-            'path': e.path or '', 'commands': ' '.join(f'{k}={v}' for k, v in
-                                                       sorted(e.commands.items())),
+        return (f'serving {e.path}' if e.path else 'not plugged in', {
+            'path': e.path or '', 'commands': commands_line(e.commands),
             'bad_requests': e.bad_requests, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out,
-            'samples_sent': e.samples_sent, 'overflows': e.overflows, 'poses': self.poses})
-
-    def destroy_node(self) -> None:
-        """Close the pty and withdraw it from the emulator registry."""
-        if self.emulator is not None:
-            self.emulator.stop()  # unregisters the pty (on_gone)
-        super().destroy_node()
+            'samples_sent': e.samples_sent, 'overflows': e.overflows})

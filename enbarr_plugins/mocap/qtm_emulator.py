@@ -41,21 +41,17 @@ what it received and sent on ``/diagnostics``.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 import math
 import threading
 import time
 from typing import Any
 
-from nav_msgs.msg import Odometry
 import numpy as np
 
-from enbarr_core.framework.driver import OK
-from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
-from enbarr_plugins import emulation
+from enbarr_plugins.emulator_node import commands_line, describe, DeviceEmulatorNode
 from enbarr_plugins.mocap.qtm_frame import QtmFrame
 from enbarr_plugins.mocap.qtm_protocol import (
     COMPONENT_6D, COMPONENT_6D_EULER, COMPONENT_HEADER, DATA_HEADER, EVENT_CONNECTED, HEADER,
@@ -77,13 +73,14 @@ class QtmEmulator:
 
     def __init__(self, *, bodies: tuple[str, ...] = ('saucer',), tracked: str | None = None,
                  capture_rate: float = 100.0, frame: QtmFrame = QtmFrame(),
-                 height: float = 0.0, on_address: Any = None) -> None:
+                 height: float = 0.0, on_address: Any = None, on_gone: Any = None) -> None:
         self.bodies = tuple(bodies)
         self.tracked = tracked or (bodies[0] if bodies else '')
         self.capture_rate = capture_rate
         self.frame = frame
         self.height = height  # [m] of the body above odom's origin
         self.on_address = on_address
+        self.on_gone = on_gone
         self.pose = (0.0, 0.0, 0.0)
         self.address: tuple[str, int] | None = None
         # counters
@@ -129,6 +126,8 @@ class QtmEmulator:
         loop.call_soon_threadsafe(loop.stop)
         thread.join(2.0)
         self._thread = self._loop = None
+        if self.address is not None and self.on_gone is not None:
+            self.on_gone(self.address)  # QTM is gone; the port is kept for a restart
 
     def _run_loop(self) -> None:
         loop = asyncio.new_event_loop()
@@ -198,6 +197,11 @@ class QtmEmulator:
     def set_pose(self, x: float, y: float, psi: float) -> None:
         """Set the vessel pose in odom [m, m, rad] (from the simulator)."""
         self.pose = (x, y, psi)
+
+    @property
+    def open_connections(self) -> int:
+        """Connections open now."""
+        return len(self._writers)
 
     # -- the protocol --------------------------------------------------------------------------
     def _count(self, name: str) -> None:
@@ -394,57 +398,29 @@ class QtmEmulatorSettings:
                    QtmFrame(v['frame.yaw'], v['frame.x'], v['frame.y'], v['frame.up']))
 
 
-class QtmEmulatorNode(EnbarrNode):
+class QtmEmulatorNode(DeviceEmulatorNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    kind = 'tcp'
+    device = 'QTM RT'
 
     def __init__(self, node_name: str = 'qtm_emulator', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.settings: QtmEmulatorSettings
-        self.emulator: QtmEmulator | None = None
-        self.bind_settings(SPECS, QtmEmulatorSettings.from_params, self._apply)
-        s = self.settings
-        self.emulator = QtmEmulator(bodies=s.bodies, capture_rate=s.capture_rate,
-                                    frame=s.frame, on_address=self._register)
-        self.poses = 0
-        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_periodic(1.0, self._report)
+        super().__init__(node_name, SPECS, QtmEmulatorSettings.from_params, **kwargs)
 
-    def start(self) -> None:
-        """Listen on loopback (QTM is up), then start the sources."""
-        self.emulator.start()
-        super().start()
+    def make_emulator(self, s: QtmEmulatorSettings, plugged: Callable[[Any], None],
+                      unplugged: Callable[[Any], None]) -> QtmEmulator:
+        """Build the server on loopback, listening (its address offered) on ``start``."""
+        return QtmEmulator(bodies=s.bodies, capture_rate=s.capture_rate, frame=s.frame,
+                           on_address=plugged, on_gone=unplugged)
 
-    def _apply(self, s: QtmEmulatorSettings) -> None:
-        self.settings = s
-        if self.emulator is not None:
-            self.emulator.frame = s.frame
+    def apply(self, s: QtmEmulatorSettings) -> None:
+        """QTM's frame changes live."""
+        self.emulator.frame = s.frame
 
-    def _register(self, address: tuple[str, int]) -> None:
-        emulation.register('tcp', self.settings.name, address, owner=self)
-        self.get_logger().info(f'QTM RT emulator {self.settings.name!r} on '
-                               f'tcp://{address[0]}:{address[1]}')
-
-    def _on_truth(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        self.emulator.set_pose(float(eta[0]), float(eta[1]), float(eta[2]))
-        self.poses += 1
-
-    def _report(self) -> None:
+    def report(self) -> tuple[str, dict[str, Any]]:
+        """Report the address and what went through it."""
         e = self.emulator
-        where = f'serving tcp://{e.address[0]}:{e.address[1]}' if e.address else 'not started'
-        self.publish_diagnostics(OK, where, {
-            'connections': e.connections, 'open': len(e._writers),
-            'commands': ' '.join(f'{k}={v}' for k, v in sorted(e.commands.items())),
-            'frames_sent': e.frames_sent, 'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in,
-            'bytes_out': e.bytes_out, 'poses': self.poses})
-
-    def destroy_node(self) -> None:
-        """Stop the server and withdraw it from the emulator registry."""
-        if self.emulator is not None:
-            address = self.emulator.address
-            self.emulator.stop()
-            if address is not None:
-                emulation.unregister('tcp', self.settings.name, address)
-        super().destroy_node()
+        return (f'serving {describe(e.address)}' if e.address else 'not started', {
+            'connections': e.connections, 'open': e.open_connections,
+            'commands': commands_line(e.commands), 'frames_sent': e.frames_sent,
+            'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out})

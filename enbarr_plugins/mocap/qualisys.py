@@ -35,7 +35,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import logging
 import math
-import threading
 import time
 from typing import Any
 import xml.etree.ElementTree as ET
@@ -51,6 +50,7 @@ from enbarr_plugins import emulation
 from enbarr_plugins.mocap.qtm_frame import QtmFrame
 from enbarr_plugins.mocap.qtm_protocol import (
     body_names, DEFAULT_PORT, matrix_from_column_major)
+from enbarr_plugins.transport.reader import DeviceThread
 
 
 def rotmat_to_quat(r: np.ndarray) -> np.ndarray:
@@ -248,9 +248,7 @@ class QualisysNode(SensorDriver):
         self._last_stamp = 0
         self._last_packet = 0.0
         self._disconnected: BaseException | bool = False
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._error: DeviceError | None = None
+        self._session_thread = DeviceThread(f'{self.get_name()}_qtm')
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
 
     def _apply(self, settings: QualisysSettings) -> None:
@@ -265,39 +263,26 @@ class QualisysNode(SensorDriver):
             self.device = f'{s.host} ({tcp_address(host, port)})'
         else:
             host, port = s.host, s.port
-        self._error = None
-        self._stop.clear()
         self._disconnected = False
         self._last_frame = None
         self.state = 'connecting'
-        self._thread = threading.Thread(target=self._run, args=(host, port),
-                                        name=f'{self.get_name()}_qtm', daemon=True)
-        self._thread.start()
+        self._session_thread.start(tcp_address(host, port), self._run, host, port)
 
     def close_device(self) -> None:
         """End the session (the thread disconnects) and wait for its thread."""
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(2.0 + self.settings.timeout)
+        self._session_thread.stop(2.0 + self.settings.timeout)
         self.state = 'closed'
 
     def supervise(self) -> None:
         """Hand a failure of the session thread to ``device_fault`` (executor thread)."""
-        err = self._error
-        if err is not None and self.connected:
-            self._error = None
-            self.device_fault(err)
+        if self.connected:
+            err = self._session_thread.failure()
+            if err is not None:
+                self.device_fault(err)
 
     def _run(self, host: str, port: int) -> None:
-        try:
-            asyncio.run(self._session(host, port))
-        except DeviceError as err:
-            if not self._stop.is_set():
-                self._error = err
-        except Exception as err:  # noqa: BLE001 - a bug must still reach /diagnostics
-            if not self._stop.is_set():
-                self._error = DeviceError(f'{tcp_address(host, port)}: session failed: {err!r}')
+        """Run one session on qtm-rt's asyncio loop (the session thread)."""
+        asyncio.run(self._session(host, port))
 
     def _on_disconnect(self, exc: BaseException | None) -> None:
         self._disconnected = exc or True
@@ -323,7 +308,7 @@ class QualisysNode(SensorDriver):
             self.state = 'streaming'
             self.get_logger().info(f'{where}: streaming {s.body!r} (6D bodies: '
                                    f'{", ".join(self.bodies)})')
-            while not self._stop.is_set():
+            while not self._session_thread.stopping:
                 await asyncio.sleep(0.05)
                 if self._disconnected:
                     reason = self._disconnected

@@ -25,7 +25,7 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_plugins.operator.script', 'enbarr_interfaces.modes',
              'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
              'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
-             'enbarr_plugins.camera.capture')
+             'enbarr_plugins.camera.capture', 'enbarr_plugins.transport.reader')
 
 pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess
 

@@ -16,7 +16,8 @@ import pytest
 from qtm_rt.packet import QRTPacket
 from rclpy.parameter import Parameter
 from support.cli import enbarr, refused
-from support.devices import free_tcp_port, record_delays, statuses, values
+from support.devices import (
+    FAST_RECONNECT, free_tcp_port, record_delays, record_faults, statuses, values)
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import odometry_msg
 
@@ -169,8 +170,7 @@ def test_the_check_device_command_when_qtm_answers_with_an_error():
 
 
 # -- node tests -----------------------------------------------------------------------------
-FAST = [Parameter('reconnect.initial_delay', value=0.05),
-        Parameter('reconnect.max_delay', value=0.2), Parameter('timeout', value=1.0)]
+FAST = [*FAST_RECONNECT, Parameter('timeout', value=1.0)]
 
 
 def mocap_pair(context, executor, name='default', body='saucer', **driver):
@@ -187,18 +187,6 @@ def mocap_pair(context, executor, name='default', body='saucer', **driver):
     truth = p.create_topic_publisher(topics.SIM_ODOMETRY)
     LinkBus.of(context).connect()
     return emu, mocap, poses, truth
-
-
-def record_faults(driver):
-    """Every fault message of ``driver`` from now on, in order (retries included)."""
-    seen: list[str] = []
-    fail = driver._fail
-
-    def recording(err):
-        seen.append(str(err))
-        fail(err)
-    driver._fail = recording
-    return seen
 
 
 def more(spin, executor, poses, n=5):
@@ -237,15 +225,11 @@ def test_poses_from_the_simulated_vessel(context, executor, spin):
     assert v['state'] == 'streaming' and v['bodies'] == 'saucer' and v['lost'] == 0
     assert emu.emulator.commands['version'] >= 1 and emu.emulator.commands['streamframes'] >= 1
     # the emulator reports what it received and sent
-    statuses = []
-    probe(context, executor, 'listener').create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'qtm_default'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: statuses, TIMEOUT)
-    values = {kv.key: kv.value for kv in statuses[-1].values}
-    assert 'getparameters=' in values['commands'] and int(values['frames_sent']) > 0
-    assert int(values['poses']) == 1
+    seen = statuses(context, executor, 'qtm_default')
+    assert spin(executor, lambda: seen, TIMEOUT)
+    reported = values(seen[-1])
+    assert 'getparameters=' in reported['commands'] and int(reported['frames_sent']) > 0
+    assert int(reported['poses']) == 1 and int(reported['open']) == 1
 
 
 def test_lost_body_out_of_order_dropped_stalled_refused(context, executor, spin):
@@ -332,6 +316,10 @@ def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executo
     assert spin(executor, lambda: mocap.samples >= 1, TIMEOUT), mocap.last_fault
     assert connects == [emu.emulator.address] and emu.emulator.connections == 1
     assert mocap.confirmed and mocap._backoff.delay == 0.05
+    executor.remove_node(emu)
+    emu.destroy_node()                     # QTM goes: its address is withdrawn
+    with pytest.raises(DeviceError, match="no tcp emulator named 'q'"):
+        emulation.lookup('tcp', 'emulated:q')
 
 
 def test_a_dead_server_backs_off_until_qtm_answers(context, executor, spin):

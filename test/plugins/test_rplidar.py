@@ -16,7 +16,8 @@ import pytest
 from rclpy.parameter import Parameter
 import serial
 from sensor_msgs.msg import LaserScan
-from support.devices import NoisyPort, record_delays, statuses, values
+from support.devices import (
+    FAST_RECONNECT as FAST, NoisyPort, record_delays, record_faults, statuses, values)
 from support.nodes import add, probe, TIMEOUT
 
 from enbarr_core.bringup.cli import main
@@ -85,9 +86,6 @@ def test_check_device_command_line(capsys):
 
 
 # -- node tests: the driver on the emulator's pty ---------------------------------------------
-FAST = [Parameter('reconnect.initial_delay', value=0.05),
-        Parameter('reconnect.max_delay', value=0.2)]
-
 
 def lidar_pair(context, executor, name='default', **driver):
     emu = add(executor, RplidarEmulatorNode(node_name=f'emu_{name}', context=context,
@@ -108,18 +106,6 @@ def ray(scan, bearing_deg):
     NaN, no sample, only where none of the 3 has one)."""
     k = round((math.radians(bearing_deg) - scan.angle_min) / scan.angle_increment)
     return float(np.fmin.reduce([scan.ranges[(k + d) % len(scan.ranges)] for d in (-1, 0, 1)]))
-
-
-def record_faults(driver):
-    """Every fault message of ``driver`` from now on, in order (retries included)."""
-    seen: list[str] = []
-    fail = driver._fail
-
-    def recording(err):
-        seen.append(str(err))
-        fail(err)
-    driver._fail = recording
-    return seen
 
 
 def more_scans(spin, executor, scans, n=2):
@@ -144,14 +130,10 @@ def test_scans_in_the_lidars_own_frame(context, executor, spin):
     assert v['model'] == 'A1M8' and v['state'] == 'scanning' and v['sync_losses'] == 0
     assert emu.emulator.commands['GET_INFO'] >= 1 and emu.emulator.commands['SCAN'] >= 1
     # the emulator reports what it received and sent
-    statuses = []
-    probe(context, executor, 'listener').create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'emu_default'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: statuses, TIMEOUT)
-    values = {kv.key: kv.value for kv in statuses[-1].values}
-    assert 'GET_INFO=' in values['commands'] and int(values['samples_sent']) > 700
+    seen = statuses(context, executor, 'emu_default')
+    assert spin(executor, lambda: seen, TIMEOUT)
+    reported = values(seen[-1])
+    assert 'GET_INFO=' in reported['commands'] and int(reported['samples_sent']) > 700
 
 
 def test_the_driver_leaves_the_mount_to_the_frame_tree(context, executor, spin):
@@ -207,14 +189,10 @@ def test_absent_at_start_then_plugged_in(context, executor, spin):
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value='emulated:late'), *FAST]))
     lidar.start()
-    statuses = []
-    probe(context, executor).create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(s for s in m.status if s.hardware_id == 'rplidar'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: any(s.level == b'\x02' for s in statuses), TIMEOUT)
+    seen = statuses(context, executor, 'rplidar')
+    assert spin(executor, lambda: any(s.level == b'\x02' for s in seen), TIMEOUT)
     assert not lidar.connected and 'emulated:late' in lidar.last_fault
-    error = next(s for s in statuses if s.level == b'\x02')
+    error = next(s for s in seen if s.level == b'\x02')
     assert 'no serial emulator named' in error.message
     emu = add(executor, RplidarEmulatorNode(node_name='emu_late', context=context,
                                             parameter_overrides=[Parameter('name', value='late')]))
@@ -295,6 +273,10 @@ def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executo
     assert spin(executor, lambda: lidar.revolutions >= 1, TIMEOUT), lidar.last_fault
     # the first revolution confirmed the device: the retry delay is back to its start
     assert lidar.confirmed and lidar._backoff.delay == 0.05
+    executor.remove_node(emu)
+    emu.destroy_node()                     # unplugged: its pty is withdrawn
+    with pytest.raises(DeviceError, match="no serial emulator named 'q'"):
+        emulation.lookup('serial', 'emulated:q')
 
 
 def test_a_port_that_only_sends_noise_backs_off(context, executor, spin):
