@@ -6,6 +6,7 @@ command's own test). Apart from the driver so that the driver never imports its 
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -13,7 +14,8 @@ import numpy as np
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
-from enbarr_plugins.lidar.rplidar import handshake, set_motor, start_scan, stop
+from enbarr_plugins.lidar.rplidar import (
+    handshake, set_motor, stable_name_advice, start_scan, stop)
 from enbarr_plugins.lidar.rplidar_emulator import RplidarEmulator
 from enbarr_plugins.lidar.rplidar_protocol import BAUDRATE, ScanDecoder
 from enbarr_plugins.lidar.scan import RevolutionAssembler
@@ -31,7 +33,12 @@ def check_device(target: CheckTarget) -> list[str]:
     else:
         path = port
     try:
-        ser = open_serial(path, BAUDRATE, timeout=0.05)
+        try:
+            ser = open_serial(path, BAUDRATE, timeout=0.05)
+        except DeviceError as err:
+            if os.path.exists(path):
+                raise
+            raise DeviceError(f'{err}{stable_name_advice(path)}') from err
         try:
             info, health, resets = handshake(ser, port, target.timeout)
             start_scan(ser, port, target.timeout)

@@ -39,6 +39,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import errno
 import math
+import os
+import re
 import time
 from typing import Any
 
@@ -193,10 +195,29 @@ def resolve_port(port: str) -> str:
     return port
 
 
+#: Names the kernel gives USB serial adapters in the order they appear.
+_ENUMERATED = re.compile(r'/dev/tty(USB|ACM)\d+')
+
+
+def stable_name_advice(port: str) -> str:
+    """Advice to add when ``port`` vanished: '' unless it is an enumerated USB serial name.
+
+    A re-plugged adapter (the A1's CP2102) may come back under another ``/dev/ttyUSBn``;
+    udev's ``/dev/serial/by-id/`` name stays the same.
+    """
+    enumerated = _ENUMERATED.fullmatch(port)
+    if not enumerated:
+        return ''
+    return (f' (a re-plugged USB adapter may come back as another /dev/tty'
+            f'{enumerated.group(1)}n: give the '
+            'port by its stable name, ls -l /dev/serial/by-id/, e.g. /dev/serial/by-id/'
+            'usb-Silicon_Labs_CP2102_USB_to_UART_Bridge_Controller_0001-if00-port0)')
+
+
 # -- the node ------------------------------------------------------------------------------
 SPECS = [
-    ParamSpec('port', '/dev/ttyUSB0', "Serial port of the lidar's USB adapter, or emulated[:NAME]",
-              read_only=True),
+    ParamSpec('port', '/dev/ttyUSB0', "Serial port of the lidar's USB adapter, best by its "
+              'stable /dev/serial/by-id/ name; or emulated[:NAME]', read_only=True),
     ParamSpec('frame_id', topics.LASER_FRAME, "The lidar's own frame, in which the scan is "
               'published (x along its 0 deg mark, z up from its base); the frame tree places '
               'it on the vessel', read_only=True),
@@ -268,7 +289,12 @@ class RplidarNode(SensorDriver):
         port = self.settings.port
         path = resolve_port(port)
         self.device = port if path == port else f'{port} ({path})'
-        self._serial = open_serial(path, BAUDRATE, timeout=0.05)
+        try:
+            self._serial = open_serial(path, BAUDRATE, timeout=0.05)
+        except DeviceError as err:
+            if os.path.exists(path):
+                raise
+            raise DeviceError(f'{err}{stable_name_advice(path)}') from err
         self.decoder.reset()
         self.assembler.reset()
         self.state = 'starting'
@@ -325,7 +351,8 @@ class RplidarNode(SensorDriver):
             try:
                 data = ser.read(max(1, ser.in_waiting))
             except Exception as err:  # noqa: BLE001 - SerialException, OSError (unplugged)
-                raise DeviceError(f'{name}: read failed (unplugged?): {err}') from err
+                raise DeviceError(f'{name}: read failed (unplugged?): {err}'
+                                  f'{stable_name_advice(self.settings.port)}') from err
             now = time.monotonic()
             start, quality, angle, dist = self.decoder.feed(data) if data else NO_SAMPLES
             if not len(start):

@@ -313,6 +313,38 @@ def test_noise_after_the_handshake_is_a_stall_and_backs_off(context, executor, s
     assert lidar.confirmed and lidar._backoff.delay == 0.05
 
 
+def test_a_vanished_usb_port_points_to_its_stable_name(context, executor, spin, monkeypatch):
+    """A re-plugged adapter may come back as another /dev/ttyUSBn: when the port is gone,
+    the fault says to name it by /dev/serial/by-id/."""
+    advice = 'give the port by its stable name, ls -l /dev/serial/by-id/'
+    absent = add(executor, RplidarNode(node_name='absent', context=context,
+                                       parameter_overrides=[
+        Parameter('port', value='/dev/ttyUSB97'), *FAST]))
+    absent.start()
+    assert '/dev/ttyUSB97: cannot open' in absent.last_fault and advice in absent.last_fault
+    assert 'another /dev/ttyUSBn' in absent.last_fault
+    by_id = add(executor, RplidarNode(node_name='by_id', context=context, parameter_overrides=[
+        Parameter('port', value='/dev/serial/by-id/usb-nothing-if00-port0'), *FAST]))
+    by_id.start()
+    assert 'cannot open' in by_id.last_fault and advice not in by_id.last_fault
+    # unplugged while scanning: the emulator's pty stands for /dev/ttyUSB0
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_usb', context=context,
+                                            parameter_overrides=[Parameter('name', value='usb')]))
+    emu.start()
+    real_open = rplidar.open_serial
+    monkeypatch.setattr(rplidar, 'open_serial', lambda path, *a, **k: real_open(
+        emulation.lookup('serial', 'emulated:usb'), *a, **k))
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='/dev/ttyUSB0'), *FAST]))
+    lidar.start()
+    assert spin(executor, lambda: lidar.revolutions >= 1, TIMEOUT), lidar.last_fault
+    seen = record_faults(lidar)
+    emu.emulator.unplug()
+    assert spin(executor, lambda: seen, TIMEOUT)
+    assert 'read failed (unplugged?)' in seen[0] and advice in seen[0]
+    assert main(['check-device', 'rplidar', '--port', '/dev/ttyUSB97']) == 2
+
+
 def test_bad_parameters_are_named(context):
     with pytest.raises(ConfigurationError, match='bins'):
         RplidarNode(context=context, parameter_overrides=[Parameter('bins', value=5)])
