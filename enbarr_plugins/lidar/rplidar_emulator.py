@@ -5,14 +5,14 @@ a driver opens the slave path with pyserial exactly like ``/dev/ttyUSB0``. It an
 RESET, SCAN, GET_INFO and GET_HEALTH with the descriptors and payloads of the Slamtec
 protocol document (see ``enbarr_plugins.lidar.rplidar_protocol`` for the layout and its
 sources; this module keeps its own copy of the bytes): an A1M8 (model ``0x18``), firmware
-1.29, hardware 7; SCAN streams 5-byte samples at
-``sample_rate`` (2000 samples/s, the A1's legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so
-about 364 samples a revolution), the start flag on the first sample of each revolution.
+1.29, hardware 7; SCAN streams 5-byte samples at ``sample_rate`` (2000 samples/s, the A1's
+legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so about 364 samples a revolution), the start
+flag on the first sample of each revolution.
 
 Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, usually from
 ``sim/odometry``, and the mounting pose ``mount``/``flip``, the profile's ``laser`` frame)
-against a basin: the walls of a rectangle and circular obstacles. No return
-(distance 0, quality 0) beyond 12 m or nearer than 0.15 m.
+against a basin: the walls of a rectangle and circular obstacles. No return (distance 0,
+quality 0) beyond 12 m or nearer than 0.15 m.
 
 Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
 under the same registered name, opens), ``corrupt(n)`` (the next n samples with S == !S),
@@ -24,9 +24,10 @@ clears it unless ``health_sticky``).
 A pty carries no modem lines: the emulator cannot see DTR, so its motor always "runs"; the
 driver's DTR calls are tested on its pyserial object instead.
 
-``RplidarEmulatorNode`` wraps it for profiles: registers the pty as the ``serial`` emulator
-``name`` (``port: emulated`` or ``emulated:NAME`` in the driver), follows ``sim/odometry`` and
-reports what it received and sent on ``/diagnostics``.
+``RplidarEmulatorNode`` wraps it for profiles (``emulator_node.DeviceEmulatorNode``): when
+started it opens the pty and registers it as the ``serial`` emulator ``name`` (``port:
+emulated`` or ``emulated:NAME`` in the driver); it follows ``sim/odometry`` and reports what
+it received and sent on ``/diagnostics``.
 """
 
 from __future__ import annotations

@@ -33,9 +33,10 @@ Faults: ``refuse(True)`` (the server stops listening: connections are refused), 
 ``bodies`` without the driver's body (an unknown body), ``send_old_frame()`` (the next packet
 repeats an older frame number), ``refusals`` (a command answered with an error packet).
 
-``QtmEmulatorNode`` wraps it for profiles: registers its (host, port) as the ``tcp``
-emulator ``name`` (``host: emulated`` in the driver), follows ``sim/odometry`` and reports
-what it received and sent on ``/diagnostics``.
+``QtmEmulatorNode`` wraps it for profiles (``emulator_node.DeviceEmulatorNode``): when
+started it listens and registers its (host, port) as the ``tcp`` emulator ``name`` (``host:
+emulated`` in the driver); it follows ``sim/odometry`` and reports what it received and sent
+on ``/diagnostics``.
 """
 
 from __future__ import annotations
