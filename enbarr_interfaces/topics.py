@@ -41,6 +41,7 @@ LATCHED_QOS = QoSProfile(
 BODY_FRAME = 'base_link'
 WORLD_FRAME = 'odom'
 IMU_FRAME = 'imu_link'
+LASER_FRAME = 'laser'
 
 
 @dataclass(frozen=True)
@@ -176,9 +177,10 @@ SIM_AZIMUTH_COMMAND = TopicSpec(
     'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)
 # -- perception (issue 9 drivers) --
 SCAN = TopicSpec(
-    'scan', LaserScan, SENSOR_QOS, 'm, rad', BODY_FRAME,
-    "One lidar revolution in the vessel frame (the lidar's mounting pose applied): "
-    'angle_min..angle_max counter-clockwise from +x, inf where nothing returned.')
+    'scan', LaserScan, SENSOR_QOS, 'm, rad', LASER_FRAME,
+    "One lidar revolution in the lidar's own frame (the driver's frame_id; the frame tree "
+    'places it on the vessel): angle_min..angle_max counter-clockwise from +x; REP-117: '
+    '-inf too close, +inf no return, NaN no sample.')
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', 'camera_optical_frame',
     'Camera frames as captured (OpenCV, V4L2 or a video file).')

@@ -27,9 +27,9 @@ CHECKS: dict[str, str] = {
     'lsm9ds1': 'enbarr_plugins.imu.check:check_lsm9ds1',
     'fxos8700': 'enbarr_plugins.imu.check:check_fxos8700',
     'arduino': 'enbarr_plugins.arduino.check:check_device',
-    'rplidar': 'enbarr_plugins.lidar.rplidar:check_device',
-    'camera': 'enbarr_plugins.camera.opencv_camera:check_device',
-    'qualisys': 'enbarr_plugins.mocap.qualisys:check_device',
+    'rplidar': 'enbarr_plugins.lidar.check:check_device',
+    'camera': 'enbarr_plugins.camera.check:check_device',
+    'qualisys': 'enbarr_plugins.mocap.check:check_device',
     'ds4': 'enbarr_plugins.joystick.check:check_device',
     'gpio': 'enbarr_plugins.io.check:check_gpio',
 }

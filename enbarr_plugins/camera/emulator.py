@@ -1,11 +1,12 @@
 """An emulated camera: a short synthetic video file the camera driver reads like any file.
 
-``CameraEmulatorNode`` writes a test video (``pattern_video``: colour bars, a moving bar and
-the frame number, Motion-JPEG in AVI) to a temporary directory, from a child process so that
-the encoder's memory stays out of the vessel's, and registers its path as the ``camera``
-endpoint ``name`` (``emulation``; the driver's ``device: emulated[:NAME]``). ``stall()``
-replaces the file with one OpenCV cannot read (a camera that stops delivering: the driver's
-next open fails and it retries with backoff), ``resume()`` writes the video again.
+``CameraEmulatorNode``, once started, writes a test video (``pattern_video``: colour bars, a
+moving bar and the frame number, Motion-JPEG in AVI) to a temporary directory, from a child
+process so that the encoder's memory stays out of the vessel's, and registers its path as the
+``camera`` endpoint ``name`` (``emulation``; the driver's ``device: emulated[:NAME]``).
+``stall()`` replaces the file with one OpenCV cannot read (a camera that stops delivering:
+the driver's next open fails and it retries with backoff), ``resume()`` writes the video
+again.
 ``/diagnostics`` says what it wrote and whether it is stalled.
 """
 
@@ -61,22 +62,33 @@ class CameraEmulatorNode(EnbarrNode):
         super().__init__(node_name, **kwargs)
         self.settings: CameraEmulatorSettings
         self.bind_settings(SPECS, CameraEmulatorSettings.from_params, self._apply)
-        self.directory = tempfile.mkdtemp(prefix='enbarr-camera-')
+        self.directory: str | None = None
+        self.path: str | None = None
+        self.frames = 0
         self.stalled = False
-        self.path = self._write()
-        emulation.register('camera', self.settings.name, self.path, owner=self)
         self.create_periodic(1.0, self._report)
+
+    def start(self) -> None:
+        """Write the video and offer it (the camera is plugged in), then start the sources."""
+        if self.path is None:
+            self.path = self._write()
+            emulation.register('camera', self.settings.name, self.path, owner=self)
+        super().start()
 
     def _apply(self, settings: CameraEmulatorSettings) -> None:
         self.settings = settings
 
     def _write(self) -> str:
+        if self.directory is None:
+            self.directory = tempfile.mkdtemp(prefix='enbarr-camera-')
         s = self.settings
         self.frames = max(1, round(s.frame_rate * s.duration))
         return write_in_child(self.directory, s.width, s.height, s.frame_rate, self.frames)
 
     def stall(self) -> None:
         """Replace the video with a file OpenCV cannot read: the camera stops delivering."""
+        if self.path is None:
+            raise RuntimeError('camera emulator: stall() before start()')
         partial = self.path + '.partial'
         with open(partial, 'wb') as f:
             f.write(b'not a video')
@@ -90,14 +102,15 @@ class CameraEmulatorNode(EnbarrNode):
 
     def _report(self) -> None:
         s = self.settings
-        self.publish_diagnostics(1 if self.stalled else 0,
-                                 'stalled' if self.stalled else 'emulating', {
-                                     'path': self.path, 'frames': self.frames,
-                                     'size': f'{s.width}x{s.height}',
-                                     'frame_rate': s.frame_rate})
+        state = 'not started' if self.path is None else 'stalled' if self.stalled else 'emulating'
+        self.publish_diagnostics(1 if self.stalled else 0, state, {
+            'path': self.path or '', 'frames': self.frames, 'size': f'{s.width}x{s.height}',
+            'frame_rate': s.frame_rate})
 
     def destroy_node(self) -> None:
         """Withdraw the endpoint and delete the file."""
-        emulation.unregister('camera', self.settings.name, self.path)
-        shutil.rmtree(self.directory, ignore_errors=True)
+        if self.path is not None:
+            emulation.unregister('camera', self.settings.name, self.path)
+        if self.directory is not None:
+            shutil.rmtree(self.directory, ignore_errors=True)
         super().destroy_node()

@@ -1,9 +1,8 @@
 """Camera through OpenCV: ``camera/image_raw`` (bgr8) + ``camera/camera_info``.
 
-The ``device`` parameter names the source: a V4L2 index (``'0'``) or device
-(``'/dev/video0'``, opened with the V4L2 backend), a video file (any format the OpenCV FFmpeg
-backend reads), or ``'emulated[:NAME]'`` (the video file a ``camera_emulator`` node of this
-process wrote; from there the driver reads it exactly like a file). ``frame_rate``,
+The ``device`` parameter names the source (``capture``): a V4L2 index or device, a video
+file, or ``'emulated[:NAME]'`` (the video file a ``camera_emulator`` node of this process
+wrote; from there the driver reads it exactly like a file). ``frame_rate``,
 ``width``/``height`` are asked of a V4L2 device (the driver publishes what the device gives
 and warns when it differs); a file is read at ``frame_rate`` and starts over at its end
 (``loop``) or stops there. ``calibration_file`` is a ROS camera_info YAML file
@@ -21,24 +20,20 @@ Reference: OpenCV 4 videoio (``cv::VideoCapture``, ``CAP_PROP_*``), REP-104 (Cam
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from dataclasses import dataclass
-import os
 import threading
 import time
 from typing import Any
 
-import cv2
 from sensor_msgs.msg import CameraInfo, Image
 
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import topics
-from enbarr_plugins import emulation
 from enbarr_plugins.camera.calibration import Calibration, load_calibration
-from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.camera.capture import describe, open_capture, parse_device, Source
 
 SPECS = [
     ParamSpec('device', '0', "Source: V4L2 index ('0'), device ('/dev/video0'), a video file, "
@@ -57,34 +52,6 @@ SPECS = [
               0.1, 60.0),
 ]
 
-
-@dataclass(frozen=True)
-class Source:
-    """What ``device`` names: a V4L2 index, or a file path (emulated: the emulator's file)."""
-
-    index: int | None
-    path: str | None
-    emulated: bool
-
-    @property
-    def is_file(self) -> bool:
-        """Whether frames come from a video file."""
-        return self.index is None
-
-
-def parse_device(value: str) -> Source:
-    """Return the source ``device`` names; ``ValueError`` naming ``device`` when empty."""
-    text = value.strip()
-    if not text:
-        raise ValueError("device: empty; give a V4L2 index ('0'), '/dev/videoN', a video "
-                         "file or 'emulated'")
-    if emulation.is_emulated(text):
-        return Source(None, None, True)
-    if text.isdigit():
-        return Source(int(text), None, False)
-    if text.startswith('/dev/video') and text[len('/dev/video'):].isdigit():
-        return Source(int(text[len('/dev/video'):]), None, False)
-    return Source(None, text, False)
 
 
 @dataclass(frozen=True)
@@ -115,56 +82,6 @@ class CameraSettings:
                    calibration_file=v['calibration_file'], calibration=calibration,
                    loop=v['loop'], stall_timeout=v['stall_timeout'])
 
-
-def open_capture(source: Source, device: str, settings: CameraSettings | None = None) -> Any:
-    """Open the source with OpenCV; ``DeviceError`` naming it when it cannot."""
-    if source.emulated:
-        path = emulation.lookup('camera', device)
-        return _open_file(path, device)
-    if source.is_file:
-        return _open_file(source.path, device)
-    with quiet_opencv():  # OpenCV logs its own warning lines for an absent device
-        cap = cv2.VideoCapture(source.index, cv2.CAP_V4L2)
-    if not cap.isOpened():
-        cap.release()
-        raise DeviceError(f'camera /dev/video{source.index}: cannot open (absent, or in use '
-                          'by another program?)')
-    if settings is not None:
-        if settings.width and settings.height:
-            cap.set(cv2.CAP_PROP_FRAME_WIDTH, settings.width)
-            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, settings.height)
-        cap.set(cv2.CAP_PROP_FPS, settings.frame_rate)
-        cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the newest frame, not a queue of old ones
-    return cap
-
-
-@contextmanager
-def quiet_opencv() -> Iterator[None]:
-    """Silence OpenCV's own log lines (the ``DeviceError`` says what went wrong)."""
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    try:
-        yield
-    finally:
-        cv2.utils.logging.setLogLevel(level)
-
-
-def _open_file(path: str, device: str) -> Any:
-    if not os.path.isfile(path):
-        raise DeviceError(f'camera {device}: no such video file {path}')
-    with quiet_opencv():
-        cap = cv2.VideoCapture(path)
-    if not cap.isOpened():
-        cap.release()
-        raise DeviceError(f'camera {device}: OpenCV cannot read {path} as a video')
-    return cap
-
-
-def describe(cap: Any) -> str:
-    """Return resolution, rate and backend of an open capture."""
-    w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
-    h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-    return f'{w}x{h} at {cap.get(cv2.CAP_PROP_FPS):g} fps ({cap.getBackendName()})'
 
 
 class CameraNode(SensorDriver):
@@ -205,7 +122,7 @@ class CameraNode(SensorDriver):
     def open_device(self) -> None:
         """Open the source and note what it gives."""
         s = self.settings
-        cap = open_capture(s.source, s.device, s)
+        cap = open_capture(s.source, s.device, (s.width, s.height), s.frame_rate)
         self.description = describe(cap)
         self.get_logger().info(f'{self.device}: {self.description}')
         with self._cap_lock:
@@ -330,36 +247,3 @@ def camera_info(cal: Calibration | None, width: int, height: int) -> CameraInfo:
         info.r = list(cal.r)
         info.p = list(cal.p)
     return info
-
-
-def check_device(target: CheckTarget) -> list[str]:
-    """``enbarr check-device camera``: open the source, read one frame, print its size/rate."""
-    value = target.device or '0'
-    try:
-        source = parse_device(value)
-    except ValueError as err:
-        raise DeviceError(str(err)) from err
-    emulator = None
-    if source.emulated:
-        from enbarr_plugins.camera.pattern_video import write_test_video
-        import tempfile
-        emulator = tempfile.TemporaryDirectory(prefix='enbarr-camera-check-')
-        source = Source(None, write_test_video(emulator.name, 640, 480, 15.0, 15), False)
-    try:
-        cap = open_capture(source, value)
-        try:
-            deadline = time.monotonic() + target.timeout
-            ok, frame = cap.read()
-            while not ok and time.monotonic() < deadline:
-                time.sleep(0.05)
-                ok, frame = cap.read()
-            if not ok:
-                raise DeviceError(f'camera {value}: opened, but no frame within '
-                                  f'{target.timeout:g} s')
-            h, w = frame.shape[:2]
-            return [f'camera {value}: {describe(cap)}', f'one frame: {w}x{h} bgr8']
-        finally:
-            cap.release()
-    finally:
-        if emulator is not None:
-            emulator.cleanup()

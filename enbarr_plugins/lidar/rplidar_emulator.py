@@ -3,28 +3,31 @@
 ``RplidarEmulator`` serves the master side of a pty (``os.openpty``, raw) on its own thread;
 a driver opens the slave path with pyserial exactly like ``/dev/ttyUSB0``. It answers STOP,
 RESET, SCAN, GET_INFO and GET_HEALTH with the descriptors and payloads of the Slamtec
-protocol document (see ``enbarr_plugins.lidar.rplidar`` for the layout and its sources): an
-A1M8 (model ``0x18``), firmware 1.29, hardware 7; SCAN streams 5-byte samples at
-``sample_rate`` (2000 samples/s, the A1's legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so
-about 364 samples a revolution), the start flag on the first sample of each revolution.
+protocol document (see ``enbarr_plugins.lidar.rplidar_protocol`` for the layout and its
+sources; this module keeps its own copy of the bytes): an A1M8 (model ``0x18``), firmware
+1.29, hardware 7; SCAN streams 5-byte samples at ``sample_rate`` (2000 samples/s, the A1's
+legacy SCAN rate) and ``rotation_hz`` (5.5 Hz, so about 364 samples a revolution), the start
+flag on the first sample of each revolution.
 
 Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, usually from
-``sim/odometry``, and the mounting pose, the same convention as the driver's ``mount`` and
-``flip``) against a basin: the walls of a rectangle and circular obstacles. No return
-(distance 0, quality 0) beyond 12 m or nearer than 0.15 m.
+``sim/odometry``, and the mounting pose ``mount``/``flip``, the profile's ``laser`` frame)
+against a basin: the walls of a rectangle and circular obstacles. No return (distance 0,
+quality 0) beyond 12 m or nearer than 0.15 m.
 
 Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
 under the same registered name, opens), ``corrupt(n)`` (the next n samples with S == !S),
 ``truncate(n)`` (the next n samples cut to 3 bytes), ``stall(True)`` (silent: no answer, no
-sample), ``model`` (GET_INFO reports another model, e.g. ``0x61`` an S-series), ``health``
-(GET_HEALTH reports an error; a RESET clears it unless ``health_sticky``).
+sample), ``noise(True)`` (random bytes instead of samples), ``model`` (GET_INFO reports
+another model, e.g. ``0x61`` an S-series), ``health`` (GET_HEALTH reports an error; a RESET
+clears it unless ``health_sticky``).
 
 A pty carries no modem lines: the emulator cannot see DTR, so its motor always "runs"; the
 driver's DTR calls are tested on its pyserial object instead.
 
-``RplidarEmulatorNode`` wraps it for profiles: registers the pty as the ``serial`` emulator
-``name`` (``port: emulated`` or ``emulated:NAME`` in the driver), follows ``sim/odometry`` and
-reports what it received and sent on ``/diagnostics``.
+``RplidarEmulatorNode`` wraps it for profiles (``emulator_node.DeviceEmulatorNode``): when
+started it opens the pty and registers it as the ``serial`` emulator ``name`` (``port:
+emulated`` or ``emulated:NAME`` in the driver); it follows ``sim/odometry`` and reports what
+it received and sent on ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -40,21 +43,70 @@ import time
 import tty
 from typing import Any
 
-from nav_msgs.msg import Odometry
 import numpy as np
 
-from enbarr_core.framework.driver import OK
-from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
-from enbarr_plugins import emulation
-from enbarr_plugins.lidar.rplidar import (
-    ANS_TYPE_DEVHEALTH, ANS_TYPE_DEVINFO, ANS_TYPE_MEASUREMENT, CMD_GET_HEALTH, CMD_GET_INFO,
-    CMD_RESET, CMD_SCAN, CMD_STOP, CMDFLAG_HAS_PAYLOAD, encode_descriptor, encode_sample,
-    MODE_MULTI, MODE_SINGLE, Mount, RANGE_MAX, RANGE_MIN, STATUS_ERROR, STATUS_OK, SYNC)
+from enbarr_plugins.emulator_node import commands_line, DeviceEmulatorNode
 
-#: FORCE_SCAN (answered like SCAN).
-CMD_FORCE_SCAN = 0x21
+# The emulator's own copy of the bytes, typed from Slamtec's "RPLIDAR Interface Protocol and
+# Application Notes" (A1 & A2, rev 1.1) and the SDK's sl_lidar_cmd.h / sl_lidar_protocol.h,
+# not imported from the driver's protocol module: a wrong constant there must meet a device
+# that speaks the document. test_rplidar_protocol pins both to the document's numbers.
+SYNC = 0xA5                 # request and descriptor start byte
+ANS_SYNC = 0x5A             # second descriptor byte
+CMDFLAG_HAS_PAYLOAD = 0x80  # requests with SIZE, PAYLOAD and CHECKSUM
+CMD_STOP = 0x25
+CMD_SCAN = 0x20
+CMD_FORCE_SCAN = 0x21       # answered like SCAN
+CMD_RESET = 0x40
+CMD_GET_INFO = 0x50
+CMD_GET_HEALTH = 0x52
+ANS_TYPE_DEVINFO = 0x04
+ANS_TYPE_DEVHEALTH = 0x06
+ANS_TYPE_MEASUREMENT = 0x81
+MODE_SINGLE, MODE_MULTI = 0, 1  # send mode, the descriptor's top two bits
+STATUS_OK, STATUS_ERROR = 0, 2
+#: A1M8 range [m] (Slamtec, "RPLIDAR A1 Introduction and Datasheet"): no return outside it.
+RANGE_MIN, RANGE_MAX = 0.15, 12.0
+
+
+def encode_descriptor(length: int, mode: int, dtype: int) -> bytes:
+    """Encode a response descriptor: A5 5A, u32 length | mode << 30, data type (7 bytes)."""
+    return bytes((SYNC, ANS_SYNC)) + struct.pack('<IB', (length & 0x3FFFFFFF) | (mode << 30),
+                                                  dtype)
+
+
+def encode_sample(start: bool, quality: int, angle_deg: float, distance_mm: float) -> bytes:
+    """Encode one SCAN sample (5 bytes).
+
+    quality << 2 | !S << 1 | S, then angle_q6 << 1 | C (the check bit C always 1), then
+    distance_q2, little-endian.
+    """
+    s = 1 if start else 0
+    angle_q6 = int(round(angle_deg * 64.0)) & 0x7FFF
+    dist_q2 = min(0xFFFF, max(0, int(round(distance_mm * 4.0))))
+    return struct.pack('<BHH', (quality & 0x3F) << 2 | (s ^ 1) << 1 | s,
+                       angle_q6 << 1 | 1, dist_q2)
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where the emulated lidar sits on the vessel: its 0 deg mark's pose in ``base_link``.
+
+    x, y [m], yaw [rad]; ``flip``: mounted upside down (the rotation then looks
+    counter-clockwise from above). The same pose as the profile's ``laser`` frame: the
+    emulator measures the basin from there, the driver publishes in ``laser``.
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    flip: bool = False
+
+    def world_angles(self, angle_deg: np.ndarray) -> np.ndarray:
+        """Bearing in ``base_link`` [rad, CCW] of the lidar's clockwise angles [deg]."""
+        theta = np.radians(angle_deg)
+        return self.yaw + (theta if self.flip else -theta)
 
 
 @dataclass(frozen=True)
@@ -122,6 +174,8 @@ class RplidarEmulator:
         self._corrupt = 0
         self._truncate = 0
         self._stalled = False
+        self._noise = False
+        self._rng = np.random.default_rng(0)
         self._lock = threading.Lock()
         self._master = self._slave = -1
         self._thread: threading.Thread | None = None
@@ -190,6 +244,10 @@ class RplidarEmulator:
     def stall(self, on: bool) -> None:
         """Go silent (no answers, no samples) or speak again."""
         self._stalled = on
+
+    def noise(self, on: bool) -> None:
+        """Stream random bytes instead of samples while scanning (or samples again)."""
+        self._noise = on
 
     def set_pose(self, x: float, y: float, psi: float) -> None:
         """Set the vessel's pose in odom [m, m, rad] (from the simulator)."""
@@ -304,6 +362,10 @@ class RplidarEmulator:
         n = min(due - self._scan_index, 400)
         if n <= 0:
             return
+        if self._noise:
+            self._scan_index += n
+            self._send(self._rng.integers(0, 256, 5 * n, dtype=np.uint8).tobytes())
+            return
         per_rev = max(1, round(self.sample_rate / self.rotation_hz))
         j = np.arange(self._scan_index, self._scan_index + n)
         rev, i = j // per_rev, j % per_rev
@@ -335,10 +397,13 @@ SPECS = [
               'x_max, y_max in odom (default: the NTNU MC-lab, 40 x 6.45 m, centred)', 'm'),
     ParamSpec('basin.circles', [0.0], 'Circular obstacles x, y, r, x, y, r, ... in odom; '
               '[0.0]: none', 'm'),
-    ParamSpec('mount.x', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
-    ParamSpec('mount.y', 0.0, "Lidar mount, as the driver's", 'm', -20.0, 20.0),
-    ParamSpec('mount.yaw', 0.0, "Lidar mount, as the driver's", 'rad', -math.pi, math.pi),
-    ParamSpec('flip', False, "Mounted upside down, as the driver's"),
+    ParamSpec('mount.x', 0.0, "Lidar centre ahead of base_link's origin (the laser frame's x)",
+              'm', -20.0, 20.0),
+    ParamSpec('mount.y', 0.0, "Lidar centre left of base_link's origin (the laser frame's y)",
+              'm', -20.0, 20.0),
+    ParamSpec('mount.yaw', 0.0, "Direction of the lidar's 0 deg mark, CCW from base_link +x "
+              "(the laser frame's yaw)", 'rad', -math.pi, math.pi),
+    ParamSpec('flip', False, 'Mounted upside down (the laser frame rolled by pi)'),
     ParamSpec('rotation_hz', 5.5, 'Rotation rate (A1: about 5.5 Hz)', 'Hz', 1.0, 15.0,
               read_only=True),
     ParamSpec('sample_rate', 2000.0, 'Samples per second (A1 SCAN: 2000)', '1/s', 100.0,
@@ -375,54 +440,31 @@ class RplidarEmulatorSettings:
                    v['rotation_hz'], v['sample_rate'], int(v['model']))
 
 
-class RplidarEmulatorNode(EnbarrNode):
+class RplidarEmulatorNode(DeviceEmulatorNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    kind = 'serial'
+    device = 'RPLidar A1'
 
     def __init__(self, node_name: str = 'rplidar_emulator', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.settings: RplidarEmulatorSettings
-        self.emulator: RplidarEmulator | None = None
-        self.bind_settings(SPECS, RplidarEmulatorSettings.from_params, self._apply)
-        s = self.settings
-        self.emulator = RplidarEmulator(basin=s.basin, mount=s.mount,
-                                        rotation_hz=s.rotation_hz, sample_rate=s.sample_rate,
-                                        model=s.model, on_path=self._register,
-                                        on_gone=self._unregister)
-        self.poses = 0
-        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_periodic(1.0, self._report)
-        self.emulator.start()
+        super().__init__(node_name, SPECS, RplidarEmulatorSettings.from_params, **kwargs)
 
-    def _apply(self, s: RplidarEmulatorSettings) -> None:
-        self.settings = s
-        if self.emulator is not None:
-            self.emulator.basin, self.emulator.mount, self.emulator.model = (
-                s.basin, s.mount, s.model)
+    def make_emulator(self, s: RplidarEmulatorSettings, plugged: Callable[[str], None],
+                      unplugged: Callable[[str], None]) -> RplidarEmulator:
+        """Build the A1 on a pty, plugged in (its path offered) on ``start``."""
+        return RplidarEmulator(basin=s.basin, mount=s.mount, rotation_hz=s.rotation_hz,
+                               sample_rate=s.sample_rate, model=s.model, on_path=plugged,
+                               on_gone=unplugged)
 
-    def _register(self, path: str) -> None:
-        emulation.register('serial', self.settings.name, path, owner=self)
-        self.get_logger().info(f'RPLidar A1 emulator {self.settings.name!r} on {path}')
+    def apply(self, s: RplidarEmulatorSettings) -> None:
+        """Basin, mount and model change live."""
+        self.emulator.basin, self.emulator.mount, self.emulator.model = (
+            s.basin, s.mount, s.model)
 
-    def _unregister(self, path: str) -> None:
-        emulation.unregister('serial', self.settings.name, path)
-
-    def _on_truth(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        self.emulator.set_pose(float(eta[0]), float(eta[1]), float(eta[2]))
-        self.poses += 1
-
-    def _report(self) -> None:
+    def report(self) -> tuple[str, dict[str, Any]]:
+        """Report the pty and what went through it."""
         e = self.emulator
-        self.publish_diagnostics(OK, f'serving {e.path}' if e.path else 'unplugged', {
-            'path': e.path or '', 'commands': ' '.join(f'{k}={v}' for k, v in
-                                                       sorted(e.commands.items())),
+        return (f'serving {e.path}' if e.path else 'not plugged in', {
+            'path': e.path or '', 'commands': commands_line(e.commands),
             'bad_requests': e.bad_requests, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out,
-            'samples_sent': e.samples_sent, 'overflows': e.overflows, 'poses': self.poses})
-
-    def destroy_node(self) -> None:
-        """Close the pty and withdraw it from the emulator registry."""
-        if self.emulator is not None:
-            self.emulator.stop()  # unregisters the pty (on_gone)
-        super().destroy_node()
+            'samples_sent': e.samples_sent, 'overflows': e.overflows})

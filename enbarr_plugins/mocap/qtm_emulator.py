@@ -3,9 +3,9 @@
 ``QtmEmulator`` runs an asyncio TCP server on its own thread (127.0.0.1, an ephemeral port)
 and speaks the QTM RT protocol as documented by Qualisys ("QTM Real-time Server Protocol
 Documentation") and as the ``qtm-rt`` client expects it (``qtm_rt/protocol.py``,
-``qtm_rt/receiver.py``, ``qtm_rt/packet.py``): every packet is a little-endian header (u32
-size including the header, u32 type: 0 error, 1 command, 2 XML, 3 data, 4 no more data,
-6 event) and its body, strings NUL-terminated. On a connection it sends the command
+``qtm_rt/receiver.py``, ``qtm_rt/packet.py``), framed by ``qtm_protocol``: every packet is
+a little-endian header (u32 size including the header, u32 type) and its body, strings
+NUL-terminated. On a connection it sends the command
 "QTM RT Interface connected"; it answers
 
 - ``Version 1.xx`` with "Version set to 1.xx" (1.8 to 1.25; an error packet otherwise, and
@@ -31,51 +31,35 @@ Faults: ``refuse(True)`` (the server stops listening: connections are refused), 
 (every connection is closed), ``stall(True)`` (no data packet, the connection open),
 ``nan(True)`` (the tracked body not tracked: NaN), ``wrong_version`` (every Version refused),
 ``bodies`` without the driver's body (an unknown body), ``send_old_frame()`` (the next packet
-repeats an older frame number).
+repeats an older frame number), ``refusals`` (a command answered with an error packet).
 
-``QtmEmulatorNode`` wraps it for profiles: registers its (host, port) as the ``tcp``
-emulator ``name`` (``host: emulated`` in the driver), follows ``sim/odometry`` and reports
-what it received and sent on ``/diagnostics``.
+``QtmEmulatorNode`` wraps it for profiles (``emulator_node.DeviceEmulatorNode``): when
+started it listens and registers its (host, port) as the ``tcp`` emulator ``name`` (``host:
+emulated`` in the driver); it follows ``sim/odometry`` and reports what it received and sent
+on ``/diagnostics``.
 """
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 import math
-import struct
 import threading
 import time
 from typing import Any
 
-from nav_msgs.msg import Odometry
 import numpy as np
 
-from enbarr_core.framework.driver import OK
-from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
-from enbarr_plugins import emulation
-from enbarr_plugins.mocap.qualisys import QtmFrame
+from enbarr_plugins.emulator_node import commands_line, describe, DeviceEmulatorNode
+from enbarr_plugins.mocap.qtm_frame import QtmFrame
+from enbarr_plugins.mocap.qtm_protocol import (
+    COMPONENT_6D, COMPONENT_6D_EULER, COMPONENT_HEADER, DATA_HEADER, EVENT_CONNECTED, HEADER,
+    packet, PACKET_COMMAND, PACKET_DATA, PACKET_ERROR, PACKET_EVENT, PACKET_XML, SIX_D_BODY,
+    SIX_D_EULER_BODY, SIX_D_HEADER, text_packet, WELCOME)
 
-PACKET_ERROR, PACKET_COMMAND, PACKET_XML, PACKET_DATA, PACKET_NO_MORE_DATA = 0, 1, 2, 3, 4
-PACKET_EVENT = 6
-COMPONENT_6D, COMPONENT_6D_EULER = 5, 6
-EVENT_CONNECTED = 1
-WELCOME = 'QTM RT Interface connected'
 VERSIONS = ((1, 8), (1, 25))  # oldest, newest served
-_HEADER = struct.Struct('<II')
-
-
-def packet(ptype: int, body: bytes) -> bytes:
-    """One QTM RT packet: header (size including itself, type) and body."""
-    return _HEADER.pack(_HEADER.size + len(body), ptype) + body
-
-
-def text_packet(ptype: int, text: str) -> bytes:
-    """Encode a command, error or XML packet: the text NUL-terminated."""
-    return packet(ptype, text.encode() + b'\0')
 
 
 def euler_deg(r: np.ndarray) -> tuple[float, float, float]:
@@ -90,13 +74,14 @@ class QtmEmulator:
 
     def __init__(self, *, bodies: tuple[str, ...] = ('saucer',), tracked: str | None = None,
                  capture_rate: float = 100.0, frame: QtmFrame = QtmFrame(),
-                 height: float = 0.0, on_address: Any = None) -> None:
+                 height: float = 0.0, on_address: Any = None, on_gone: Any = None) -> None:
         self.bodies = tuple(bodies)
         self.tracked = tracked or (bodies[0] if bodies else '')
         self.capture_rate = capture_rate
         self.frame = frame
         self.height = height  # [m] of the body above odom's origin
         self.on_address = on_address
+        self.on_gone = on_gone
         self.pose = (0.0, 0.0, 0.0)
         self.address: tuple[str, int] | None = None
         # counters
@@ -108,6 +93,8 @@ class QtmEmulator:
         self.bytes_out = 0
         # faults
         self.wrong_version = False
+        #: command name (lower case) -> the error text QTM answers it with instead
+        self.refusals: dict[str, str] = {}
         self._stalled = False
         self._nan = False
         self._old_frame = False
@@ -140,6 +127,8 @@ class QtmEmulator:
         loop.call_soon_threadsafe(loop.stop)
         thread.join(2.0)
         self._thread = self._loop = None
+        if self.address is not None and self.on_gone is not None:
+            self.on_gone(self.address)  # QTM is gone; the port is kept for a restart
 
     def _run_loop(self) -> None:
         loop = asyncio.new_event_loop()
@@ -210,6 +199,11 @@ class QtmEmulator:
         """Set the vessel pose in odom [m, m, rad] (from the simulator)."""
         self.pose = (x, y, psi)
 
+    @property
+    def open_connections(self) -> int:
+        """Connections open now."""
+        return len(self._writers)
+
     # -- the protocol --------------------------------------------------------------------------
     def _count(self, name: str) -> None:
         self.commands[name] = self.commands.get(name, 0) + 1
@@ -224,10 +218,10 @@ class QtmEmulator:
         self._write(writer, text_packet(PACKET_COMMAND, WELCOME))
         try:
             while True:
-                size, ptype = _HEADER.unpack(await reader.readexactly(_HEADER.size))
-                if size < _HEADER.size or size > 1 << 20:
+                size, ptype = HEADER.unpack(await reader.readexactly(HEADER.size))
+                if size < HEADER.size or size > 1 << 20:
                     break  # not QTM RT framing: hang up as QTM would
-                body = await reader.readexactly(size - _HEADER.size)
+                body = await reader.readexactly(size - HEADER.size)
                 self.bytes_in += size
                 if ptype == PACKET_COMMAND:
                     self._command(body.rstrip(b'\0').decode(errors='replace'), writer, state)
@@ -256,7 +250,9 @@ class QtmEmulator:
         name = words[0].lower() if words else ''
         self._count(name or '(empty)')
         args = [w.lower() for w in words[1:]]
-        if name == 'version':
+        if name in self.refusals:
+            self._error(writer, self.refusals[name])
+        elif name == 'version':
             if not args:
                 major, minor = state['version']
                 self._write(writer, text_packet(PACKET_COMMAND, f'Version is {major}.{minor}'))
@@ -354,17 +350,17 @@ class QtmEmulator:
             else:
                 p, r = pos_mm, r_qtm
             if component == COMPONENT_6D:
-                bodies += struct.pack('<3f9f', *p, *r.T.reshape(9))  # column-major
+                bodies += SIX_D_BODY.pack(*p, *r.T.reshape(9))  # column-major
             else:
                 angles = (math.nan,) * 3 if not np.isfinite(r).all() else euler_deg(r)
-                bodies += struct.pack('<3f3f', *p, *angles)
-        comp = struct.pack('<ihh', len(self.bodies), 0, 0) + bodies
+                bodies += SIX_D_EULER_BODY.pack(*p, *angles)
+        comp = SIX_D_HEADER.pack(len(self.bodies), 0, 0) + bodies
         number = self.frame_number()
         if self._old_frame:
             self._old_frame = False
             number = max(0, number - 10)
-        body = (struct.pack('<qII', int((time.monotonic() - self._t0) * 1e6), number, 1)
-                + struct.pack('<II', 8 + len(comp), component) + comp)
+        body = (DATA_HEADER.pack(int((time.monotonic() - self._t0) * 1e6), number, 1)
+                + COMPONENT_HEADER.pack(COMPONENT_HEADER.size + len(comp), component) + comp)
         return packet(PACKET_DATA, body)
 
 
@@ -403,52 +399,29 @@ class QtmEmulatorSettings:
                    QtmFrame(v['frame.yaw'], v['frame.x'], v['frame.y'], v['frame.up']))
 
 
-class QtmEmulatorNode(EnbarrNode):
+class QtmEmulatorNode(DeviceEmulatorNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    kind = 'tcp'
+    device = 'QTM RT'
 
     def __init__(self, node_name: str = 'qtm_emulator', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self.settings: QtmEmulatorSettings
-        self.emulator: QtmEmulator | None = None
-        self.bind_settings(SPECS, QtmEmulatorSettings.from_params, self._apply)
-        s = self.settings
-        self.emulator = QtmEmulator(bodies=s.bodies, capture_rate=s.capture_rate,
-                                    frame=s.frame, on_address=self._register)
-        self.poses = 0
-        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
-        self.create_periodic(1.0, self._report)
-        self.emulator.start()
+        super().__init__(node_name, SPECS, QtmEmulatorSettings.from_params, **kwargs)
 
-    def _apply(self, s: QtmEmulatorSettings) -> None:
-        self.settings = s
-        if self.emulator is not None:
-            self.emulator.frame = s.frame
+    def make_emulator(self, s: QtmEmulatorSettings, plugged: Callable[[Any], None],
+                      unplugged: Callable[[Any], None]) -> QtmEmulator:
+        """Build the server on loopback, listening (its address offered) on ``start``."""
+        return QtmEmulator(bodies=s.bodies, capture_rate=s.capture_rate, frame=s.frame,
+                           on_address=plugged, on_gone=unplugged)
 
-    def _register(self, address: tuple[str, int]) -> None:
-        emulation.register('tcp', self.settings.name, address, owner=self)
-        self.get_logger().info(f'QTM RT emulator {self.settings.name!r} on '
-                               f'tcp://{address[0]}:{address[1]}')
+    def apply(self, s: QtmEmulatorSettings) -> None:
+        """QTM's frame changes live."""
+        self.emulator.frame = s.frame
 
-    def _on_truth(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        self.emulator.set_pose(float(eta[0]), float(eta[1]), float(eta[2]))
-        self.poses += 1
-
-    def _report(self) -> None:
+    def report(self) -> tuple[str, dict[str, Any]]:
+        """Report the address and what went through it."""
         e = self.emulator
-        self.publish_diagnostics(OK, f'serving tcp://{e.address[0]}:{e.address[1]}', {
-            'connections': e.connections, 'open': len(e._writers),
-            'commands': ' '.join(f'{k}={v}' for k, v in sorted(e.commands.items())),
-            'frames_sent': e.frames_sent, 'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in,
-            'bytes_out': e.bytes_out, 'poses': self.poses})
-
-    def destroy_node(self) -> None:
-        """Stop the server and withdraw it from the emulator registry."""
-        if self.emulator is not None:
-            address = self.emulator.address
-            self.emulator.stop()
-            if address is not None:
-                emulation.unregister('tcp', self.settings.name, address)
-        super().destroy_node()
+        return (f'serving {describe(e.address)}' if e.address else 'not started', {
+            'connections': e.connections, 'open': e.open_connections,
+            'commands': commands_line(e.commands), 'frames_sent': e.frames_sent,
+            'errors_sent': e.errors_sent, 'bytes_in': e.bytes_in, 'bytes_out': e.bytes_out})

@@ -5,24 +5,14 @@ a thread of this driver; nothing of it touches the executor. The driver connects
 server (``host``:``port``, 22223 the little-endian port), negotiates ``protocol_version``,
 reads the 6D parameters (the rigid bodies' names, in the order of the data packets: the
 ``*/Body/Name`` elements of ``GetParameters 6D``), and streams ``6D`` frames at ``rate``
-(``StreamFrames Frequency:N 6D``). Protocol references: Qualisys, "QTM Real-time Server
-Protocol Documentation" (docs.qualisys.com/qtm-rt-protocol: packet header = little-endian
-u32 size including the 8-byte header and u32 type; data packet = i64 timestamp [us], u32
-frame number, u32 component count, components of u32 size, u32 type; 6D component = i32 body
-count, u16 2-D drop rate, u16 out-of-sync rate, then per body x, y, z [mm] and the 3x3
-rotation matrix as 9 float32 in column-major order, NaN while the body is not tracked) and
-``qtm_rt/packet.py``, ``qtm_rt/protocol.py`` of the package (its parser is what runs here).
-Column-major as in the Qualisys C++ SDK's users (``Get6DOFBody`` read into a column-major
+(``StreamFrames Frequency:N 6D``). The protocol's layout and its sources are in
+``qtm_protocol``; qtm-rt's own parser reads the packets here. The rotation matrix is
+column-major as in the Qualisys C++ SDK's users (``Get6DOFBody`` read into a column-major
 Eigen matrix).
 
-Frames: QTM's global frame is whatever its calibration (the L-frame) made it; ``frame.up``
-says which of its axes points up (``z``, QTM's default, or ``y``), and ``frame.yaw`` [rad]
-and ``frame.x``/``frame.y`` [m] place it in ``odom`` (ENU)::
-
-    p_odom = Rz(yaw) A p_qtm / 1000 + [x, y, 0],    R_odom_body = Rz(yaw) A R_qtm_body
-
-with A = I for ``z`` up and A mapping (x, y, z)_qtm -> (x, -z, y) for ``y`` up. The rigid
-body's own axes must be defined in QTM as ``base_link`` (x forward, y left, z up).
+Frames: ``frame.up``, ``frame.yaw``, ``frame.x`` and ``frame.y`` place QTM's global frame in
+``odom`` (``qtm_frame.QtmFrame``). The rigid body's own axes must be defined in QTM as
+``base_link`` (x forward, y left, z up).
 
 Time (``docs/architecture.md``, Time): a pose is stamped with this node's clock when its
 packet is read (QTM's timestamps count from its capture start on another computer's clock),
@@ -34,17 +24,17 @@ Faults: a body QTM does not track (NaN) is counted (``lost``) and not published,
 frame number are dropped and counted (``out_of_order``); a refused connection, a refused
 version, a lost connection or no frame for ``stall_timeout`` are device faults (reconnect
 with backoff); a ``body`` missing from QTM's 6D parameters is a fault that names it and
-lists the known bodies.
+lists the known bodies. Starting the session thread proves nothing: QTM is back, and the
+retry delay starts over, when its first data packet arrives.
 """
 
 from __future__ import annotations
 
 import asyncio
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import logging
 import math
-import threading
 import time
 from typing import Any
 import xml.etree.ElementTree as ET
@@ -57,45 +47,10 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
-
-#: QTM's RT server port for little-endian clients (the one qtm-rt speaks).
-DEFAULT_PORT = 22223
-
-_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-
-
-@dataclass(frozen=True)
-class QtmFrame:
-    """Where QTM's global frame sits in ``odom`` (see the module docstring)."""
-
-    yaw: float = 0.0     # [rad]
-    x: float = 0.0       # [m]
-    y: float = 0.0       # [m]
-    up: str = 'z'        # 'z' or 'y'
-    rotation: np.ndarray = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        """Precompute Rz(yaw) A."""
-        if self.up not in ('z', 'y'):
-            raise ValueError(f"frame.up: 'z' or 'y', got {self.up!r}")
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        object.__setattr__(self, 'rotation', rz @ (_Y_UP if self.up == 'y' else np.eye(3)))
-
-    def to_odom(self, position_mm: Any, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """QTM position [mm] and body rotation -> odom position [m] and rotation."""
-        p = self.rotation @ (np.asarray(position_mm, dtype=float) * 1e-3)
-        return p + np.array([self.x, self.y, 0.0]), self.rotation @ rotation
-
-    def from_odom(self, position_m: Any, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Odom position [m] and rotation -> QTM position [mm] and rotation (the emulator)."""
-        p = np.asarray(position_m, dtype=float) - np.array([self.x, self.y, 0.0])
-        return self.rotation.T @ p * 1e3, self.rotation.T @ rotation
-
-
-def matrix_from_column_major(values: Any) -> np.ndarray:
-    """Return the 3x3 rotation matrix of QTM's 9 column-major floats."""
-    return np.asarray(values, dtype=float).reshape(3, 3).T
+from enbarr_plugins.mocap.qtm_frame import QtmFrame
+from enbarr_plugins.mocap.qtm_protocol import (
+    body_names, DEFAULT_PORT, matrix_from_column_major)
+from enbarr_plugins.transport.reader import DeviceThread
 
 
 def rotmat_to_quat(r: np.ndarray) -> np.ndarray:
@@ -116,13 +71,6 @@ def rotmat_to_quat(r: np.ndarray) -> np.ndarray:
         q[3] = (r[k, j] - r[j, k]) / s
     q /= np.linalg.norm(q)
     return -q if q[3] < 0.0 else q
-
-
-def body_names(xml_text: Any) -> list[str]:
-    """Rigid body names of a ``GetParameters 6D`` answer, in data-packet order."""
-    text = xml_text.decode(errors='replace') if isinstance(xml_text, bytes) else xml_text
-    root = ET.fromstring(text.rstrip('\0'))
-    return [(e.text or '').strip() for e in root.findall('*/Body/Name')]
 
 
 def parse_host(text: str) -> tuple[str, int | None]:
@@ -151,7 +99,16 @@ class _LastQtmError(logging.Handler):
         self.last = record.getMessage()
 
 
-def _where(host: str, port: int) -> str:
+def qtm_said(err: BaseException) -> str:
+    """Return QTM's words of an error packet (qtm-rt's ``QRTCommandException`` holds bytes)."""
+    value = getattr(err, 'value', None)
+    if isinstance(value, bytes):
+        return value.rstrip(b'\0').decode(errors='replace')
+    return str(value if value is not None else err)
+
+
+def tcp_address(host: str, port: int) -> str:
+    """``tcp://HOST:PORT``: how faults name the QTM server."""
     return f'tcp://{host}:{port}'
 
 
@@ -167,12 +124,12 @@ async def open_session(host: str, port: int, version: str, timeout: float,
             host, port, version=version, timeout=timeout, on_disconnect=on_disconnect),
             timeout)
     except asyncio.TimeoutError as err:
-        raise DeviceError(f'{_where(host, port)}: no answer to the connection and Version '
+        raise DeviceError(f'{tcp_address(host, port)}: no answer to the connection and Version '
                           f'{version} within {timeout} s') from err
     finally:
         log.removeHandler(catcher)
     if conn is None:
-        raise DeviceError(f'{_where(host, port)}: cannot connect or protocol version '
+        raise DeviceError(f'{tcp_address(host, port)}: cannot connect or protocol version '
                           f'{version} refused: {catcher.last or "no reason given"}')
     return conn
 
@@ -185,7 +142,7 @@ async def read_bodies(conn: Any, where: str) -> list[str]:
     except asyncio.TimeoutError as err:
         raise DeviceError(f'{where}: no answer to GetParameters 6D') from err
     except qtm_rt.QRTCommandException as err:
-        raise DeviceError(f'{where}: GetParameters 6D refused: {err}') from err
+        raise DeviceError(f'{where}: GetParameters 6D refused: {qtm_said(err)}') from err
     try:
         return body_names(xml_text)
     except ET.ParseError as err:
@@ -272,12 +229,15 @@ class QualisysSettings:
 class QualisysNode(SensorDriver):
     """See the module docstring."""
 
+    #: Opening only starts the session thread: QTM is back when its first data packet comes.
+    confirmed_by_open = False
+
     def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.settings: QualisysSettings
         self.bind_settings(SPECS, QualisysSettings.from_params, self._apply)
         s = self.settings
-        self.device = f'{s.host}' if emulation.is_emulated(s.host) else _where(s.host, s.port)
+        self.device = f'{s.host}' if emulation.is_emulated(s.host) else tcp_address(s.host, s.port)
         self.bodies: list[str] = []
         self.state = 'closed'
         self.lost = 0
@@ -288,9 +248,7 @@ class QualisysNode(SensorDriver):
         self._last_stamp = 0
         self._last_packet = 0.0
         self._disconnected: BaseException | bool = False
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._error: DeviceError | None = None
+        self._session_thread = DeviceThread(f'{self.get_name()}_qtm')
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
 
     def _apply(self, settings: QualisysSettings) -> None:
@@ -302,42 +260,29 @@ class QualisysNode(SensorDriver):
         s = self.settings
         if emulation.is_emulated(s.host):
             host, port = emulation.lookup('tcp', s.host)
-            self.device = f'{s.host} ({_where(host, port)})'
+            self.device = f'{s.host} ({tcp_address(host, port)})'
         else:
             host, port = s.host, s.port
-        self._error = None
-        self._stop.clear()
         self._disconnected = False
         self._last_frame = None
         self.state = 'connecting'
-        self._thread = threading.Thread(target=self._run, args=(host, port),
-                                        name=f'{self.get_name()}_qtm', daemon=True)
-        self._thread.start()
+        self._session_thread.start(tcp_address(host, port), self._run, host, port)
 
     def close_device(self) -> None:
         """End the session (the thread disconnects) and wait for its thread."""
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(2.0 + self.settings.timeout)
+        self._session_thread.stop(2.0 + self.settings.timeout)
         self.state = 'closed'
 
     def supervise(self) -> None:
         """Hand a failure of the session thread to ``device_fault`` (executor thread)."""
-        err = self._error
-        if err is not None and self.connected:
-            self._error = None
-            self.device_fault(err)
+        if self.connected:
+            err = self._session_thread.failure()
+            if err is not None:
+                self.device_fault(err)
 
     def _run(self, host: str, port: int) -> None:
-        try:
-            asyncio.run(self._session(host, port))
-        except DeviceError as err:
-            if not self._stop.is_set():
-                self._error = err
-        except Exception as err:  # noqa: BLE001 - a bug must still reach /diagnostics
-            if not self._stop.is_set():
-                self._error = DeviceError(f'{_where(host, port)}: session failed: {err!r}')
+        """Run one session on qtm-rt's asyncio loop (the session thread)."""
+        asyncio.run(self._session(host, port))
 
     def _on_disconnect(self, exc: BaseException | None) -> None:
         self._disconnected = exc or True
@@ -345,7 +290,7 @@ class QualisysNode(SensorDriver):
     async def _session(self, host: str, port: int) -> None:
         import qtm_rt
         s = self.settings
-        where = _where(host, port)
+        where = tcp_address(host, port)
         conn = await open_session(host, port, s.protocol_version, s.timeout,
                                   self._on_disconnect)
         try:
@@ -359,11 +304,11 @@ class QualisysNode(SensorDriver):
                 raise DeviceError(f'{where}: no frame within {s.timeout} s of StreamFrames '
                                   '(is QTM measuring?)') from err
             except qtm_rt.QRTCommandException as err:
-                raise DeviceError(f'{where}: StreamFrames refused: {err}') from err
+                raise DeviceError(f'{where}: StreamFrames refused: {qtm_said(err)}') from err
             self.state = 'streaming'
             self.get_logger().info(f'{where}: streaming {s.body!r} (6D bodies: '
                                    f'{", ".join(self.bodies)})')
-            while not self._stop.is_set():
+            while not self._session_thread.stopping:
                 await asyncio.sleep(0.05)
                 if self._disconnected:
                     reason = self._disconnected
@@ -383,6 +328,7 @@ class QualisysNode(SensorDriver):
         """One data packet (on the session thread): publish the body's pose."""
         stamp = self.now_ns()
         self._last_packet = time.monotonic()
+        self.device_confirmed()  # QTM streams (tracking the body or not): it is back
         number = packet.framenumber
         if self._last_frame is not None and number <= self._last_frame:
             self.out_of_order += 1
@@ -421,45 +367,3 @@ class QualisysNode(SensorDriver):
         return {**super().status_values(), 'state': self.state, 'body': self.settings.body,
                 'bodies': ', '.join(self.bodies), 'lost': self.lost,
                 'out_of_order': self.out_of_order}
-
-
-def check_device(target: Any) -> list[str]:
-    """``enbarr check-device qualisys --host HOST [--name BODY]``: bodies and one pose."""
-    if not target.host:
-        raise DeviceError("qualisys: give --host (the QTM computer's address) or emulated")
-    host, port = parse_host(target.host)
-    emulator = None
-    if emulation.is_emulated(host):
-        from enbarr_plugins.mocap.qtm_emulator import QtmEmulator
-        emulator = QtmEmulator()
-        host, port = emulator.start()
-    port = port or DEFAULT_PORT
-    where = _where(host, port)
-
-    async def check() -> list[str]:
-        conn = await open_session(host, port, '1.25', target.timeout)
-        try:
-            names = await read_bodies(conn, where)
-            body = target.name or (names[0] if names else '')
-            index = body_index(names, body, where)
-            try:
-                packet = await conn.get_current_frame(components=['6d'])
-            except asyncio.TimeoutError as err:
-                raise DeviceError(f'{where}: no answer to GetCurrentFrame 6D') from err
-        finally:
-            conn.disconnect()
-        lines = [f'{where}: QTM RT protocol 1.25, 6D bodies: {", ".join(names)}']
-        pose = pose_of(packet, index)
-        if pose is None:
-            return lines + [f'{where}: {body!r} not tracked in frame {packet.framenumber} '
-                            '(NaN)']
-        p, r = pose
-        yaw = math.degrees(math.atan2(r[1, 0], r[0, 0]))
-        return lines + [f'{where}: {body!r} in frame {packet.framenumber}: x {p[0]:.1f} mm, '
-                        f'y {p[1]:.1f} mm, z {p[2]:.1f} mm, yaw {yaw:.1f} deg (QTM frame)']
-
-    try:
-        return asyncio.run(check())
-    finally:
-        if emulator is not None:
-            emulator.stop()

@@ -2,11 +2,14 @@
 control, guidance, allocation, models) except the nodes (``*_node.py``) and their parameter
 declarations (``*_params.py``), and the framework's maths and the bag format, imports with
 rclpy made unimportable; so do the device transport layer and the pure plugin modules.
+A real driver never imports its emulator (the check-device command lives apart).
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
+import importlib.util
 import pkgutil
 import subprocess
 import sys
@@ -21,7 +24,10 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_plugins.transport.serial_link', 'enbarr_plugins.transport.net',
              'enbarr_plugins.operator.script', 'enbarr_interfaces.modes',
              'enbarr_core.framework.yaml12', 'enbarr_core.tools.chaos.judge',
-             'enbarr_core.commands.arguments')
+             'enbarr_core.commands.arguments',
+             'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
+             'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
+             'enbarr_plugins.camera.capture', 'enbarr_plugins.transport.reader')
 
 pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess
 
@@ -45,3 +51,36 @@ def test_algorithms_import_without_rclpy() -> None:
     result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert len(modules) >= 14
+
+
+#: driver module -> its emulator modules: neither side imports the other, anywhere in the
+#: file (a function-level import is a cycle too); what both need is the protocol module's.
+DRIVERS_AND_EMULATORS = {
+    'enbarr_plugins.lidar.rplidar': ('enbarr_plugins.lidar.rplidar_emulator',),
+    'enbarr_plugins.mocap.qualisys': ('enbarr_plugins.mocap.qtm_emulator',),
+    'enbarr_plugins.camera.opencv_camera': ('enbarr_plugins.camera.emulator',
+                                            'enbarr_plugins.camera.pattern_video'),
+}
+
+
+def imported_modules(module: str) -> set[str]:
+    """Every module ``module``'s source imports, at any depth of its code."""
+    path = importlib.util.find_spec(module).origin
+    with open(path, encoding='utf-8') as f:
+        tree = ast.parse(f.read(), path)
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            found.add(node.module)
+            found.update(f'{node.module}.{alias.name}' for alias in node.names)
+    return found
+
+
+@pytest.mark.parametrize('driver', sorted(DRIVERS_AND_EMULATORS))
+def test_a_driver_and_its_emulator_do_not_import_each_other(driver: str) -> None:
+    emulators = DRIVERS_AND_EMULATORS[driver]
+    assert not imported_modules(driver) & set(emulators)
+    for emulator in emulators:
+        assert driver not in imported_modules(emulator), emulator

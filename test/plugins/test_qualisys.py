@@ -9,11 +9,15 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import threading
 
 import numpy as np
 import pytest
 from qtm_rt.packet import QRTPacket
 from rclpy.parameter import Parameter
+from support.cli import enbarr, refused
+from support.devices import (
+    FAST_RECONNECT, free_tcp_port, record_delays, record_faults, statuses, values)
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import odometry_msg
 
@@ -22,10 +26,13 @@ from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
+from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.mocap.check import check_device
 from enbarr_plugins.mocap.qtm_emulator import QtmEmulator, QtmEmulatorNode
-from enbarr_plugins.mocap.qualisys import (
-    body_index, body_names, check_device, QtmFrame, QualisysNode, rotmat_to_quat)
+from enbarr_plugins.mocap.qtm_frame import QtmFrame
+from enbarr_plugins.mocap.qtm_protocol import body_names
+from enbarr_plugins.mocap.qualisys import body_index, QualisysNode, rotmat_to_quat
 
 # -- unit ---------------------------------------------------------------------------------
 
@@ -128,14 +135,48 @@ def test_check_device_command_line(capsys):
     assert '127.0.0.1:1' in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.parametrize('command, refused', [('getcurrentframe', 'GetCurrentFrame 6D'),
+                                               ('getparameters', 'GetParameters 6D')])
+def test_check_device_when_qtm_answers_with_an_error(capsys, command, refused):
+    """A QTM that answers a command with an error packet: one line naming the command and
+    QTM's words, exit 2 (not a traceback)."""
+    emu = QtmEmulator()
+    host, port = emu.start()
+    emu.refusals[command] = 'emulated refusal'
+    try:
+        with pytest.raises(DeviceError, match=rf'{refused} refused: emulated refusal$'):
+            check_device(CheckTarget(host=f'{host}:{port}'))
+        assert main(['check-device', 'qualisys', '--host', f'{host}:{port}']) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f'enbarr check-device: error: tcp://{host}:{port}: {refused} refused: '
+                       'emulated refusal']
+    finally:
+        emu.stop()
+
+
+@pytest.mark.e2e
+def test_the_check_device_command_when_qtm_answers_with_an_error():
+    """The real command, a process of its own, against a QTM that refuses GetCurrentFrame."""
+    emu = QtmEmulator()
+    host, port = emu.start()
+    emu.refusals['getcurrentframe'] = 'emulated refusal'
+    try:
+        line = refused(enbarr('check-device', 'qualisys', '--host', f'{host}:{port}'),
+                       'check-device')
+    finally:
+        emu.stop()
+    assert line.endswith(f'tcp://{host}:{port}: GetCurrentFrame 6D refused: emulated refusal')
+    assert emu.commands.get('getcurrentframe') == 1
+
+
 # -- node tests -----------------------------------------------------------------------------
-FAST = [Parameter('reconnect.initial_delay', value=0.05),
-        Parameter('reconnect.max_delay', value=0.2), Parameter('timeout', value=1.0)]
+FAST = [*FAST_RECONNECT, Parameter('timeout', value=1.0)]
 
 
 def mocap_pair(context, executor, name='default', body='saucer', **driver):
     emu = add(executor, QtmEmulatorNode(node_name=f'qtm_{name}', context=context,
                                         parameter_overrides=[Parameter('name', value=name)]))
+    emu.start()
     mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
         Parameter('host', value=f'emulated:{name}'), Parameter('body', value=body), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
@@ -146,18 +187,6 @@ def mocap_pair(context, executor, name='default', body='saucer', **driver):
     truth = p.create_topic_publisher(topics.SIM_ODOMETRY)
     LinkBus.of(context).connect()
     return emu, mocap, poses, truth
-
-
-def record_faults(driver):
-    """Every fault message of ``driver`` from now on, in order (retries included)."""
-    seen: list[str] = []
-    fail = driver._fail
-
-    def recording(err):
-        seen.append(str(err))
-        fail(err)
-    driver._fail = recording
-    return seen
 
 
 def more(spin, executor, poses, n=5):
@@ -196,15 +225,11 @@ def test_poses_from_the_simulated_vessel(context, executor, spin):
     assert v['state'] == 'streaming' and v['bodies'] == 'saucer' and v['lost'] == 0
     assert emu.emulator.commands['version'] >= 1 and emu.emulator.commands['streamframes'] >= 1
     # the emulator reports what it received and sent
-    statuses = []
-    probe(context, executor, 'listener').create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'qtm_default'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: statuses, TIMEOUT)
-    values = {kv.key: kv.value for kv in statuses[-1].values}
-    assert 'getparameters=' in values['commands'] and int(values['frames_sent']) > 0
-    assert int(values['poses']) == 1
+    seen = statuses(context, executor, 'qtm_default')
+    assert spin(executor, lambda: seen, TIMEOUT)
+    reported = values(seen[-1])
+    assert 'getparameters=' in reported['commands'] and int(reported['frames_sent']) > 0
+    assert int(reported['poses']) == 1 and int(reported['open']) == 1
 
 
 def test_lost_body_out_of_order_dropped_stalled_refused(context, executor, spin):
@@ -266,8 +291,61 @@ def test_absent_at_start_then_started(context, executor, spin):
     assert spin(executor, lambda: mocap.faults >= 1, TIMEOUT)
     assert "no tcp emulator named 'late'" in mocap.last_fault
     add(executor, QtmEmulatorNode(node_name='qtm_late', context=context,
-                                  parameter_overrides=[Parameter('name', value='late')]))
+                                  parameter_overrides=[Parameter('name', value='late')])).start()
     assert spin(executor, lambda: mocap.samples >= 3, TIMEOUT), mocap.last_fault
+
+
+def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executor, spin,
+                                                                monkeypatch):
+    """``bringup --check`` builds every node: no connection to QTM, no server, until start."""
+    import qtm_rt
+    connects: list[tuple[str, int]] = []
+    real_connect = qtm_rt.connect
+    monkeypatch.setattr(qtm_rt, 'connect', lambda host, port, **kw: connects.append(
+        (host, port)) or real_connect(host, port, **kw))
+    emu = add(executor, QtmEmulatorNode(node_name='qtm_quiet', context=context,
+                                        parameter_overrides=[Parameter('name', value='q')]))
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value='emulated:q'), Parameter('body', value='saucer'), *FAST]))
+    assert emu.emulator.address is None and connects == [] and mocap.state == 'closed'
+    with pytest.raises(DeviceError, match="no tcp emulator named 'q'"):
+        emulation.lookup('tcp', 'emulated:q')             # QTM is not up
+    assert not any(t.name in ('mocap_qtm', 'qtm_emulator') for t in threading.enumerate())
+    emu.start()
+    mocap.start()
+    assert spin(executor, lambda: mocap.samples >= 1, TIMEOUT), mocap.last_fault
+    assert connects == [emu.emulator.address] and emu.emulator.connections == 1
+    assert mocap.confirmed and mocap._backoff.delay == 0.05
+    executor.remove_node(emu)
+    emu.destroy_node()                     # QTM goes: its address is withdrawn
+    with pytest.raises(DeviceError, match="no tcp emulator named 'q'"):
+        emulation.lookup('tcp', 'emulated:q')
+
+
+def test_a_dead_server_backs_off_until_qtm_answers(context, executor, spin):
+    """Nothing listens: every open starts a session thread that fails. The server was never
+    back, so the retry delay doubles to its maximum and /diagnostics never says OK; once QTM
+    listens on that port, its first frame confirms it and the delay starts over."""
+    port = free_tcp_port()
+    mocap = add(executor, QualisysNode(context=context, parameter_overrides=[
+        Parameter('host', value=f'127.0.0.1:{port}'), Parameter('body', value='saucer'),
+        *FAST]))
+    delays = record_delays(mocap)
+    seen = statuses(context, executor, 'mocap')
+    mocap.start()
+    assert spin(executor, lambda: len(delays) >= 4, 3 * TIMEOUT), mocap.last_fault
+    assert delays[:4] == [0.05, 0.1, 0.2, 0.2]
+    assert f'127.0.0.1:{port}: cannot connect' in mocap.last_fault
+    assert not mocap.confirmed and seen
+    assert all(s.level != b'\x00' and values(s)['confirmed'] == 'False' for s in seen)
+    emu = QtmEmulator()
+    emu.start(port)
+    try:
+        assert spin(executor, lambda: mocap.samples >= 3, TIMEOUT), mocap.last_fault
+        assert mocap.confirmed and mocap._backoff.delay == 0.05
+        assert mocap._backoff.next_ns is None
+    finally:
+        emu.stop()
 
 
 def test_bad_parameters_are_named(context):

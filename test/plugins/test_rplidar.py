@@ -1,12 +1,14 @@
-"""RPLidar A1 driver against its pty emulator: the bytes, the scans, every fault, resume.
+"""RPLidar A1 driver against its pty emulator: the scans, every fault, resume, the check.
 
-Unit tests check the protocol against bytes written by hand from the Slamtec protocol
-document (not from the code under test); node tests run the driver on the emulator's pty.
+The protocol itself is held to the documents in test_rplidar_protocol.py, the revolution and
+its rays in test_lidar_scan.py; here the emulator's answers are checked against bytes
+written by hand from the Slamtec protocol document, and the driver runs on its pty.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -14,94 +16,22 @@ import pytest
 from rclpy.parameter import Parameter
 import serial
 from sensor_msgs.msg import LaserScan
+from support.devices import (
+    FAST_RECONNECT as FAST, NoisyPort, record_delays, record_faults, statuses, values)
 from support.nodes import add, probe, TIMEOUT
 
 from enbarr_core.bringup.cli import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
+from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.lidar import rplidar
-from enbarr_plugins.lidar.rplidar import (
-    bin_revolution, check_device, decode_descriptor, Descriptor, encode_descriptor, Mount,
-    request, RevolutionAssembler, RplidarNode, ScanDecoder)
+from enbarr_plugins.lidar.check import check_device
+from enbarr_plugins.lidar.rplidar import RplidarNode
+from enbarr_plugins.lidar.rplidar_protocol import ScanDecoder
 from enbarr_plugins.lidar.rplidar_emulator import Basin, RplidarEmulator, RplidarEmulatorNode
 
-# -- unit: the protocol, from the document's bytes --------------------------------------------
-
-
-def test_requests_and_descriptors_are_the_documented_bytes():
-    assert request(0x50) == bytes.fromhex('a5 50')  # GET_INFO: no payload, no checksum
-    assert request(0x25) == bytes.fromhex('a5 25')
-    # EXPRESS_SCAN with 5 zero bytes: checksum = A5 ^ 82 ^ 05 ^ 0 ... = 0x22
-    assert request(0x82, bytes(5)) == bytes.fromhex('a5 82 05 00 00 00 00 00 22')
-    assert encode_descriptor(5, 1, 0x81) == bytes.fromhex('a5 5a 05 00 00 40 81')
-    assert encode_descriptor(20, 0, 0x04) == bytes.fromhex('a5 5a 14 00 00 00 04')
-    assert decode_descriptor(bytes.fromhex('a5 5a 03 00 00 00 06')) == Descriptor(3, 0, 6)
-    with pytest.raises(ValueError, match='not a response descriptor'):
-        decode_descriptor(bytes.fromhex('a5 a5 03 00 00 00 06'))
-
-
-def test_a_scan_sample_decodes_as_the_document_says():
-    # start, quality 47, 90 deg (q6 5760), 1000 mm (q2 4000): BD 01 2D A0 0F
-    sample = bytes.fromhex('bd 01 2d a0 0f')
-    assert rplidar.encode_sample(True, 47, 90.0, 1000.0) == sample
-    start, quality, angle, dist = ScanDecoder().feed(sample)
-    assert start.tolist() == [True] and quality.tolist() == [47]
-    assert angle.tolist() == [90.0] and dist.tolist() == [1000.0]
-
-
-def test_the_decoder_resynchronises_after_garbage_corruption_and_truncation():
-    good = [rplidar.encode_sample(k == 0, 30, 10.0 * k, 500.0 + k) for k in range(20)]
-    broken = bytes((good[5][0] & 0xFC,)) + good[5][1:]   # S == !S
-    stream = (b'\x00\x00' + b''.join(good[:5]) + broken + b''.join(good[6:10])
-              + good[10][:3] + b''.join(good[11:]))        # a truncated sample
-    dec = ScanDecoder()
-    out = [dec.feed(stream[i:i + 7]) for i in range(0, len(stream), 7)]  # any split
-    dist = np.concatenate([o[3] for o in out])
-    assert dec.sync_losses >= 3 and dec.skipped >= 2
-    # every good sample is found again after each loss; the truncated sample's header is
-    # intact, so it takes two bytes of the next one (the protocol has no checksum): one
-    # bogus distance, one sample lost, then in step again
-    d = dist.tolist()
-    assert d[:9] == [500.0 + k for k in (*range(5), *range(6, 10))]
-    assert d[10:] == [500.0 + k for k in range(12, 20)]
-
-
-def test_mount_and_flip_put_returns_in_base_link():
-    # one return at the lidar's 0 deg, 1 m; lidar 0.5 m ahead: 1.5 m straight ahead
-    r = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(0.5, 0.0, 0.0), 360)
-    assert r[180] == pytest.approx(1.5) and np.isinf(np.delete(r, 180)).all()
-    # 90 deg clockwise is the right side (-y) upright, the left side (+y) upside down
-    up = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(), 360)
-    flipped = bin_revolution(np.array([90.0]), np.array([2000.0]), Mount(flip=True), 360)
-    assert up[90] == pytest.approx(2.0) and flipped[270] == pytest.approx(2.0)
-    # yaw: the 0 deg mark pointing left
-    left = bin_revolution(np.array([0.0]), np.array([1000.0]), Mount(yaw=math.pi / 2), 360)
-    assert left[270] == pytest.approx(1.0)
-    # no return (0) stays inf; the nearest of two returns in one ray wins
-    r = bin_revolution(np.array([0.0, 0.2, 0.1]), np.array([0.0, 3000.0, 2000.0]), Mount(), 360)
-    assert r[180] == pytest.approx(2.0)
-
-
-def test_revolutions_start_at_a_start_flag():
-    asm = RevolutionAssembler(min_samples=3)
-    a = np.arange(6) * 60.0
-    assert asm.add(np.array([0, 0, 1, 0, 0, 0], bool), a, a + 1, 100) == []  # before: dropped
-    revs = asm.add(np.array([0, 1, 0], bool), a[:3], a[:3] + 1, 200)
-    assert len(revs) == 1 and revs[0].stamp_ns == 100
-    assert revs[0].angle_deg.tolist() == [120.0, 180.0, 240.0, 300.0, 0.0]
-    assert revs[0].duration == pytest.approx(1e-7)
-    # a start flag too soon after the last (a stream out of step) and an angle >= 360 deg:
-    # ignored and counted
-    revs = asm.add(np.array([0, 1, 0, 0, 1], bool), np.array([10.0, 20.0, 400.0, 30.0, 40.0]),
-                   np.ones(5), 300)
-    assert len(revs) == 1 and revs[0].angle_deg.tolist() == [60.0, 120.0, 10.0]
-    assert asm.false_starts == 1 and asm.invalid == 1
-    # a start read with 3 samples after it was taken 3 sample periods before the read
-    revs = asm.add(np.array([0, 0, 0, 1, 0, 0, 0], bool), np.zeros(7), np.ones(7), 10_000, 1000)
-    assert revs[0].stamp_ns == 300 and revs[0].duration == pytest.approx((7000 - 300) * 1e-9)
-    revs = asm.add(np.array([1, 0], bool), np.zeros(2), np.ones(2), 20_000, 1000)
-    assert revs[0].stamp_ns == 7000 and revs[0].duration == pytest.approx(12_000e-9)
+# -- unit: the emulator's bytes, from the document -------------------------------------------
 
 
 def test_the_emulator_answers_with_the_documented_bytes():
@@ -156,13 +86,11 @@ def test_check_device_command_line(capsys):
 
 
 # -- node tests: the driver on the emulator's pty ---------------------------------------------
-FAST = [Parameter('reconnect.initial_delay', value=0.05),
-        Parameter('reconnect.max_delay', value=0.2)]
-
 
 def lidar_pair(context, executor, name='default', **driver):
     emu = add(executor, RplidarEmulatorNode(node_name=f'emu_{name}', context=context,
                                             parameter_overrides=[Parameter('name', value=name)]))
+    emu.start()
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value=f'emulated:{name}'), *FAST,
         *[Parameter(k, value=v) for k, v in driver.items()]]))
@@ -174,21 +102,10 @@ def lidar_pair(context, executor, name='default', **driver):
 
 
 def ray(scan, bearing_deg):
-    """The range near ``bearing_deg`` (the nearest of 3 rays: ~364 samples fill 360 rays)."""
+    """The range near ``bearing_deg``: the nearest of 3 rays (~364 samples fill 360 rays;
+    NaN, no sample, only where none of the 3 has one)."""
     k = round((math.radians(bearing_deg) - scan.angle_min) / scan.angle_increment)
-    return min(scan.ranges[(k + d) % len(scan.ranges)] for d in (-1, 0, 1))
-
-
-def record_faults(driver):
-    """Every fault message of ``driver`` from now on, in order (retries included)."""
-    seen: list[str] = []
-    fail = driver._fail
-
-    def recording(err):
-        seen.append(str(err))
-        fail(err)
-    driver._fail = recording
-    return seen
+    return float(np.fmin.reduce([scan.ranges[(k + d) % len(scan.ranges)] for d in (-1, 0, 1)]))
 
 
 def more_scans(spin, executor, scans, n=2):
@@ -196,12 +113,12 @@ def more_scans(spin, executor, scans, n=2):
     return spin(executor, lambda: len(scans) >= target, TIMEOUT)
 
 
-def test_scans_in_the_vessel_frame(context, executor, spin):
+def test_scans_in_the_lidars_own_frame(context, executor, spin):
     emu, lidar, scans = lidar_pair(context, executor)
     emu.emulator.set_pose(0.0, 1.0, 0.0)
     assert more_scans(spin, executor, scans, 3), lidar.last_fault
     s = scans[-1]
-    assert s.header.frame_id == 'base_link' and len(s.ranges) == 360
+    assert s.header.frame_id == 'laser' and len(s.ranges) == 360
     assert s.angle_min == pytest.approx(-math.pi) and s.range_max == pytest.approx(12.0)
     # 5.5 Hz on average (one scan may stretch when the machine is loaded)
     assert all(x.scan_time > 0.0 for x in scans)
@@ -213,14 +130,34 @@ def test_scans_in_the_vessel_frame(context, executor, spin):
     assert v['model'] == 'A1M8' and v['state'] == 'scanning' and v['sync_losses'] == 0
     assert emu.emulator.commands['GET_INFO'] >= 1 and emu.emulator.commands['SCAN'] >= 1
     # the emulator reports what it received and sent
-    statuses = []
-    probe(context, executor, 'listener').create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(x for x in m.status if x.hardware_id == 'emu_default'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: statuses, TIMEOUT)
-    values = {kv.key: kv.value for kv in statuses[-1].values}
-    assert 'GET_INFO=' in values['commands'] and int(values['samples_sent']) > 700
+    seen = statuses(context, executor, 'emu_default')
+    assert spin(executor, lambda: seen, TIMEOUT)
+    reported = values(seen[-1])
+    assert 'GET_INFO=' in reported['commands'] and int(reported['samples_sent']) > 700
+
+
+def test_the_driver_leaves_the_mount_to_the_frame_tree(context, executor, spin):
+    """The A1 sits 0.5 m ahead of base_link with its 0 deg mark to port (the laser frame's
+    pose): the scan stays in the lidar's frame, named by frame_id, unrotated."""
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_turned', context=context,
+                                            parameter_overrides=[
+        Parameter('name', value='turned'), Parameter('mount.x', value=0.5),
+        Parameter('mount.yaw', value=math.pi / 2)]))
+    emu.start()
+    emu.emulator.set_pose(0.0, 1.0, 0.0)
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='emulated:turned'), Parameter('frame_id', value='lidar_top'),
+        *FAST]))
+    lidar.start()
+    scans: list[LaserScan] = []
+    probe(context, executor).create_subscription(LaserScan, topics.SCAN.name, scans.append,
+                                                 topics.SCAN.qos)
+    assert more_scans(spin, executor, scans, 2), lidar.last_fault
+    s = scans[-1]
+    assert s.header.frame_id == 'lidar_top'
+    assert ray(s, 0.0) == pytest.approx(2.225, abs=0.02)    # the mark points at the port wall
+    assert ray(s, 180.0) == pytest.approx(4.225, abs=0.02)  # behind the mark: starboard wall
+    assert np.isinf(ray(s, 90.0)) and np.isinf(ray(s, -90.0))  # along the basin: > 12 m
 
 
 def test_the_motor_runs_through_dtr(context, executor, spin, monkeypatch):
@@ -252,17 +189,14 @@ def test_absent_at_start_then_plugged_in(context, executor, spin):
     lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
         Parameter('port', value='emulated:late'), *FAST]))
     lidar.start()
-    statuses = []
-    probe(context, executor).create_subscription(
-        topics.DIAGNOSTICS.msg_type, topics.DIAGNOSTICS.name,
-        lambda m: statuses.extend(s for s in m.status if s.hardware_id == 'rplidar'),
-        topics.DIAGNOSTICS.qos)
-    assert spin(executor, lambda: any(s.level == b'\x02' for s in statuses), TIMEOUT)
+    seen = statuses(context, executor, 'rplidar')
+    assert spin(executor, lambda: any(s.level == b'\x02' for s in seen), TIMEOUT)
     assert not lidar.connected and 'emulated:late' in lidar.last_fault
-    error = next(s for s in statuses if s.level == b'\x02')
+    error = next(s for s in seen if s.level == b'\x02')
     assert 'no serial emulator named' in error.message
     emu = add(executor, RplidarEmulatorNode(node_name='emu_late', context=context,
                                             parameter_overrides=[Parameter('name', value='late')]))
+    emu.start()
     assert spin(executor, lambda: lidar.revolutions >= 2, TIMEOUT), lidar.last_fault
     assert lidar.connected and emu.emulator.commands['SCAN'] >= 1
 
@@ -318,8 +252,103 @@ def test_wrong_identity_and_health_error(context, executor, spin):
     assert spin(executor, lambda: 'persists after RESET' in lidar.last_fault, TIMEOUT)
 
 
+def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executor, spin,
+                                                                monkeypatch):
+    """``bringup --check`` builds every node: no port opened, no pty made, until start."""
+    opened: list[str] = []
+    real_open = rplidar.open_serial
+    monkeypatch.setattr(rplidar, 'open_serial',
+                        lambda path, *a, **k: opened.append(path) or real_open(path, *a, **k))
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_quiet', context=context,
+                                            parameter_overrides=[Parameter('name', value='q')]))
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='emulated:q'), *FAST]))
+    assert emu.emulator.path is None and opened == [] and lidar.state == 'closed'
+    with pytest.raises(DeviceError, match="no serial emulator named 'q'"):
+        emulation.lookup('serial', 'emulated:q')       # nothing plugged in
+    assert not any(t.name == 'rplidar_reader' for t in threading.enumerate())
+    emu.start()
+    lidar.start()
+    assert opened == [emu.emulator.path]
+    assert spin(executor, lambda: lidar.revolutions >= 1, TIMEOUT), lidar.last_fault
+    # the first revolution confirmed the device: the retry delay is back to its start
+    assert lidar.confirmed and lidar._backoff.delay == 0.05
+    executor.remove_node(emu)
+    emu.destroy_node()                     # unplugged: its pty is withdrawn
+    with pytest.raises(DeviceError, match="no serial emulator named 'q'"):
+        emulation.lookup('serial', 'emulated:q')
+
+
+def test_a_port_that_only_sends_noise_backs_off(context, executor, spin):
+    """A device that opens but never answers (noise on the line) is not "back" on every
+    open: the retry delay doubles up to its maximum, /diagnostics never says OK."""
+    port = NoisyPort()
+    try:
+        lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+            Parameter('port', value=port.path), Parameter('response_timeout', value=0.1),
+            *FAST]))
+        delays = record_delays(lidar)
+        seen = statuses(context, executor, 'rplidar')
+        lidar.start()
+        assert spin(executor, lambda: len(delays) >= 4, 3 * TIMEOUT), lidar.last_fault
+        assert delays[:4] == [0.05, 0.1, 0.2, 0.2]
+        assert 'no answer to GET_INFO' in lidar.last_fault and port.path in lidar.last_fault
+        assert not lidar.confirmed and seen
+        assert all(s.level != b'\x00' and values(s)['confirmed'] == 'False' for s in seen)
+    finally:
+        port.close()
+
+
+def test_noise_after_the_handshake_is_a_stall_and_backs_off(context, executor, spin):
+    """An A1 that answers GET_INFO and SCAN, then streams bytes that make no sample: a fault
+    (bytes alone are no sign of life), and the retry delay grows."""
+    emu, lidar, scans = lidar_pair(context, executor, stall_timeout=0.2)
+    emu.emulator.noise(True)
+    delays = record_delays(lidar)
+    assert spin(executor, lambda: len(delays) >= 2, 3 * TIMEOUT), lidar.last_fault
+    assert delays[:2] == [0.05, 0.1]
+    assert 'no valid scan sample for 0.2 s' in lidar.last_fault and not scans
+    emu.emulator.noise(False)
+    assert more_scans(spin, executor, scans, 2), lidar.last_fault
+    assert lidar.confirmed and lidar._backoff.delay == 0.05
+
+
+def test_a_vanished_usb_port_points_to_its_stable_name(context, executor, spin, monkeypatch):
+    """A re-plugged adapter may come back as another /dev/ttyUSBn: when the port is gone,
+    the fault says to name it by /dev/serial/by-id/."""
+    advice = 'give the port by its stable name, ls -l /dev/serial/by-id/'
+    absent = add(executor, RplidarNode(node_name='absent', context=context,
+                                       parameter_overrides=[
+        Parameter('port', value='/dev/ttyUSB97'), *FAST]))
+    absent.start()
+    assert '/dev/ttyUSB97: cannot open' in absent.last_fault and advice in absent.last_fault
+    assert 'another /dev/ttyUSBn' in absent.last_fault
+    by_id = add(executor, RplidarNode(node_name='by_id', context=context, parameter_overrides=[
+        Parameter('port', value='/dev/serial/by-id/usb-nothing-if00-port0'), *FAST]))
+    by_id.start()
+    assert 'cannot open' in by_id.last_fault and advice not in by_id.last_fault
+    # unplugged while scanning: the emulator's pty stands for /dev/ttyUSB0
+    emu = add(executor, RplidarEmulatorNode(node_name='emu_usb', context=context,
+                                            parameter_overrides=[Parameter('name', value='usb')]))
+    emu.start()
+    real_open = rplidar.open_serial
+    monkeypatch.setattr(rplidar, 'open_serial', lambda path, *a, **k: real_open(
+        emulation.lookup('serial', 'emulated:usb'), *a, **k))
+    lidar = add(executor, RplidarNode(context=context, parameter_overrides=[
+        Parameter('port', value='/dev/ttyUSB0'), *FAST]))
+    lidar.start()
+    assert spin(executor, lambda: lidar.revolutions >= 1, TIMEOUT), lidar.last_fault
+    seen = record_faults(lidar)
+    emu.emulator.unplug()
+    assert spin(executor, lambda: seen, TIMEOUT)
+    assert 'read failed (unplugged?)' in seen[0] and advice in seen[0]
+    assert main(['check-device', 'rplidar', '--port', '/dev/ttyUSB97']) == 2
+
+
 def test_bad_parameters_are_named(context):
     with pytest.raises(ConfigurationError, match='bins'):
         RplidarNode(context=context, parameter_overrides=[Parameter('bins', value=5)])
     with pytest.raises(ConfigurationError, match='port'):
         RplidarNode(context=context, parameter_overrides=[Parameter('port', value=' ')])
+    with pytest.raises(ConfigurationError, match="frame_id: .*got '/laser'"):
+        RplidarNode(context=context, parameter_overrides=[Parameter('frame_id', value='/laser')])

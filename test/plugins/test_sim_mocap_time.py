@@ -20,6 +20,7 @@ def mocap_rig(context, executor, **params):
     """A 50 Hz sim mocap (``params`` set), its clock, a truth publisher and the poses out."""
     mocap = add(executor, SimMocapNode(node_name='mocap', context=context, parameter_overrides=[
         Parameter('rate', value=50.0), *(Parameter(k, value=v) for k, v in params.items())]))
+    mocap.start()
     clock = SimClock(mocap)
     p = probe(context, executor, 'simulator')
     truth = p.create_topic_publisher(topics.SIM_ODOMETRY)

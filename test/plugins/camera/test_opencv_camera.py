@@ -7,7 +7,9 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -17,8 +19,10 @@ from enbarr_core.framework.driver import ERROR
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import topics
+from enbarr_plugins import emulation
 from enbarr_plugins.camera import opencv_camera
 from enbarr_plugins.camera.calibration import load_calibration
+from enbarr_plugins.camera.check import check_device
 from enbarr_plugins.camera.emulator import CameraEmulatorNode
 from enbarr_plugins.camera.pattern_video import read_counter
 from enbarr_plugins.camera.opencv_camera import CameraNode
@@ -63,7 +67,7 @@ def test_a_malformed_calibration_names_file_and_key(tmp_path, change, key):
 
 
 def test_check_device_and_command_line(capsys):
-    lines = opencv_camera.check_device(CheckTarget(device='emulated'))
+    lines = check_device(CheckTarget(device='emulated'))
     assert lines == ['camera emulated: 640x480 at 15 fps (FFMPEG)', 'one frame: 640x480 bgr8']
     assert cli.main(['check-device', 'camera', '--device', 'emulated']) == 0
     assert '640x480' in capsys.readouterr().out
@@ -72,7 +76,7 @@ def test_check_device_and_command_line(capsys):
     assert err == ['enbarr check-device: error: camera /nonexistent/video.avi: no such video '
                    'file /nonexistent/video.avi']
     with pytest.raises(DeviceError, match='/dev/video9: cannot open'):
-        opencv_camera.check_device(CheckTarget(device='/dev/video9'))
+        check_device(CheckTarget(device='/dev/video9'))
 
 
 class Rig:
@@ -100,6 +104,7 @@ class Rig:
             Parameter('name', value=self.name), Parameter('width', value=320),
             Parameter('height', value=240), Parameter('duration', value=0.5)])
         self.executor.add_node(node)
+        node.start()
         self.emulator = node
         return node
 
@@ -193,6 +198,29 @@ def test_a_file_that_ends_stops_without_a_fault(context, executor):
     rig = Rig(context, executor, loop=False)
     assert rig.spin_until(lambda: rig.driver.ended)
     assert rig.driver.samples == 8 and rig.driver.faults == 0   # 0.5 s at 15 fps
+
+
+def test_constructing_the_driver_and_the_emulator_opens_nothing(context, executor,
+                                                                monkeypatch):
+    """``bringup --check`` builds every node: no capture opened, no video written, until
+    start."""
+    captures: list[Any] = []
+    real_capture = cv2.VideoCapture
+    monkeypatch.setattr(cv2, 'VideoCapture',
+                        lambda *a: captures.append(a[0]) or real_capture(*a))
+    emulator = CameraEmulatorNode(context=context, parameter_overrides=[
+        Parameter('name', value='quiet'), Parameter('width', value=320),
+        Parameter('height', value=240), Parameter('duration', value=0.5)])
+    executor.add_node(emulator)
+    driver = CameraNode(context=context, parameter_overrides=[
+        Parameter('device', value='emulated:quiet')])
+    executor.add_node(driver)
+    assert captures == [] and emulator.path is None and emulator.directory is None
+    with pytest.raises(DeviceError, match="no camera emulator named 'quiet'"):
+        emulation.lookup('camera', 'emulated:quiet')
+    emulator.start()
+    driver.start()
+    assert captures == [emulator.path] and driver.connected
 
 
 def test_bad_parameters_name_the_parameter(context, tmp_path):
