@@ -387,7 +387,7 @@ class ArduinoEmulatorSettings:
 class ArduinoEmulatorNode(EnbarrNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
 
     def __init__(self, node_name: str = 'arduino_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

@@ -56,7 +56,7 @@ class CameraEmulatorSettings:
 class CameraEmulatorNode(EnbarrNode):
     """Writes the test video and offers it as the emulated camera; see the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
 
     def __init__(self, node_name: str = 'camera_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

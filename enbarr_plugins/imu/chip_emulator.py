@@ -202,7 +202,7 @@ class EmulatorNode(EnbarrNode):
     ``/diagnostics`` reports what the chips received (register reads and writes, samples).
     """
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
 
     def __init__(self, node_name: str, address_specs: Sequence[ParamSpec],
                  **kwargs: Any) -> None:

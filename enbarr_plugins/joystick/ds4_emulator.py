@@ -271,7 +271,7 @@ class Ds4EmulatorSettings:
 class Ds4EmulatorNode(EnbarrNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
 
     def __init__(self, node_name: str = 'ds4_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

@@ -344,7 +344,7 @@ class EmulatorSettings:
 class Pca9685EmulatorNode(EnbarrNode):
     """See the module docstring."""
 
-    device_emulator = True  # bringup builds it before the drivers (orchestrator.build_nodes)
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
 
     def __init__(self, node_name: str = 'pca9685_emulator', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

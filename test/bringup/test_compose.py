@@ -51,19 +51,19 @@ def test_emulators_go_after_the_drivers_and_before_the_recorders() -> None:
 def test_emulators_are_built_before_the_drivers(monkeypatch) -> None:
     """A driver opens its device at start, in build order: its emulator must be started by
     then."""
-    from enbarr_core.bringup import compose as orchestrator
+    from enbarr_core.bringup import compose
     from enbarr_core.bringup.profile import NodeSpec
     built: list[str] = []
     kinds = {'drv': Plain, 'emu': FakeEmulator}
-    monkeypatch.setattr(orchestrator.registry, 'resolve', lambda plugin: kinds[plugin])
-    monkeypatch.setattr(orchestrator, '_construct',
+    monkeypatch.setattr(compose.registry, 'resolve', lambda plugin: kinds[plugin])
+    monkeypatch.setattr(compose, '_construct',
                         lambda profile, spec, context: built.append(spec.name) or spec.name)
-    monkeypatch.setattr(orchestrator, '_check_parameters', lambda *a: None)
+    monkeypatch.setattr(compose, '_check_parameters', lambda *a: None)
 
     class Prof:
         nodes = [NodeSpec(name='imu', plugin='drv'), NodeSpec(name='imu_emulator', plugin='emu'),
                  NodeSpec(name='pwm', plugin='drv'), NodeSpec(name='pwm_emulator', plugin='emu')]
-    assert orchestrator.build_nodes(Prof(), None) == [
+    assert compose.build_nodes(Prof(), None) == [
         'imu_emulator', 'pwm_emulator', 'imu', 'pwm']
 
 
