@@ -402,10 +402,11 @@ class Ds4EvdevNode(SensorDriver):
                 'truncated': self.truncated}
 
     def destroy_node(self) -> None:
-        """Say the joystick is gone, stop the reader, destroy the node."""
-        try:
-            self._connected_pub.publish(Bool(data=False))
-        except Exception:  # noqa: BLE001 - destruction goes on
-            pass
+        """Say the joystick is gone (if it was ever looked for), stop the reader, destroy."""
+        if self.connected or self.faults:  # a node only built (a check) has nothing to say
+            try:
+                self._connected_pub.publish(Bool(data=False))
+            except Exception:  # noqa: BLE001 - destruction goes on
+                pass
         super().destroy_node()
         self._stop.set()
