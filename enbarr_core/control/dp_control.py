@@ -196,11 +196,11 @@ class DpController:
         integral = [0.0, 0.0, 0.0]
         tau = [0.0, 0.0, 0.0]
         saturated = [False, False, False]
-        entry = self._tau_now is not None
-        if entry:
+        tau_now = self._tau_now  # set by reset(tau_now): this step is a bumpless entry
+        if tau_now is not None:
             # Bumpless entry: I = base - sat(tau_now), so that tau = tau_now now.
             for j in range(3):
-                t_now = min(max(self._tau_now[j], -tau_max[j]), tau_max[j])
+                t_now = min(max(tau_now[j], -tau_max[j]), tau_max[j])
                 integral[j] = base[j] - t_now
                 tau[j] = t_now
             lims = (il1, il2, il3)
@@ -235,7 +235,7 @@ class DpController:
 
         i1, i2, i3 = integral
         self._z = [c * i1 - s * i2, s * i1 + c * i2, i3]  # z = R I
-        if not entry and not (mx and my and mpsi):
+        if tau_now is None and not (mx and my and mpsi):
             # A DOF without a pose error cannot integrate back what a bumpless entry (or an
             # earlier hold) left in its integral: that would be a permanent offset in
             # velocity tracking (line-of-sight legs). It bleeds off over gain_ramp_time.
