@@ -6,15 +6,12 @@ rclpy made unimportable; so do the device transport layer and the pure plugin mo
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 import subprocess
 import sys
 
 import pytest
+from support.layering import algorithm_modules
 
-ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_core.guidance',
-                      'enbarr_core.allocation', 'enbarr_core.models')
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.errors', 'enbarr_core.recording.bag',
              'enbarr_core.recording.recorder', 'enbarr_plugins.transport.i2c',
@@ -25,12 +22,7 @@ pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess
 
 
 def pure_modules() -> list[str]:
-    found = []
-    for package in ALGORITHM_PACKAGES:
-        path = importlib.import_module(package).__path__
-        found += [f'{package}.{m.name}' for m in pkgutil.iter_modules(path)
-                  if not m.name.endswith(('_node', '_params'))]
-    return sorted(found) + list(ALSO_PURE)
+    return algorithm_modules() + list(ALSO_PURE)
 
 
 def test_algorithms_import_without_rclpy() -> None:
