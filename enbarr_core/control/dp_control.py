@@ -250,9 +250,10 @@ def _triple(value: ArrayLike, what: str,
             used: tuple[bool, bool, bool] = (True, True, True)) -> tuple[float, float, float]:
     """Three floats, finite where ``used`` (an unused one, say NaN, is returned as 0.0)."""
     if used[0] and used[1] and used[2]:
-        return floats(what, value, 3)  # type: ignore[return-value]
+        return floats(what, value, 3)
     xyz = floats(what, value, 3, finite=False)
     for i, (x, u) in enumerate(zip(xyz, used)):
         if u and not math.isfinite(x):
             raise ValueError(f'{what}[{i}]: must be finite, got {x}')
-    return tuple(x if u else 0.0 for x, u in zip(xyz, used))  # type: ignore[return-value]
+    return (xyz[0] if used[0] else 0.0, xyz[1] if used[1] else 0.0,
+            xyz[2] if used[2] else 0.0)

@@ -333,7 +333,7 @@ class PassiveObserver:
 
 def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
     """``value`` as 3 finite floats (``ValueError`` naming ``what``)."""
-    return floats(what, value, 3)  # type: ignore[return-value]
+    return floats(what, value, 3)
 
 def _close(a: tuple[float, float, float], b: tuple[float, float, float], max_dp2: float,
            max_dpsi: float) -> bool:

@@ -56,7 +56,7 @@ def _check_dt(dt: float) -> None:
 
 def _pose(value: ArrayLike, what: str) -> tuple[float, float, float]:
     """``value`` as a pose [x, y, psi] of 3 finite floats (``ValueError`` naming ``what``)."""
-    return floats(what, value, 3)  # type: ignore[return-value]
+    return floats(what, value, 3)
 
 def _positive(value: float, what: str, *, zero_ok: bool = False) -> float:
     try:
@@ -69,9 +69,11 @@ def _positive(value: float, what: str, *, zero_ok: bool = False) -> float:
     return v
 
 
-def _hold(x: float, y: float, psi: float, **metrics: object) -> Reference:
-    return Reference(np.array((x, y, psi)), np.zeros(3), np.zeros(3), _ALL,
-                     **metrics)  # type: ignore[arg-type]
+def _hold(x: float, y: float, psi: float, *, cross_track: float | None = None,
+          along_track: float | None = None, segment: int | None = None,
+          finished: bool = False) -> Reference:
+    return Reference(np.array((x, y, psi)), np.zeros(3), np.zeros(3), _ALL, cross_track,
+                     along_track, segment, finished)
 
 
 class HoldPose:
