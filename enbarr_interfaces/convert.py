@@ -23,7 +23,8 @@ NS_PER_S = 1_000_000_000
 
 def stamp_to_ns(stamp: Time) -> int:
     """``builtin_interfaces/Time`` -> integer nanoseconds."""
-    return stamp.sec * NS_PER_S + stamp.nanosec
+    ns: int = stamp.sec * NS_PER_S + stamp.nanosec  # the message's fields are untyped
+    return ns
 
 
 def ns_to_stamp(ns: int, out: Time | None = None) -> Time:

@@ -32,7 +32,7 @@ _lock = threading.Lock()
 
 def new(cls: type[M]) -> M:
     """Return a new ``cls`` message with its default field values, as ``cls()`` does."""
-    build = _builders.get(cls)
+    build: Callable[[], M] | None = _builders.get(cls)
     if build is None:
         build = builder(cls)
     return build()
@@ -55,7 +55,7 @@ def builder(cls: type[M]) -> Callable[[], M]:
     proto = cls()
     env: dict[str, Any] = {'cls': cls, 'np': np, 'array': array.array}
     lines = ['def build():', '    m = cls.__new__(cls)']
-    for i, slot in enumerate(cls.__slots__):
+    for i, slot in enumerate(getattr(cls, '__slots__')):  # M is any message class
         value = object.__getattribute__(proto, slot)
         name = f'v{i}'
         env[name] = value

@@ -63,5 +63,5 @@ def weighted_pinv(B: Vector, w: Vector) -> Vector:
     The same as ``W^-1 B^T (B W^-1 B^T)^-1`` when B has full row rank, computed through the
     SVD for conditioning.
     """
-    w_isqrt = 1.0 / np.sqrt(np.asarray(w, dtype=float))
+    w_isqrt: Vector = 1.0 / np.sqrt(np.asarray(w, dtype=float))
     return w_isqrt[:, None] * np.linalg.pinv(B * w_isqrt[None, :])

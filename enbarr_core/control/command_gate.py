@@ -74,6 +74,8 @@ def _ns(seconds: float) -> int:
 class CommandGate:
     """Holds the current velocity goal; times in integer nanoseconds of one clock."""
 
+    _stamps: StampGate  # made by the first settings swap, kept (with its order) by later ones
+
     def __init__(self, settings: GateSettings = GateSettings()) -> None:
         self.settings = settings
         self.goal: NDArray[np.float64] = np.zeros(6)

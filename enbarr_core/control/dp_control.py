@@ -196,11 +196,11 @@ class DpController:
         integral = [0.0, 0.0, 0.0]
         tau = [0.0, 0.0, 0.0]
         saturated = [False, False, False]
-        entry = self._tau_now is not None
-        if entry:
+        tau_now = self._tau_now  # set by reset(tau_now): this step is a bumpless entry
+        if tau_now is not None:
             # Bumpless entry: I = base - sat(tau_now), so that tau = tau_now now.
             for j in range(3):
-                t_now = min(max(self._tau_now[j], -tau_max[j]), tau_max[j])
+                t_now = min(max(tau_now[j], -tau_max[j]), tau_max[j])
                 integral[j] = base[j] - t_now
                 tau[j] = t_now
             lims = (il1, il2, il3)
@@ -235,7 +235,7 @@ class DpController:
 
         i1, i2, i3 = integral
         self._z = [c * i1 - s * i2, s * i1 + c * i2, i3]  # z = R I
-        if not entry and not (mx and my and mpsi):
+        if tau_now is None and not (mx and my and mpsi):
             # A DOF without a pose error cannot integrate back what a bumpless entry (or an
             # earlier hold) left in its integral: that would be a permanent offset in
             # velocity tracking (line-of-sight legs). It bleeds off over gain_ramp_time.
@@ -250,9 +250,10 @@ def _triple(value: ArrayLike, what: str,
             used: tuple[bool, bool, bool] = (True, True, True)) -> tuple[float, float, float]:
     """Three floats, finite where ``used`` (an unused one, say NaN, is returned as 0.0)."""
     if used[0] and used[1] and used[2]:
-        return floats(what, value, 3)  # type: ignore[return-value]
+        return floats(what, value, 3)
     xyz = floats(what, value, 3, finite=False)
     for i, (x, u) in enumerate(zip(xyz, used)):
         if u and not math.isfinite(x):
             raise ValueError(f'{what}[{i}]: must be finite, got {x}')
-    return tuple(x if u else 0.0 for x, u in zip(xyz, used))  # type: ignore[return-value]
+    return (xyz[0] if used[0] else 0.0, xyz[1] if used[1] else 0.0,
+            xyz[2] if used[2] else 0.0)

@@ -155,7 +155,8 @@ def mapping_from_params(v: Mapping[str, Any], deadzone: float = 0.05) -> tuple[J
                     buttons.append(layout.button(spec))
             except ValueError as err:
                 raise ValueError(f'joy.{control}: {err}') from err
-        mapping = JoyMapping(*axes, *buttons, deadzone, tuple(signs))  # type: ignore[arg-type]
+        mapping = JoyMapping(**dict(zip(INDEX_PARAMETERS, axes + buttons)), deadzone=deadzone,
+                             signs=(signs[0], signs[1], signs[2]))
         default_rule = layout.loss_rule
     else:
         missing = [k for k in INDEX_PARAMETERS if k not in given]
@@ -163,7 +164,7 @@ def mapping_from_params(v: Mapping[str, Any], deadzone: float = 0.05) -> tuple[J
             raise ValueError(f'joy.layout: name a layout ({", ".join(LAYOUTS)}) with '
                              f'joy.{", joy.".join(AXIS_CONTROLS + BUTTON_CONTROLS)}, or give '
                              f'the indices (joy.{missing[0]} is missing)')
-        mapping = JoyMapping(*(indices[k] for k in INDEX_PARAMETERS), deadzone)
+        mapping = JoyMapping(**indices, deadzone=deadzone)
         default_rule = 'timeout'
     rule = v.get('joy.loss', '') or default_rule
     if rule not in LOSS_RULES:

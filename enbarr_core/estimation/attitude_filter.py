@@ -410,7 +410,7 @@ class AttitudeFilter:
             P = G @ kf.P @ G.T                                      # P = GPG'
             kf.P = 0.5 * (P + P.T)
             kf.x = np.zeros((6, 1))
-        if mag_used and not self._heading_known:
+        if mag_used and not self._heading_known and m is not None:  # mag_used: m is given
             mag_used = self._align_heading(m)                       # first heading: snap to it
         return self._estimate(w_m - self._b, dt, accel_used, mag_used)
 

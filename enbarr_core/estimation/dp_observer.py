@@ -260,6 +260,7 @@ class PassiveObserver:
         dead-reckoned one is as stale as the pose.
         """
         first, span = self._far_first, self._far_time
+        assert first is not None  # set with the first pose of the far run that ends here
         c, s = math.cos(y[2]), math.sin(y[2])
         vx, vy = (y[0] - first[0]) / span, (y[1] - first[1]) / span  # world velocity
         r = (ssa(y[2] - first[2])) / span
@@ -332,7 +333,7 @@ class PassiveObserver:
 
 def _triple(value: ArrayLike, what: str) -> tuple[float, float, float]:
     """``value`` as 3 finite floats (``ValueError`` naming ``what``)."""
-    return floats(what, value, 3)  # type: ignore[return-value]
+    return floats(what, value, 3)
 
 def _close(a: tuple[float, float, float], b: tuple[float, float, float], max_dp2: float,
            max_dpsi: float) -> bool:

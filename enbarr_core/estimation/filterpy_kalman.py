@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 import types
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 _STATS = 'filterpy.stats'
 
@@ -35,7 +35,7 @@ def import_kalman() -> types.ModuleType:
         import filterpy.kalman
         return filterpy.kalman
     stand_in = types.ModuleType(_STATS, 'Stand-in: logpdf imports filterpy.stats on first use.')
-    stand_in.logpdf = _logpdf  # type: ignore[attr-defined]
+    stand_in.logpdf = _logpdf  # type: ignore[attr-defined]  # set, not declared
     sys.modules[_STATS] = stand_in
     try:
         import filterpy.kalman
@@ -45,4 +45,7 @@ def import_kalman() -> types.ModuleType:
     return filterpy.kalman
 
 
-KalmanFilter = import_kalman().KalmanFilter
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter as KalmanFilter
+else:
+    KalmanFilter = import_kalman().KalmanFilter

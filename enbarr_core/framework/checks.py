@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 import math
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -44,6 +44,14 @@ def check_non_negative(settings: Any, names: Sequence[str]) -> None:
             raise ValueError(f'{name}: must be a number, got {raw!r}') from exc
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f'{name}: must be finite and non-negative, got {raw!r}')
+
+
+@overload
+def floats(name: str, value: Any, n: Literal[3], *,
+           finite: bool = True) -> tuple[float, float, float]: ...
+@overload
+def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,
+           finite: bool = True) -> tuple[float, ...]: ...
 
 
 def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,

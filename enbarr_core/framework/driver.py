@@ -319,10 +319,11 @@ class ActuatorDriver(DeviceNode):
             'long', 's', 0.005, 10.0)], self._build_timeout, self.watchdog.set_timeout)
 
     def _build_timeout(self, v: dict[str, Any]) -> float:
-        reason = self._timeout_too_short(v['command_timeout'])
+        timeout: float = v['command_timeout']
+        reason = self._timeout_too_short(timeout)
         if reason:
             raise ValueError(reason)
-        return v['command_timeout']
+        return timeout
 
     def _timeout_too_short(self, timeout: float) -> str | None:
         """Why ``timeout`` [s] is too short for the measured command period, or None."""

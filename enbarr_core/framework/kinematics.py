@@ -8,11 +8,18 @@ Euler angles are ZYX (yaw psi about z, then pitch theta about y, then roll phi a
 from __future__ import annotations
 
 import math
+from typing import overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 Vector = NDArray[np.float64]
+
+
+@overload
+def ssa(angle: float) -> float: ...
+@overload
+def ssa(angle: NDArray[np.float64]) -> NDArray[np.float64]: ...
 
 
 def ssa(angle: float | NDArray[np.float64]) -> float | NDArray[np.float64]:

@@ -45,13 +45,13 @@ from enbarr_core.framework.errors import ConfigurationError
 
 S = TypeVar('S')
 
-_TYPES = {
+_TYPES: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL,
     int: ParameterType.PARAMETER_INTEGER,
     float: ParameterType.PARAMETER_DOUBLE,
     str: ParameterType.PARAMETER_STRING,
 }
-_ARRAY_TYPES = {
+_ARRAY_TYPES: dict[type, int] = {
     bool: ParameterType.PARAMETER_BOOL_ARRAY,
     int: ParameterType.PARAMETER_INTEGER_ARRAY,
     float: ParameterType.PARAMETER_DOUBLE_ARRAY,

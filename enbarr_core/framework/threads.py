@@ -33,7 +33,8 @@ def set_os_thread_name(name: str) -> bool:
     try:
         if _libc is None:
             _libc = ctypes.CDLL(None, use_errno=True)
-        return _libc.prctl(PR_SET_NAME, ctypes.c_char_p(os_thread_name(name)), 0, 0, 0) == 0
+        result: int = _libc.prctl(PR_SET_NAME, ctypes.c_char_p(os_thread_name(name)), 0, 0, 0)
+        return result == 0
     except (OSError, AttributeError):  # not Linux, or no prctl
         return False
 

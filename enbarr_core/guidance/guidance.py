@@ -56,7 +56,7 @@ def _check_dt(dt: float) -> None:
 
 def _pose(value: ArrayLike, what: str) -> tuple[float, float, float]:
     """``value`` as a pose [x, y, psi] of 3 finite floats (``ValueError`` naming ``what``)."""
-    return floats(what, value, 3)  # type: ignore[return-value]
+    return floats(what, value, 3)
 
 def _positive(value: float, what: str, *, zero_ok: bool = False) -> float:
     try:
@@ -69,9 +69,11 @@ def _positive(value: float, what: str, *, zero_ok: bool = False) -> float:
     return v
 
 
-def _hold(x: float, y: float, psi: float, **metrics: object) -> Reference:
-    return Reference(np.array((x, y, psi)), np.zeros(3), np.zeros(3), _ALL,
-                     **metrics)  # type: ignore[arg-type]
+def _hold(x: float, y: float, psi: float, *, cross_track: float | None = None,
+          along_track: float | None = None, segment: int | None = None,
+          finished: bool = False) -> Reference:
+    return Reference(np.array((x, y, psi)), np.zeros(3), np.zeros(3), _ALL, cross_track,
+                     along_track, segment, finished)
 
 
 class HoldPose:
@@ -248,8 +250,9 @@ class LosPath:
         """Advance the clock by ``dt`` [s] and return the reference for ``eta_hat`` now."""
         _check_dt(dt)
         x, y, psi = _pose(eta_hat, 'eta_hat')
-        if self.fixed_heading is None and self.heading == 'fixed':
-            self.fixed_heading = float(ssa(psi))
+        fixed = self.fixed_heading  # None only with heading 'course' (from here on)
+        if fixed is None and self.heading == 'fixed':
+            fixed = self.fixed_heading = float(ssa(psi))
         segments = self._segments
         while True:
             xk, yk, ca, sa, length, pi_p = segments[self.segment]
@@ -267,7 +270,7 @@ class LosPath:
         self.cross_track, self.along_track = e, s
         if self.finished:
             xe, ye = self.waypoints[-1]
-            psi_hold = pi_p if self.heading == 'course' else self.fixed_heading
+            psi_hold = pi_p if fixed is None else fixed
             return _hold(xe, ye, psi_hold, cross_track=e, along_track=s,
                          segment=self.segment, finished=True)
 
@@ -275,11 +278,11 @@ class LosPath:
         chi_d = pi_p - math.atan(e / delta)
         cc, sc = math.cos(chi_d), math.sin(chi_d)
         vx, vy = U * cc, U * sc                       # desired world velocity
-        if self.heading == 'course':
+        if fixed is None:                             # heading 'course'
             psi_d = float(ssa(chi_d))
             r_d = U * delta * e / (delta * delta + e * e) ** 1.5  # chi_d_dot
         else:
-            psi_d, r_d = self.fixed_heading, 0.0
+            psi_d, r_d = fixed, 0.0
         chi_dot = U * delta * e / (delta * delta + e * e) ** 1.5
         ax, ay = -chi_dot * vy, chi_dot * vx          # d/dt of the world velocity
         c, sn = math.cos(psi), math.sin(psi)

@@ -46,6 +46,7 @@ from enbarr_core.framework.kinematics import (
 
 Vector = NDArray[np.float64]
 Matrix = NDArray[np.float64]
+_Six = tuple[float, float, float, float, float, float]  # a 6-DOF vector as floats
 
 # Relative tolerance of the symmetry check on a full 3x3 inertia matrix.
 _SYMMETRY_RTOL = 1e-9
@@ -66,7 +67,8 @@ def _finite_scalar(name: str, value: Any) -> float:
 def _shape(value: Any) -> tuple[int, ...] | None:
     """``np.shape(value)``, or None for ragged nested sequences."""
     try:
-        return np.shape(value)
+        shape: tuple[int, ...] = np.shape(value)
+        return shape
     except ValueError:
         return None
 
@@ -363,7 +365,7 @@ class RigidBodyModel:
         nu_dot = np.asarray(nu_dot, dtype=float)
         R = quat_to_rotmat(quat_normalize(state.q))
         v, omega = state.nu[:3], state.nu[3:]
-        gravity = np.array([0.0, 0.0, -float(self.params.gravity)])
+        gravity: Vector = np.array([0.0, 0.0, -float(self.params.gravity)])
         # skew(omega) @ v is omega x v; np.cross costs ten times more on 3-vectors.
         return nu_dot[:3] + skew(omega) @ v - R.T @ gravity
 
@@ -378,7 +380,7 @@ class RigidBodyModel:
         t = vector('tau', tau, 6)
         if tau_ext is not None:
             t = t + vector('tau_ext', tau_ext, 6)
-        out = t.tolist()
+        out: list[float] = t.tolist()
         if not math.isfinite(math.fsum(out)):
             raise ValueError(f'tau: values must be finite, got {out}')
         return out
@@ -440,7 +442,7 @@ class RigidBodyModel:
 
     def _rhs_in_current(self, x: list[float], tau: list[float],
                         vc: tuple[float, float, float],
-                        r: tuple[float, ...]) -> tuple[float, ...]:
+                        r: tuple[float, ...]) -> _Six:
         """Return tau - C_RB(nu) nu - C_A(nu_r) nu_r - D(nu_r) nu_r - g + M_A nu_c_dot (6 floats).
 
         ``r`` holds the products of ``_f`` that make up R(q). The rigid body moves with nu,

@@ -32,9 +32,9 @@ VESSEL_SPECS = [
 def vessel_from_params(v: Mapping[str, Any]) -> Vessel3DofParams:
     """Build the vessel model of the ``vessel.*`` values (ValueError naming the parameter)."""
     params = Vessel3DofParams(
-        M=vector3(v, 'vessel.inertia'),  # type: ignore[arg-type]
-        D=vector3(v, 'vessel.linear_damping'),  # type: ignore[arg-type]
-        Dn=vector3(v, 'vessel.nonlinear_damping'))  # type: ignore[arg-type]
+        M=vector3(v, 'vessel.inertia'),
+        D=vector3(v, 'vessel.linear_damping'),
+        Dn=vector3(v, 'vessel.nonlinear_damping'))
     try:
         params.validate()
     except ValueError as err:
@@ -45,4 +45,4 @@ def vessel_from_params(v: Mapping[str, Any]) -> Vessel3DofParams:
 
 def vector3(v: Mapping[str, Any], name: str) -> tuple[float, float, float]:
     """Return ``v[name]`` as 3 floats (surge, sway, yaw); ValueError naming ``name``."""
-    return floats(name, v[name], 3)  # type: ignore[return-value]
+    return floats(name, v[name], 3)

@@ -10,14 +10,12 @@ from __future__ import annotations
 import ast
 import importlib
 import importlib.util
-import pkgutil
 import subprocess
 import sys
 
 import pytest
+from support.layering import algorithm_modules
 
-ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_core.guidance',
-                      'enbarr_core.allocation', 'enbarr_core.models')
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.errors', 'enbarr_core.recording.bag',
              'enbarr_core.recording.recorder', 'enbarr_plugins.transport.i2c',
@@ -33,12 +31,7 @@ pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess
 
 
 def pure_modules() -> list[str]:
-    found = []
-    for package in ALGORITHM_PACKAGES:
-        path = importlib.import_module(package).__path__
-        found += [f'{package}.{m.name}' for m in pkgutil.iter_modules(path)
-                  if not m.name.endswith(('_node', '_params'))]
-    return sorted(found) + list(ALSO_PURE)
+    return algorithm_modules() + list(ALSO_PURE)
 
 
 def test_algorithms_import_without_rclpy() -> None:

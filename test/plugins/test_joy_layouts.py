@@ -105,6 +105,12 @@ def test_a_minus_sign_flips_an_axis():
     assert m.tau_manual.tolist() == pytest.approx([0.0, 0.0, -0.25])
 
 
+@pytest.mark.parametrize('dof, control', enumerate(('surge', 'sway', 'yaw')))
+def test_a_minus_sign_flips_its_own_axis_only(dof, control):
+    mapping, _ = mapping_from_params({**SAUCER, f'joy.{control}': '-' + SAUCER[f'joy.{control}']})
+    assert mapping.signs == tuple(-1.0 if i == dof else 1.0 for i in range(3))
+
+
 @pytest.mark.parametrize('change, match', [
     ({'joy.layout': 'xbox'}, r"joy.layout: unknown layout 'xbox'; known: joydev, ds4_driver"),
     ({'joy.automatic': 'x'}, r"joy.automatic: 'x' is no button of layout enbarr_ds4"),
