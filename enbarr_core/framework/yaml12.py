@@ -45,7 +45,7 @@ FLOAT_12 = re.compile(r"""^(?:
 )$""", re.VERBOSE)
 
 
-class Yaml12Loader(_Base):  # type: ignore[misc, valid-type]
+class Yaml12Loader(_Base):  # type: ignore[misc]  # PyYAML has no stubs here: its loader is Any
     """PyYAML's safe loader resolving plain ints, floats and booleans as YAML 1.2 (core)."""
 
     def construct_yaml_int(self, node: Any) -> int:
