@@ -5,6 +5,7 @@ held over a step. State x = [x, y, psi, u, v, r].
 
 from __future__ import annotations
 
+from functools import cache
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ import numpy as np
 DT = 0.02                                             # 50 Hz [s]
 M = np.diag([9.51, 9.51, 0.116])                      # manual eq. 1.2
 D = np.diag([1.96, 1.96, 0.168])                      # manual eq. 1.4
+M_INV = np.linalg.inv(M)                              # once: rhs runs tens of thousands of times
 NOISE = np.array([0.005, 0.005, math.radians(0.5)])   # mocap noise std [m, m, rad]
 
 
@@ -29,7 +31,7 @@ def rhs(x, tau, b, quadratic=True):
     C = np.array([[0.0, -9.51 * nu[2], 0.0], [9.51 * nu[2], 0.0, 0.0], [0.0, 0.0, 0.0]])
     Dn = 7.095 * np.diag(np.abs(nu)) if quadratic else 0.0 * M     # manual eq. 1.5
     R = rot(x[2])
-    nu_dot = np.linalg.solve(M, tau + R.T @ b - (C + D + Dn) @ nu)  # eq. 1.3 for C
+    nu_dot = M_INV @ (tau + R.T @ b - (C + D + Dn) @ nu)  # eq. 1.3 for C
     return np.concatenate([R @ nu, nu_dot])
 
 
@@ -44,12 +46,18 @@ def step(x, tau, b, dt=DT, quadratic=True):
 
 # -- the Saucer's observer and controller settings, from its profile --------------------------
 
+@cache
+def _profile(name: str):
+    """The loaded profile (loaded once per session: the settings are built from it often)."""
+    from enbarr_core.bringup.profile import load_profile
+    return load_profile(name)
+
+
 def profile_settings(node: str, specs, from_params, profile: str = 'saucer_core'):
     """The settings node ``node`` of ``profile`` runs with: the declared defaults of
     ``specs``, the profile's common parameters and the node's own, through ``from_params``.
     """
-    from enbarr_core.bringup.profile import load_profile
-    p = load_profile(profile)
+    p = _profile(profile)
     spec = next(n for n in p.nodes if n.name == node)
     values = {s.name: s.default for s in specs}
     given = {**p.parameters, **spec.parameters}
