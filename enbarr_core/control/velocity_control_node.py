@@ -44,6 +44,7 @@ from enbarr_core.framework.health import (
 from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.models.rigid_body_params import VEHICLE_SPECS
 from enbarr_core.framework.stamps import (
     SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 
@@ -80,15 +81,7 @@ SPECS = [
               'clock are refused (time policy)', 's', 0.0, 1.0),
     ParamSpec('velocity_topic', '', 'nav_msgs/Odometry source of linear body velocity; empty: '
               'feed-forward only on surge, sway, heave', read_only=True),
-    ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass (feed-forward model)', 'kg', 0.01, 1e5),
-    ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO (3 diagonal or 9 '
-              'values; the diagonal is used)', 'kg m^2', -1e5, 1e5),
-    ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12], 'Added mass diagonal',
-              'kg, kg m^2', 0.0, 1e5),
-    ParamSpec('vehicle.d_lin', [4.03, 6.22, 5.18, 0.07, 0.07, 0.07], 'Linear damping',
-              'N s/m, N m s/rad', 0.0, 1e5),
-    ParamSpec('vehicle.d_quad', [18.18, 21.66, 36.99, 1.55, 1.55, 1.55], 'Quadratic damping',
-              'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
+    *VEHICLE_SPECS,  # the feed-forward model: vessel data from the profile, required
 ]
 
 

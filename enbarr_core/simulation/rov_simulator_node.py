@@ -34,6 +34,7 @@ from enbarr_interfaces import convert, topics
 from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
+from enbarr_core.models.rigid_body_params import RESTORING_SPECS, VEHICLE_SPECS
 from enbarr_core.framework.checks import floats
 from enbarr_core.framework.health import IntervalMeter, too_short_for_rate
 from enbarr_core.framework.node import EnbarrNode, sim_steps
@@ -54,20 +55,7 @@ SPECS = [
               2000.0, read_only=True),
     ParamSpec('thrust_timeout', 0.25, 'Thrust older than this is dropped to zero (ESC '
               'watchdog)', 's', 0.001, 10.0),
-    ParamSpec('vehicle.mass', 11.5, 'Rigid-body mass m', 'kg', 0.01, 1e5),
-    ParamSpec('vehicle.inertia', [0.16, 0.16, 0.16], 'Inertia about the CO, 3 diagonal or 9 '
-              'row-major values', 'kg m^2', -1e5, 1e5),
-    ParamSpec('vehicle.r_g', [0.0, 0.0, -0.02], 'Centre of gravity in base_link', 'm', -100.0,
-              100.0),
-    ParamSpec('vehicle.r_b', [0.0, 0.0, 0.0], 'Centre of buoyancy in base_link', 'm', -100.0,
-              100.0),
-    ParamSpec('vehicle.buoyancy', 112.8, 'Buoyancy B = rho g V', 'N', 0.0, 1e6),
-    ParamSpec('vehicle.added_mass', [5.5, 12.7, 14.57, 0.12, 0.12, 0.12],
-              'Diagonal of the added mass M_A', 'kg, kg m^2', 0.0, 1e5),
-    ParamSpec('vehicle.d_lin', [4.03, 6.22, 5.18, 0.07, 0.07, 0.07], 'Linear damping',
-              'N s/m, N m s/rad', 0.0, 1e5),
-    ParamSpec('vehicle.d_quad', [18.18, 21.66, 36.99, 1.55, 1.55, 1.55], 'Quadratic damping',
-              'N s^2/m^2, N m s^2/rad^2', 0.0, 1e5),
+    *VEHICLE_SPECS, *RESTORING_SPECS,  # vessel data from the profile, required
     ParamSpec('status_period', 2.0, 'Period of the status line in the log (0: none)', 's',
               0.0, 3600.0, read_only=True),
     ParamSpec('current', [0.0, 0.0, 0.0], 'Water current in odom (east, north, up): constant, '

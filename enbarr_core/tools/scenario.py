@@ -146,8 +146,6 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         plot: bool = True, duration: float | None = None,
         record_all: bool = False) -> dict[str, Any]:
     """Run scenario ``name`` on simulated time, record it and return its metrics."""
-    from rclpy.time import Time
-
     from enbarr_core.bringup.compose import add_recorder, composed
     from enbarr_core.bringup.profile import apply_environment, load_profile, with_record
 
@@ -169,15 +167,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)
-        clocks = [n.get_clock() for n in c.nodes]
-
-        def set_time(t_ns: int) -> None:
-            stamp = Time(nanoseconds=t_ns, clock_type=clocks[0].clock_type)
-            for clock in clocks:
-                clock.set_ros_time_override(stamp)
-
-        for clock in clocks:
-            clock._set_ros_time_is_active(True)  # what rclpy's TimeSource does for /clock
+        set_time = simulated_time([n.get_clock() for n in c.nodes])
         now = T0_NS
         set_time(now)
         c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
@@ -201,6 +191,30 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     if plot:
         result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png', msgs))
     return result
+
+
+def simulated_time(clocks: list[Any]) -> Callable[[int], None]:
+    """Put ``clocks`` (the nodes' ROS clocks) on simulated time; return the call that sets it.
+
+    This is what a node's ``use_sim_time`` does with ``/clock``, through the same public rclpy
+    API (a ``TimeSource`` with ROS time active, the clocks attached, each time fed to its
+    ``clock_callback``), but the time source belongs to the runner and subscribes to nothing:
+    each step costs no message per node, and no ``/clock`` from another process in the domain
+    can move a scenario's time.
+    """
+    from rclpy.time_source import TimeSource
+    from rosgraph_msgs.msg import Clock
+
+    source = TimeSource()  # no node: no /clock subscription
+    source.ros_time_is_active = True
+    for clock in clocks:
+        source.attach_clock(clock)
+    msg = Clock()
+
+    def set_time(t_ns: int) -> None:
+        msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 1_000_000_000)
+        source.clock_callback(msg)
+    return set_time
 
 
 def _run_due(executor: Any) -> Callable[[], None]:

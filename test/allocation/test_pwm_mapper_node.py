@@ -210,22 +210,11 @@ def test_duty_message_is_byte_for_byte_the_one_the_generated_constructors_build(
 
     from enbarr_core.allocation.pwm_mapper_node import duty_message
     from enbarr_interfaces import topics
-    from enbarr_core.recording import cdr
+    from support.cdr_bytes import same_cdr
     duties = [7.5, 6.1, 8.25, 7.0]
     expected = Float64MultiArray(layout=MultiArrayLayout(dim=[MultiArrayDimension(
         label=topics.PWM_DUTY_LABEL, size=4, stride=4)]), data=duties)
-    # CDR leaves padding unspecified and rmw_fastrtps leaves what its buffer held there:
-    # compare it as zeros, where the padding-marking encoder says it is (as test_fastmsg).
-    plain = cdr.encoder(Float64MultiArray)(expected)
-    marked = cdr.padding_marking_encoder(Float64MultiArray)(expected)
-    pad = [i for i in range(len(plain)) if plain[i] != marked[i]]
-
-    def zeroed(data: bytes) -> bytes:
-        out = bytearray(data)
-        for i in pad:
-            out[i] = 0
-        return bytes(out)
-
-    ours, reference = serialize_message(duty_message(duties)), serialize_message(expected)
-    assert len(ours) == len(reference) and zeroed(ours) == zeroed(reference)
+    # Every byte CDR defines (rmw_fastrtps leaves padding as its buffer held it).
+    assert same_cdr(serialize_message(duty_message(duties)), serialize_message(expected),
+                    expected)
     assert duty_message(duties).layout.dim[0] is not duty_message(duties).layout.dim[0]

@@ -55,6 +55,17 @@ def run_truth(ctl, eta_d, seconds, x0, b=B_WORLD, dt=DT, quadratic=True):
     return np.array(ts), np.array(xs), outs
 
 
+@pytest.mark.parametrize('quadratic', [True, False])
+def test_the_plant_written_out_is_the_manuals_matrix_form(quadratic):
+    """support.saucer_plant.rhs (per DOF, for speed) is its rhs_matrices (eqs. 1.2-1.6)."""
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        x, tau, b = rng.normal(size=6) * [3, 3, 4, 1, 1, 1], rng.normal(size=3), rng.normal(size=3)
+        np.testing.assert_allclose(saucer_plant.rhs(x, tau, b, quadratic),
+                                   saucer_plant.rhs_matrices(x, tau, b, quadratic),
+                                   rtol=1e-12, atol=1e-12)
+
+
 # --- station keeping ---------------------------------------------------------------------
 
 

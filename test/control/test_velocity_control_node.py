@@ -8,13 +8,13 @@ from typing import Any
 import numpy as np
 import pytest
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from rclpy.parameter import Parameter
 from support.nodes import add, get_param, param_client, probe, set_param
-from support.rov import imu_sample
+from support.rov import imu_sample, overrides, vehicle_parameters
 from support.saucer import SimClock
 
 from enbarr_core.control.velocity_control_node import VelocityControlNode
 from enbarr_core.framework import registry
+from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.stamps import StampVerdict
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
@@ -32,8 +32,8 @@ class Loop:
 
     def __init__(self, context: Any, executor: Any, spin: Any) -> None:
         self.executor, self.spin = executor, spin
-        self.node = add(executor, VelocityControlNode(context=context, parameter_overrides=[
-            Parameter('ki', value=[0.0] * 6), Parameter('goal_timeout', value=60.0)]))
+        self.node = add(executor, VelocityControlNode(context=context, parameter_overrides=(
+            overrides({**vehicle_parameters(), 'ki': [0.0] * 6, 'goal_timeout': 60.0}))))
         feeder = probe(context, executor, 'feeder')
         self.imu_pub = feeder.create_topic_publisher(topics.IMU)
         goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
@@ -134,7 +134,8 @@ class Feeder:
     """The loop with default gains and a surge goal of 0.3 m/s stamped at 1 s."""
 
     def __init__(self, context: Any, executor: Any) -> None:
-        self.node = add(executor, VelocityControlNode(context=context))
+        self.node = add(executor, VelocityControlNode(
+            context=context, parameter_overrides=overrides(vehicle_parameters())))
         feeder = probe(context, executor, 'feeder')
         self.imu_pub = feeder.create_topic_publisher(topics.IMU)
         goal_pub = feeder.create_topic_publisher(topics.TRAJECTORY_REQUEST)
@@ -198,8 +199,8 @@ class Clocked:
 
     def __init__(self, context: Any, executor: Any, spin: Any, **params: Any) -> None:
         self.executor, self.spin, self.context = executor, spin, context
-        self.node = add(executor, VelocityControlNode(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()]))
+        self.node = add(executor, VelocityControlNode(
+            context=context, parameter_overrides=overrides({**vehicle_parameters(), **params})))
         self.clock = SimClock(self.node, t0_ns=T0)
         feeder = probe(context, executor, 'feeder')
         self.imu_pub = feeder.create_topic_publisher(topics.IMU)
@@ -296,3 +297,15 @@ def test_a_healthy_loop_reports_ok(context, executor, spin):
     rig = Clocked(context, executor, spin)
     rig.run(400)
     assert rig.report()[:2] == (0, 'ok')
+
+
+@pytest.mark.parametrize('missing', [
+    'vehicle.mass', 'vehicle.inertia', 'vehicle.added_mass', 'vehicle.d_lin', 'vehicle.d_quad'])
+def test_the_feed_forward_model_comes_from_the_profile_only(context, missing):
+    """Vessel data has no default in the code: without it the loop refuses to start, naming
+    the parameter (bringup turns this into a ProfileError naming the file)."""
+    given = {k: v for k, v in vehicle_parameters().items() if k != missing}
+    with pytest.raises(ConfigurationError, match=(
+            f"node 'control_loop': parameter '{missing}' is not set; the profile must give it")):
+        VelocityControlNode(node_name='control_loop', context=context,
+                            parameter_overrides=overrides(given))

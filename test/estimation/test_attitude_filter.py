@@ -140,6 +140,12 @@ def imu60() -> Imu:
 
 
 @pytest.fixture(scope='module')
+def imu30() -> Imu:
+    """30 s: 20 s of statistics after CONVERGED, for the runs that need no more."""
+    return synthesize(30.0, seed=7)
+
+
+@pytest.fixture(scope='module')
 def mag_run(imu60: Imu) -> Run:
     """60 s with magnetometer, started 6/-6/30 deg (roll/pitch/yaw) off the truth."""
     init = perturbed_init_sample(imu60.rot[0], math.radians(6.0), math.radians(-6.0),
@@ -220,12 +226,13 @@ def test_estimate_arrays_are_read_only(mag_run: Run) -> None:
 
 
 @pytest.mark.parametrize('use_magnetometer, pass_mag', [(False, True), (True, False)])
-def test_roll_pitch_converge_without_magnetometer(imu60: Imu, use_magnetometer: bool,
+def test_roll_pitch_converge_without_magnetometer(imu30: Imu, use_magnetometer: bool,
                                                   pass_mag: bool) -> None:
-    """Disabled in the settings, or enabled but never sent: roll/pitch still converge."""
+    """Disabled in the settings, or enabled but never sent: roll/pitch still converge (30 s:
+    the error is inside its bound within CONVERGED, the yaw drift grows for 20 s more)."""
     settings = replace(SETTINGS, use_magnetometer=use_magnetometer)
-    accel0, _ = perturbed_init_sample(imu60.rot[0], math.radians(6.0), math.radians(-6.0), 0.0)
-    r = run(imu60, settings, use_mag=pass_mag, init=(accel0, None))
+    accel0, _ = perturbed_init_sample(imu30.rot[0], math.radians(6.0), math.radians(-6.0), 0.0)
+    r = run(imu30, settings, use_mag=pass_mag, init=(accel0, None))
     roll, pitch, _ = rms_deg(r.euler_errors()[r.mask()])
     assert roll < ROLL_PITCH_RMS_DEG and pitch < ROLL_PITCH_RMS_DEG, (roll, pitch)
     assert not any(e.mag_used for e in r.est)
@@ -235,7 +242,7 @@ def test_roll_pitch_converge_without_magnetometer(imu60: Imu, use_magnetometer: 
     yaw_var = [(Rotation.from_quat(e.q).as_matrix() @ e.orientation_cov
                 @ Rotation.from_quat(e.q).as_matrix().T)[2, 2] for e in (r.est[0], r.est[-1])]
     assert 0.0 < yaw_var[0] < math.radians(0.1) ** 2 < yaw_var[1]
-    drift = ssa(r.euler_errors()[-1, 2] + imu60.rot[0].as_euler('ZYX')[0])
+    drift = ssa(r.euler_errors()[-1, 2] + imu30.rot[0].as_euler('ZYX')[0])
     assert abs(drift) < 3.0 * math.sqrt(yaw_var[1]), (drift, yaw_var[1])
 
 

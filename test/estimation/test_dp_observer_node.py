@@ -94,7 +94,7 @@ def test_dp_observer_needs_its_gains_and_vessel_from_the_profile(context, missin
 def test_dp_observer_gain_names_are_lower_case(context, executor):
     node = add(executor, DpObserverNode(node_name='observer', context=context,
                                         parameter_overrides=overrides(node='observer')))
-    names = set(node._parameters)
+    names = set(node.list_parameters([], 0).names)  # depth 0: every level
     assert {'k1', 'k2', 'k3', 't_b', 'vessel.inertia'} <= names
     assert not {'K1', 'K2', 'K3', 'T_b', 'vessel.M'} & names
     s = node.settings.observer

@@ -126,13 +126,16 @@ def test_now_ns_reads_the_node_clock_simulated_time_included(context):
     import time
 
     from rclpy.time import Time
+    from rclpy.time_source import TimeSource
+    from rosgraph_msgs.msg import Clock
     node = EnbarrNode('clock_reader', context=context)
     try:
         assert abs(node.now_ns() - time.time_ns()) < 50_000_000     # system time by default
-        clock = node.get_clock()
-        clock._set_ros_time_is_active(True)                       # as scenarios and /clock do
-        clock.set_ros_time_override(Time(nanoseconds=1_234_000_000, clock_type=clock.clock_type))
-        assert node.now_ns() == 1_234_000_000 == clock.now().nanoseconds
+        source = TimeSource()            # as scenarios do, and use_sim_time with /clock
+        source.ros_time_is_active = True
+        source.attach_clock(node.get_clock())
+        source.clock_callback(Clock(clock=Time(nanoseconds=1_234_000_000).to_msg()))
+        assert node.now_ns() == 1_234_000_000 == node.get_clock().now().nanoseconds
     finally:
         node.destroy_node()
 

@@ -117,13 +117,19 @@ WU_B = 114.8
 NED_TO_FLU = np.diag([1.0, -1.0, -1.0])  # a rotation by pi about x
 
 
-@pytest.mark.parametrize('node', ('simulator', 'control_loop'))
-def test_rov_vehicle_is_wus(node: str) -> None:
-    """Mass, inertia, added mass and damping as identified by Wu. They are diagonals, and
-    NED -> FLU is diag(1, -1, -1) on both the linear and the angular part, so
+ROV_MODEL_NODES = [('enbarr_sim', 'simulator'), ('enbarr_sim', 'control_loop'),
+                   ('enbarr_rov', 'control_loop'), ('enbarr_rov_emulated', 'simulator'),
+                   ('enbarr_rov_emulated', 'control_loop'), ('enbarr_teleop', 'control_loop')]
+
+
+@pytest.mark.parametrize('profile, node', ROV_MODEL_NODES)
+def test_rov_vehicle_is_wus(profile: str, node: str) -> None:
+    """Mass, inertia, added mass and damping as identified by Wu, in every ROV profile and
+    for each node that models the vehicle (the code has no default to fall back on). They are
+    diagonals, and NED -> FLU is diag(1, -1, -1) on both the linear and the angular part, so
     T diag(a) T^T = diag(a): the values carry over unchanged; only their sign convention
     differs (Fossen's derivatives are negative, the profile's coefficients positive)."""
-    v = node_parameters('enbarr_sim', node)
+    v = node_parameters(profile, node)
     assert v['vehicle.mass'] == WU_MASS
     assert v['vehicle.inertia'] == WU_INERTIA
     assert v['vehicle.added_mass'] == WU_ADDED_MASS
@@ -131,11 +137,12 @@ def test_rov_vehicle_is_wus(node: str) -> None:
     assert v['vehicle.d_quad'] == WU_D_QUAD
 
 
-def test_rov_cg_is_wus_in_flu_and_trim_is_neutral() -> None:
+@pytest.mark.parametrize('profile', ('enbarr_sim', 'enbarr_rov_emulated'))
+def test_rov_cg_is_wus_in_flu_and_trim_is_neutral(profile: str) -> None:
     """r_cg = [0 0 0.02] m NED (2 cm below the CB) is [0 0 -0.02] m in FLU. Wu's vehicle is
     2 N light (B = 114.8 N > W = 112.8 N); the profile trims it neutral on purpose (its
     comment says so): B = m g with the model's g."""
-    v = node_parameters('enbarr_sim', 'simulator')
+    v = node_parameters(profile, 'simulator')
     np.testing.assert_array_equal(v['vehicle.r_g'], NED_TO_FLU @ WU_R_CG_NED)
     assert v['vehicle.r_b'] == [0.0, 0.0, 0.0]
     assert v['vehicle.buoyancy'] == pytest.approx(WU_MASS * G, abs=1e-9)

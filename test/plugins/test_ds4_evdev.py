@@ -355,9 +355,7 @@ def test_the_emulated_saucer_joystick_drives_the_modes(context, executor, spin):
     h.probe.destroy_publisher(h.joy_pub)  # one joystick: the driver's
     h.probe.destroy_publisher(h.connected_pub)
     r = Rig(context, executor, spin)
-    r.node.get_clock()._set_ros_time_is_active(True)
-    h.clock.clocks.append(r.node.get_clock())  # the driver stamps on the vessel's clock
-    h.clock.set(h.clock.ns)
+    h.clock.attach(r.node)  # the driver stamps on the vessel's clock
     assert r.until(lambda: h.node.manager.connected)
     # The simulated clock stands still between steps: each new state gets a new stamp.
     h.clock.advance(0.05)

@@ -119,6 +119,19 @@ def test_vehicle_errors_name_the_parameter(context):
             {**sim_parameters('simulator'), 'vehicle.d_lin': [1.0, 2.0]}))
 
 
+@pytest.mark.parametrize('missing', [
+    'vehicle.mass', 'vehicle.inertia', 'vehicle.added_mass', 'vehicle.d_lin', 'vehicle.d_quad',
+    'vehicle.r_g', 'vehicle.r_b', 'vehicle.buoyancy'])
+def test_the_vehicle_comes_from_the_profile_only(context, missing):
+    """Vessel data has no default in the code: without it the simulator refuses to start,
+    naming the parameter (bringup turns this into a ProfileError naming the file)."""
+    given = {k: v for k, v in sim_parameters('simulator').items() if k != missing}
+    with pytest.raises(ConfigurationError, match=(
+            f"node 'simulator': parameter '{missing}' is not set; the profile must give it")):
+        RovSimulatorNode(node_name='simulator', context=context,
+                         parameter_overrides=overrides(given))
+
+
 def test_sim_imu_bias_needs_three_values(context):
     with pytest.raises(ConfigurationError, match=r'gyro_bias: expected 3 values, got 2'):
         SimImuNode(context=context, parameter_overrides=[

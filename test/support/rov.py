@@ -41,6 +41,12 @@ def sim_parameters(node: str | None = None) -> dict[str, Any]:
     return out
 
 
+def vehicle_parameters() -> dict[str, Any]:
+    """The vehicle model of ``params/enbarr_sim.yaml`` (``vehicle.*``): what the velocity loop
+    needs from the profile (it has no defaults)."""
+    return {k: v for k, v in sim_parameters().items() if k.startswith('vehicle.')}
+
+
 def overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(k, value=v) for k, v in values.items()]
 

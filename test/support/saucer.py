@@ -12,6 +12,8 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from rclpy.time import Time
+from rclpy.time_source import TimeSource
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -81,20 +83,25 @@ def overrides(extra: dict[str, Any] | None = None, node: str | None = None) -> l
 
 class SimClock:
     """Simulated ROS time on the given nodes' clocks (what ``enbarr scenario`` does): their
-    timers fire, and their ``now()`` moves, only when the test advances it.
+    timers fire, and their ``now()`` moves, only when the test advances it. The time source
+    is rclpy's own, fed by the test instead of ``/clock`` (public API only).
     """
 
     def __init__(self, *nodes: Any, t0_ns: int = T0_NS) -> None:
-        self.clocks = [n.get_clock() for n in nodes]
-        for c in self.clocks:
-            c._set_ros_time_is_active(True)  # what rclpy's TimeSource does for /clock
+        self.source = TimeSource()  # no node: it subscribes to no /clock
+        self.source.ros_time_is_active = True
         self.ns = 0
+        for n in nodes:
+            self.attach(n)
         self.set(t0_ns)
+
+    def attach(self, node: Any) -> None:
+        """Put ``node``'s clock on this time too (at once at the present simulated time)."""
+        self.source.attach_clock(node.get_clock())
 
     def set(self, ns: int) -> None:
         self.ns = int(ns)
-        for c in self.clocks:
-            c.set_ros_time_override(Time(nanoseconds=self.ns, clock_type=c.clock_type))
+        self.source.clock_callback(Clock(clock=Time(nanoseconds=self.ns).to_msg()))
 
     def advance(self, seconds: float) -> int:
         self.set(self.ns + round(seconds * 1e9))

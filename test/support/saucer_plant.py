@@ -5,6 +5,7 @@ held over a step. State x = [x, y, psi, u, v, r].
 
 from __future__ import annotations
 
+from functools import cache
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ import numpy as np
 DT = 0.02                                             # 50 Hz [s]
 M = np.diag([9.51, 9.51, 0.116])                      # manual eq. 1.2
 D = np.diag([1.96, 1.96, 0.168])                      # manual eq. 1.4
+M_INV = np.linalg.inv(M)                              # once: rhs runs tens of thousands of times
 NOISE = np.array([0.005, 0.005, math.radians(0.5)])   # mocap noise std [m, m, rad]
 
 
@@ -24,13 +26,31 @@ def wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def rhs(x, tau, b, quadratic=True):
+def rhs_matrices(x, tau, b, quadratic=True):
+    """The plant's ODE in the manual's matrix form (``rhs`` is this, written out per DOF)."""
     nu = x[3:]
     C = np.array([[0.0, -9.51 * nu[2], 0.0], [9.51 * nu[2], 0.0, 0.0], [0.0, 0.0, 0.0]])
     Dn = 7.095 * np.diag(np.abs(nu)) if quadratic else 0.0 * M     # manual eq. 1.5
     R = rot(x[2])
-    nu_dot = np.linalg.solve(M, tau + R.T @ b - (C + D + Dn) @ nu)  # eq. 1.3 for C
+    nu_dot = M_INV @ (tau + R.T @ b - (C + D + Dn) @ nu)  # eq. 1.3 for C
     return np.concatenate([R @ nu, nu_dot])
+
+
+_M11, _M22, _M33 = np.diag(M)
+_D11, _D22, _D33 = np.diag(D)
+
+
+def rhs(x, tau, b, quadratic=True):
+    """``rhs_matrices`` product by product (a reference runs it tens of thousands of times;
+    test_dp_control checks the two agree): eta_dot = R(psi) nu,
+    M nu_dot = tau + R^T b - (C(nu) + D + D_n(nu)) nu."""
+    psi, u, v, r = x[2], x[3], x[4], x[5]
+    c, s = math.cos(psi), math.sin(psi)
+    dn = 7.095 if quadratic else 0.0
+    fx = tau[0] + c * b[0] + s * b[1] + 9.51 * r * v - (_D11 + dn * abs(u)) * u
+    fy = tau[1] - s * b[0] + c * b[1] - 9.51 * r * u - (_D22 + dn * abs(v)) * v
+    fn = tau[2] + b[2] - (_D33 + dn * abs(r)) * r
+    return np.array([c * u - s * v, s * u + c * v, r, fx / _M11, fy / _M22, fn / _M33])
 
 
 def step(x, tau, b, dt=DT, quadratic=True):
@@ -44,12 +64,18 @@ def step(x, tau, b, dt=DT, quadratic=True):
 
 # -- the Saucer's observer and controller settings, from its profile --------------------------
 
+@cache
+def _profile(name: str):
+    """The loaded profile (loaded once per session: the settings are built from it often)."""
+    from enbarr_core.bringup.profile import load_profile
+    return load_profile(name, allow_fragment=True)
+
+
 def profile_settings(node: str, specs, from_params, profile: str = 'saucer_core'):
     """The settings node ``node`` of ``profile`` runs with: the declared defaults of
     ``specs``, the profile's common parameters and the node's own, through ``from_params``.
     """
-    from enbarr_core.bringup.profile import load_profile
-    p = load_profile(profile, allow_fragment=True)
+    p = _profile(profile)
     spec = next(n for n in p.nodes if n.name == node)
     values = {s.name: s.default for s in specs}
     given = {**p.parameters, **spec.parameters}

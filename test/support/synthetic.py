@@ -3,9 +3,11 @@
 the rosbags Jazzy typestore (pure Python: no rclpy, so the metrics tests stay in the unit
 tier).
 
-A run is the truth ``sim/odometry`` (pose eta = [x, y, psi] at times t), a hold reference on
-``guidance/reference`` at each sample, ``/mode`` messages at given times and, optionally,
-what the controller asked (``force_command``) and what the allocation delivered.
+A run is the truth ``sim/odometry`` (pose eta = [x, y, psi] at times t), the reference on
+``guidance/reference`` at the first sample and whenever it changes (the metrics compare each
+sample with the reference in force: a hold pose is one message), ``/mode`` messages at given
+times and, optionally, what the controller asked (``force_command``) and what the allocation
+delivered.
 """
 
 from __future__ import annotations
@@ -82,16 +84,17 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
     """Write a synthetic run into ``bag`` (a new directory) and return it.
 
     ``t`` (n,) [s], ``eta`` (n, 3) truth poses; ``eta_d`` one hold pose (3,) or one per sample
-    (n, 3); ``modes`` (time [s], mode); ``asked`` / ``delivered`` (n, 3) forces [X, Y, N] at
-    the sample times. Every message is recorded at its own stamp.
+    (n, 3), written when it changes; ``modes`` (time [s], mode); ``asked`` / ``delivered``
+    (n, 3) forces [X, Y, N] at the sample times. Every message is recorded at its own stamp.
     """
     eta_d = np.broadcast_to(np.asarray(eta_d, dtype=float), (len(t), 3))
     out: list[tuple[int, str, str, Any]] = []
     for i, ti in enumerate(t):
         ns = int(round(ti * 1e9))
         out.append((ns, '/sim/odometry', 'nav_msgs/msg/Odometry', odometry(ti, eta[i])))
-        out.append((ns, '/guidance/reference', 'trajectory_msgs/msg/MultiDOFJointTrajectory',
-                    reference(ti, eta_d[i])))
+        if i == 0 or not np.array_equal(eta_d[i], eta_d[i - 1], equal_nan=True):
+            out.append((ns, '/guidance/reference',
+                        'trajectory_msgs/msg/MultiDOFJointTrajectory', reference(ti, eta_d[i])))
         for topic, forces in (('/force_command', asked), ('/allocation/delivered', delivered)):
             if forces is not None:
                 out.append((ns, topic, 'geometry_msgs/msg/WrenchStamped', wrench(ti, forces[i])))
@@ -100,7 +103,9 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
                     T['std_msgs/msg/String'](data=mode)))
     writer = BagWriter(bag, flush_seconds=3600.0)
     for ns, topic, msgtype, msg in sorted(out, key=lambda m: m[0]):
-        assert writer.write(topic, msgtype, ns, bytes(TS.serialize_cdr(msg, msgtype)))
+        # exact: rosbags' CDR ends where the message does (no cut to find by decoding it)
+        assert writer.write(topic, msgtype, ns, bytes(TS.serialize_cdr(msg, msgtype)),
+                            exact=True)
     writer.close()
     return bag
 
