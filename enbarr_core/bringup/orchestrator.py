@@ -50,7 +50,7 @@ from enbarr_interfaces.links import LinkBus
 
 from enbarr_core.framework import registry
 from enbarr_core.framework.errors import EnbarrError, ProfileError
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.node import EnbarrNode, install_frame_tree
 from enbarr_core.framework.threads import name_os_threads
 from enbarr_core.bringup.profile import GroupSpec, NodeSpec, Profile, RecordSpec
 from enbarr_core.recording.recorder import Recorder
@@ -96,6 +96,7 @@ def build_nodes(profile: Profile, context: Context,
     # device is "plugged in" when its emulator node registers it (enbarr_plugins.emulation).
     # They are destroyed last, so they still take the drivers' neutral commands.
     specs.sort(key=lambda s: not _is_emulator(s.plugin))
+    install_frame_tree(context, profile.frames)  # EnbarrNode.frame_tree, in every group
     try:
         for spec in specs:
             nodes.append(_construct(profile, spec, context))
