@@ -125,6 +125,16 @@ IDENTITY = Transform()
 
 
 @dataclass(frozen=True)
+class StampedTransform:
+    """A ``geometry_msgs/TransformStamped``: the pose of ``child`` in ``parent`` at a time."""
+
+    stamp_ns: int
+    parent: str
+    child: str
+    transform: Transform
+
+
+@dataclass(frozen=True)
 class Frame:
     """One frame of the tree: its parent and its pose there (static), or its pose source."""
 
@@ -208,6 +218,11 @@ class FrameTree:
         """List the static frames but the root (what ``/tf_static`` carries), parents first."""
         return [self.frames[n] for n in self.names()
                 if self.frames[n].parent is not None and not self.frames[n].dynamic]
+
+    def static_transforms(self, stamp_ns: int) -> list[StampedTransform]:
+        """Every static frame in its parent, stamped ``stamp_ns`` (what ``/tf_static`` holds)."""
+        return [StampedTransform(stamp_ns, f.parent, f.name, f.transform)
+                for f in self.static_edges() if f.parent is not None]
 
     def dynamic_frames(self) -> list[Frame]:
         """List the frames whose pose comes from a topic (``/tf``), parents first."""

@@ -9,25 +9,14 @@ from a bag (tests, tools). Pure: no rclpy here.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 import functools
 from typing import Any
 
 from rosbags.typesys import get_typestore, Stores
 
-from enbarr_core.framework.frames import FrameTree, Transform
+from enbarr_core.framework.frames import StampedTransform, Transform
 
 TF_MESSAGE = 'tf2_msgs/msg/TFMessage'
-
-
-@dataclass(frozen=True)
-class StampedTransform:
-    """A ``geometry_msgs/TransformStamped``: the pose of ``child`` in ``parent`` at a time."""
-
-    stamp_ns: int
-    parent: str
-    child: str
-    transform: Transform
 
 
 @functools.cache
@@ -51,12 +40,6 @@ def tf_message_cdr(transforms: Sequence[StampedTransform]) -> bytes:
                              rotation=Quaternion(*s.transform.rotation)))
         for s in transforms])
     return bytes(ts.serialize_cdr(msg, TF_MESSAGE))
-
-
-def static_transforms(tree: FrameTree, stamp_ns: int) -> list[StampedTransform]:
-    """Every static frame of ``tree`` in its parent, stamped ``stamp_ns`` (``/tf_static``)."""
-    return [StampedTransform(stamp_ns, f.parent, f.name, f.transform)
-            for f in tree.static_edges() if f.parent is not None]
 
 
 def decode_transforms(data: bytes) -> list[StampedTransform]:

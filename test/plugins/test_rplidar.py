@@ -201,7 +201,7 @@ def test_scans_in_the_vessel_frame(context, executor, spin):
     emu.emulator.set_pose(0.0, 1.0, 0.0)
     assert more_scans(spin, executor, scans, 3), lidar.last_fault
     s = scans[-1]
-    assert s.header.frame_id == 'base_link' and len(s.ranges) == 360
+    assert s.header.frame_id == 'laser' and len(s.ranges) == 360  # the contract's frame
     assert s.angle_min == pytest.approx(-math.pi) and s.range_max == pytest.approx(12.0)
     # 5.5 Hz on average (one scan may stretch when the machine is loaded)
     assert all(x.scan_time > 0.0 for x in scans)

@@ -26,11 +26,10 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 import yaml
 
-from enbarr_core.framework.frames import parse_frames, Transform
+from enbarr_core.framework.frames import parse_frames, StampedTransform, Transform
 from enbarr_core.recording.bag import BagStorageError, BagWriter, repair_bag
 from enbarr_core.recording.qos import adapt_request, offered_qos_yaml, Qos, TF_STATIC_QOS
-from enbarr_core.recording.tf import (decode_transforms, StampedTransform, static_transforms,
-                                      tf_message_cdr, TF_MESSAGE)
+from enbarr_core.recording.tf import decode_transforms, tf_message_cdr, TF_MESSAGE
 
 T0 = 1_700_000_000_000_000_000
 IMU = serialize_message(Imu())
@@ -75,7 +74,7 @@ def test_a_tf_message_decodes_with_the_mcap_ros2_decoder() -> None:
     tree = parse_frames({'base_link': {}, 'laser': {'parent': 'base_link',
                                                     'xyz': [0.1, 0.0, 0.15],
                                                     'rpy': [0.0, 0.0, 0.3]}})
-    data = tf_message_cdr(static_transforms(tree, T0))
+    data = tf_message_cdr(tree.static_transforms(T0))
     decode = DecoderFactory().decoder_for('cdr', Schema(id=1, name=TF_MESSAGE,
                                                         encoding='ros2msg',
                                                         data=msgdef.encode()))
