@@ -216,9 +216,9 @@ class BagWriter:
               messages: tuple[tuple[int, bytes], ...] = ()) -> None:
         """Keep the last ``depth`` messages of ``topic`` and repeat them in every new file.
 
-        ``messages``: ``(log time, CDR)`` to keep from now without writing them yet: the next
-        file to open starts with them (``/tf_static``: the first file opens at the first
-        message recorded, so the transforms are there from its first instant).
+        ``messages``: ``(log time, CDR)`` to keep from now: the next file to open starts with
+        them (``/tf_static``: the first file opens at the first message recorded, so the
+        transforms are there from its first instant); written at once if a file is open.
         """
         if depth < 1:
             raise RecorderError(f'{topic}: latched depth must be >= 1, got {depth}')
@@ -229,9 +229,14 @@ class BagWriter:
             raise RecorderError(f'{topic}: no definition of {msgtype} in the type store')
         old = self._latched.get(topic)
         kept = deque(old[1] if old else (), maxlen=depth)
-        kept.extend((t, self._exact(msgtype, data)) for t, data in messages)
         self._latched[topic] = (msgtype, kept)
         self._fast.pop(topic, None)  # its messages must be kept: the slow path
+        checked = [(t, self._exact(msgtype, data)) for t, data in messages]
+        if self._file is None:
+            kept.extend(checked)  # the next file to open starts with them
+            return
+        for t, data in checked:  # a file is open: they go in now (and are kept)
+            self.write(topic, msgtype, t, data, exact=True)
 
     def knows_type(self, msgtype: str) -> bool:
         """Whether the Jazzy typestore has a definition of ``msgtype`` (``pkg/msg/Type``)."""

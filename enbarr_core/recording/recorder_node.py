@@ -199,6 +199,9 @@ class RecorderNode(EnbarrNode, Recorder):
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True),
             post_callback=lambda _jump: self._choose_stamp())
         self._choose_stamp()
+        # The static frames go first in the queue: ahead of any message of a source started
+        # before this recorder, so /tf_static opens the bag's first file.
+        self._latch_static_frames()
         self.link_bus.add_tap(self._on_link_publisher)
         self.create_periodic(1.0, self._discover)
         self.create_periodic(1.0, self._report)
@@ -289,22 +292,29 @@ class RecorderNode(EnbarrNode, Recorder):
             self._thread.start()
         self._discover()
 
-    def _record_frames(self) -> None:
-        """``/tf_static`` latched from the tree now; ``/tf`` from each pose source's messages."""
-        with self._lock:
-            own = [t for t in (topics.TF_STATIC_TOPIC, topics.TF_TOPIC) if self._wanted(t)]
-            self._subscribed.update((topics.TF_STATIC_TOPIC, topics.TF_TOPIC))
-        tree = self.frame_tree
-        static = tree.static_transforms(self.now_ns())
-        if topics.TF_STATIC_TOPIC in own and static:
-            data = tf_message_cdr(static)
-            stamp = self._stamp()
+    def _latch_static_frames(self) -> None:
+        """Queue ``/tf_static`` (the tree's static frames), latched: first in every file.
 
-            def latch(writer: BagWriter) -> None:
-                writer.set_offered_qos(topics.TF_STATIC_TOPIC, offered_qos_yaml([TF_STATIC_QOS]))
-                writer.latch(topics.TF_STATIC_TOPIC, TF_MESSAGE, messages=((stamp, data),))
-            self._control(latch)
-        if topics.TF_TOPIC not in own or not self._pose_sources:
+        These two topics are the recorder's own: the same names on the graph are not taken.
+        """
+        with self._lock:
+            self._record_tf = self._wanted(topics.TF_TOPIC)
+            own_static = self._wanted(topics.TF_STATIC_TOPIC)
+            self._subscribed.update((topics.TF_STATIC_TOPIC, topics.TF_TOPIC))
+        static = self.frame_tree.static_transforms(self.now_ns())
+        if not own_static or not static:
+            return
+        data = tf_message_cdr(static)
+        stamp = self._stamp()
+
+        def latch(writer: BagWriter) -> None:
+            writer.set_offered_qos(topics.TF_STATIC_TOPIC, offered_qos_yaml([TF_STATIC_QOS]))
+            writer.latch(topics.TF_STATIC_TOPIC, TF_MESSAGE, messages=((stamp, data),))
+        self._control(latch)
+
+    def _record_frames(self) -> None:
+        """``/tf`` from each pose source's messages (subscribed once the bus is connected)."""
+        if not self._record_tf or not self._pose_sources:
             return
         tf_yaml = offered_qos_yaml([TF_QOS])
         self._control(lambda writer: writer.set_offered_qos(topics.TF_TOPIC, tf_yaml))

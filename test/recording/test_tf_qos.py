@@ -169,6 +169,18 @@ def test_latched_messages_open_every_file_of_a_split_bag(tmp_path: Path) -> None
         assert reader.message_count == 3 + 3 * 3
 
 
+def test_latched_while_a_file_is_open_goes_in_at_once(tmp_path: Path) -> None:
+    bag = tmp_path / 'late'
+    writer = BagWriter(bag, flush_seconds=3600.0, split_seconds=1.0)
+    writer.write('/imu', 'sensor_msgs/msg/Imu', T0, IMU)
+    static = tf_message_cdr([StampedTransform(T0, 'base_link', 'laser', Transform())])
+    writer.latch('/tf_static', TF_MESSAGE, messages=((T0 + 1, static),))
+    writer.write('/imu', 'sensor_msgs/msg/Imu', T0 + 2_000_000_000, IMU)  # a second file
+    writer.close()
+    assert by_file(bag) == [[('/imu', T0), ('/tf_static', T0 + 1)],
+                            [('/tf_static', T0 + 2_000_000_000), ('/imu', T0 + 2_000_000_000)]]
+
+
 def test_a_bag_with_nothing_but_latched_messages_keeps_them(tmp_path: Path) -> None:
     bag = tmp_path / 'quiet'
     writer = BagWriter(bag)
