@@ -96,7 +96,6 @@ def build_nodes(profile: Profile, context: Context,
     # device is "plugged in" when its emulator node registers it (enbarr_plugins.emulation).
     # They are destroyed last, so they still take the drivers' neutral commands.
     specs.sort(key=lambda s: not _is_emulator(s.plugin))
-    install_frame_tree(context, profile.frames)  # EnbarrNode.frame_tree, in every group
     try:
         for spec in specs:
             nodes.append(_construct(profile, spec, context))
@@ -355,6 +354,7 @@ def composed(profile: Profile, group: str | None = None, *, check_only: bool = F
     spinner = executor(context)
     nodes: list[Node] = []
     quiet = check_only
+    install_frame_tree(context, profile.frames)  # EnbarrNode.frame_tree, in every group
     try:
         nodes.extend(build_nodes(profile, context, group))
         if not check_only:
