@@ -44,10 +44,7 @@ class FramePublisherNode(EnbarrNode):
         self.published = 0          # /tf messages sent
         self._following = False     # subscribed to the pose sources (at the first start)
         if self._cls is None:
-            self.get_logger().info(
-                'tf2_msgs is not installed (a pip install has none): /tf and /tf_static are '
-                'not published live; recorded bags still hold them')
-            return
+            return  # said at start: a node only built (bringup --check) says nothing
         self._static_pub = self.create_publisher(self._cls, topics.TF_STATIC_TOPIC,
                                                  topics.TF_STATIC_QOS)
         self._tf_pub = self.create_publisher(self._cls, topics.TF_TOPIC, topics.TF_QOS)
@@ -60,9 +57,14 @@ class FramePublisherNode(EnbarrNode):
     def start(self) -> None:
         """Publish ``/tf_static`` once and follow the pose sources."""
         super().start()
-        if self._cls is None or self._following:
+        if self._following:
             return
         self._following = True
+        if self._cls is None:
+            self.get_logger().info(
+                'tf2_msgs is not installed (a pip install has none): /tf and /tf_static are '
+                'not published live; recorded bags still hold them')
+            return
         static = self.frame_tree.static_transforms(self.now_ns())
         if static:
             self._static_pub.publish(self._message(static))

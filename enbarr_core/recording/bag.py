@@ -101,6 +101,12 @@ def check_bag_path(path: str | os.PathLike[str], min_free: int = 0) -> None:
     ``min_free`` bytes must be free on its filesystem.
     """
     p = Path(path)
+    above = p.absolute().parent
+    while not above.exists() and above != above.parent:
+        above = above.parent
+    if not above.is_dir():
+        raise RecorderError(f'{p}: cannot create the bag directory: {above} is not a '
+                            'directory')
     if min_free > 0:
         try:
             free = free_bytes(p)

@@ -30,7 +30,9 @@ def test_without_tf2_msgs_it_says_so_once_and_publishes_nothing(
         said.append(m) if self.name == 'frames' else real(self, m, **kw)))
     install_frame_tree(context, parse_frames(TREE))
     node = add(executor, FramePublisherNode(context=context))
+    assert said == []  # built only (bringup --check): nothing to say yet
     node.start()
+    node.start()  # once
     executor.spin_once(timeout_sec=0.1)
     assert not node.live and node.published == 0
     assert said == ['tf2_msgs is not installed (a pip install has none): /tf and /tf_static '

@@ -198,6 +198,19 @@ def test_an_empty_bag_still_gets_its_metadata(tmp_path: Path) -> None:
         assert reader.message_count == 0
 
 
+def test_a_bag_path_is_checked_without_creating_anything(tmp_path: Path) -> None:
+    from enbarr_core.framework.errors import RecorderError
+    from enbarr_core.recording.bag import check_bag_path
+    check_bag_path(tmp_path / 'a' / 'b' / 'bag')
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / 'file').write_text('x')
+    with pytest.raises(RecorderError, match=r'file/sub/bag: cannot create the bag directory: '
+                                            r'\S+/file is not a directory'):
+        check_bag_path(tmp_path / 'file' / 'sub' / 'bag')
+    with pytest.raises(RecorderError, match='exists and is not an empty directory'):
+        check_bag_path(tmp_path / 'file')
+
+
 def test_a_latched_message_of_another_definition_is_refused(tmp_path: Path) -> None:
     from enbarr_core.framework.errors import RecorderError
     writer = BagWriter(tmp_path / 'bad')
