@@ -382,8 +382,8 @@ class RecorderNode(EnbarrNode, Recorder):
         if time.monotonic() - self._last_received < QUIET_SECONDS:
             return True
         me = (self.get_name(), self.get_namespace())
-        with self._lock:
-            names = sorted(self._subscribed)
+        with self._lock:  # /tf and /tf_static are its own: a live frame publisher's do not count
+            names = sorted(self._subscribed - {topics.TF_TOPIC, topics.TF_STATIC_TOPIC})
         return any((info.node_name, info.node_namespace) != me
                    for name in names for info in self.get_publishers_info_by_topic(name))
 
@@ -512,6 +512,9 @@ class RecorderNode(EnbarrNode, Recorder):
 def _tf_encoder(source: PoseSource) -> Any:
     """``msg -> TFMessage CDR`` of one pose source (None when a message gives no pose)."""
     def encode(msg: Any) -> bytes | None:
-        t = source.transform(msg)
-        return None if t is None else tf_message_cdr([t])
+        try:
+            t = source.transform(msg)
+            return None if t is None else tf_message_cdr([t])
+        except Exception:  # noqa: BLE001 - a malformed estimate gives no transform, no stop
+            return None
     return encode
