@@ -69,6 +69,29 @@ def test_a_tf_message_is_the_cdr_the_spec_lays_out() -> None:
     assert data == b'\x00\x01\x00\x00' + bytes(body)
 
 
+def test_the_packer_agrees_with_rosbags_serializer() -> None:
+    """A second formulation: rosbags' own CDR serializer, on random names and poses."""
+    rng = np.random.default_rng(5)
+    t = TYPESTORE.types
+    for n in range(6):
+        transforms = [StampedTransform(
+            int(rng.integers(0, 2 ** 31 * 10 ** 9)), 'p' * int(rng.integers(0, 9)),
+            'c' * int(rng.integers(1, 12)),
+            Transform(tuple(rng.normal(size=3)), tuple(rng.normal(size=4))))
+            for _ in range(n)]
+        msg = t[TF_MESSAGE](transforms=[t['geometry_msgs/msg/TransformStamped'](
+            header=t['std_msgs/msg/Header'](
+                stamp=t['builtin_interfaces/msg/Time'](sec=s.stamp_ns // 10 ** 9,
+                                                       nanosec=s.stamp_ns % 10 ** 9),
+                frame_id=s.parent),
+            child_frame_id=s.child,
+            transform=t['geometry_msgs/msg/Transform'](
+                translation=t['geometry_msgs/msg/Vector3'](*s.transform.translation),
+                rotation=t['geometry_msgs/msg/Quaternion'](*s.transform.rotation)))
+            for s in transforms])
+        assert tf_message_cdr(transforms) == bytes(TYPESTORE.serialize_cdr(msg, TF_MESSAGE))
+
+
 def test_a_tf_message_decodes_with_the_mcap_ros2_decoder() -> None:
     msgdef, _ = TYPESTORE.generate_msgdef(TF_MESSAGE, ros_version=2)
     tree = parse_frames({'base_link': {}, 'laser': {'parent': 'base_link',
