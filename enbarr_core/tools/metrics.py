@@ -47,7 +47,10 @@ began.
 
 **Run** (``kind: run``): no mode is judged (a test reads the bag); only the figures below.
 
-Every kind: ``modes`` (time from the start of the run, mode) and ``thrust_saturation_s``,
+Every kind: ``initial_mode`` (the mode in force when the recording began: the latched
+``/mode`` the recorder takes first, at a time that depends on when it subscribed, so it is
+given without one), ``modes`` (the changes after it: time from the start of the run, mode)
+and ``thrust_saturation_s``,
 the time the allocation delivered less than the controller asked. A run that never reached
 the mode it is judged in gets an ``error`` and no figures.
 
@@ -214,7 +217,9 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
     modes = _modes(msgs.get('/mode', []))
-    out: dict[str, Any] = {'modes': [(round(tm - t0, 2), m) for tm, m in modes]}
+    changes = [(tm, m) for i, (tm, m) in enumerate(modes) if i and m != modes[i - 1][1]]
+    out: dict[str, Any] = {'initial_mode': modes[0][1] if modes else None,
+                           'modes': [(round(tm - t0, 2), m) for tm, m in changes]}
     # Thrust saturation: allocation delivered less than the controller asked.
     asked = {_stamp(m): m.wrench for _, m in msgs.get('/force_command', [])}
     sat = [not math.isclose(_norm(m.wrench), _norm(asked[_stamp(m)]), rel_tol=1e-6,

@@ -142,7 +142,7 @@ def test_the_lidar_sees_the_basin(run: dict[str, Any]) -> None:
     scans = [m for _, m in run['msgs']['/scan']]
     assert len(scans) > 0.5 * 5.5 * DURATION
     for scan in scans[5::10]:
-        assert scan.header.frame_id == 'base_link' and len(scan.ranges) == 360
+        assert scan.header.frame_id == 'laser' and len(scan.ranges) == 360
         finite = [r for r in scan.ranges if math.isfinite(r)]
         assert len(finite) > 150           # the A1 sees 12 m: the basin is 40 m long
         p = truth[min(bisect.bisect_left(times, stamp(scan)), len(truth) - 1)][1]

@@ -4,7 +4,8 @@ the rosbags Jazzy typestore (pure Python: no rclpy, so the metrics tests stay in
 tier).
 
 A run is the truth ``sim/odometry`` (pose eta = [x, y, psi] at times t), a hold reference on
-``guidance/reference`` at each sample, ``/mode`` messages at given times and, optionally,
+``guidance/reference`` at each sample, ``/mode`` messages (the latched 'manual' at the first
+sample, as the recorder takes it, then the given ones) and, optionally,
 what the controller asked (``force_command``) and what the allocation delivered.
 """
 
@@ -95,7 +96,8 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
         for topic, forces in (('/force_command', asked), ('/allocation/delivered', delivered)):
             if forces is not None:
                 out.append((ns, topic, 'geometry_msgs/msg/WrenchStamped', wrench(ti, forces[i])))
-    for tm, mode in modes:
+    # The recorder takes the latched mode first, as the run starts: manual.
+    for tm, mode in ((t[0], 'manual'), *modes):
         out.append((int(round(tm * 1e9)), '/mode', 'std_msgs/msg/String',
                     T['std_msgs/msg/String'](data=mode)))
     writer = BagWriter(bag, flush_seconds=3600.0)

@@ -72,6 +72,7 @@ def test_constant_offset_gives_its_own_size(tmp_path: Path) -> None:
                 'overall_heading_error_rms_deg', 'overall_heading_error_max_deg'):
         assert r[key] == pytest.approx(1.5, abs=MDEG), key
     assert r['time_to_settle_s'] == 0.0 and r['settled'] and r['settled_in_time']
+    assert r['initial_mode'] == 'manual'
     assert r['modes'] == [(1.0, 'automatic')]          # from the first sample
     assert r['automatic_s'] == pytest.approx(39.0, abs=CS)
     assert r['window_s'] == pytest.approx([11.0, 40.0], abs=CS)  # TA + settle_time .. end
@@ -405,8 +406,9 @@ def test_a_run_scenario_has_only_the_common_figures(tmp_path: Path) -> None:
     """kind: run (a test judges the bag): modes and saturation, no window, no error."""
     t = grid(20.0)
     r = run(tmp_path, t, offset(t, 0.5), ScenarioSpec(20.0, 'run', (0.05, 2.0)), modes=())
-    assert set(r) == {'modes', 'thrust_saturation_s'}
+    assert set(r) == {'initial_mode', 'modes', 'thrust_saturation_s'}
     assert r['modes'] == [] and r['thrust_saturation_s'] == 0.0
+    assert r['initial_mode'] == 'manual'
 
 
 # -- the picture: north up, east right, compass heading -----------------------------------------
