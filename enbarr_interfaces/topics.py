@@ -3,6 +3,8 @@
 Standard message types only, so no compiled interface package is needed. SI units and
 REP-103 / REP-105 frames everywhere (body ``base_link`` is FLU, world ``odom`` is ENU);
 normalized -1..1 values appear only at the operator's stick and at the thruster output.
+Every ``frame`` named here is a frame of the profile's tree (``frames`` section,
+``enbarr_core.framework.frames``), which ``/tf_static`` and ``/tf`` carry.
 The mapping from the messages of the original Enbarr README is in ``docs/interfaces.md``.
 
 Topic names are relative, so a profile's ``namespace`` and ``remappings`` apply to them.
@@ -42,6 +44,18 @@ BODY_FRAME = 'base_link'
 WORLD_FRAME = 'odom'
 IMU_FRAME = 'imu_link'
 LASER_FRAME = 'laser'
+CAMERA_FRAME = 'camera_link'
+#: REP-103's optical frame of the camera: z forward, x right, y down.
+CAMERA_OPTICAL_FRAME = 'camera_optical_frame'
+
+#: The frame tree on DDS, as tf2 names the topics (``tf2_msgs/msg/TFMessage``; no
+#: ``TopicSpec``: PyPI has no tf2_msgs to name the class). QoS as tf2's broadcasters offer.
+TF_TOPIC = '/tf'
+TF_STATIC_TOPIC = '/tf_static'
+TF_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE)
+TF_STATIC_QOS = LATCHED_QOS
 
 
 @dataclass(frozen=True)
@@ -122,7 +136,8 @@ DIAGNOSTICS = TopicSpec(
 # -- 3-DOF surface vessels: motion capture, observer, guidance, DP control, azimuths, PWM --
 MOCAP_POSE = TopicSpec(
     'mocap/pose', PoseStamped, SENSOR_QOS, 'm, quaternion', WORLD_FRAME,
-    'Pose of base_link from motion capture (the manual\'s Qualisys "GPS").', fast=True)
+    'Pose of base_link in odom from motion capture (the manual\'s Qualisys "GPS"); the '
+    "tracked body's own frame is the tree's mocap_body.", fast=True)
 JOY = TopicSpec(
     'joy', Joy, SENSOR_QOS, 'normalized -1..1 axes, 0/1 buttons', '',
     'Operator joystick, in the layout the profile names (joy.layout: enbarr_plugins.joystick.'
@@ -178,14 +193,15 @@ SIM_AZIMUTH_COMMAND = TopicSpec(
 # -- perception (issue 9 drivers) --
 SCAN = TopicSpec(
     'scan', LaserScan, SENSOR_QOS, 'm, rad', LASER_FRAME,
-    "One lidar revolution in the lidar's own frame (the driver's frame_id; the frame tree "
-    'places it on the vessel): angle_min..angle_max counter-clockwise from +x; REP-117: '
-    '-inf too close, +inf no return, NaN no sample.')
+    "One lidar revolution in the lidar's own frame, as a real driver publishes it: "
+    'angle_min..angle_max counter-clockwise from +x; REP-117: -inf too close, +inf no '
+    "return, NaN no sample. Where the lidar sits is the frame tree's (base_link -> laser on "
+    '/tf_static); consumers transform the scan with it.')
 CAMERA_IMAGE = TopicSpec(
-    'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', 'camera_optical_frame',
+    'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'Camera frames as captured (OpenCV, V4L2 or a video file).')
 CAMERA_INFO = TopicSpec(
-    'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', 'camera_optical_frame',
+    'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
 VESSEL_CLAIMS = TopicSpec(
     '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',

@@ -38,7 +38,7 @@ from enbarr_interfaces.links import LinkBus
 
 from enbarr_core.framework import registry
 from enbarr_core.framework.errors import EnbarrError, ProfileError
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.node import EnbarrNode, install_frame_tree
 from enbarr_core.framework.threads import name_os_threads
 from enbarr_core.bringup.guard import DuplicateVesselError, VesselGuard
 from enbarr_core.bringup.profile import GroupSpec, NodeSpec, Profile, RecordSpec
@@ -318,6 +318,7 @@ def composed(profile: Profile, group: str | None = None, *, guard: bool = False,
     nodes: list[Node] = []
     vessel_guard: VesselGuard | None = None
     quiet = False
+    install_frame_tree(context, profile.frames)  # EnbarrNode.frame_tree, in every group
     try:
         if guard:
             vessel_guard = VesselGuard(context, node_names(profile, group))
@@ -402,6 +403,7 @@ def validate(profile: Profile, group: str | None = None) -> Validation:
     """
     from enbarr_core.framework.driver import DeviceNode
     with isolated_context() as context:
+        install_frame_tree(context, profile.frames)
         nodes = build_nodes(profile, context, group)
         try:
             devices = tuple((n.get_name(), n.device) for n in nodes

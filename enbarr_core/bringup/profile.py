@@ -18,6 +18,8 @@ A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
         enabled: true                    # false drops a node an included profile declared
     groups: {main: {restart_limit: 3, restart_delay: 1.0}}
     record: {path: bags/run, topics: [], flush_seconds: 1.0, split_size: 0, split_seconds: 0}
+    frames: {odom: {}, base_link: {parent: odom, pose: observer/odometry}, ...}
+                                         # the frame tree (enbarr_core.framework.frames)
 
 Everything is checked before any node starts; an error names the file, the key path and
 what was expected. YAML is read with 1.2 numbers (``enbarr_core.framework.yaml12``: ``1e9``
@@ -41,11 +43,12 @@ import yaml
 
 from enbarr_core.framework import registry, yaml12
 from enbarr_core.framework.errors import ProfileError, RegistryError
+from enbarr_core.framework.frames import DEFAULT_TREE, FrameTree, parse_frames
 
 #: The top-level keys of a profile file. A new section adds its key here and its per-file
 #: check to ``_check_structure``; any other key is refused with the list (and a close match).
 TOP_KEYS = ('profile', 'description', 'fragment', 'include', 'environment', 'parameters',
-            'nodes', 'groups', 'record', 'scenario')
+            'nodes', 'groups', 'record', 'scenario', 'frames')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
 RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds')
@@ -119,6 +122,7 @@ class Profile:
     files: tuple[str, ...]
     origins: Mapping[str, str] = field(default_factory=dict, repr=False)
     scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
+    frames: FrameTree = DEFAULT_TREE  # the ``frames`` section (framework.frames)
 
     def node(self, name: str) -> NodeSpec:
         """Return the node called ``name``; ``ProfileError`` listing the nodes if none."""
@@ -798,7 +802,8 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
         environment=dict(merged.get('environment') or {}), parameters=dict(common),
         nodes=tuple(nodes), groups=groups,
         record=record, files=files, origins=dict(origins),
-        scenario=merged.get('scenario'))
+        scenario=merged.get('scenario'),
+        frames=parse_frames(merged.get('frames'), lambda key: _origin(origins, key, path)))
 
 
 def _origin(origins: Mapping[str, str], key: str, default: str) -> str:

@@ -48,3 +48,7 @@ class DeviceError(EnbarrError):
 
 class RecorderError(EnbarrError):
     """A bag cannot be written where asked."""
+
+
+class FrameError(EnbarrError):
+    """A frame tree is inconsistent, or a frame asked for is not in it."""

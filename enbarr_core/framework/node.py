@@ -14,7 +14,11 @@ additions that bringup relies on:
   ``Ticker`` timer instead of an executor timer per node and period;
 - ``start`` / ``stop`` / ``safe_state``: bringup starts sources once the graph is wired,
   stops them first on every exit path, then asks every node to put its actuators in their
-  safe state (thrusters neutral) before anything is destroyed.
+  safe state (thrusters neutral) before anything is destroyed;
+- ``frame_tree``: the profile's frame tree (``framework.frames``), where every sensor sits.
+  Bringup installs it per process (``install_frame_tree``) before it builds the nodes, so every
+  group of a split profile has it; a node built alone (a test) gets ``DEFAULT_TREE`` unless
+  its test installs one.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from enbarr_interfaces.links import (Callback, LinkBus, LinkPublisher, LinkSubsc
                                       PerContext)
 from enbarr_interfaces.topics import TopicSpec
 
+from enbarr_core.framework.frames import DEFAULT_TREE, FrameTree
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
 
 S = TypeVar('S')
@@ -132,6 +137,18 @@ class Ticker(PerContext):
                 e.node.get_logger().error(
                     f'periodic check {getattr(e.callback, "__name__", e.callback)} failed '
                     f'({e.errors} so far): {err!r}', throttle_duration_sec=5.0)
+
+
+class FrameTreeOf(PerContext):
+    """The frame tree of one process (rclpy ``Context``): the profile's, once installed."""
+
+    def __init__(self) -> None:
+        self.tree: FrameTree = DEFAULT_TREE
+
+
+def install_frame_tree(context: Any, tree: FrameTree) -> None:
+    """Give the nodes of ``context`` the frame tree ``tree`` (bringup: the profile's)."""
+    FrameTreeOf.of(context).tree = tree
 
 
 class RateLoop:
@@ -285,6 +302,11 @@ class EnbarrNode(Node):
     def link_bus(self) -> LinkBus:
         """Return the in-process link bus of this node's context."""
         return self._bus
+
+    @property
+    def frame_tree(self) -> FrameTree:
+        """Return the profile's frame tree: ``self.frame_tree.lookup('base_link', 'laser')``."""
+        return FrameTreeOf.of(self.context).tree
 
     # -- parameters -------------------------------------------------------------------------
     def bind_settings(self, specs: Sequence[ParamSpec], build: Callable[[dict[str, Any]], S],

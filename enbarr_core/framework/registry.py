@@ -35,6 +35,7 @@ BUILTIN: dict[str, str] = {
     'rov_simulator': 'enbarr_core.simulation.rov_simulator_node:RovSimulatorNode',
     'scripted_commands': 'enbarr_plugins.operator.scripted_commands:ScriptedCommandsNode',
     'recorder': 'enbarr_core.recording.recorder_node:RecorderNode',
+    'frame_publisher': 'enbarr_core.framework.frame_publisher_node:FramePublisherNode',
     'vessel3dof_simulator':
         'enbarr_core.simulation.vessel3dof_simulator_node:Vessel3DofSimulatorNode',
     'dp_observer': 'enbarr_core.estimation.dp_observer_node:DpObserverNode',

@@ -14,6 +14,14 @@ millisecond per flush) can tear the file's end: ``repair_bag`` (``enbarr bag rep
 puts it back as of the last complete flush and rewrites ``metadata.yaml`` from the files. No
 ROS import: messages arrive serialized (CDR).
 
+Latched topics (``latch``: transient local, as ``/tf_static`` and ``mode``): the writer keeps
+their last messages and writes them again at the start of every file of a split bag, stamped
+with the time of the message that opens the file, so that each file stands alone (a viewer
+that opens one file still places the sensors and knows the mode). The offered QoS of each
+topic (``set_offered_qos``) goes to the channel's and ``metadata.yaml``'s
+``offered_qos_profiles``, as rosbag2 writes them. A bag closed with no message still gets its
+``metadata.yaml`` (zero messages), as ``ros2 bag record`` leaves one.
+
 Storage: the writer refuses to start with less than ``min_free`` bytes free where the bag
 goes, and checks again at each new chunk and each flush; below the margin, or when the
 storage fails (``ENOSPC``, ``EIO``), it raises ``BagStorageError``, puts the file back as of
@@ -23,6 +31,7 @@ succeeded, so the bag stays readable up to its last flush whatever failed.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 import os
@@ -85,6 +94,34 @@ def _strings_in_sequences(typestore: Any, msgtype: str, inside: bool = False,
     return False
 
 
+def check_bag_path(path: str | os.PathLike[str], min_free: int = 0) -> None:
+    """Refuse (``RecorderError``) a bag where one cannot go; creates nothing.
+
+    The path must be absent or an empty directory (bags are never overwritten), and at least
+    ``min_free`` bytes must be free on its filesystem.
+    """
+    p = Path(path)
+    above = p.absolute().parent
+    while not above.exists() and above != above.parent:
+        above = above.parent
+    if not above.is_dir():
+        raise RecorderError(f'{p}: cannot create the bag directory: {above} is not a '
+                            'directory')
+    if min_free > 0:
+        try:
+            free = free_bytes(p)
+        except OSError as err:
+            raise RecorderError(f'{p}: cannot tell the free space: {err.strerror}; '
+                                'recording refused') from err
+        if free < min_free:
+            raise RecorderError(
+                f'{p}: {free / MB:.1f} MB free, less than the {min_free / MB:g} MB margin '
+                '(min_free_space); recording refused')
+    if p.exists() and (not p.is_dir() or any(p.iterdir())):
+        raise RecorderError(f'{p}: exists and is not an empty directory; '
+                            'bags are never overwritten')
+
+
 @dataclass
 class _File:
     name: str
@@ -105,13 +142,7 @@ class BagWriter:
             raise RecorderError('split_size and split_seconds must be >= 0 (0: no split), '
                                 f'got {split_size} and {split_seconds}')
         self.min_free = min_free
-        try:
-            self._check_free('recording refused')
-        except BagStorageError as err:
-            raise RecorderError(str(err)) from err
-        if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
-            raise RecorderError(f'{self.path}: exists and is not an empty directory; '
-                                'bags are never overwritten')
+        check_bag_path(self.path, min_free)
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -137,7 +168,9 @@ class BagWriter:
         self._metadata_behind = False  # a chunk flushed since metadata.yaml was written
         self.closed = False
         self.failure: BagStorageError | None = None  # set once the storage failed
-        self.flush_hook: Callable[[], None] | None = None  # tests: inside the tail write
+        self._qos: dict[str, str] = {}            # topic -> offered_qos_profiles (YAML)
+        # latched topic -> (type, its last messages as (log time, CDR)), see the docstring
+        self._latched: dict[str, tuple[str, deque[tuple[int, bytes]]]] = {}
 
     @property
     def files(self) -> list[str]:
@@ -176,6 +209,40 @@ class BagWriter:
         except OSError:
             pass  # a half-written temporary file is never read: metadata.yaml is
         return err
+
+    def set_offered_qos(self, topic: str, offered_qos_profiles: str) -> None:
+        """Say what ``topic``'s publishers offer (``recording.qos.offered_qos_yaml``).
+
+        Set it before the topic's first message: it goes to the channel when the channel is
+        created (and to ``metadata.yaml`` at every rewrite).
+        """
+        self._qos[topic] = offered_qos_profiles
+
+    def latch(self, topic: str, msgtype: str, depth: int = 1,
+              messages: tuple[tuple[int, bytes], ...] = ()) -> None:
+        """Keep the last ``depth`` messages of ``topic`` and repeat them in every new file.
+
+        ``messages``: ``(log time, CDR)`` to keep from now: the next file to open starts with
+        them (``/tf_static``: the first file opens at the first message recorded, so the
+        transforms are there from its first instant); written at once if a file is open.
+        """
+        if depth < 1:
+            raise RecorderError(f'{topic}: latched depth must be >= 1, got {depth}')
+        known = self.topics.get(topic)
+        if known is not None and known != msgtype:
+            raise RecorderError(f'topic {topic} changed type from {known} to {msgtype}')
+        if messages and not self.knows_type(msgtype):
+            raise RecorderError(f'{topic}: no definition of {msgtype} in the type store')
+        old = self._latched.get(topic)
+        kept = deque(old[1] if old else (), maxlen=depth)
+        self._latched[topic] = (msgtype, kept)
+        self._fast.pop(topic, None)  # its messages must be kept: the slow path
+        checked = [(t, self._exact(msgtype, data)) for t, data in messages]
+        if self._file is None:
+            kept.extend(checked)  # the next file to open starts with them
+            return
+        for t, data in checked:  # a file is open: they go in now (and are kept)
+            self.write(topic, msgtype, t, data, exact=True)
 
     def knows_type(self, msgtype: str) -> bool:
         """Whether the Jazzy typestore has a definition of ``msgtype`` (``pkg/msg/Type``)."""
@@ -229,6 +296,7 @@ class BagWriter:
             if f is None:
                 self._check_free('recording stopped')
                 f = self._open_file()
+                self._repeat_latched(f, timestamp_ns)
             mcap = f.mcap
             if not mcap.pending:
                 self._check_free('recording stopped')  # at every new chunk
@@ -238,7 +306,11 @@ class BagWriter:
             if f.first_t is None:
                 f.first_t = timestamp_ns
             mcap.write(cid, timestamp_ns, data)
-            self._fast[topic] = (msgtype, self._inexact_type(msgtype), mcap, cid)
+            latched = self._latched.get(topic)
+            if latched is None:
+                self._fast[topic] = (msgtype, self._inexact_type(msgtype), mcap, cid)
+            else:
+                latched[1].append((timestamp_ns, data))
             if self._clock() - self._last_flush >= self.flush_seconds:
                 self._flush_file()
             elif mcap.size - mcap.data_end >= CHUNK_BYTES:
@@ -257,7 +329,26 @@ class BagWriter:
         if msgtype not in mcap.schemas:
             text, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
             mcap.add_schema(msgtype, 'ros2msg', text)
-        return mcap.add_channel(topic, msgtype, 'cdr', {'offered_qos_profiles': ''})
+        return mcap.add_channel(topic, msgtype, 'cdr',
+                                {'offered_qos_profiles': self._qos.get(topic, '')})
+
+    def _repeat_latched(self, f: _File, timestamp_ns: int | None) -> None:
+        """Write the kept latched messages first in a new file (at ``timestamp_ns``).
+
+        ``timestamp_ns`` None: each at its own log time (a bag that got nothing else).
+        """
+        for topic, (msgtype, kept) in self._latched.items():
+            if not kept:
+                continue
+            cid = f.mcap.channels.get(topic)
+            if cid is None:
+                cid = self._add_channel(f.mcap, topic, msgtype)
+            for t, data in kept:
+                t = t if timestamp_ns is None else timestamp_ns
+                if f.first_t is None:
+                    f.first_t = t
+                f.mcap.write(cid, t, data)
+            self.topics.setdefault(topic, msgtype)
 
     def _exact(self, msgtype: str, data: bytes) -> bytes:
         """Decode ``data`` as a ``msgtype`` and cut it to its CDR length.
@@ -292,13 +383,13 @@ class BagWriter:
         self._file = _File(name, mcap)
         return self._file
 
-    @staticmethod
-    def _file_info(f: _File) -> FileInfo:
+    def _file_info(self, f: _File) -> FileInfo:
         m = f.mcap
         topics = {m.channel_topics[c]: m.channel_schema[c] for c in m.counts}
         counts = {m.channel_topics[c]: k for c, k in m.counts.items()}
         n = sum(counts.values())
-        return FileInfo(m.path, topics, counts, m.start if n else 0, m.end if n else 0)
+        return FileInfo(m.path, topics, counts, m.start if n else 0, m.end if n else 0,
+                        qos={t: self._qos[t] for t in topics if self._qos.get(t)})
 
     def _flush_file(self, metadata: bool = True) -> None:
         """Write the pending chunk and summary, then metadata.yaml.
@@ -315,7 +406,7 @@ class BagWriter:
         if f is None:
             return
         self._check_free('recording stopped')
-        flushed = f.mcap.flush(self.flush_hook)
+        flushed = f.mcap.flush()
         if not (flushed or (metadata and self._metadata_behind)):
             return
         described = (len(self._done), f.name, len(f.mcap.channels))
@@ -377,13 +468,32 @@ class BagWriter:
                 raise self._fail(err) from err
 
     def close(self) -> None:
-        """Flush and close; the bag is complete (after a failure: as last flushed)."""
+        """Flush and close; the bag is complete (after a failure: as last flushed).
+
+        A bag that got no message holds its latched ones (``/tf_static``) at their own log
+        times, or nothing; either way it gets its ``metadata.yaml``.
+        """
         if self.closed:
             return
+        if self._file is None and not self._done and any(k for _, k in self._latched.values()):
+            try:
+                self._check_free('recording stopped')
+                self._repeat_latched(self._open_file(), None)
+            except OSError as err:
+                raise self._fail(BagStorageError(
+                    f'{self.path}: cannot write: {err.strerror or err}; recording stopped'
+                    )) from err
+            except BagStorageError as err:
+                raise self._fail(err) from err
         self.flush()
         self._fast.clear()
         if self._file is not None:
             self._file.mcap.close()
+        elif not self._done:
+            try:
+                write_metadata(self.path, [], self.typestore)
+            except BagStorageError as err:
+                raise self._fail(err) from err
         self.closed = True
 
 
@@ -395,10 +505,13 @@ def write_metadata(path: Path, files: list[FileInfo], typestore: Any) -> None:
     listed = [f for f in files if f.message_count]
     topics: dict[str, str] = {}
     counts: dict[str, int] = {}
+    qos: dict[str, str] = {}
     for f in listed:
         for name, msgtype in f.topics.items():
             topics.setdefault(name, msgtype)
             counts[name] = counts.get(name, 0) + f.counts.get(name, 0)
+            if f.qos.get(name):
+                qos.setdefault(name, f.qos[name])
     start = min((f.start for f in listed), default=0)
     end = max((f.end for f in listed), default=0)
     info = {
@@ -411,7 +524,7 @@ def write_metadata(path: Path, files: list[FileInfo], typestore: Any) -> None:
         'topics_with_message_count': [
             {'topic_metadata': {
                 'name': name, 'type': topics[name], 'serialization_format': 'cdr',
-                'offered_qos_profiles': '',
+                'offered_qos_profiles': qos.get(name, ''),
                 'type_description_hash': _hash(typestore, topics[name])},
              'message_count': counts[name]}
             for name in sorted(topics)],

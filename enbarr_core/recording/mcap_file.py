@@ -71,6 +71,38 @@ def _rec(op: int, content: bytes) -> bytes:
     return _REC_HEAD.pack(op, len(content)) + content
 
 
+def summary_tail(data_end: int, schema_recs: bytes | bytearray, n_schemas: int,
+                 channel_recs: bytes | bytearray, n_channels: int,
+                 chunk_indexes: bytes | bytearray, counts: dict[int, int], chunks: int,
+                 start: int, end: int) -> bytes:
+    """DataEnd, summary, summary offsets and footer for a data section ending at ``data_end``.
+
+    The summary repeats the schema and channel records, lists every chunk index and the
+    statistics (``counts``: messages per channel id; ``start``/``end``: their log times).
+    """
+    summary_start = data_end + len(DATA_END)
+    groups = []
+    parts = []
+    at = summary_start
+    for op, recs in ((OP_SCHEMA, schema_recs), (OP_CHANNEL, channel_recs),
+                     (OP_CHUNK_INDEX, chunk_indexes)):
+        if recs:
+            groups.append((op, at, len(recs)))
+            parts.append(recs)
+            at += len(recs)
+    n = sum(counts.values())
+    stats = _rec(OP_STATISTICS, struct.pack(
+        '<QHIIIIQQI', n, n_schemas, n_channels, 0, 0, chunks,
+        start if n else 0, end if n else 0, 10 * len(counts))
+        + b''.join(struct.pack('<HQ', k, v) for k, v in sorted(counts.items())))
+    groups.append((OP_STATISTICS, at, len(stats)))
+    parts.append(stats)
+    at += len(stats)
+    offsets = b''.join(_rec(OP_SUMMARY_OFFSET, struct.pack('<BQQ', *g)) for g in groups)
+    footer = _rec(OP_FOOTER, struct.pack('<QQI', summary_start, at, 0)) + MAGIC
+    return DATA_END + b''.join(parts) + offsets + footer
+
+
 class McapError(Exception):
     """A file that is not an MCAP this module can recover (named with the reason)."""
 
@@ -173,12 +205,11 @@ class McapFile:
         """Whether the file's tail holds a summary (an index of every chunk)."""
         return self._tail != BARE_TAIL
 
-    def flush(self, hook: object = None, summary: bool = False) -> bool:
+    def flush(self, summary: bool = False) -> bool:
         """Write the pending chunk and a new tail; False if nothing pending.
 
         The tail holds a summary when ``summary`` or when it is cheap enough (see the module
-        docstring). ``hook`` (tests only): called between the two halves of the tail write,
-        so that a test can kill the process inside the rewrite window.
+        docstring). The chunk and the tail go out in one ``pwritev``.
         """
         c = self._chunk
         if not c.entries:
@@ -230,16 +261,8 @@ class McapFile:
         else:
             tail = BARE_TAIL
         parts = [head, *records, msg_index, tail]
-        at = self.data_end
         try:
-            if hook is None:
-                self._pwritev(parts, at)
-            else:
-                blob = b''.join(parts)
-                half = len(blob) // 2
-                self._pwrite(blob[:half], at)
-                hook()  # type: ignore[operator]
-                self._pwrite(blob[half:], at + half)
+            self._pwritev(parts, self.data_end)
             self._truncate_after(pos + len(tail))
         except OSError:
             del chunk_indexes[len(chunk_indexes) - len(chunk_index):]
@@ -259,27 +282,8 @@ class McapFile:
     def _summary(self, data_end: int, chunk_indexes: bytes | bytearray, counts: dict[int, int],
                  chunks: int, start: int, end: int) -> bytes:
         """DataEnd, summary, summary offsets and footer for a data section ending at data_end."""
-        summary_start = data_end + len(DATA_END)
-        groups = []
-        parts = []
-        at = summary_start
-        for op, recs in ((OP_SCHEMA, self._schema_recs), (OP_CHANNEL, self._channel_recs),
-                         (OP_CHUNK_INDEX, chunk_indexes)):
-            if recs:
-                groups.append((op, at, len(recs)))
-                parts.append(recs)
-                at += len(recs)
-        n = sum(counts.values())
-        stats = _rec(OP_STATISTICS, struct.pack(
-            '<QHIIIIQQI', n, len(self.schemas), len(self.channels), 0, 0, chunks,
-            start if n else 0, end if n else 0, 10 * len(counts))
-            + b''.join(struct.pack('<HQ', k, v) for k, v in sorted(counts.items())))
-        groups.append((OP_STATISTICS, at, len(stats)))
-        parts.append(stats)
-        at += len(stats)
-        offsets = b''.join(_rec(OP_SUMMARY_OFFSET, struct.pack('<BQQ', *g)) for g in groups)
-        footer = _rec(OP_FOOTER, struct.pack('<QQI', summary_start, at, 0)) + MAGIC
-        return DATA_END + b''.join(parts) + offsets + footer
+        return summary_tail(data_end, self._schema_recs, len(self.schemas), self._channel_recs,
+                            len(self.channels), chunk_indexes, counts, chunks, start, end)
 
     def revert(self) -> None:
         """Undo the last flush (its chunk is lost): when what lists the file failed."""
@@ -359,6 +363,7 @@ class FileInfo:
     repaired: bool = False          # the tail was torn and rewritten
     dropped_bytes: int = 0          # torn bytes after the last complete flush
     indexed: bool = False           # intact without summary: the summary was written
+    qos: dict[str, str] = field(default_factory=dict)  # topic -> offered_qos_profiles
 
     @property
     def message_count(self) -> int:
@@ -436,21 +441,21 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
             good = nxt
         pos = nxt
     fi = FileInfo(path, {}, {}, 0, 0)
-    for cid, (topic, sid, _) in channels.items():
+    for cid, (topic, sid, rec) in channels.items():
         fi.topics[topic] = schemas[sid][0]
         fi.counts[topic] = counts.get(cid, 0)
+        qos = channel_metadata(rec).get('offered_qos_profiles')
+        if qos:
+            fi.qos[topic] = qos
     fi.start, fi.end = (start, end) if nchunks else (0, 0)
     if footer == 'summary':
         return fi
     # Rebuild the tail at ``good``; schemas/channels only from complete chunks count, but
     # listing all that were seen is harmless (a channel without messages).
-    writer = McapFile.__new__(McapFile)
-    writer.schemas = {name: sid for sid, (name, _) in schemas.items()}
-    writer.channels = {t: cid for cid, (t, _, _) in channels.items()}
-    writer._schema_recs = bytearray(b''.join(r for _, r in schemas.values()))
-    writer._channel_recs = bytearray(b''.join(r for _, _, r in channels.values()))
-    tail = writer._summary(good, chunk_indexes, {cid: counts.get(cid, 0) for cid in channels},
-                           nchunks, start, end)
+    tail = summary_tail(good, b''.join(r for _, r in schemas.values()), len(schemas),
+                        b''.join(r for _, _, r in channels.values()), len(channels),
+                        chunk_indexes, {cid: counts.get(cid, 0) for cid in channels},
+                        nchunks, start, end)
     fd = os.open(path, os.O_WRONLY)
     try:
         os.pwrite(fd, tail, good)
@@ -463,6 +468,29 @@ def _recover(path: Path, data: mmap.mmap) -> FileInfo:
         fi.repaired = True
         fi.dropped_bytes = max(0, size - good - len(DATA_END))
     return fi
+
+
+def channel_metadata(record: bytes) -> dict[str, str]:
+    """Return the metadata map of a Channel record (opcode and length included)."""
+    try:
+        at = 9 + 4  # record head, channel id and schema id
+        for _ in range(2):  # topic, message encoding
+            (k,) = struct.unpack_from('<I', record, at)
+            at += 4 + k
+        (size,) = struct.unpack_from('<I', record, at)
+        at += 4
+        stop = at + size
+        out: dict[str, str] = {}
+        while at < stop:
+            (k,) = struct.unpack_from('<I', record, at)
+            key = bytes(record[at + 4:at + 4 + k]).decode()
+            at += 4 + k
+            (k,) = struct.unpack_from('<I', record, at)
+            out[key] = bytes(record[at + 4:at + 4 + k]).decode()
+            at += 4 + k
+        return out
+    except (struct.error, UnicodeDecodeError):
+        return {}  # a damaged map: the channel is still usable without it
 
 
 def _footer(data: mmap.mmap, data_end_next: int) -> str:

@@ -9,6 +9,25 @@ name (empty: all). The bag is one MCAP file per run (split by ``split_size`` or
 ``split_seconds`` when asked), flushed every ``flush_seconds`` (a kill loses at most that),
 closed when the node is destroyed. ``segment_seconds`` is the old name of ``flush_seconds``.
 
+Topics from the ROS graph are subscribed as ``ros2 bag record`` does (``recording.qos``): with
+the reliability and durability every publisher offers, so that a latched topic (``mode``,
+``guidance/path_available``) is recorded from its first message even when that was
+published before the recorder subscribed, and a reliable topic is recorded reliably. The
+offered profiles go to the bag's ``offered_qos_profiles``; latched topics are repeated at the
+start of every file of a split bag.
+
+Frames: the recorder writes the profile's frame tree (``EnbarrNode.frame_tree``) as
+``/tf_static`` (latched: first in every file) and each dynamic frame's pose (the vessel's
+estimate, ``framework.frame_sources``) as ``/tf``, so that a bag opened in Foxglove or RViz
+shows the vessel and its sensors in place. These two topics are its own: the same names on
+the graph (a live frame publisher) are not recorded again. With a ``topics`` selection they
+are written only when selected.
+
+Nothing is opened before ``start``: constructing the node only checks the bag path (bringup
+``--check`` builds every node and must leave nothing behind). A selected topic that has not
+appeared a few seconds (``MISSING_WARN_SECONDS``) after the start is warned about; one that
+never appeared is a problem at the end (the run exits ``EXIT_PROBLEMS`` naming it).
+
 Recording is not control: nothing here may slow or stop the chain. The queue to the writer
 holds at most ``max_queued`` messages (a slow disk drops the newest and counts them,
 ``overflow``); a node with less than ``min_free_space`` free where the bag goes is refused at
@@ -29,17 +48,24 @@ import time
 from typing import Any
 
 from rclpy.clock import JumpThreshold
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
+from rosbags.typesys import get_typestore, Stores
 
+from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkPublisher
 
 from enbarr_core.framework.errors import ConfigurationError, RecorderError
+from enbarr_core.framework.frame_sources import pose_sources, PoseSource
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.recording import cdr
-from enbarr_core.recording.bag import BagStorageError, BagWriter, free_bytes, MB
+from enbarr_core.recording.bag import (BagStorageError, BagWriter, check_bag_path, free_bytes,
+                                       MB)
+from enbarr_core.recording.qos import (adapt_request, offered_qos_yaml, Qos, TF_QOS,
+                                       TF_STATIC_QOS)
 from enbarr_core.recording.recorder import Recorder
+from enbarr_core.recording.tf import tf_message_cdr, TF_MESSAGE
 
 SPECS = [
     ParamSpec('path', '', 'Bag directory to create (must not exist or be empty)',
@@ -87,13 +113,37 @@ class RecorderSettings:
                    segment_seconds=v['segment_seconds'])
 
 
-_RAW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                      reliability=ReliabilityPolicy.BEST_EFFORT)
+#: Messages a graph subscription keeps waiting for the executor (as the old fixed profile).
+RAW_DEPTH = 100
 _STOP = object()
 #: The writer thread takes what is queued this often [s] (the queue bounds what waits).
 DRAIN_SECONDS = 0.02
 #: A recorder that got no message for this long, with no publisher left, has all [s].
 QUIET_SECONDS = 0.3
+#: A selected topic not in the graph this long after the start is warned about [s].
+MISSING_WARN_SECONDS = 5.0
+
+
+def qos_of(profile: QoSProfile) -> Qos:
+    """Return the rmw names of an rclpy ``QoSProfile`` (as the graph reports one)."""
+    return Qos(history=profile.history.name.lower(), depth=profile.depth,
+               reliability=profile.reliability.name.lower(),
+               durability=profile.durability.name.lower(),
+               deadline_ns=profile.deadline.nanoseconds,
+               lifespan_ns=profile.lifespan.nanoseconds,
+               liveliness=profile.liveliness.name.lower(),
+               liveliness_lease_ns=profile.liveliness_lease_duration.nanoseconds,
+               avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions)
+
+
+def request_profile(offers: list[Qos]) -> QoSProfile:
+    """Return the profile that every offer matches, losing least (``adapt_request``)."""
+    r = adapt_request(offers)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=RAW_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE if r.reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if r.transient_local
+                    else DurabilityPolicy.VOLATILE))
 
 
 def message_class(type_name: str) -> type:
@@ -118,12 +168,13 @@ class RecorderNode(EnbarrNode, Recorder):
                 'one file, split only by split_size / split_seconds); using '
                 f'flush_seconds = {self.settings.segment_seconds:g}')
         s = self.settings
-        try:
-            self.writer = BagWriter(s.path, s.flush_seconds, round(s.min_free_space * MB),
-                                    split_size=round(s.split_size * MB),
-                                    split_seconds=s.split_seconds)
+        try:  # checked, not created: the bag is opened at start
+            check_bag_path(s.path, round(s.min_free_space * MB))
+            self._pose_sources: list[PoseSource] = pose_sources(self.frame_tree)
         except RecorderError as err:
             raise ConfigurationError(f'node {node_name!r}: {err}', parameter='path') from err
+        self._typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.writer: BagWriter | None = None  # opened at start
         self.written = 0
         self.dropped = 0            # messages the bag refused (bad bytes, a type change)
         self.overflow = 0           # messages dropped because the queue was full
@@ -133,10 +184,12 @@ class RecorderNode(EnbarrNode, Recorder):
         self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._subscribed: set[str] = set()
+        self._mixed_warned: set[str] = set()
+        self._missing_warned = False
+        self._started_at: float | None = None
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._write_loop, name='recorder_writer',
                                         daemon=True)
-        self._thread.start()
         # Receive stamps: the node's clock, read as time.time_ns while it is the system clock
         # (the same CLOCK_REALTIME value, 0.06 us instead of the 2-6 us of clock.now()); the
         # clock's own reading while ROS (simulated) time is active. A clock-change jump
@@ -146,6 +199,9 @@ class RecorderNode(EnbarrNode, Recorder):
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True),
             post_callback=lambda _jump: self._choose_stamp())
         self._choose_stamp()
+        # The static frames go first in the queue: ahead of any message of a source started
+        # before this recorder, so /tf_static opens the bag's first file.
+        self._latch_static_frames()
         self.link_bus.add_tap(self._on_link_publisher)
         self.create_periodic(1.0, self._discover)
         self.create_periodic(1.0, self._report)
@@ -156,6 +212,15 @@ class RecorderNode(EnbarrNode, Recorder):
             self._stamp = self.now_ns
         else:
             self._stamp = time.time_ns
+
+    def _control(self, step: Any) -> None:
+        """Run ``step(writer)`` on the writer thread, in order with the messages queued.
+
+        How the writer learns a topic's offered QoS or that it is latched: before the topic's
+        first message (the subscription is made after), without sharing the writer between
+        threads. Never dropped: these are few, one per topic.
+        """
+        self._queue.put((None, 0, step))
 
     def _put(self, item: tuple[tuple[str, str, Any], int, Any]) -> None:
         """Queue one message for the writer; called on the publishers' threads, never waits.
@@ -174,42 +239,138 @@ class RecorderNode(EnbarrNode, Recorder):
     def _apply(self, settings: RecorderSettings) -> None:
         self.settings = settings
 
-    def _wanted(self, name: str) -> bool:
+    def _selected(self, name: str) -> bool:
         selected = self.settings.topics
-        return (not selected or name in selected) and name not in self._subscribed
+        return not selected or name in selected
+
+    def _wanted(self, name: str) -> bool:
+        return self._selected(name) and name not in self._subscribed
+
+    def _offer(self, topic: str, msgtype: str, offers: list[Qos]) -> None:
+        """Tell the writer what ``topic``'s publishers offer; latch it if all keep history."""
+        text = offered_qos_yaml(offers)
+        latched = adapt_request(offers).transient_local
+        depth = max(1, len(offers))  # the last message of each publisher (claims: one each)
+
+        def describe(writer: BagWriter) -> None:
+            writer.set_offered_qos(topic, text)
+            if latched:
+                writer.latch(topic, msgtype, depth)
+        self._control(describe)
 
     def _on_link_publisher(self, pub: LinkPublisher) -> None:
         with self._lock:
             if not self._wanted(pub.name):
                 return
             self._subscribed.add(pub.name)
+        self._offer(pub.name, pub.spec.type_name, [qos_of(pub.spec.qos)])
         # What the writer needs of the topic, one tuple for all its messages.
         entry = (pub.name, pub.spec.type_name, cdr.encoder(pub.spec.msg_type))
         put = self._put
         self.create_topic_subscription(pub.spec, lambda msg: put((entry, self._stamp(), msg)))
 
     def start(self) -> None:
-        """Subscribe to what the graph has now (then every second)."""
+        """Open the bag, write the frame tree, subscribe to what the graph has (then every 1 s).
+
+        A bag that cannot be opened now (its directory was taken meanwhile, the disk filled)
+        is a problem of the run, not a stop: the vehicle runs on unrecorded.
+        """
         super().start()
+        if self.writer is None and self.recording:  # the first start (sources may restart)
+            s = self.settings
+            self._started_at = time.monotonic()
+            try:
+                self.writer = BagWriter(s.path, s.flush_seconds, round(s.min_free_space * MB),
+                                        split_size=round(s.split_size * MB),
+                                        split_seconds=s.split_seconds)
+            except RecorderError as err:
+                self.recording = False
+                self.failure = str(err)
+                self.report_problem(f'recording failed: {err}')
+                return
+            self._record_frames()
+            self._thread.start()
         self._discover()
 
+    def _latch_static_frames(self) -> None:
+        """Queue ``/tf_static`` (the tree's static frames), latched: first in every file.
+
+        These two topics are the recorder's own: the same names on the graph are not taken.
+        """
+        with self._lock:
+            self._record_tf = self._wanted(topics.TF_TOPIC)
+            own_static = self._wanted(topics.TF_STATIC_TOPIC)
+            self._subscribed.update((topics.TF_STATIC_TOPIC, topics.TF_TOPIC))
+        static = self.frame_tree.static_transforms(self.now_ns())
+        if not own_static or not static:
+            return
+        data = tf_message_cdr(static)
+        stamp = self._stamp()
+
+        def latch(writer: BagWriter) -> None:
+            writer.set_offered_qos(topics.TF_STATIC_TOPIC, offered_qos_yaml([TF_STATIC_QOS]))
+            writer.latch(topics.TF_STATIC_TOPIC, TF_MESSAGE, messages=((stamp, data),))
+        self._control(latch)
+
+    def _record_frames(self) -> None:
+        """``/tf`` from each pose source's messages (subscribed once the bus is connected)."""
+        if not self._record_tf or not self._pose_sources:
+            return
+        tf_yaml = offered_qos_yaml([TF_QOS])
+        self._control(lambda writer: writer.set_offered_qos(topics.TF_TOPIC, tf_yaml))
+        put = self._put
+        for source in self._pose_sources:
+            entry = (topics.TF_TOPIC, TF_MESSAGE, _tf_encoder(source))
+            self.create_topic_subscription(
+                source.spec, lambda msg, e=entry: put((e, self._stamp(), msg)))
+
     def _discover(self) -> None:
+        if self.writer is None or not self.recording:
+            return
         local = self.link_bus.local_topics()
         for name, types in self.get_topic_names_and_types():
             with self._lock:
                 if name in local or not self._wanted(name) or len(types) != 1:
                     continue
-                if not self.writer.knows_type(types[0]):
+                if types[0] not in self._typestore.types:
                     continue
                 self._subscribed.add(name)
             try:
                 cls = message_class(types[0])
             except (ImportError, AttributeError, ValueError):
                 continue
+            offers = [qos_of(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
+            r = adapt_request(offers)
+            if name not in self._mixed_warned and offers and (
+                    (not r.reliable and any(q.reliable for q in offers))
+                    or (not r.transient_local and any(q.transient_local for q in offers))):
+                self._mixed_warned.add(name)
+                self.get_logger().warn(
+                    f'{name}: its publishers offer different reliability or durability; '
+                    'recorded best effort / volatile, which matches all of them (a latched '
+                    'message published before now may be missing), as ros2 bag record does')
+            self._offer(name, types[0], offers)
             put = self._put
             entry = (name, types[0], None)  # raw: the bytes as DDS carried them, exact
             self.create_subscription(cls, name, lambda data, e=entry: put(
-                (e, self._stamp(), data)), _RAW_QOS, raw=True)
+                (e, self._stamp(), data)), request_profile(offers), raw=True)
+        self._warn_missing()
+
+    def missing_topics(self) -> list[str]:
+        """List the selected topics that have not appeared (none: all are recorded)."""
+        with self._lock:
+            return sorted(t for t in self.settings.topics if t not in self._subscribed)
+
+    def _warn_missing(self) -> None:
+        if (self._missing_warned or self._started_at is None
+                or time.monotonic() - self._started_at < MISSING_WARN_SECONDS):
+            return
+        missing = self.missing_topics()
+        if missing:
+            self._missing_warned = True
+            self.get_logger().warn(
+                f'recording: no such topic after {MISSING_WARN_SECONDS:g} s: '
+                f'{", ".join(missing)} (asked for with topics / --record-topic)')
 
     def still_receiving(self) -> bool:
         """Whether messages still come to it from other nodes.
@@ -221,8 +382,8 @@ class RecorderNode(EnbarrNode, Recorder):
         if time.monotonic() - self._last_received < QUIET_SECONDS:
             return True
         me = (self.get_name(), self.get_namespace())
-        with self._lock:
-            names = sorted(self._subscribed)
+        with self._lock:  # /tf and /tf_static are its own: a live frame publisher's do not count
+            names = sorted(self._subscribed - {topics.TF_TOPIC, topics.TF_STATIC_TOPIC})
         return any((info.node_name, info.node_namespace) != me
                    for name in names for info in self.get_publishers_info_by_topic(name))
 
@@ -231,46 +392,50 @@ class RecorderNode(EnbarrNode, Recorder):
         # GIL hand-off against the chain's thread) for nearly every message, which measured
         # 29 us of writer CPU per message in bringup enbarr_sim --record; draining every
         # DRAIN_SECONDS takes them in batches.
+        writer = self.writer
+        assert writer is not None  # started by start() once the bag is open
         get = self._queue.get_nowait
         while True:
             try:
                 item = get()
             except queue.Empty:
                 if self.recording:
-                    self._guarded(self.writer.maybe_flush)
+                    self._guarded(writer.maybe_flush)
                 time.sleep(DRAIN_SECONDS)
                 continue
             if item is _STOP:
                 break
             if self.recording:
                 try:
-                    self._write(item)
+                    if item[0] is None:  # a step for the writer itself (``_control``)
+                        item[2](writer)
+                    else:
+                        self._write(writer, item)
                 except BagStorageError as err:
                     self._stop_recording(str(err))
+                except RecorderError as err:  # one topic refused: the others go on
+                    self.dropped += 1
+                    self.get_logger().error(str(err), throttle_duration_sec=5.0)
                 except Exception as err:  # noqa: BLE001 - recording must fail alone
                     self._stop_recording(f'{self.settings.path}: recording stopped by {err!r}')
         if self.recording:
-            self._guarded(self.writer.close)
+            self._guarded(writer.close)
 
-    def _write(self, item: tuple[tuple[str, str, Any], int, Any]) -> None:
+    def _write(self, writer: BagWriter, item: tuple[tuple[str, str, Any], int, Any]) -> None:
         (name, type_name, encode), stamp, msg = item
         if encode is not None:
             try:
                 data, exact = encode(msg), True
             except Exception:  # noqa: BLE001 - a value the encoder did not foresee
                 data, exact = serialize_message(msg), False
+            if data is None:  # a derived message (/tf) that this one does not give
+                return
         elif type(msg) is bytes:
             data, exact = msg, True  # from DDS: exactly the CDR
         else:
             data, exact = serialize_message(msg), False
-        try:
-            if self.writer.write(name, type_name, stamp, data, exact):
-                self.written += 1
-        except BagStorageError:
-            raise
-        except RecorderError as err:
-            self.dropped += 1
-            self.get_logger().error(str(err), throttle_duration_sec=5.0)
+        if writer.write(name, type_name, stamp, data, exact):
+            self.written += 1
 
     def _guarded(self, step: Any) -> None:
         """Run one writer step; a storage failure (or anything unforeseen) stops recording.
@@ -295,7 +460,7 @@ class RecorderNode(EnbarrNode, Recorder):
                     break
             except queue.Empty:
                 break
-        if not self.writer.closed:
+        if self.writer is not None and not self.writer.closed:
             try:
                 self.writer.close()
             except RecorderError:
@@ -324,13 +489,32 @@ class RecorderNode(EnbarrNode, Recorder):
             self.publish_diagnostics(0, 'recording', values)
 
     def close(self) -> None:
-        """Write what is queued and close the bag (idempotent)."""
+        """Write what is queued and close the bag (idempotent); name the topics never seen.
+
+        A recorder that was never started has nothing to close and reports nothing.
+        """
         if self._thread.is_alive():
             self._queue.put(_STOP)
             self._thread.join(10.0)
+        if self._started_at is not None and self.recording:
+            for topic in self.missing_topics():
+                self.report_problem(f'recording: topic {topic} was asked for but never '
+                                    'appeared; the bag has none of it')
+            self._started_at = None
 
     def destroy_node(self) -> None:
         """Stop taking link-bus messages, write what is queued, close the bag."""
         self.link_bus.remove_tap(self._on_link_publisher)
         self.close()
         super().destroy_node()
+
+
+def _tf_encoder(source: PoseSource) -> Any:
+    """``msg -> TFMessage CDR`` of one pose source (None when a message gives no pose)."""
+    def encode(msg: Any) -> bytes | None:
+        try:
+            t = source.transform(msg)
+            return None if t is None else tf_message_cdr([t])
+        except Exception:  # noqa: BLE001 - a malformed estimate gives no transform, no stop
+            return None
+    return encode

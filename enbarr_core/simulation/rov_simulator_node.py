@@ -32,6 +32,7 @@ from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import allocation_matrix
+from enbarr_core.framework.frames import format_heading
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
 from enbarr_core.models.rigid_body_params import RESTORING_SPECS, VEHICLE_SPECS
@@ -201,12 +202,13 @@ class RovSimulatorNode(EnbarrNode):
 
     def _status(self) -> None:
         s = self.state
-        roll, pitch, yaw = (math.degrees(a) for a in quat_to_euler(s.q))
+        roll, pitch, yaw = quat_to_euler(s.q)
         u, v, w, _, _, r = s.nu
+        # A person reads a compass heading (0 = north, clockwise); r stays the body's (FLU).
         self.get_logger().info(
             f'depth {-s.p[2]:5.2f} m  u {u:+.2f} v {v:+.2f} w {w:+.2f} m/s  '
-            f'r {math.degrees(r):+5.1f} deg/s  heading {yaw:+6.1f} deg  '
-            f'roll {roll:+4.1f} pitch {pitch:+4.1f} deg  '
+            f'r {math.degrees(r):+5.1f} deg/s (+ port)  {format_heading(yaw)}  '
+            f'roll {math.degrees(roll):+4.1f} pitch {math.degrees(pitch):+4.1f} deg  '
             f'thrust {np.abs(self._thrust).sum():5.1f} N')
 
     def odometry(self, now_ns: int) -> Odometry:

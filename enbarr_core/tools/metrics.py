@@ -47,11 +47,17 @@ began.
 
 **Run** (``kind: run``): no mode is judged (a test reads the bag); only the figures below.
 
-Every kind: ``modes`` (time from the start of the run, mode) and ``thrust_saturation_s``,
+Every kind: ``initial_mode`` (the mode in force when the recording began: the latched
+``/mode`` the recorder takes first, at a time that depends on when it subscribed, so it is
+given without one), ``modes`` (the changes after it: time from the start of the run, mode)
+and ``thrust_saturation_s``,
 the time the allocation delivered less than the controller asked. A run that never reached
 the mode it is judged in gets an ``error`` and no figures.
 
-The picture draws the hull outline from the profile's geometry (``hull_radius``).
+The picture draws the hull outline from the profile's geometry (``hull_radius``). Its axes
+follow the chart, not the code's ENU: north up, east right (the same numbers: ENU x is east,
+y north), headings as on a compass (0 = north, clockwise, degrees; ``framework.frames``),
+and a heading error is positive when the vessel points clockwise of its reference.
 """
 
 from __future__ import annotations
@@ -64,6 +70,7 @@ import numpy as np
 
 from enbarr_interfaces import convert
 
+from enbarr_core.framework.frames import compass_error_deg, compass_heading_deg
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
 
@@ -210,7 +217,9 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
     modes = _modes(msgs.get('/mode', []))
-    out: dict[str, Any] = {'modes': [(round(tm - t0, 2), m) for tm, m in modes]}
+    changes = [(tm, m) for i, (tm, m) in enumerate(modes) if i and m != modes[i - 1][1]]
+    out: dict[str, Any] = {'initial_mode': modes[0][1] if modes else None,
+                           'modes': [(round(tm - t0, 2), m) for tm, m in changes]}
     # Thrust saturation: allocation delivered less than the controller asked.
     asked = {_stamp(m): m.wrench for _, m in msgs.get('/force_command', [])}
     sat = [not math.isclose(_norm(m.wrench), _norm(asked[_stamp(m)]), rel_tol=1e-6,
@@ -323,7 +332,7 @@ def _norm(w: Any) -> float:
 
 def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
              msgs: Messages | None = None) -> Path:
-    """Path in the NE plane with the vessel outline at intervals, errors and thrust.
+    """Path (north up) with the hull at intervals; errors, compass heading and thrust.
 
     ``msgs``: the bag as ``read_bag`` returned it, when the caller has read it already.
     """
@@ -334,8 +343,8 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     msgs = read_bag(bag) if msgs is None else msgs
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
-    fig = plt.figure(figsize=(12, 7), layout='constrained')
-    grid = fig.add_gridspec(2, 2, width_ratios=(1.1, 1.0))
+    fig = plt.figure(figsize=(12, 9), layout='constrained')
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.1, 1.0))
     ax = fig.add_subplot(grid[:, 0])
     wps = _waypoints(profile) if spec.kind == 'path' else np.zeros((0, 2))
     radius = hull_radius(profile)
@@ -351,9 +360,9 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
         ax.plot([x, x + radius * math.cos(psi)], [y, y + radius * math.sin(psi)],
                 color='tab:red', lw=1)
     ax.set_aspect('equal', adjustable='datalim')
-    ax.set_xlabel('east [m]')
-    ax.set_ylabel('north [m]')
-    ax.set_title(f'{profile.name}: path in the NE plane, hull outline at intervals')
+    ax.set_xlabel('east [m] (odom x)')
+    ax.set_ylabel('north [m] (odom y)')
+    ax.set_title(f'{profile.name}: path, north up; hull and bow (red) at intervals')
     ax.legend(loc='best', fontsize=8)
     ax.grid(True, alpha=0.3)
     ax2 = fig.add_subplot(grid[0, 1])
@@ -366,9 +375,9 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
             ax2.plot(t[valid] - t0, _cross_track(eta[valid, :2], wps), lw=0.8,
                      color='tab:green', label='distance to the active leg [m]')
         ax2b = ax2.twinx()
-        ax2b.plot(t[valid] - t0, np.degrees(ssa(eta[valid, 2] - ref[idx[valid], 2])),
-                  color='tab:orange', lw=0.8, label='heading error [deg]')
-        ax2b.set_ylabel('heading error [deg]')
+        ax2b.plot(t[valid] - t0, compass_error_deg(eta[valid, 2], ref[idx[valid], 2]),
+                  color='tab:orange', lw=0.8, label='heading error [deg], + clockwise')
+        ax2b.set_ylabel('heading error [deg], + clockwise')
         ax2b.legend(loc='upper right', fontsize=7)
     for tm, m in _modes(msgs.get('/mode', [])):
         ax2.axvline(tm - t0, color='k', lw=0.6, ls=':')
@@ -377,7 +386,18 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     ax2.legend(loc='upper left', fontsize=7)
     ax2.set_title('errors against the guidance reference')
     ax2.grid(True, alpha=0.3)
-    ax3 = fig.add_subplot(grid[1, 1], sharex=ax2)
+    axh = fig.add_subplot(grid[1, 1], sharex=ax2)
+    axh.plot(t - t0, compass_heading_deg(eta[:, 2]), '.', ms=1.5, label='vessel (truth)')
+    if len(ref_t):
+        axh.plot(ref_t - t0, compass_heading_deg(ref[:, 2]), '.', ms=1.0, alpha=0.6,
+                 label='reference')
+    axh.set_ylim(0.0, 360.0)
+    axh.set_yticks(range(0, 361, 90), ['N 0', 'E 90', 'S 180', 'W 270', 'N 360'])
+    axh.set_ylabel('heading [deg] (compass)')
+    axh.set_title('compass heading: 0 = north, clockwise')
+    axh.legend(loc='upper right', fontsize=7)
+    axh.grid(True, alpha=0.3)
+    ax3 = fig.add_subplot(grid[2, 1], sharex=ax2)
     cmds = msgs.get('/azimuth_commands', [])
     if cmds:
         tc = np.array([_stamp(m) for _, m in cmds]) - t0

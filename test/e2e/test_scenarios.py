@@ -37,6 +37,9 @@ def test_station_keeping_under_current(tmp_path: Path) -> None:
     """
     r = scenario('station_keeping', tmp_path / 'out')
     assert 'error' not in r, r['error']
+    # The starting mode is in the bag (latched; before the recorder matched publishers'
+    # QoS it was lost), then the one change.
+    assert r['initial_mode'] == 'manual'
     assert [m for _, m in r['modes']] == ['automatic']
     assert r['settled_in_time'], (r['time_to_settle_s'], r['settle_time_s'])
     assert r['position_error_rms_m'] < 0.05

@@ -17,8 +17,10 @@ import pytest
 from support.layering import algorithm_modules
 
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
-             'enbarr_core.framework.errors', 'enbarr_core.recording.bag',
-             'enbarr_core.recording.recorder', 'enbarr_plugins.transport.i2c',
+             'enbarr_core.framework.errors', 'enbarr_core.framework.frames',
+             'enbarr_core.recording.bag', 'enbarr_core.recording.qos',
+             'enbarr_core.recording.tf', 'enbarr_core.recording.recorder',
+             'enbarr_plugins.transport.i2c',
              'enbarr_plugins.transport.serial_link', 'enbarr_plugins.transport.net',
              'enbarr_plugins.operator.script', 'enbarr_interfaces.modes',
              'enbarr_core.framework.yaml12', 'enbarr_core.tools.chaos.judge',

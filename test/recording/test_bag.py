@@ -256,13 +256,18 @@ def test_fixed_size_payload_is_stored_unchanged(tmp_path: Path) -> None:
 
 
 def write_timed_flushes(bag: Path) -> BagWriter:
-    """Three pairs of messages 60 ms apart, flushed every 50 ms; the writer, still open."""
-    writer = BagWriter(bag, flush_seconds=0.05)
+    """Three pairs of messages 60 ms apart, flushed every 50 ms; the writer, still open.
+
+    On the writer's own clock, advanced by hand: a loaded machine takes longer than 50 ms
+    over the first message (its schema is generated then), which flushed it alone.
+    """
+    now = [0.0]
+    writer = BagWriter(bag, flush_seconds=0.05, clock=lambda: now[0])
     data = serialize_message(Imu())
     for i in range(3):
         assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
         assert writer.write('/imu/data', 'sensor_msgs/msg/Imu', T0 + i, data)
-        time.sleep(0.06)
+        now[0] += 0.06
     return writer
 
 
@@ -338,12 +343,16 @@ CHILD = textwrap.dedent("""
     writer = BagWriter(sys.argv[1], flush_seconds=3600.0)
     if len(sys.argv) > 2:  # freeze inside the tail rewrite of the 4th flush, to be killed there
         flushes = []
-        def hook():
+        pwritev = os.pwritev
+        def tearing(fd, parts, at):  # the flush's one pwritev: half of it, then frozen
             flushes.append(1)
             if len(flushes) == 4:
+                blob = b''.join(parts)
+                os.pwrite(fd, blob[:len(blob) // 2], at)
                 print('torn', flush=True)
                 time.sleep(60)
-        writer.flush_hook = hook
+            return pwritev(fd, parts, at)
+        os.pwritev = tearing
     i = 0
     while True:
         imu = Imu()

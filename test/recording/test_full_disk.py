@@ -184,6 +184,9 @@ def test_the_queue_is_bounded_while_the_writer_is_slow(context, executor, spin,
     rec = recorder(context, executor, tmp_path / 'bag', max_queued=100)
     seen = diagnostics_of(context, executor)
     release = threading.Event()
+    pub = probe(context, executor, 'source').create_topic_publisher(topics.THRUSTER_OUTPUT)
+    LinkBus.of(context).connect()
+    rec.start()  # the bag opens here
     slow_write = rec.writer.write
 
     def stuck(*args: Any) -> bool:
@@ -191,9 +194,6 @@ def test_the_queue_is_bounded_while_the_writer_is_slow(context, executor, spin,
         return slow_write(*args)
 
     rec.writer.write = stuck  # a disk that hangs (NFS, a dying SD card)
-    pub = probe(context, executor, 'source').create_topic_publisher(topics.THRUSTER_OUTPUT)
-    LinkBus.of(context).connect()
-    rec.start()
     msg = topics.THRUSTER_OUTPUT.msg_type(name=['t0'], effort=[0.0])
     for _ in range(1000):
         pub.publish(msg)

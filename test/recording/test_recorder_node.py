@@ -1,21 +1,38 @@
-"""The recorder node: what it records (link-bus topics, graph topics, a selection), how it
-refuses a bad bag directory, and its typed settings.
+"""The recorder node: what it records (link-bus topics, graph topics, a selection) and with
+which QoS, the frame tree it writes (/tf_static, /tf), what it opens (nothing until it
+starts), how it refuses a bad bag directory, names a topic that never came and reports a
+full disk, and its typed settings.
 """
 
 from __future__ import annotations
 
+import errno
+import math
+import os
 from pathlib import Path
 from typing import Any
 
+from nav_msgs.msg import Odometry
+import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rosbags.interfaces import QosDurability, QosReliability
+from rosbags.rosbag2 import Reader
+from std_msgs.msg import String
+import yaml
 
 from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.frames import ned_to_enu, parse_frames, Transform
+from enbarr_core.framework.node import install_frame_tree
+from enbarr_core.recording import recorder_node
 from enbarr_core.recording.recorder import Recorder
 from enbarr_core.recording.recorder_node import RecorderNode, RecorderSettings
+from enbarr_core.recording.tf import read_transforms
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
+from enbarr_interfaces.topics import TopicSpec
 from support.bags import read_bag
 from support.nodes import TIMEOUT, add, probe
 
@@ -138,3 +155,188 @@ def test_stamps_follow_the_node_clock_under_sim_time(context, executor, spin, tm
         stamps = [t for _, t, _ in reader.messages()]
     assert stamps[:3] == [0, 0, 0]
     assert stamps[-1] > 1_600_000_000 * 10 ** 9
+
+
+# -- opens nothing until started ---------------------------------------------------------------
+
+def test_constructing_the_recorder_creates_nothing(context, tmp_path) -> None:
+    """bringup --check builds every node: the bag appears only when the recorder starts."""
+    bag = tmp_path / 'bag'
+    rec = RecorderNode(context=context, parameter_overrides=[Parameter('path', value=str(bag))])
+    assert not bag.exists()
+    rec.destroy_node()
+    assert not bag.exists() and rec.problems == ()
+
+
+# -- QoS as the publishers offer it (ros2 bag record's rule) -----------------------------------
+
+LATCHED_TOPIC = TopicSpec('test/latched', String, topics.LATCHED_QOS, '', '', '')
+RELIABLE_TOPIC = TopicSpec('test/reliable', String, topics.COMMAND_QOS, '', '', '')
+
+
+def offered(bag: Path) -> dict[str, list[Any]]:
+    with Reader(bag) as reader:
+        return {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+
+
+def test_a_latched_topic_published_before_the_start_is_recorded(context, executor, spin,
+                                                                tmp_path) -> None:
+    """Before the fix the recorder subscribed best effort and volatile: a state published
+    once at start (mode 'manual', guidance/path_available) was missing from the bag."""
+    source = probe(context, executor, 'source')
+    pub = source.create_topic_publisher(LATCHED_TOPIC)
+    pub.publish(String(data='manual'))  # once, before any recorder exists
+    rec = recorder(context, executor, tmp_path / 'bag')
+    rec.start()
+    assert spin(executor, lambda: rec.written >= 1, TIMEOUT), 'the latched message never came'
+    msgs = close(executor, rec)
+    assert [m.data for _, m in msgs['/test/latched']] == ['manual']
+    [qos] = offered(tmp_path / 'bag')['/test/latched']
+    assert (qos.reliability, qos.durability) == (QosReliability.RELIABLE,
+                                                 QosDurability.TRANSIENT_LOCAL)
+
+
+def test_a_reliable_topic_is_subscribed_reliably(context, executor, spin, tmp_path) -> None:
+    source = probe(context, executor, 'source')
+    pub = source.create_topic_publisher(RELIABLE_TOPIC)
+    rec = recorder(context, executor, tmp_path / 'bag')
+    rec.start()
+
+    def published_and_written() -> bool:
+        pub.publish(String(data='x'))
+        return rec.written >= 3
+    assert spin(executor, published_and_written, TIMEOUT)
+    [mine] = [i for i in source.get_subscriptions_info_by_topic('/test/reliable')
+              if i.node_name == 'recorder']
+    assert mine.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    assert mine.qos_profile.durability == DurabilityPolicy.VOLATILE
+    close(executor, rec)
+    [qos] = offered(tmp_path / 'bag')['/test/reliable']
+    assert (qos.reliability, qos.durability) == (QosReliability.RELIABLE,
+                                                 QosDurability.VOLATILE)
+
+
+def test_mixed_offers_are_recorded_best_effort(context, executor, spin, tmp_path) -> None:
+    a = probe(context, executor, 'a').create_publisher(String, '/test/mixed', 10)
+    probe(context, executor, 'b').create_publisher(
+        String, '/test/mixed', topics.SENSOR_QOS)  # best effort
+    rec = recorder(context, executor, tmp_path / 'bag')
+    rec.start()
+
+    def published_and_written() -> bool:
+        a.publish(String(data='x'))
+        return rec.written >= 1
+    assert spin(executor, published_and_written, TIMEOUT)
+    [mine] = [i for i in rec.get_subscriptions_info_by_topic('/test/mixed')
+              if i.node_name == 'recorder']
+    assert mine.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    close(executor, rec)
+    assert len(offered(tmp_path / 'bag')['/test/mixed']) == 2
+
+
+# -- the frame tree: /tf_static and /tf ---------------------------------------------------------
+
+TREE = {'odom': {}, 'base_link': {'parent': 'odom', 'pose': 'observer/odometry'},
+        'laser': {'parent': 'base_link', 'xyz': [0.0, 0.0, 0.15]},
+        'camera_link': {'parent': 'base_link', 'xyz': [-0.08, 0.0, 0.25]},
+        'camera_optical_frame': {'parent': 'camera_link',
+                                 'rpy': [-math.pi / 2, 0.0, -math.pi / 2]}}
+
+
+def raw_topic(bag: Path, topic: str) -> list[tuple[int, bytes]]:
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        return [(t, raw) for _, t, raw in reader.messages(connections=conns)]
+
+
+def test_the_frame_tree_and_the_estimate_are_in_the_bag(context, executor, spin,
+                                                        tmp_path) -> None:
+    """/tf_static from the tree, /tf from observer/odometry; composed from the bag alone:
+    the manual's pose [N 2, E 1, psi 30 deg] puts a return 1 m ahead of the lidar at
+    E 1.5, N 2 + sin 60 deg, 0.15 m up (worked by hand)."""
+    install_frame_tree(context, parse_frames(TREE))
+    source = probe(context, executor, 'source')
+    odom_pub = source.create_topic_publisher(topics.OBSERVER_ODOMETRY)
+    rec = recorder(context, executor, tmp_path / 'bag')
+    LinkBus.of(context).connect()
+    rec.start()
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = 'odom', 'base_link'
+    convert.set_pose_eta(msg.pose.pose, ned_to_enu([2.0, 1.0, math.radians(30.0)]))
+
+    def publish() -> bool:
+        convert.ns_to_stamp(rec.now_ns(), msg.header.stamp)
+        odom_pub.publish(msg)
+        return rec.written >= 5
+    assert spin(executor, publish, TIMEOUT)
+    close(executor, rec)
+    bag = tmp_path / 'bag'
+    static = read_transforms(raw_topic(bag, '/tf_static'))
+    assert {(s.parent, s.child) for s in static} == {
+        ('base_link', 'laser'), ('base_link', 'camera_link'),
+        ('camera_link', 'camera_optical_frame')}
+    dynamic = read_transforms(raw_topic(bag, '/tf'))
+    assert len(dynamic) >= 4 and {(s.parent, s.child) for s in dynamic} == {
+        ('odom', 'base_link')}
+    t = dynamic[-1].transform
+    assert t.is_close(Transform((1.0, 2.0, 0.0), (0.0, 0.0, 0.5, math.sqrt(0.75))))
+    laser = next(s.transform for s in static if s.child == 'laser')
+    assert np.allclose((t @ laser).apply([1.0, 0.0, 0.0]),
+                       [1.5, 2.0 + math.sin(math.radians(60.0)), 0.15])
+    with Reader(bag) as reader:  # /tf_static is the first message of the file
+        first = next(iter(reader.messages()))[0].topic
+        assert first == '/tf_static'
+    [qos] = offered(bag)['/tf_static']
+    assert qos.durability == QosDurability.TRANSIENT_LOCAL
+
+
+def test_a_selection_without_the_frames_leaves_them_out(context, executor, spin,
+                                                        tmp_path) -> None:
+    install_frame_tree(context, parse_frames(TREE))
+    rec = recorder(context, executor, tmp_path / 'bag', '/io_state')
+    record_while_publishing(context, executor, spin, rec, topics.IO_STATE)
+    assert set(close(executor, rec)) == {'/io_state'}
+
+
+# -- a topic asked for that never comes; a full disk --------------------------------------------
+
+def test_a_topic_that_never_appeared_is_a_problem(context, executor, spin, tmp_path,
+                                                  monkeypatch) -> None:
+    """Before the fix: an empty bag directory and exit 0 without a word."""
+    monkeypatch.setattr(recorder_node, 'MISSING_WARN_SECONDS', 0.0)
+    rec = recorder(context, executor, tmp_path / 'bag', '/nonexistent')
+    warnings: list[str] = []
+    monkeypatch.setattr(rec.get_logger(), 'warn', lambda m, **kw: warnings.append(m))
+    rec.start()
+    assert spin(executor, lambda: bool(warnings), TIMEOUT)
+    assert warnings == ['recording: no such topic after 0 s: /nonexistent (asked for with '
+                        'topics / --record-topic)']
+    assert rec.problems == ()  # not yet: it may still come
+    executor.remove_node(rec)
+    rec.destroy_node()
+    assert rec.problems == ('recording: topic /nonexistent was asked for but never appeared; '
+                            'the bag has none of it',)
+    assert yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['message_count'] == 0
+
+
+def test_a_full_disk_is_reported_at_once(context, executor, spin, tmp_path,
+                                         monkeypatch) -> None:
+    """Injected at os.pwritev (the flush's one write): no tmpfs, no minute-long spin."""
+    rec = recorder(context, executor, tmp_path / 'bag')
+
+    def enospc(fd: int, parts: Any, at: int) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(os, 'pwritev', enospc)
+    source = probe(context, executor, 'source')
+    pub = source.create_topic_publisher(topics.IO_STATE)
+    LinkBus.of(context).connect()
+    rec.start()
+
+    def publish() -> bool:
+        pub.publish(io_message())
+        return bool(rec.problems)
+    assert spin(executor, publish, TIMEOUT), f'{rec.written} written, no problem'
+    [problem] = rec.problems
+    assert problem.startswith(f'recording failed: {tmp_path / "bag"}: cannot write bag_0.mcap')
+    assert 'No space left on device' in problem and not rec.recording

@@ -265,3 +265,19 @@ def test_a_thrust_timeout_shorter_than_two_thrust_periods_is_refused_live(contex
     assert not result.successful
     assert 'thrust_timeout' in result.reason and 'period' in result.reason, result.reason
     assert sim.set_parameters([Parameter('thrust_timeout', value=0.1)])[0].successful
+
+
+def test_the_status_line_gives_the_compass_heading(context, monkeypatch) -> None:
+    """Yaw 30 deg counter-clockwise from east (ENU) is 060 on a compass; a person reads that."""
+    sim = RovSimulatorNode(node_name='simulator', context=context,
+                           parameter_overrides=overrides(sim_parameters('simulator')))
+    try:
+        q = Rotation.from_euler('z', 30.0, degrees=True).as_quat()
+        sim.state = RigidBodyState(np.zeros(3), q, np.zeros(6))
+        said: list[str] = []
+        monkeypatch.setattr(sim.get_logger(), 'info', lambda m, **kw: said.append(m))
+        sim._status()
+        [line] = said
+        assert 'heading 060 deg (compass)' in line
+    finally:
+        sim.destroy_node()

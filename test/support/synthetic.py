@@ -5,9 +5,9 @@ tier).
 
 A run is the truth ``sim/odometry`` (pose eta = [x, y, psi] at times t), the reference on
 ``guidance/reference`` at the first sample and whenever it changes (the metrics compare each
-sample with the reference in force: a hold pose is one message), ``/mode`` messages at given
-times and, optionally, what the controller asked (``force_command``) and what the allocation
-delivered.
+sample with the reference in force: a hold pose is one message), ``/mode`` messages (the
+latched 'manual' at the first sample, as the recorder takes it, then the given ones) and,
+optionally, what the controller asked (``force_command``) and what the allocation delivered.
 """
 
 from __future__ import annotations
@@ -98,7 +98,8 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
         for topic, forces in (('/force_command', asked), ('/allocation/delivered', delivered)):
             if forces is not None:
                 out.append((ns, topic, 'geometry_msgs/msg/WrenchStamped', wrench(ti, forces[i])))
-    for tm, mode in modes:
+    # The recorder takes the latched mode first, as the run starts: manual.
+    for tm, mode in ((t[0], 'manual'), *modes):
         out.append((int(round(tm * 1e9)), '/mode', 'std_msgs/msg/String',
                     T['std_msgs/msg/String'](data=mode)))
     writer = BagWriter(bag, flush_seconds=3600.0)

@@ -72,6 +72,7 @@ def test_constant_offset_gives_its_own_size(tmp_path: Path) -> None:
                 'overall_heading_error_rms_deg', 'overall_heading_error_max_deg'):
         assert r[key] == pytest.approx(1.5, abs=MDEG), key
     assert r['time_to_settle_s'] == 0.0 and r['settled'] and r['settled_in_time']
+    assert r['initial_mode'] == 'manual'
     assert r['modes'] == [(1.0, 'automatic')]          # from the first sample
     assert r['automatic_s'] == pytest.approx(39.0, abs=CS)
     assert r['window_s'] == pytest.approx([11.0, 40.0], abs=CS)  # TA + settle_time .. end
@@ -405,5 +406,39 @@ def test_a_run_scenario_has_only_the_common_figures(tmp_path: Path) -> None:
     """kind: run (a test judges the bag): modes and saturation, no window, no error."""
     t = grid(20.0)
     r = run(tmp_path, t, offset(t, 0.5), ScenarioSpec(20.0, 'run', (0.05, 2.0)), modes=())
-    assert set(r) == {'modes', 'thrust_saturation_s'}
+    assert set(r) == {'initial_mode', 'modes', 'thrust_saturation_s'}
     assert r['modes'] == [] and r['thrust_saturation_s'] == 0.0
+    assert r['initial_mode'] == 'manual'
+
+
+# -- the picture: north up, east right, compass heading -----------------------------------------
+
+def test_the_plot_puts_north_up_and_reads_headings_as_a_compass(tmp_path: Path,
+                                                                monkeypatch) -> None:
+    """A vessel at x = 1 east, y = 2 north, turned 10 deg to port of its northward hold
+    reference: compass heading 350 deg, reference 0, error -10 (clockwise positive)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from enbarr_core.tools.metrics import plot_run
+    figures = []
+    monkeypatch.setattr(plt, 'close', figures.append)
+    t = grid(2.0)
+    eta = np.tile([1.0, 2.0, math.pi / 2 + math.radians(10.0)], (len(t), 1))
+    bag = synthetic.write_run(tmp_path / 'bag', t, eta, (1.0, 2.0, math.pi / 2),
+                              ((TA, 'automatic'),))
+    png = plot_run(bag, hold(), SimpleNamespace(name='run', nodes=(), parameters={}),
+                   tmp_path / 'run.png')
+    assert png.stat().st_size > 0
+    [fig] = figures
+    path = fig.axes[0]  # the first drawn: the path
+    axes = {a.get_ylabel(): a for a in fig.axes[1:]}
+    heading = axes['heading [deg] (compass)']
+    error_twin = axes['heading error [deg], + clockwise']
+    assert {'position error [m]', 'thrust [N]'} <= set(axes)
+    assert (path.get_xlabel(), path.get_ylabel()) == ('east [m] (odom x)', 'north [m] (odom y)')
+    vessel = next(line for line in path.lines if line.get_label() == 'vessel (truth)')
+    assert np.allclose(vessel.get_xdata(), 1.0) and np.allclose(vessel.get_ydata(), 2.0)
+    truth, ref = heading.lines[:2]
+    assert np.allclose(truth.get_ydata(), 350.0) and np.allclose(ref.get_ydata(), 0.0)
+    assert np.allclose(error_twin.lines[0].get_ydata(), -10.0)

@@ -21,6 +21,8 @@ CONTROL_PLUGINS = frozenset({
     'command_receiver', 'attitude_filter', 'velocity_control', 'thruster_converter',
     'dp_observer', 'guidance', 'dp_control', 'azimuth_allocation', 'pwm_mapper'})
 CONTROL_GROUP = 'control'
+#: Core nodes that are neither the control chain nor a plugin: they stay with the plugins.
+SUPPORT_PLUGINS = frozenset({'frame_publisher'})
 #: The operator stand-ins' steady command during a chaos run (a busy vehicle).
 STEADY_SCRIPTS = {
     'scripted_commands': ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0', '0.5 io gpio_12 false'],
@@ -62,7 +64,8 @@ def write_split_profile(ref: str, out: Path) -> Plan:
     from enbarr_core.bringup import profile as profiles
     prof = profiles.load_profile(ref)
     control = [n.name for n in prof.nodes if n.plugin in CONTROL_PLUGINS]
-    if not control or len(control) == len(prof.nodes):
+    plugins = [n for n in prof.nodes if n.plugin not in CONTROL_PLUGINS | SUPPORT_PLUGINS]
+    if not control or not plugins:
         core = ', '.join(sorted(CONTROL_PLUGINS))
         raise EnbarrError(f'{prof.path}: chaos needs core nodes ({core}) and plugins beside '
                           'them to split the profile')
