@@ -11,6 +11,7 @@ carry both topics (the recorder writes them without the wheel).
 
 from __future__ import annotations
 
+import functools
 import importlib
 from typing import Any
 
@@ -29,9 +30,10 @@ TF2_MSGS = 'tf2_msgs.msg'
 def tf_message_class() -> type | None:
     """Return ``tf2_msgs.msg.TFMessage``, or None where tf2_msgs is not installed."""
     try:
-        return getattr(importlib.import_module(TF2_MSGS), 'TFMessage')
+        cls: type = getattr(importlib.import_module(TF2_MSGS), 'TFMessage')
     except (ImportError, AttributeError):
         return None
+    return cls
 
 
 class FramePublisherNode(EnbarrNode):
@@ -69,8 +71,7 @@ class FramePublisherNode(EnbarrNode):
         if static:
             self._static_pub.publish(self._message(static))
         for source in self._sources:
-            self.create_topic_subscription(source.spec,
-                                           lambda msg, s=source: self._on_pose(s, msg))
+            self.create_topic_subscription(source.spec, functools.partial(self._on_pose, source))
 
     def _on_pose(self, source: PoseSource, msg: Any) -> None:
         t = source.transform(msg)

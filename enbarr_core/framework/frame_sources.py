@@ -73,7 +73,8 @@ class PoseSource:
             norm = float(np.linalg.norm(rotation))
             if not math.isfinite(norm) or norm < 0.5:
                 return None
-            pose = Transform((0.0, 0.0, 0.0), tuple(float(x) for x in rotation / norm))
+            x, y, z, w = (float(c) for c in rotation / norm)
+            pose = Transform((0.0, 0.0, 0.0), (x, y, z, w))
         else:
             return None
         return StampedTransform(stamp, self.parent, self.frame.name, pose)

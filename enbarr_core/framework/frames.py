@@ -112,7 +112,8 @@ class Transform:
     def apply(self, points: ArrayLike) -> NDArray[np.float64]:
         """Map points (shape (3,) or (N, 3)) [m] from the child frame into the parent frame."""
         p = np.asarray(points, dtype=float)
-        return p @ self.rotation_matrix.T + np.asarray(self.translation)
+        out: NDArray[np.float64] = p @ self.rotation_matrix.T + np.asarray(self.translation)
+        return out
 
     def is_close(self, other: Transform, tol: float = 1e-9) -> bool:
         """Whether both transforms map every point alike (q and -q are the same rotation)."""
