@@ -1,8 +1,8 @@
 """Per-type CDR encoders for rclpy messages, generated once from the message definition.
 
 rclpy's ``serialize_message`` converts the Python message to its C struct field by field and
-then serializes it: 10-23 us for an ``Imu`` or an ``Odometry`` on the reference machine,
-more than the rest of recording. ``encoder(cls)`` instead compiles, once per message class, a
+then serializes it, which costs more than the rest of recording (``docs/benchmarks.md``).
+``encoder(cls)`` instead compiles, once per message class, a
 Python function that reads the fields and packs them with ``struct`` (numeric arrays and
 sequences with ``tobytes``), merging every run of fixed-size fields whose alignment is known
 at generation time into one ``pack`` call. The output is the little-endian CDR (XCDR1) that

@@ -9,7 +9,8 @@ summary. After it returns the file is a complete, indexed MCAP that ``rosbags`` 
 tail again and truncating to it.
 
 The summary grows with every chunk (camera frames fill a chunk each: after ten minutes it
-holds 9 000 chunk indexes, 2 MB rewritten 13 times a second). A flush therefore rewrites a
+holds thousands of chunk indexes, megabytes rewritten at every frame; docs/benchmarks.md). A
+flush therefore rewrites a
 summary of more than ``SUMMARY_ALWAYS`` bytes only while that costs at most
 ``1/SUMMARY_RATIO`` of the data written since it was last written; otherwise the tail is
 DataEnd and a footer without summary (``summary_start`` 0), which is still a complete MCAP:
