@@ -273,7 +273,7 @@ class EnbarrNode(Node):
         """Return the node clock's present [ns]: ``get_clock().now().nanoseconds``, cheaper.
 
         The same clock (ROS time, simulated time when overridden) read without building an
-        ``rclpy.time.Time`` (several times cheaper: ``docs/benchmarks.md``), several times per
+        ``rclpy.time.Time`` (far cheaper: ``docs/benchmarks.md``), several times per
         sample in the chain.
         The clock's handle lives as long as this node holds it (rclpy never destroys a node's
         clock), so it is read without the handle's guard.
