@@ -147,8 +147,8 @@ def set_covariance3(field: Any, cov: NDArray[np.float64]) -> None:
     field[:] = np.asarray(cov, dtype=float).reshape(9)
 
 
-#: Up to this many elements ``all_finite`` tests them one by one as Python floats (a
-#: 3-vector: 0.4 instead of 3.2 us for ``np.all(np.isfinite(a))`` here); larger arrays in numpy.
+#: Up to this many elements ``all_finite`` tests them one by one as Python floats (numpy's
+#: per-call cost dominates on a few elements: ``docs/benchmarks.md``); larger arrays in numpy.
 _SMALL = 16
 
 

@@ -1,8 +1,8 @@
 """Build ROS messages without their generated ``__init__``: ``new(Imu)`` equals ``Imu()``.
 
 Why: rosidl's generated constructors import their field types, parse keyword arguments and
-go through every property setter at each call: ``Odometry()`` costs 17 us on the reference
-machine (``Imu()`` 12 us), and the ROV chain builds about ten messages per sample at 400 Hz.
+go through every property setter at each call (``docs/benchmarks.md``), and the ROV chain
+builds about ten messages per sample at 400 Hz.
 ``new(cls)`` makes the same object from a builder compiled once per type: a plain
 ``cls.__new__`` with every slot assigned directly from the defaults of one ``cls()``
 (nested messages built by their own builders, numpy arrays and ``array.array`` sequences

@@ -1,14 +1,14 @@
 """The in-process fast path: composed nodes hand messages to each other as direct calls.
 
-Why: in rclpy every topic hop costs a DDS round trip plus an executor dispatch (about
-0.4 ms of CPU each on the reference machine), so a five-hop IMU -> thruster chain cannot run at
-400 Hz. A ``LinkBus`` exists per rclpy ``Context``. A node publishes a *fast* topic through a
-``LinkPublisher``: every in-process ``LinkSubscription`` of the same resolved name is called
-synchronously with the message object, and the message goes out over DDS only while some
-other process (``ros2 topic echo``, a recorder elsewhere, a node in another group) subscribes.
-A ``LinkSubscription`` with no publisher in its process falls back to an ordinary ROS
-subscription when the bus is connected, so a chain split over processes (profile groups) or
-fed by a third-party node still works. See ``docs/architecture.md``.
+Why: in rclpy every topic hop costs a DDS round trip plus an executor dispatch
+(``docs/benchmarks.md``), so a five-hop IMU -> thruster chain cannot run at 400 Hz. A ``LinkBus``
+exists per rclpy ``Context``. A node publishes a *fast* topic through a ``LinkPublisher``: every
+in-process ``LinkSubscription`` of the same resolved name is called synchronously with the message
+object, and the message goes out over DDS only while some other process (``ros2 topic echo``, a
+recorder elsewhere, a node in another group) subscribes. A ``LinkSubscription`` with no publisher
+in its process falls back to an ordinary ROS subscription when the bus is connected, so a chain
+split over processes (profile groups) or fed by a third-party node still works. See
+``docs/architecture.md``.
 
 Graph visibility: every link subscription fed by the bus owns a *shadow reader*, a DDS reader of
 its topic created on the subscribing node but never handed to an executor, so ``ros2 topic
@@ -141,9 +141,9 @@ class LinkPublisher:
         self._subscribers: tuple[LinkSubscription, ...] = ()
         self._shadows: tuple[Any, ...] = ()
         # No QoS event handlers: every handler is one more entity the executor re-adds to its
-        # wait set at each wake-up, and the fast path has a dozen publishers (measured: the
-        # matched event plus rclpy's two default handlers per publisher doubled the
-        # executor's cost per dispatch).
+        # wait set at each wake-up, and the fast path has a dozen publishers (the matched
+        # event plus rclpy's two default handlers per publisher made every dispatch of the
+        # executor dearer: docs/benchmarks.md).
         self.ros_publisher = node.create_publisher(
             spec.msg_type, spec.name, spec.qos,
             event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
@@ -180,7 +180,7 @@ class LinkPublisher:
         once it has matched any writer: the rmw matches the endpoints of one participant
         synchronously (Fast DDS), and where matching is asynchronous the two sides may
         disagree only until both have seen each other (a check later). Two matched counts per
-        check (about 5 us), never a graph query (about 220 us each).
+        check, never a graph query (many times dearer: ``docs/benchmarks.md``).
         """
         matched = self.ros_publisher.get_subscription_count()
         if matched == 0:

@@ -190,7 +190,7 @@ PWM_DUTY_LABEL = 'duty_cycle_percent'
 SIM_AZIMUTH_COMMAND = TopicSpec(
     'sim/azimuth_command', JointState, SENSOR_QOS, 'effort N, position rad', BODY_FRAME,
     'Thrust and angle the simulated Arduino sets on the simulated azimuths.', fast=True)
-# -- perception (issue 9 drivers) --
+# -- perception (device drivers) --
 SCAN = TopicSpec(
     'scan', LaserScan, SENSOR_QOS, 'm, rad', LASER_FRAME,
     "One lidar revolution in the lidar's own frame, as a real driver publishes it: "

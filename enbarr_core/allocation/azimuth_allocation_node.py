@@ -7,7 +7,7 @@ together (direction kept) and the shortfall is reported: a warning, the ``infeas
 and ``allocation/delivered``. The previous angles are passed back each time so servos do not
 flip 180 degrees needlessly.
 
-Time (issue 8, ``framework.stamps``): a force stamped more than ``max_future`` ahead of the
+Time (``framework.stamps``): a force stamped more than ``max_future`` ahead of the
 clock, or not later than the last one allocated, is refused and counted (dp_control keeps its
 force stream ordered); more than 5 % refused in a second makes the node DEGRADED.
 ``max_future`` must stay under the measured force period.

@@ -11,7 +11,7 @@ hardware plugin's job; this node computes what it sends. The duty message has no
 this node keeps the ``LatencyLog`` of the chain (command stamp -> duties delivered: with the
 in-process link bus the delivery includes the Arduino plugin's callback).
 
-Time (issue 8, ``framework.stamps``): a stamped command more than ``max_future`` ahead of the
+Time (``framework.stamps``): a stamped command more than ``max_future`` ahead of the
 clock, or not later than the last one mapped, is refused and counted (a command with a zero
 stamp carries no time and is taken as it comes); more than 5 % refused in a second makes the
 node DEGRADED. ``command_timeout`` must cover two measured command periods (shorter, the

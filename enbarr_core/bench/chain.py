@@ -16,7 +16,7 @@ allocation -> PWM mapping -> sim Arduino (profile ``saucer_sim``). The nodes are
   period at ``--rate`` (for 3 s) instead of back to back. At 50 Hz the chain runs on cold
   caches and the same code costs about twice as much per cycle as in a hot loop; this ratio
   compares the chain with its algorithms under the same pacing (the plain ratio stays the
-  issue's figure);
+  one the targets in ``docs/benchmarks.md`` are stated in);
 - saucer only, ``scenario_real_time_factor``: simulated seconds per wall second of the
   headless station-keeping scenario (recording included).
 

@@ -252,10 +252,10 @@ def make_executor(context: Context) -> Executor:
     """Return the executor of a composed process: rclpy's ``EventsExecutor``.
 
     The ``SingleThreadedExecutor`` rebuilds its wait set in Python at every wake-up, walking
-    every entity of every node (parameter services, timers, subscriptions): measured on
-    ``saucer_sim`` composed with nothing started, 20.6 % of a core against 2.7 % for the
-    ``EventsExecutor``, which queues events from the middleware in C++. Its ``spin()`` cannot
-    be stopped cleanly, so it is driven with ``spin_once`` like the other.
+    every entity of every node (parameter services, timers, subscriptions), so an idle
+    composed process spends most of its CPU there; the ``EventsExecutor`` queues events from
+    the middleware in C++ (the figures: ``docs/benchmarks.md``, the Raspberry Pi budget). Its
+    ``spin()`` cannot be stopped cleanly, so it is driven with ``spin_once`` like the other.
     """
     return EventsExecutor(context=context)
 

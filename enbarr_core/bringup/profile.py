@@ -238,7 +238,7 @@ def _load_merged(path: Path, stack: tuple[Path, ...], origins: dict[str, str],
 
 
 #: Limits on an untrusted profile: what a vessel profile needs many times over, and bounded
-#: memory, time and output whatever a file holds (issue 8).
+#: memory, time and output whatever a file holds.
 MAX_FILE_BYTES = 256 << 10      # a profile file [bytes] (the largest shipped: 5 KB)
 MAX_NODES = 100_000             # YAML nodes of one document, with aliases expanded
 MAX_DEPTH = 32                  # nesting of mappings and lists

@@ -43,7 +43,7 @@ Gains (3-element diagonals and scalars) and the vessel model come from the profi
 no default: a node started without them refuses, naming the parameter), are validated
 together and applied live over ``gain_ramp_time``, so the force never jumps.
 
-Hostile input (issue 8). One joystick at a time (``framework.sources``): while ``joy`` has
+Hostile input. One joystick at a time (``framework.sources``): while ``joy`` has
 more than one publisher every sample is refused and counted as ``contested``, so the
 joystick-loss rule applies (manual, zero force after ``joy_timeout``) and ``/diagnostics``
 says ERROR naming the publishers. Time (``framework.stamps``): estimates, biases, references

@@ -2,9 +2,9 @@
 
 ``filterpy.kalman`` imports ``filterpy.stats`` for one function, ``logpdf`` (behind the
 filters' ``log_likelihood`` and ``likelihood`` properties), and ``filterpy.stats`` imports
-``scipy.stats`` at module level. That import costs a vessel process about 40 MB of resident
-memory (measured: 70 -> 113 MB over numpy, rclpy and ``scipy.linalg``) and a few seconds of
-start-up on a Raspberry Pi 4, for a likelihood the attitude filter never asks for.
+``scipy.stats`` at module level. That import costs a vessel process a large share of its
+resident memory and of its start-up time (``docs/benchmarks.md``), for a likelihood the
+attitude filter never asks for.
 
 ``import_kalman()`` imports the real ``filterpy.kalman`` while ``sys.modules`` holds a
 stand-in for ``filterpy.stats`` whose ``logpdf`` imports the real module on its first call and

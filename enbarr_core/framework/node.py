@@ -47,7 +47,7 @@ from enbarr_core.framework.params import ParamSpec, SettingsBinding
 S = TypeVar('S')
 
 #: Period of actuator watchdogs and other supervision timers [s] (``framework.driver``). Every
-#: executor wake-up costs about half a millisecond of CPU in rclpy whatever the callback does,
+#: executor wake-up costs CPU in rclpy whatever the callback does (``docs/benchmarks.md``),
 #: so supervision runs at 10 Hz: a command timeout of 0.25 s trips within 0.35 s.
 WATCHDOG_PERIOD = 0.1
 #: The period of a process's ``Ticker`` [s]; every ``create_periodic`` period is a multiple.
@@ -78,14 +78,13 @@ class Periodic:
 class Ticker(PerContext):
     """One executor timer per rclpy ``Context`` that runs every node's periodic checks.
 
-    Why: each executor wake-up costs more CPU than a watchdog's own work (measured on
-    ``saucer_sim`` composed and idle under the ``EventsExecutor``: ten supervision and report
-    timers took 1.1 of the process's 1.3 % of a core, their callbacks' own work 0.4 %). So the
-    checks of all nodes of a process share one timer at ``TICK``; a check of period P runs
-    every P / TICK ticks, in registration order. The timer lives on one of the registered
-    nodes (its clock: simulated time in scenarios) and moves to another when that node is
-    destroyed. A check that raises is logged and counted and the others still run: one node's
-    faulty report must not silence another's watchdog.
+    Why: each executor wake-up costs more CPU than a watchdog's own work, so in an idle process a
+    timer per check spends most of the CPU on waking up (``docs/benchmarks.md``, costs behind
+    choices in the code). So the checks of all nodes of a process share one timer at ``TICK``; a
+    check of period P runs every P / TICK ticks, in registration order. The timer lives on one of
+    the registered nodes (its clock: simulated time in scenarios) and moves to another when that
+    node is destroyed. A check that raises is logged and counted and the others still run: one
+    node's faulty report must not silence another's watchdog.
     """
 
     def __init__(self) -> None:
@@ -274,7 +273,8 @@ class EnbarrNode(Node):
         """Return the node clock's present [ns]: ``get_clock().now().nanoseconds``, cheaper.
 
         The same clock (ROS time, simulated time when overridden) read without building an
-        ``rclpy.time.Time`` (1 instead of 6.7 us here), several times per sample in the chain.
+        ``rclpy.time.Time`` (far cheaper: ``docs/benchmarks.md``), several times per
+        sample in the chain.
         The clock's handle lives as long as this node holds it (rclpy never destroys a node's
         clock), so it is read without the handle's guard.
         """
@@ -328,8 +328,8 @@ class EnbarrNode(Node):
 
         For sources paced by the node's clock (a scripted operator, a joystick stand-in):
         nothing goes out before bringup has checked the graph or once the safe state is being
-        put in place, and a node that is not started costs no executor wake-up (each costs
-        about 0.1-0.3 ms of CPU in rclpy's ``EventsExecutor``).
+        put in place, and a node that is not started costs no executor wake-up (each costs CPU
+        in rclpy's ``EventsExecutor`` whatever the callback does: ``docs/benchmarks.md``).
         """
         timer = self.create_timer(period, callback, autostart=self._started)
         self._source_timers.append(timer)

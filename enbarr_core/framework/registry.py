@@ -52,7 +52,7 @@ BUILTIN: dict[str, str] = {
     'sim_arduino': 'enbarr_plugins.arduino.sim:SimArduinoNode',
     'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
     'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
-    # device drivers (issue 9), each with its emulator (docs/hardware.md)
+    # device drivers, each with its emulator (docs/hardware.md)
     'pca9685_thrusters': 'enbarr_plugins.thrusters.pca9685:Pca9685ThrustersNode',
     'pca9685_emulator': 'enbarr_plugins.thrusters.pca9685_emulator:Pca9685EmulatorNode',
     'lsm9ds1_imu': 'enbarr_plugins.imu.lsm9ds1:Lsm9ds1ImuNode',
@@ -87,8 +87,9 @@ class NodeEntry:
 def _declared(path: tuple[str, ...]) -> tuple[metadata.EntryPoint, ...]:
     """Return the ``ENTRY_POINT_GROUP`` entry points of the distributions on ``path``.
 
-    Scanning every installed distribution takes about 0.1 s here, and bringup resolves each
-    node of a profile twice: once per process and search path is enough.
+    Scanning every installed distribution reads each one's metadata from disk
+    (``docs/benchmarks.md``), and bringup resolves each node of a profile twice: once per
+    process and search path is enough.
     """
     return tuple(metadata.entry_points(group=ENTRY_POINT_GROUP))
 

@@ -13,7 +13,7 @@ whether it has a path, which the controller needs to refuse guidance without one
 Another guidance law (say, one that avoids collisions) replaces this node with one
 ``plugin:`` line of the profile, as long as it speaks the same three topics.
 
-Time (issue 8, ``framework.stamps``): an estimate stamped more than ``max_future`` ahead of
+Time (``framework.stamps``): an estimate stamped more than ``max_future`` ahead of
 the clock, or not later than the last one taken, is refused and counted: it neither becomes
 the law's dt nor the stamp of a reference. More than 5 % refused in a second makes the node
 DEGRADED on ``/diagnostics``; ``max_future`` must stay under the measured estimate period.

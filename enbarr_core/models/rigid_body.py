@@ -366,7 +366,7 @@ class RigidBodyModel:
         R = quat_to_rotmat(quat_normalize(state.q))
         v, omega = state.nu[:3], state.nu[3:]
         gravity: Vector = np.array([0.0, 0.0, -float(self.params.gravity)])
-        # skew(omega) @ v is omega x v; np.cross costs ten times more on 3-vectors.
+        # skew(omega) @ v is omega x v; np.cross costs several times more on 3-vectors.
         return nu_dot[:3] + skew(omega) @ v - R.T @ gravity
 
     def kinetic_energy(self, nu: ArrayLike) -> float:

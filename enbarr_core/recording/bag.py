@@ -551,7 +551,8 @@ def write_metadata(path: Path, files: list[FileInfo], typestore: Any) -> None:
                               'recording stopped, the previous version is kept') from err
 
 
-#: libyaml's emitter when PyYAML has it (10x faster: the file is rewritten at every flush).
+#: libyaml's emitter when PyYAML has it (several times faster than the pure-Python one, and
+#: the file is rewritten at every flush: docs/benchmarks.md).
 _DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 _HASHES: dict[str, str] = {}
 

@@ -1,17 +1,16 @@
 """Per-type CDR encoders for rclpy messages, generated once from the message definition.
 
 rclpy's ``serialize_message`` converts the Python message to its C struct field by field and
-then serializes it: 10-23 us for an ``Imu`` or an ``Odometry`` on the reference machine,
-more than the rest of recording. ``encoder(cls)`` instead compiles, once per message class, a
-Python function that reads the fields and packs them with ``struct`` (numeric arrays and
-sequences with ``tobytes``), merging every run of fixed-size fields whose alignment is known
-at generation time into one ``pack`` call. The output is the little-endian CDR (XCDR1) that
-rmw_fastrtps writes: the 4-byte encapsulation header ``00 01 00 00``, every primitive aligned
-to its size (at most 8) counted from the end of that header, strings as a uint32 length that
-counts the terminating NUL, sequences as a uint32 count. ``test/recording/test_cdr.py`` checks
-it against ``serialize_message`` byte for byte. Unlike ``serialize_message``, whose buffer is
-the *estimated* size for messages with string sequences, the result ends exactly where the
-CDR does.
+then serializes it, which costs more than the rest of recording (``docs/benchmarks.md``).
+``encoder(cls)`` instead compiles, once per message class, a Python function that reads the
+fields and packs them with ``struct`` (numeric arrays and sequences with ``tobytes``), merging
+every run of fixed-size fields whose alignment is known at generation time into one ``pack``
+call. The output is the little-endian CDR (XCDR1) that rmw_fastrtps writes: the 4-byte
+encapsulation header ``00 01 00 00``, every primitive aligned to its size (at most 8) counted
+from the end of that header, strings as a uint32 length that counts the terminating NUL,
+sequences as a uint32 count. ``test/recording/test_cdr.py`` checks it against
+``serialize_message`` byte for byte. Unlike ``serialize_message``, whose buffer is the
+*estimated* size for messages with string sequences, the result ends exactly where the CDR does.
 
 A type with a field kind this does not cover (``char``, wide strings) gets ``None``:
 the caller falls back to ``serialize_message``. A big-endian host gets ``None`` for every

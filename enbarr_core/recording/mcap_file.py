@@ -8,14 +8,14 @@ summary. After it returns the file is a complete, indexed MCAP that ``rosbags`` 
 ``mcap`` reader open. A write that fails (``ENOSPC``) is rolled back by writing the previous
 tail again and truncating to it.
 
-The summary grows with every chunk (camera frames fill a chunk each: after ten minutes it
-holds 9 000 chunk indexes, 2 MB rewritten 13 times a second). A flush therefore rewrites a
-summary of more than ``SUMMARY_ALWAYS`` bytes only while that costs at most
-``1/SUMMARY_RATIO`` of the data written since it was last written; otherwise the tail is
-DataEnd and a footer without summary (``summary_start`` 0), which is still a complete MCAP:
-``rosbags``, the ``mcap`` reader and ``ros2 bag`` (``AllowFallbackScan``) then read the data
-section from the start. ``close`` always writes the summary. When a new tail is
-shorter than the one it covers, the file is truncated right after the write.
+The summary grows with every chunk (camera frames fill a chunk each: after ten minutes it holds
+thousands of chunk indexes, megabytes rewritten at every frame; docs/benchmarks.md). A flush
+therefore rewrites a summary of more than ``SUMMARY_ALWAYS`` bytes only while that costs at most
+``1/SUMMARY_RATIO`` of the data written since it was last written; otherwise the tail is DataEnd
+and a footer without summary (``summary_start`` 0), which is still a complete MCAP: ``rosbags``,
+the ``mcap`` reader and ``ros2 bag`` (``AllowFallbackScan``) then read the data section from the
+start. ``close`` always writes the summary. When a new tail is shorter than the one it covers, the
+file is truncated right after the write.
 
 A process killed inside that ``pwrite`` can leave a torn tail (a short write stops at a page
 boundary). ``recover`` reads the data section record by record, keeps every chunk whose

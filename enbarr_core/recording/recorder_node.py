@@ -190,10 +190,10 @@ class RecorderNode(EnbarrNode, Recorder):
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._write_loop, name='recorder_writer',
                                         daemon=True)
-        # Receive stamps: the node's clock, read as time.time_ns while it is the system clock
-        # (the same CLOCK_REALTIME value, 0.06 us instead of the 2-6 us of clock.now()); the
-        # clock's own reading while ROS (simulated) time is active. A clock-change jump
-        # callback switches between them.
+        # Receive stamps: the node's clock, read as time.time_ns while it is the system clock (the
+        # same CLOCK_REALTIME value, without building the rclpy Time of clock.now(): a stamp per
+        # message, docs/benchmarks.md); the clock's own reading while ROS (simulated) time is
+        # active. A clock-change jump callback switches between them.
         self._stamp: Any = time.time_ns
         self._jump_handle = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True),
@@ -389,9 +389,9 @@ class RecorderNode(EnbarrNode, Recorder):
 
     def _write_loop(self) -> None:
         # Polled, not woken per message: a blocking get() wakes this thread (a futex and a
-        # GIL hand-off against the chain's thread) for nearly every message, which measured
-        # 29 us of writer CPU per message in bringup enbarr_sim --record; draining every
-        # DRAIN_SECONDS takes them in batches.
+        # GIL hand-off against the chain's thread) for nearly every message, which costs the
+        # writer more CPU per message than draining in batches (docs/benchmarks.md): every
+        # DRAIN_SECONDS it takes what has come.
         writer = self.writer
         assert writer is not None  # started by start() once the bag is open
         get = self._queue.get_nowait

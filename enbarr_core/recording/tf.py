@@ -29,10 +29,10 @@ def _typestore() -> Any:
 def tf_message_cdr(transforms: Sequence[StampedTransform]) -> bytes:
     """Serialize a ``TFMessage`` holding ``transforms`` (CDR, as a bag stores it).
 
-    Packed here with ``struct`` (a few microseconds; rosbags' serializer takes over a hundred
-    per message, and ``/tf`` comes at the estimate's rate): little-endian CDR, each primitive
-    aligned to its size from the end of the 4-byte encapsulation header, strings as a uint32
-    length counting the NUL. The tests check it against rosbags' serializer.
+    Packed here with ``struct`` (cheaper than building a rosbags message and serializing it, and
+    ``/tf`` comes at the estimate's rate: docs/benchmarks.md): little-endian CDR, each primitive
+    aligned to its size from the end of the 4-byte encapsulation header, strings as a uint32 length
+    counting the NUL. The tests check it against rosbags' serializer.
     """
     out = bytearray(_HEADER)
     out += _U32.pack(len(transforms))

@@ -42,11 +42,12 @@ from enbarr_core.framework.node import EnbarrNode, sim_steps
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.allocation.layout_params import declare_thrusters
 
-# Model steps integrated in one late tick before time is skipped. A step costs ~80 us, far
-# less than the tick's own ROS work, so a loaded machine is better served by integrating the
-# whole span (the vehicle then lives the time the controller and the thrusters lived) than by
-# skipping it: with 10 (25 ms) a run beside two CPU hogs lost 4.5 s of 21 and the vehicle fell
-# behind its feed-forward. 100 steps (0.25 s) skip only real stalls.
+# Model steps integrated in one late tick before time is skipped. A step costs far less than
+# the tick's own ROS work, so a loaded machine is better served by integrating the whole span
+# (the vehicle then lives the time the controller and the thrusters lived) than by skipping
+# it: with 10 (25 ms) a run beside two CPU hogs lost seconds of simulated time and the
+# vehicle fell behind its feed-forward (docs/benchmarks.md). 100 steps (0.25 s) skip only
+# real stalls.
 MAX_CATCH_UP = 100
 
 SPECS = [
@@ -151,7 +152,7 @@ class RovSimulatorNode(EnbarrNode):
         thrust = np.zeros(len(self.thrusters))
         for name, f in zip(msg.name, msg.effort):
             i = self._index.get(name)
-            if i is not None and math.isfinite(f):  # a float: math's test, 20x numpy's
+            if i is not None and math.isfinite(f):  # a float: math's test (numpy's costs more)
                 thrust[i] = f
         self._thrust = thrust
         self._thrust_ns = self.now_ns()

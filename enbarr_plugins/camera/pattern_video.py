@@ -5,12 +5,11 @@ in digits and as 16 black/white blocks along the top edge that survive JPEG comp
 with ``cv2.VideoWriter`` (Motion-JPEG in AVI, which every OpenCV build reads back).
 ``read_counter`` decodes the blocks: a test checks which frame it got.
 
-``write_in_child`` writes it from a child process (``python -m
-enbarr_plugins.camera.pattern_video DIR WIDTH HEIGHT RATE FRAMES``): the encoder leaves
-about 13 MB behind in the process that ran it (FFmpeg's encoder, OpenCV's worker threads;
-``malloc_trim`` gives back 4 of the 17 MB it takes), which the camera emulator must not add
-to a vessel process: a real camera adds nothing of the kind. This module imports OpenCV
-and numpy only.
+``write_in_child`` writes it from a child process (``python -m enbarr_plugins.camera.pattern_video
+DIR WIDTH HEIGHT RATE FRAMES``): the encoder leaves memory behind in the process that ran it
+(FFmpeg's encoder, OpenCV's worker threads; ``malloc_trim`` gives little of it back:
+``docs/benchmarks.md``), which the camera emulator must not add to a vessel process: a real camera
+adds nothing of the kind. This module imports OpenCV and numpy only.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ at ``rate``, with white Gaussian position and heading noise and dropouts: schedu
 random single-sample losses (``dropout_probability``), as markers hidden behind the lidar or a
 person do.
 
-Time (issue 8): the truth's stamp schedules the measurements, so a truth stamped more than
+Time: the truth's stamp schedules the measurements, so a truth stamped more than
 ``TRUTH_MAX_FUTURE`` ahead of the clock, or not later than the last one taken, is refused and
 counted (``refused``): one such truth once silenced the motion capture for as long as it was
 ahead. The simulator stamps its truth from the clock of the same process (no offset), so 10 ms

@@ -143,8 +143,9 @@ def _force(tau: list[float], ns: int) -> WrenchStamped:
 
 
 def test_a_force_stamped_ahead_or_out_of_order_is_refused_and_reported(context, executor):
-    # Issue 8: one force_command stamped 20 s ahead (an outside publisher, the allocation in
-    # its own process) was allocated and passed its stamp on to the PWM stage and the observer.
+    # Before the time policy, one force_command stamped 20 s ahead (an outside publisher, the
+    # allocation in its own process) was allocated and passed its stamp on to the PWM stage
+    # and the observer.
     from support.saucer import SimClock
     node = add(executor, AzimuthAllocationNode(node_name='allocation', context=context,
                                                parameter_overrides=overrides()))

@@ -170,8 +170,8 @@ def test_pwm_mapper_duty_limits_come_from_the_profile(context, executor):
 
 
 def test_pwm_mapper_refuses_commands_stamped_ahead_or_out_of_order(context, executor):
-    # Issue 8: a command stamped 20 s ahead was mapped to duties (and logged as a latency of
-    # -20 s). Unstamped commands (stamp 0) carry no time and are taken as they come.
+    # Before the time policy, a command stamped 20 s ahead was mapped to duties (and logged as
+    # a latency of -20 s). Unstamped commands (stamp 0) carry no time and are taken as they come.
     from support.saucer import SimClock
     r = rig(context, executor)
     clock = SimClock(r.node)

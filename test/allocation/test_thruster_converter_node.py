@@ -149,7 +149,7 @@ def test_thruster_converter_refuses_non_finite_wrench(rig):
     assert rig.node.rejected == 1 and len(rig.commands) == 0
 
 
-# -- the time policy (issue 8) ---------------------------------------------------------------
+# -- the time policy ------------------------------------------------------------------------
 
 def test_force_commands_stamped_ahead_or_out_of_order_are_refused_and_counted(rig):
     """A force_command stamped 20 s ahead (another process, another clock) was allocated and

@@ -330,7 +330,7 @@ def test_out_of_range_vector_element_names_the_index(tmp_path: Path) -> None:
     assert 'vehicle.r_g[2] = -1000.0 is outside [-100.0, 100.0]' in line
 
 
-# -- an error names where the faulty values came from (issue 8) --------------------------------
+# -- an error names where the faulty values came from -----------------------------------------
 CENTRED_AZIMUTHS = """
     include: [saucer_sim]
     parameters:

@@ -649,7 +649,7 @@ def test_set_value_of_mixed_types() -> None:
     assert 'a list parameter holds values of one type' in str(err)
 
 
-# -- duplicate keys (issue 8): refused with file and line, at any depth ------------------------
+# -- duplicate keys: refused with file and line, at any depth ----------------------------------
 @pytest.mark.parametrize('text, line, key', [
     ("""
      nodes:
@@ -710,7 +710,7 @@ def test_duplicate_key_in_a_set_value_is_refused() -> None:
     assert "duplicate key 'a'" in str(err) and '--set' in str(err)
 
 
-# -- untrusted files: bounded memory and output (issue 8) --------------------------------------
+# -- untrusted files: bounded memory and output -----------------------------------------------
 BOMB = '\n'.join(['parameters:', '  p:', '  - &a [x, x, x, x, x, x, x, x, x, x]']
                  + [f'  - &{chr(98 + i)} [{", ".join(["*" + chr(97 + i)] * 10)}]'
                     for i in range(8)]

@@ -237,7 +237,7 @@ def test_bad_new_settings_are_refused_and_the_old_kept(gate):
     assert gate.settings == SETTINGS
 
 
-# -- ordering, frame, contested (issue 8) ----------------------------------------------------
+# -- ordering, frame, contested -------------------------------------------------------------
 
 def test_a_command_not_newer_than_the_last_accepted_is_refused(gate):
     assert gate.offer(WANTED, T0, T0) is Verdict.ACCEPTED

@@ -264,7 +264,7 @@ def test_failsafe_latency_on_a_controlled_clock(context, executor, spin):
     assert rig.node._failsafe
 
 
-# -- ordering, frame and the single-source rule (issue 8) ------------------------------------
+# -- ordering, frame and the single-source rule ---------------------------------------------
 
 def frame_twist(node: Any, nu: list[float], frame_id: str, offset_s: float = 0.0) -> Any:
     msg = twist(node, nu, offset_s)
@@ -283,7 +283,7 @@ def test_an_out_of_order_command_is_refused_and_counted(rig):
 @pytest.mark.parametrize('frame_id, accepted', [
     (topics.BODY_FRAME, True), ('', True), ('odom', False), ('map', False)])
 def test_a_command_in_another_frame_is_refused_and_counted(rig, frame_id, accepted):
-    """Issue 8: a twist in 'odom' was executed as if in base_link."""
+    """A twist in 'odom' must not be executed as if in base_link (it once was)."""
     rig.twist_pub.publish(frame_twist(rig.probe, WANTED, frame_id))
     if accepted:
         assert rig.until(lambda: rig.node.gate.counts[Verdict.ACCEPTED] == 1)
@@ -300,7 +300,7 @@ class Reports:
 
 
 def test_two_twist_publishers_are_refused_and_named(context, executor, spin):
-    """Issue 8: an outside publisher alternating with the scripted one made the goal
+    """An outside publisher alternating with the scripted one once made the goal
     alternate. Now while two publish, no command is executed, the goal is zero and
     /diagnostics says ERROR naming both."""
     rig = Surface(context, executor, spin)
@@ -343,7 +343,7 @@ def test_two_io_publishers_are_refused(context, executor, spin):
     assert rig.ios == [] and rig.node.io_forwarded == 0
 
 
-# -- timeout against the measured command rate (issue 8: valid but harmful) ------------------
+# -- timeout against the measured command rate (valid but harmful) ---------------------------
 
 def test_a_timeout_shorter_than_two_command_periods_is_refused_live(context, executor, spin):
     """A timeout under the surface's command period drops the goal to zero between every two

@@ -299,7 +299,7 @@ def test_dp_control_live_gains(context, executor, spin):
     assert node.manager.joy_timeout == 0.3
 
 
-# -- the joystick-loss rule (issue 9): connection state, not the message rate -------------------
+# -- the joystick-loss rule: connection state, not the message rate -------------------
 
 def hold_automatic(h: DpHarness, seconds: float, heartbeat_every: int = 4) -> None:
     """Estimates every 20 ms for ``seconds`` of simulated time; a heartbeat every few, no

@@ -1,4 +1,4 @@
-"""Node tests: dp control under hostile input (issue 8): one joystick at a time, the time
+"""Node tests: dp control under hostile input: one joystick at a time, the time
 policy on estimates, references and the joystick, honest diagnostics, rate-aware parameters.
 """
 
@@ -28,7 +28,7 @@ def spin_a_little(h: DpHarness) -> None:
 
 
 def test_two_joysticks_are_refused_named_and_the_loss_rule_applies(context, executor, spin):
-    # Issue 8: a second publisher on a command topic silently took turns with the first.
+    # A second publisher on a command topic once silently took turns with the first.
     h = DpHarness(context, executor, spin, {'joy_timeout': 0.2})
     h.estimate(ETA0)
     h.joy(joy_msg(0.5))

@@ -186,7 +186,7 @@ def test_a_stale_goal_counts_as_zero(feeder):
     assert node.rejected == 0  # no gap, no reset: the goal timed out
 
 
-# -- the time policy (issue 8) on a controlled clock ----------------------------------------
+# -- the time policy on a controlled clock -------------------------------------------------
 
 T0 = 1_000 * 1_000_000_000  # the node's clock at the start of these tests [ns]
 IMU_NS = 2_500_000          # 400 Hz
@@ -235,8 +235,9 @@ class Clocked:
 
 @pytest.mark.parametrize('ahead_s', [20.0, 0.4])
 def test_one_future_imu_sample_costs_only_itself(context, executor, spin, ahead_s):
-    """Issue 8: one sample 20 s (0.4 s) ahead stopped the loop for that long (watchdog ->
-    neutral). Now it is refused and counted; every good sample after it gives a force."""
+    """Before the time policy, one sample 20 s (0.4 s) ahead stopped the loop for that long
+    (watchdog -> neutral). Now it is refused and counted; every good sample after it gives a
+    force."""
     rig = Clocked(context, executor, spin)
     rig.run(200)
     n = len(rig.taus)

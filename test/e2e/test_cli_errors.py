@@ -1,4 +1,4 @@
-"""Hostile command lines of ``bringup``, ``scenario`` and ``bench`` (issue 8).
+"""Hostile command lines of ``bringup``, ``scenario`` and ``bench``.
 
 Every one must end in one clear line ``enbarr COMMAND: error: ...`` and exit code 2, never a
 traceback. One test per class of failure found by trying them; the comment says what each
@@ -143,7 +143,7 @@ def test_not_utf8_and_binary_profiles(tmp_path: Path) -> None:
     assert 'not UTF-8' in line and len(line) < 600
 
 
-# -- profile values that used to reach ROS (the trust issue) -----------------------------------
+# -- profile values that used to reach ROS unchecked --------------------------------------------
 @pytest.mark.parametrize('section, says', [
     # Before: passed, then the supervisor's sleep(nan) raised ValueError at the first restart.
     ('groups: {main: {restart_delay: .nan}}', 'groups.main.restart_delay: expected a number '

@@ -1,4 +1,4 @@
-"""A second vessel process on one ROS graph with the same node names is refused (issue 8).
+"""A second vessel process on one ROS graph with the same node names is refused.
 
 Two real ``bringup`` processes of one profile in one domain: before the fix both ran and
 fought over the same topics (a vehicle followed the other run's commands against its own).

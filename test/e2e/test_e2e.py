@@ -136,13 +136,13 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 # Windows start SETTLE after each change (the reference model is then within R) and the
 # integration error of the 400 Hz simulation and control (O(1e-4)) is inside these margins.
 #
-# Time is the vehicle's: a real-time simulator that falls behind a loaded machine integrates
-# at most MAX_CATCH_UP steps per tick and skips the rest (rov_simulator_node: 0.25 s; at
-# 25 ms a run beside two CPU hogs lost 4.5 s of 21), so wall-clock stamps can overstate how
-# long the vehicle had to get there. Every time below is the simulated time, rebuilt from
-# the recorded /sim/imu stamps (each tick integrates min(gap, MAX_CATCH_UP / rate)), and each
-# change counts from when the receiver passed it on (its /trajectory_request), not from the
-# script's nominal time (the surface's first tick can come late on a loaded machine).
+# Time is the vehicle's: a real-time simulator that falls behind a loaded machine integrates at
+# most MAX_CATCH_UP steps per tick and skips the rest (rov_simulator_node: 0.25 s; what a smaller
+# bound lost on a loaded machine: docs/benchmarks.md), so wall-clock stamps can overstate how long
+# the vehicle had to get there. Every time below is the simulated time, rebuilt from the recorded
+# /sim/imu stamps (each tick integrates min(gap, MAX_CATCH_UP / rate)), and each change counts from
+# when the receiver passed it on (its /trajectory_request), not from the script's nominal time (the
+# surface's first tick can come late on a loaded machine).
 SETTLE = 1.5          # [s] after each change
 COUPLING_TIME = 1.0   # [s]
 SIM_RATE = PROFILE.node('simulator').parameters['rate']

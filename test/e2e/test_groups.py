@@ -218,7 +218,7 @@ def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> 
             in check.stdout)
 
 
-# -- every wait of the supervisor serves a stop request (issue 8, supervision) ----------------
+# -- every wait of the supervisor serves a stop request -------------------------------------
 LONG_DELAY_PROFILE = SPLIT_PROFILE.replace('restart_delay: 0.2', 'restart_delay: 3600')
 
 

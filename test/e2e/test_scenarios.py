@@ -1,5 +1,5 @@
 """End-to-end tier for the CS Saucer: the named scenarios run headless on simulated time
-(``enbarr scenario``), judged by their metrics against the targets of the issue, and the
+(``enbarr scenario``), judged by their metrics against their targets (docs/benchmarks.md), and the
 profiles run and validated as users run them.
 """
 
@@ -29,7 +29,7 @@ def scenario(name: str, out: Path) -> dict[str, Any]:
 
 def test_station_keeping_under_current(tmp_path: Path) -> None:
     """0.05 m/s current, a wind the controller's model does not predict (0.5 N east, -0.4 N
-    north, 0.08 N m) and mocap noise. Targets (issue 7): inside the 0.05 m / 2 deg band
+    north, 0.08 N m) and mocap noise. Targets: inside the 0.05 m / 2 deg band
     within the scenario's stated settle time (20 s after automatic began) and from then on,
     0.05 m RMS and 2 deg RMS over the fixed window from there to the end. The pose loop alone
     would sit ~0.07 m and ~3 deg off (params/scenarios/station_keeping.yaml): without the

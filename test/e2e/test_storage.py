@@ -1,4 +1,4 @@
-"""Storage under hostile conditions (issue 8), whole runs: a supervisor SIGKILLed while
+"""Storage under hostile conditions, whole runs: a supervisor SIGKILLed while
 recording, and a disk that fills during a run.
 """
 

@@ -1,4 +1,4 @@
-"""The time policy across processes (issue 8): one early IMU sample must not stop control.
+"""The time policy across processes: one early IMU sample must not stop control.
 
 The core nodes run in their own group (a split profile), so ``imu/data_raw`` reaches the
 filter over DDS and a publisher in this test process reaches it too (a link subscription

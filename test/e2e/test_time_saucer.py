@@ -1,7 +1,7 @@
 """The CS Saucer keeps station in automatic while an outside process sends motion-capture
-poses stamped 20 s ahead and in the past (issue 8, Time).
+poses stamped 20 s ahead and in the past.
 
-Before issue 8 one such pose became the observer's time base: the good poses after it were
+Before the time policy one such pose became the observer's time base: the good poses after it were
 dropped as old for 20 s, the controller saturated and fell to manual, and the vessel drifted
 0.6-1 m with the current while the observer said "ok, age 0.0".
 
@@ -43,7 +43,7 @@ CURRENT = 0.03  # [m/s] saucer_sim.yaml's current: manual with zero force drifts
 AHEAD_S = 20.0  # how far ahead the bad pose is stamped; the run watches that long after it
 # Bound on the position error: params/scenarios/station_keeping.yaml judges station keeping
 # within 0.05 m; twice that for real time on a loaded machine. Losing control for the 20 s
-# the bad pose was ahead drifts CURRENT * AHEAD_S = 0.6 m, as issue 8 saw.
+# the bad pose was ahead drifts CURRENT * AHEAD_S = 0.6 m, as it did before the time policy.
 MAX_ERROR = 0.1
 
 

@@ -160,7 +160,7 @@ def test_a_gap_restarts_the_filter(rig):
     assert len(rig.out) == 300 and rig.node.rejected == 1 and rig.node.filter.initialized
 
 
-# -- the time policy (issue 8) on a controlled clock ----------------------------------------
+# -- the time policy on a controlled clock -------------------------------------------------
 
 T0 = 1_000 * 1_000_000_000  # the node's clock at the start of these tests [ns]
 
@@ -194,9 +194,9 @@ class ClockedImu(Imu400):
 
 @pytest.mark.parametrize('ahead_s', [20.0, 0.4, 0.06])
 def test_one_future_sample_costs_only_itself(context, executor, ahead_s):
-    """Issue 8: one imu/data_raw sample stamped 20 s (or 0.4 s) ahead, from another process,
-    stopped imu/data for that long. Now it is refused and counted; every good sample after it
-    gives an output, and the filter is not re-initialized."""
+    """Before the time policy, one imu/data_raw sample stamped 20 s (or 0.4 s) ahead, from
+    another process, stopped imu/data for that long. Now it is refused and counted; every good
+    sample after it gives an output, and the filter is not re-initialized."""
     rig = ClockedImu(context, executor)
     rig.run()
     n = len(rig.out)
@@ -238,10 +238,10 @@ def test_a_future_magnetometer_sample_is_refused(context, executor):
     assert rig.node.mag_gate.counts[StampVerdict.ACCEPTED] == 310
 
 
-# -- diagnostics and rate-aware max_gap (issue 8: valid but harmful) -----------------------
+# -- diagnostics and rate-aware max_gap (valid but harmful) --------------------------------
 
 def test_a_gap_shorter_than_the_sample_period_is_reported_not_ok(context, executor):
-    """Issue 8: max_gap = 0.001 with a 400 Hz IMU reset the filter at every sample and
+    """max_gap = 0.001 with a 400 Hz IMU once reset the filter at every sample while
     /diagnostics said 'ok'."""
     rig = ClockedImu(context, executor, max_gap=0.001)
     rig.run(400)

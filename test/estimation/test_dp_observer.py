@@ -507,7 +507,7 @@ def test_far_poses_inconsistent_along_one_axis_never_reinitialize(axis):
 
 
 def test_a_step_that_blows_the_state_up_resets_the_estimate_and_never_raises():
-    # Issue 8: one pose stamped 20 s ahead once gave the observer dt = 20 s. Heun over 20 s
+    # One pose stamped 20 s ahead once gave the observer dt = 20 s. Heun over 20 s
     # of this stiff model (yaw D_n / M = 61 1/s per rad/s) grows the state by ~1e4 per step:
     # the next dead-reckoning steps overflowed to inf and math.cos(inf) raised
     # ValueError('math domain error') in every callback after. Whatever dt the caller gives,

@@ -1,5 +1,5 @@
-"""Node tests: the DP observer's time policy, honest diagnostics and rate-aware parameters
-(issue 8). Every test runs on a simulated clock that only the test advances.
+"""Node tests: the DP observer's time policy, honest diagnostics and rate-aware parameters.
+Every test runs on a simulated clock that only the test advances.
 """
 
 from __future__ import annotations
@@ -53,9 +53,9 @@ class Observer:
 
 
 def test_one_future_pose_costs_itself_and_never_becomes_the_time_base(context, executor):
-    # Issue 8: one mocap/pose stamped 20 s ahead became the observer's time base: every good
-    # pose after it looked old and was dropped for 20 s, the estimate was one 20 s step, and
-    # the observer said "ok, age 0.0" all along.
+    # Before the time policy, one mocap/pose stamped 20 s ahead became the observer's time
+    # base: every good pose after it looked old and was dropped for 20 s, the estimate was one
+    # 20 s step, and the observer said "ok, age 0.0" all along.
     o = Observer(context, executor)
     o.poses(50)
     n = len(o.odoms)

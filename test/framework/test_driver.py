@@ -586,7 +586,7 @@ def test_watchdog_timeout_in_seconds_is_exact_in_nanoseconds():
         assert dog.timeout_ns == ns
 
 
-# -- command_timeout against the measured command rate (issue 8) ---------------------------
+# -- command_timeout against the measured command rate ------------------------------------
 
 def test_a_command_timeout_shorter_than_two_command_periods_is_refused_live(context, clock):
     """A timeout under the command period trips the watchdog between every two commands: the

@@ -29,7 +29,7 @@ def test_future_limit_is_inclusive_to_the_nanosecond() -> None:
 
 
 def test_a_future_sample_never_becomes_the_time_base() -> None:
-    """The issue's case: one sample 20 s ahead, then the good ones go on."""
+    """The case that made the policy: one sample 20 s ahead, then the good ones go on."""
     g = gate(0.02)
     period = 2_500_000  # 400 Hz
     assert g.offer(NOW, NOW) is A

@@ -131,8 +131,8 @@ def test_path_heading_is_checked_and_set_live(context, executor, spin):
 
 
 def test_a_future_estimate_costs_itself_and_is_reported(context, executor, spin):
-    # Issue 8: an estimate stamped 20 s ahead became the guidance's time base; the good
-    # estimates after it were "older" and got no reference.
+    # Before the time policy, an estimate stamped 20 s ahead became the guidance's time base;
+    # the good estimates after it were "older" and got no reference.
     from support.saucer import SimClock
     h = Harness(context, executor, spin)
     clock = SimClock(h.node, t0_ns=T0_NS + 20_000_000)

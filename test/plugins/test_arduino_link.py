@@ -1,7 +1,8 @@
 """Node tests: the arduino_pwm driver against the board's own firmware (host build) on a pty.
 
-Every fault of issue 9 is injected by the emulator (enbarr_plugins/arduino/emulator.py); the
-driver must report it, put the outputs neutral, reconnect with backoff and resume.
+Every fault of the board and its link in docs/hardware.md is injected by the emulator
+(enbarr_plugins/arduino/emulator.py); the driver must report it, put the outputs neutral,
+reconnect with backoff and resume.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """DualShock 4 evdev driver against its emulator: decoding (unit), check-device (unit and
-CLI), and the driver node with every fault of issue 9 (node).
+CLI), and the driver node with every device fault (node).
 """
 
 from __future__ import annotations

@@ -188,7 +188,7 @@ def test_sim_arduino_goes_neutral_when_duties_stop(context, executor, spin):
 
 def test_sim_arduino_refuses_a_command_timeout_shorter_than_two_duty_periods(
         context, executor):
-    # Issue 8: a timeout inside its range but shorter than the input's period is harmful
+    # A timeout inside its range but shorter than the input's period is harmful
     # (the outputs go neutral between every two duty messages); refuse it, saying why.
     from rclpy.parameter import Parameter
     from support.saucer import SimClock

@@ -1,4 +1,4 @@
-"""Node tests: the simulated motion capture under a truth stamped ahead (issue 8, Time)."""
+"""Node tests: the simulated motion capture under a truth stamped ahead."""
 
 from __future__ import annotations
 

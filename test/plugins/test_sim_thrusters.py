@@ -346,7 +346,7 @@ def test_watchdog_fires_on_wall_time_while_simulated_time_stands(context, execut
     assert not np.any(node.thrust)
 
 
-# -- the time policy (issue 8) ---------------------------------------------------------------
+# -- the time policy ------------------------------------------------------------------------
 
 def stamped(names: list[str], effort: float, stamp_ns: int) -> JointState:
     msg = JointState(name=list(names), effort=[effort] * len(names))

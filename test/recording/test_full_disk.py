@@ -1,4 +1,4 @@
-"""Recording to a full disk (issue 8, "Storage"), on a real tmpfs (``small_disk``).
+"""Recording to a full disk, on a real tmpfs (``small_disk``).
 
 The bag writer: a full disk is a ``BagStorageError`` (never a bare ``OSError``), the bag stays
 readable up to its last flush by the project's reader, ``rosbags`` and ``mcap``; the margin

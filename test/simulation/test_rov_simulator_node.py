@@ -245,7 +245,7 @@ def test_profile_vehicle_surge_coast_follows_the_quadratic_damping_solution(cont
     assert abs(u) < 0.6 * speed           # it really slowed down (2 s, quadratic drag)
 
 
-# -- thrust_timeout against the measured thrust period (issue 8: valid but harmful) ----------
+# -- thrust_timeout against the measured thrust period (valid but harmful) -------------------
 
 def test_a_thrust_timeout_shorter_than_two_thrust_periods_is_refused_live(context, executor):
     """A thrust_timeout under the period of sim/thrust drops tau to zero between every two

@@ -236,8 +236,8 @@ class DpHarness:
     def estimate(self, eta: Any, nu: Any = (0.0, 0.0, 0.0), age: float = 0.0) -> None:
         """One observer output, as the observer publishes it (age, bias, then odometry)."""
         self.t_odom += 20_000_000
-        # Stamped at the clock, as an observer in the process stamps (issue 8: nodes refuse
-        # stamps ahead of their clock): the clock moves up to the estimate when behind it.
+        # Stamped at the clock, as an observer in the process stamps (nodes refuse stamps
+        # ahead of their clock): the clock moves up to the estimate when behind it.
         if self.t_odom > self.clock.ns:
             self.clock.set(self.t_odom)
         self.age_pub.publish(Float64(data=age))
