@@ -34,8 +34,8 @@ setup(
     license='MIT',
     entry_points={
         'console_scripts': [
-            'enbarr = enbarr_core.bringup.cli:main',
-            'bringup = enbarr_core.bringup.cli:bringup_main',
+            'enbarr = enbarr_core.commands.main:main',
+            'bringup = enbarr_core.commands.main:bringup_main',
         ],
     },
 )

@@ -68,7 +68,7 @@ def main() -> int:
     args = p.parse_args()
     extra = [a for a in args.bringup_args if a != '--']
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
-    proc = subprocess.Popen([sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup',
+    proc = subprocess.Popen([sys.executable, '-m', 'enbarr_core.commands.main', 'bringup',
                              '--profile', args.profile, *extra], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

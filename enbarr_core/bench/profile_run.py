@@ -290,7 +290,7 @@ def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
            'PYTHONPATH': os.pathsep.join(p for p in (package_root,
                                                      os.environ.get('PYTHONPATH')) if p)}
     env.pop('ROS_LOCALHOST_ONLY', None)
-    cmd = [sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', '--profile', profile]
+    cmd = [sys.executable, '-m', 'enbarr_core.commands.main', 'bringup', '--profile', profile]
     for s in sets:
         cmd += ['--set', s]
     if bag is not None:

@@ -145,6 +145,6 @@ def _stop_children(procs: dict[str, subprocess.Popen[bytes]],
 
 def child_command(argv: Sequence[str]) -> Callable[[str], list[str]]:
     """Return the command that runs one group: this bringup's arguments plus ``--group``."""
-    return lambda group: [sys.executable, '-m', 'enbarr_core.bringup.cli', 'bringup', *argv,
+    return lambda group: [sys.executable, '-m', 'enbarr_core.commands.main', 'bringup', *argv,
                           '--group', group]
 

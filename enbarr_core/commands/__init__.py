@@ -12,7 +12,7 @@ way; node plugins are found the same way in ``enbarr_core.framework.registry``).
 raises ``EnbarrError`` for a user's mistake: the command line prints it as one line
 ``enbarr NAME: error: ...`` and exits 2.
 
-The command line (``enbarr_core.bringup.cli``) loads the commands by name; no command imports
+The command line (``enbarr_core.commands.main``) loads the commands by name; no command imports
 it back. Their shared argument checks live in ``enbarr_core.commands.arguments``.
 """
 
@@ -28,7 +28,7 @@ ENTRY_POINT_GROUP = 'enbarr.commands'
 
 #: name -> 'module:Class' of the commands this package ships, in the order ``--help`` lists.
 BUILTIN: dict[str, str] = {
-    'bringup': 'enbarr_core.bringup.cli:BringupCommand',
+    'bringup': 'enbarr_core.commands.bringup:BringupCommand',
     'list': 'enbarr_core.commands.listing:ListCommand',
     'scenario': 'enbarr_core.commands.scenario:ScenarioCommand',
     'chaos': 'enbarr_core.commands.chaos:ChaosCommand',

@@ -45,7 +45,7 @@ AUDITED = textwrap.dedent("""
         elif event in ('socket.connect', 'socket.bind', 'socket.sendto'):
             seen.append([event, repr(args[1])])
     sys.addaudithook(hook)
-    from enbarr_core.bringup.cli import main
+    from enbarr_core.commands.main import main
     try:
         code = main(sys.argv[1:])
     finally:

@@ -167,7 +167,7 @@ def run(argv: list[str], cwd: Path, key: tuple[str, ...] | None = None
     return result
 
 
-ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
+ENBARR = [sys.executable, '-m', 'enbarr_core.commands.main']
 
 
 def is_vessel(profile: str) -> bool:

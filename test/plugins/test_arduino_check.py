@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from enbarr_core.bringup.cli import main
+from enbarr_core.commands.main import main
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins.arduino import firmware
 from enbarr_plugins.arduino.emulator import ArduinoEmulator

@@ -176,7 +176,7 @@ def test_check_device_refuses_a_wrong_node_and_an_absent_one(monkeypatch):
 
 @pytest.mark.unit
 def test_check_device_through_the_cli(capsys):
-    from enbarr_core.bringup.cli import main
+    from enbarr_core.commands.main import main
     assert main(['check-device', 'ds4', '--device', 'emulated']) == 0
     assert 'Wireless Controller' in capsys.readouterr().out
     assert main(['check-device', 'ds4', '--device', '/dev/input/event99']) == 2

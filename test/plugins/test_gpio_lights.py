@@ -10,7 +10,7 @@ from support.devices import MockFactories, pass_time
 from support.nodes import TIMEOUT, add
 from support.rov import io_msg, io_probe
 
-from enbarr_core.bringup.cli import main
+from enbarr_core.commands.main import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.io import pins

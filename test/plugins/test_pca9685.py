@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from enbarr_core.bringup.cli import main
+from enbarr_core.commands.main import main
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget

@@ -21,7 +21,7 @@ from support.devices import (
 from support.nodes import add, probe, TIMEOUT
 from support.saucer import odometry_msg
 
-from enbarr_core.bringup.cli import main
+from enbarr_core.commands.main import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
 from enbarr_interfaces import convert, topics

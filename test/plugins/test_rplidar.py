@@ -20,7 +20,7 @@ from support.devices import (
     FAST_RECONNECT as FAST, NoisyPort, record_delays, record_faults, statuses, values)
 from support.nodes import add, probe, TIMEOUT
 
-from enbarr_core.bringup.cli import main
+from enbarr_core.commands.main import main
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_interfaces import topics
 from enbarr_plugins import emulation

@@ -759,7 +759,7 @@ def test_a_failed_metadata_write_leaves_the_previous_version(
 
 
 def test_enbarr_bag_repair_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from enbarr_core.bringup.cli import main
+    from enbarr_core.commands.main import main
     bag = tmp_path / 'run'
     write_bag(bag)
     data = (bag / 'run_0.mcap').read_bytes()

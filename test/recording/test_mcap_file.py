@@ -166,7 +166,7 @@ def test_rosbags_reads_an_open_bag_whose_file_has_no_summary(tmp_path: Path,
 
 def test_bag_repair_writes_the_index_of_a_bag_killed_between_summaries(
         tmp_path: Path, no_summary: None, capsys: pytest.CaptureFixture[str]) -> None:
-    from enbarr_core.bringup.cli import main
+    from enbarr_core.commands.main import main
     bag = tmp_path / 'run'
     writer = write_imu_bag(bag, 20, every=5)
     writer._file.mcap.abandon()  # the process dies: nothing more is written

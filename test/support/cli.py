@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 #: ``enbarr`` in this interpreter (the console script of an installed copy does the same).
-ENBARR = [sys.executable, '-m', 'enbarr_core.bringup.cli']
+ENBARR = [sys.executable, '-m', 'enbarr_core.commands.main']
 
 
 def enbarr(*args: str, cwd: Path | None = None, env: Mapping[str, str] | None = None,

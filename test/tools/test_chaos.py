@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from enbarr_core.bringup.cli import main as enbarr_main
+from enbarr_core.commands.main import main as enbarr_main
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError
 from enbarr_core.tools.chaos import judge, plan as chaos

@@ -24,7 +24,7 @@ NEUTRAL_LOG = re.compile(r'^\[WARN\] \[(\d+\.\d+)\] \[[^\]]+\]: [^\n]*neutral', 
 
 def enbarr_command(*args: str) -> list[str]:
     """``enbarr ARGS`` in this interpreter."""
-    return [sys.executable, '-m', 'enbarr_core.bringup.cli', *args]
+    return [sys.executable, '-m', 'enbarr_core.commands.main', *args]
 
 
 def neutral_log_times(text: str) -> list[tuple[int, bool]]:

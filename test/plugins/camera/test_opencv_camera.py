@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from enbarr_core.bringup import cli
+from enbarr_core.commands import main as cli
 from enbarr_core.framework.driver import ERROR
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
 from enbarr_core.framework.node import EnbarrNode

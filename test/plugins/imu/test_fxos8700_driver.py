@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from enbarr_core.bringup import cli
+from enbarr_core.commands import main as cli
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.kinematics import quat_from_euler, quat_to_rotmat
 from enbarr_interfaces import convert
