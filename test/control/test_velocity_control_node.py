@@ -301,10 +301,13 @@ def test_a_healthy_loop_reports_ok(context, executor, spin):
 
 
 @pytest.mark.parametrize('missing', [
-    'vehicle.mass', 'vehicle.inertia', 'vehicle.added_mass', 'vehicle.d_lin', 'vehicle.d_quad'])
-def test_the_feed_forward_model_comes_from_the_profile_only(context, missing):
-    """Vessel data has no default in the code: without it the loop refuses to start, naming
-    the parameter (bringup turns this into a ProfileError naming the file)."""
+    'vehicle.mass', 'vehicle.inertia', 'vehicle.added_mass', 'vehicle.d_lin', 'vehicle.d_quad',
+    'kp', 'ki', 'integral_limit', 'tau_max', 'reference_time_constant', 'max_accel',
+    'level_gain'])
+def test_the_model_and_the_tuning_come_from_the_profile_only(context, missing):
+    """Vessel data (the feed-forward model, and the gains, limits and reference model tuned
+    for that vehicle) has no default in the code: without it the loop refuses to start,
+    naming the parameter (bringup turns this into a ProfileError naming the file)."""
     given = {k: v for k, v in vehicle_parameters().items() if k != missing}
     with pytest.raises(ConfigurationError, match=(
             f"node 'control_loop': parameter '{missing}' is not set; the profile must give it")):

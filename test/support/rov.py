@@ -42,9 +42,12 @@ def sim_parameters(node: str | None = None) -> dict[str, Any]:
 
 
 def vehicle_parameters() -> dict[str, Any]:
-    """The vehicle model of ``params/enbarr_sim.yaml`` (``vehicle.*``): what the velocity loop
-    needs from the profile (it has no defaults)."""
-    return {k: v for k, v in sim_parameters().items() if k.startswith('vehicle.')}
+    """What the velocity loop needs from ``params/enbarr_sim.yaml`` (it has no defaults): the
+    vehicle model (``vehicle.*``) and its own tuning (the ``control_loop`` node's gains,
+    limits and reference model)."""
+    control = sim_parameters('control_loop')
+    own = {k: v for k, v in control.items() if k not in sim_parameters()}
+    return {**{k: v for k, v in control.items() if k.startswith('vehicle.')}, **own}
 
 
 def overrides(values: dict[str, Any]) -> list[Parameter]:
