@@ -30,13 +30,35 @@ def test_hot_runs_the_cycles_back_to_back() -> None:
     assert len(calls) == 50
 
 
-def test_paced_runs_one_cycle_per_period() -> None:
-    calls, loop = counting()
-    bench.paced_cycles(loop, rate=100.0, seconds=0.3)
+class FakeClock:
+    """Monotonic time that only sleeping moves: the pacing judged without the machine's
+    load (a sleep that runs late on a busy machine makes the next cycle catch up)."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
+
+def test_paced_runs_one_cycle_per_period(monkeypatch: pytest.MonkeyPatch) -> None:
+    clock = FakeClock()
+    for name in ('monotonic', 'sleep'):
+        monkeypatch.setattr(bench.time, name, getattr(clock, name))
+    calls: list[float] = []
+
+    def loop() -> Iterator[None]:
+        while True:
+            calls.append(clock.t)
+            clock.t += 0.004      # a cycle's own work: the sleep makes up the rest
+            yield
+    bench.paced_cycles(loop(), rate=100.0, seconds=0.3)
     assert len(calls) == 30
     gaps = [b - a for a, b in zip(calls, calls[1:])]
-    assert sum(gaps) >= 29 * 0.01 - 1e-3   # never faster than the rate (sleeps may run late)
-    assert min(gaps) > 0.002
+    assert gaps == pytest.approx([0.01] * 29)
 
 
 def test_paced_runs_at_least_twenty_cycles() -> None:

@@ -24,8 +24,9 @@ What each test proves, in this order:
    - ``python -m MODULE``: with the options of ``MODULE_RUNS`` (``--help``: it imports and
      has its command line).
 3. Skipped, each by its command line with the reason: what needs hardware or a toolchain
-   (``make`` in firmware/, ``apt-get``, ``check-device`` with a real port, bus, host or
-   device: parsed in step 1 all the same) and ``./dev test`` (this suite).
+   (``make`` in firmware/, ``apt-get``, ``ls`` of the serial devices plugged in,
+   ``check-device`` with a real port, bus, host or device: parsed in step 1 all the same) and
+   ``./dev test`` (this suite).
 
 A command no rule covers fails, naming itself: add a rule here, or fix the doc. Each run is
 made once per session (a second doc line with the same run reuses its result).
@@ -56,7 +57,7 @@ SH_BLOCK = re.compile(r'^```sh\n(.*?)^```', re.M | re.S)
 TIMEOUT = 120.0
 
 #: ``python -m MODULE`` in the docs -> the smallest options that run it through.
-MODULE_RUNS = {'enbarr_core.recording.bench': ['--help']}  # it runs for tens of seconds
+MODULE_RUNS: dict[str, list[str]] = {}  # none today: the benchmarks are `enbarr bench`
 
 
 @dataclass(frozen=True)
@@ -236,6 +237,7 @@ RUNS: dict[str, Callable[[list[str], argparse.Namespace, Path], str]] = {
 NOT_RUN = {
     ('make',): 'builds and flashes the Arduino: an AVR toolchain and a board',
     ('apt-get',): 'installs system packages',
+    ('ls', '-l', '/dev/serial/by-id/'): 'lists the USB serial devices plugged in: hardware',
     ('./dev', 'test'): 'the test suite itself',
 }
 
