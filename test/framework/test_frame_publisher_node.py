@@ -1,6 +1,7 @@
 """The live frame publisher where tf2_msgs is missing (a pip install): it says so once at
-INFO and publishes nothing. (Where tf2_msgs exists it publishes /tf_static and /tf; PyPI has
-no tf2_msgs wheel, so that path is not exercised here: see docs/interfaces.md.)
+INFO and publishes nothing. (Where tf2_msgs exists it publishes /tf_static and /tf: this
+process cannot import the tf2_msgs that the tests build, so test/e2e/test_frames_live_e2e.py
+checks that path from processes started with it.)
 """
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from rclpy.impl.rcutils_logger import RcutilsLogger
+import rclpy.logging
 
 from enbarr_core.framework import frame_publisher_node
 from enbarr_core.framework.errors import ConfigurationError
@@ -25,6 +26,7 @@ def test_without_tf2_msgs_it_says_so_once_and_publishes_nothing(
         context, executor, monkeypatch: pytest.MonkeyPatch) -> None:
     assert frame_publisher_node.tf_message_class() is None  # this environment: pip wheels
     said: list[str] = []
+    RcutilsLogger = type(rclpy.logging.get_logger('frames'))  # rclpy's logger class
     real = RcutilsLogger.info
     monkeypatch.setattr(RcutilsLogger, 'info', lambda self, m, **kw: (
         said.append(m) if self.name == 'frames' else real(self, m, **kw)))
