@@ -129,8 +129,11 @@ def missing_prerequisites() -> list[str]:
 
 
 def _first_line(*command: str) -> str:
-    out = subprocess.run(command, capture_output=True, text=True, check=False)
-    return (out.stdout or out.stderr).splitlines()[0] if (out.stdout or out.stderr) else ''
+    try:
+        out = subprocess.run(command, capture_output=True, text=True, check=False)
+    except OSError:
+        return ''   # not installed: missing_prerequisites() names it
+    return next(iter((out.stdout or out.stderr).splitlines()), '')
 
 
 def cache_key() -> str:
@@ -182,8 +185,9 @@ def _run(step: str, command: list[str], env: Mapping[str, str], log: Path) -> No
                                 stdin=subprocess.DEVNULL, check=False)
     if result.returncode != 0:
         tail = log.read_text(errors='replace')[-4000:]
-        raise BuildError(f'building tf2_msgs: {step} failed (exit {result.returncode}); the '
-                         f'generators come from requirements-test.txt; {log}:\n{tail}')
+        raise BuildError(f'building tf2_msgs: {step} failed (exit {result.returncode}; the '
+                         'generator wheels are in requirements-test.txt); the end of '
+                         f'{log}:\n{tail}')
 
 
 def build(prefix: Path, key: str) -> None:

@@ -26,8 +26,7 @@ from nav_msgs.msg import Odometry
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
-                       ReliabilityPolicy)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
 # The listener QoS of tf2_ros (tf2_ros/qos.hpp, Jazzy): DynamicListenerQoS is
@@ -38,6 +37,10 @@ DYNAMIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
 STATIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The estimate is offered best effort; a deep queue here keeps this process from dropping any.
+ESTIMATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                          reliability=ReliabilityPolicy.BEST_EFFORT,
+                          durability=DurabilityPolicy.VOLATILE)
 
 
 def emit(record: dict[str, Any]) -> None:
@@ -59,8 +62,7 @@ class Listener(Node):
         self.tf_count = 0
         self._static: Any = None
         self.create_subscription(TFMessage, '/tf', self._on_tf, DYNAMIC_LISTENER_QOS)
-        self.create_subscription(Odometry, '/observer/odometry', self._on_odom,
-                                 qos_profile_sensor_data)
+        self.create_subscription(Odometry, '/observer/odometry', self._on_odom, ESTIMATE_QOS)
 
     def _on_tf(self, msg: TFMessage) -> None:
         self.tf_count += 1
