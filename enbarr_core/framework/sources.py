@@ -36,7 +36,6 @@ import time
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.subscription import Subscription
 
 from enbarr_core.framework.health import ERROR
 
@@ -48,7 +47,14 @@ QUIET_S = 0.5
 class SourceGuard:
     """Watches one command subscription for competing publishers (see the module doc)."""
 
-    def __init__(self, node: Node, subscription: Subscription) -> None:
+    def __init__(self, node: Node, subscription: Any) -> None:
+        if not callable(getattr(subscription, 'get_publisher_count', None)):
+            # A link subscription (TopicSpec.fast) has no DDS reader to count writers: the rule
+            # would crash at the first message. Command topics stay on DDS.
+            raise TypeError(
+                f'{getattr(subscription, "topic_name", subscription)!r}: the single-source rule '
+                'needs a DDS subscription (it counts the matched writers); a command topic must '
+                'not be fast in the topic contract')
         self._node = node
         self._sub = subscription
         self.topic = subscription.topic_name

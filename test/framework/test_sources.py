@@ -72,3 +72,18 @@ def test_a_sequence_number_that_does_not_go_up_is_a_second_writer(monkeypatch: A
     assert not guard.contested({'publication_sequence_number': 1})
     assert not guard.contested({'publication_sequence_number': 2})
     assert not guard.contested(None)                     # no MessageInfo: the count alone
+
+
+def test_the_command_topics_stay_on_dds_where_writers_can_be_counted() -> None:
+    """The rule counts matched DDS writers: a command topic moved to the in-process link bus
+    (``fast``) would leave it nothing to count."""
+    for spec in (topics.SURFACE_TWIST, topics.SURFACE_IO, topics.JOY):
+        assert not spec.fast, spec.name
+
+
+def test_a_link_subscription_is_refused_with_the_reason(context: Any, executor: Any) -> None:
+    import pytest
+    node = probe(context, executor, 'receiver')
+    link = node.create_topic_subscription(topics.IMU_RAW, lambda m: None)  # a fast topic
+    with pytest.raises(TypeError, match='needs a DDS subscription'):
+        SourceGuard(node, link)

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import pytest
 
-from enbarr_core.bringup.orchestrator import build_nodes
+from enbarr_core.bringup.compose import build_nodes
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import ProfileError
 

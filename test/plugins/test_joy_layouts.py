@@ -105,7 +105,7 @@ def test_a_minus_sign_flips_an_axis():
     assert m.tau_manual.tolist() == pytest.approx([0.0, 0.0, -0.25])
 
 
-@pytest.mark.parametrize('dof, control', enumerate(('surge', 'sway', 'yaw')))
+@pytest.mark.parametrize('dof, control', list(enumerate(('surge', 'sway', 'yaw'))))
 def test_a_minus_sign_flips_its_own_axis_only(dof, control):
     mapping, _ = mapping_from_params({**SAUCER, f'joy.{control}': '-' + SAUCER[f'joy.{control}']})
     assert mapping.signs == tuple(-1.0 if i == dof else 1.0 for i in range(3))
