@@ -40,6 +40,7 @@ KEYS = {
     'diagnostic_msgs': 'diagnostic_msgs',
     'trajectory_msgs': 'trajectory_msgs',
     'ament_index_python': 'ament_index_python',
+    'tf2_msgs': 'tf2_msgs',
     # Python libraries (rosdistro rosdep/python.yaml)
     'numpy': 'python3-numpy',
     'scipy': 'python3-scipy',

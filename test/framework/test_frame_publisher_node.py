@@ -1,6 +1,7 @@
 """The live frame publisher where tf2_msgs is missing (a pip install): it says so once at
-INFO and publishes nothing. (Where tf2_msgs exists it publishes /tf_static and /tf; PyPI has
-no tf2_msgs wheel, so that path is not exercised here: see docs/interfaces.md.)
+INFO and publishes nothing. (Where tf2_msgs exists it publishes /tf_static and /tf: this
+process cannot import the tf2_msgs that the tests build, so test/e2e/test_frames_live_e2e.py
+checks that path from processes started with it.)
 """
 
 from __future__ import annotations
