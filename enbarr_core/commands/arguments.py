@@ -11,12 +11,8 @@ import math
 import textwrap
 from typing import Any
 
+from enbarr_core.framework.checks import MAX_SECONDS
 from enbarr_core.framework.errors import EnbarrError
-
-#: The longest time span a command takes [s]: 365 days. Beyond it a sleep or a timer
-#: overflows (threading's TIMEOUT_MAX, int64 nanoseconds), and no run means it: a run with
-#: no end is asked for by leaving the option out.
-MAX_SECONDS = 365 * 86_400.0
 
 #: The attribute of the parsed namespace that collects deprecation notices.
 NOTICES = 'deprecated_notices'

@@ -8,6 +8,11 @@ from typing import Any, Literal, overload
 
 import numpy as np
 
+#: The longest time span anything is asked to last [s]: 365 days (a command's duration, a
+#: scenario's). Beyond it a sleep or a timer overflows (threading's TIMEOUT_MAX, int64
+#: nanoseconds), and no run means it: a run with no end is asked for by leaving it out.
+MAX_SECONDS = 365 * 86_400.0
+
 
 def check_gain_vectors(settings: Any, names: Sequence[str], size: int, labels: str, *,
                        may_be_infinite: Sequence[str] = (),

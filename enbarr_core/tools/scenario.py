@@ -35,7 +35,7 @@ from pathlib import Path
 import time
 from typing import Any
 
-from enbarr_core.commands.arguments import MAX_SECONDS
+from enbarr_core.framework.checks import MAX_SECONDS
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
