@@ -209,6 +209,23 @@ def validate_as_parameters(settings: Validated, parameters: Mapping[str, str]) -
         raise ValueError(f'{parameters.get(field, field)}: {err}') from err
 
 
+def refuse_live_value(name: str, problem: Callable[[float], str | None]
+                      ) -> Callable[[list[Parameter]], SetParametersResult]:
+    """Return an on-set-parameters callback that refuses a float ``name`` with a reason.
+
+    ``problem(value)`` gives the reason, or None for a value that fits: a check against what
+    the node measures at run time, beside what ``build`` checks.
+    """
+    def check(params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name == name and isinstance(p.value, float):
+                reason = problem(p.value)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+    return check
+
+
 def _plain(value: Any) -> Any:
     """Rclpy hands arrays back as ``array.array``; make them lists."""
     if value is not None and not isinstance(value, (bool, int, float, str, list)):
