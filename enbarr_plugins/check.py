@@ -11,14 +11,22 @@ A check is ``check_device(target: CheckTarget) -> list[str]``: it opens the devi
 command), closes it and returns the lines to print. A device that is absent, silent or not
 what it should be raises ``DeviceError`` naming the port, bus, address or host and what was
 found. ``emulated`` as the port, bus, host or device starts this package's emulator of that
-device in the process and checks against it (the command's own test).
+device in the process and checks against it (the command's own test); ``device_endpoint``
+does that for an emulator that serves an endpoint (a pty, a loopback address).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 import importlib
-from typing import Callable
+from typing import Protocol, TypeVar
+
+from enbarr_plugins import emulation
+
+E = TypeVar('E')
+E_co = TypeVar('E_co', covariant=True)
 
 #: KIND -> 'module:function', the ``check_device`` of each device this package drives.
 #: One line per kind.
@@ -54,3 +62,33 @@ def checker(kind: str) -> Callable[[CheckTarget], list[str]]:
         raise KeyError(f'no device check {kind!r}; known: {", ".join(sorted(CHECKS))}')
     module_name, _, attr = CHECKS[kind].partition(':')
     return getattr(importlib.import_module(module_name), attr)
+
+
+class EndpointEmulator(Protocol[E_co]):
+    """An emulator that serves its device on an endpoint (a pty path, a loopback address)."""
+
+    def start(self) -> E_co:
+        """Serve the device; return the endpoint the driver opens."""
+
+    def stop(self) -> None:
+        """Stop serving; the endpoint closes."""
+
+
+@contextmanager
+def device_endpoint(value: str, endpoint: E,
+                    emulator: Callable[[], EndpointEmulator[E]]) -> Iterator[E]:
+    """Yield the endpoint a check opens: the device's own, or its emulator's.
+
+    ``endpoint`` is the device's; when ``value`` (the port, the host ...) is ``emulated``, the
+    emulator ``emulator()`` builds is started here and its endpoint yielded, and it is stopped
+    on the way out.
+    """
+    if not emulation.is_emulated(value):
+        yield endpoint
+        return
+    running = emulator()
+    served = running.start()
+    try:
+        yield served
+    finally:
+        running.stop()

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import os
 import sys
-import time
 from collections.abc import Callable, Iterator
 
 # Before anything imports rclpy: never leave the machine, never meet another run.
@@ -35,6 +34,7 @@ from pathlib import Path  # noqa: E402
 import subprocess  # noqa: E402
 
 import pytest  # noqa: E402
+from support.waiting import spin_until  # noqa: E402
 
 TIERS = ('unit', 'node', 'e2e')
 NODE_FIXTURES = frozenset({'context', 'executor'})
@@ -157,19 +157,7 @@ def executor(context: object) -> Iterator[object]:
         ex.shutdown()
 
 
-def spin_until(executor: object, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
-    """Spin ``executor`` until ``condition()`` holds or ``timeout`` [s] passes (never a fixed
-    sleep: cross-process discovery alone can take 2.5 s).
-    """
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        executor.spin_once(timeout_sec=0.05)
-    return condition()
-
-
 @pytest.fixture
 def spin() -> Callable[..., bool]:
-    """``spin_until``, as a fixture."""
+    """``spin_until`` (``support.waiting``), as a fixture."""
     return spin_until

@@ -30,8 +30,6 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.fastmsg import new
 
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.parameter import Parameter
 
 from enbarr_core.allocation.azimuth_allocation_node import MAX_FUTURE
 from enbarr_core.allocation.layout_params import declare_pwm_layout, PwmLayout
@@ -41,7 +39,7 @@ from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
     worst)
 from enbarr_core.framework.node import LatencyLog
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, refuse_live_value
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 
 
@@ -80,7 +78,8 @@ class PwmMapperNode(ActuatorDriver):
             'max_future', MAX_FUTURE.default, 'Commands stamped further ahead of the clock than '
             "this are refused (at least the observer's)", 's', 0.0, 0.5)],
             self._build_max_future, self._apply_max_future)
-        self.add_on_set_parameters_callback(self._check_command_timeout)
+        self.add_on_set_parameters_callback(
+            refuse_live_value('command_timeout', self._timeout_problem))
         self.azimuths = [a.name for a in self.settings.azimuths]
         self._index = {n: i for i, n in enumerate(self.azimuths)}
         self.channels = self.settings.channels
@@ -104,14 +103,6 @@ class PwmMapperNode(ActuatorDriver):
         return too_short_for_rate('command_timeout', timeout, topics.AZIMUTH_COMMANDS.name,
                                   self.command_period.period,
                                   'the outputs would go neutral between messages')
-
-    def _check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
-        for p in params:
-            if p.name == 'command_timeout' and isinstance(p.value, float):
-                problem = self._timeout_problem(p.value)
-                if problem:
-                    return SetParametersResult(successful=False, reason=problem)
-        return SetParametersResult(successful=True)
 
     def _refuse(self, reason: str) -> None:
         self.rejected += 1

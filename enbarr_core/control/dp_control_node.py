@@ -86,12 +86,12 @@ from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
     worst)
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, validate_as_parameters
 from enbarr_core.framework.sources import SourceGuard
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.guidance.guidance_node import msg_to_reference
 from enbarr_core.models.vessel3dof_params import (
-    vector3, VESSEL_SPECS, vessel_from_params)
+    vector3, VESSEL_PARAMETERS, VESSEL_SPECS, vessel_from_params)
 
 _XYN = '(surge, sway, yaw)'
 _ESTIMATES_KEPT = 8  # estimates kept to pair with their reference
@@ -131,8 +131,7 @@ SPECS = [
                 -1, 64) for name in INDEX_PARAMETERS),
     ParamSpec('joy.deadzone', 0.05, 'Stick dead zone', '', 0.0, 0.99),
 ]
-_PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', 'M': 'vessel.inertia',
-              'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
+_PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', **VESSEL_PARAMETERS}
 
 
 #: How far back a force's stamp may be and still be stamped after the last one sent [ns].
@@ -160,11 +159,7 @@ class DpControlNodeSettings:
             Kd=vector3(v, 'kd'), integral_limit=vector3(v, 'integral_limit'),
             tau_max=vector3(v, 'tau_max'), M=vessel.M, D=vessel.D, Dn=vessel.Dn,
             gain_ramp_time=v['gain_ramp_time'], bias_feedforward=v['bias_feedforward'])
-        try:
-            control.validate()
-        except ValueError as err:
-            field = str(err).split(':')[0]
-            raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
+        validate_as_parameters(control, _PARAMETER)
         mapping, loss_rule = mapping_from_params(v, v['joy.deadzone'])
         return cls(control, mapping, loss_rule, vector3(v, 'manual_tau_max'),
                    v['estimate_max_age'], v['joy_timeout'], v['max_future'])

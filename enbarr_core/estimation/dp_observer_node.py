@@ -54,10 +54,10 @@ from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, too_short_for_rate,
     worst)
 from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, validate_as_parameters
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.models.vessel3dof_params import (
-    vector3, VESSEL_SPECS, vessel_from_params)
+    vector3, VESSEL_PARAMETERS, VESSEL_SPECS, vessel_from_params)
 
 _XYN = '(x, y, psi)'
 SPECS = [
@@ -104,11 +104,7 @@ class DpObserverNodeSettings:
             K3=vector3(v, 'k3'), T_b=vector3(v, 't_b'),
             M=vessel.M, D=vessel.D, Dn=vessel.Dn, stale_after=v['stale_after'],
             max_position_jump=v['max_position_jump'], max_heading_jump=v['max_heading_jump'])
-        try:
-            s.validate()
-        except ValueError as err:
-            field = str(err).split(':')[0]
-            raise ValueError(f'{_PARAMETER.get(field, field)}: {err}') from err
+        validate_as_parameters(s, _PARAMETER)
         return cls(observer=s, rate=v['rate'], max_future=v['max_future'],
                    max_latency=v['max_latency'])
 
@@ -121,8 +117,7 @@ class DpObserverNodeSettings:
                                             topics.MOCAP_POSE.name))
 
 
-_PARAMETER = {'K1': 'k1', 'K2': 'k2', 'K3': 'k3', 'T_b': 't_b', 'M': 'vessel.inertia',
-              'D': 'vessel.linear_damping', 'Dn': 'vessel.nonlinear_damping'}
+_PARAMETER = {'K1': 'k1', 'K2': 'k2', 'K3': 'k3', 'T_b': 't_b', **VESSEL_PARAMETERS}
 
 
 class DpObserverNode(EnbarrNode):

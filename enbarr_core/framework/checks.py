@@ -51,6 +51,22 @@ def check_non_negative(settings: Any, names: Sequence[str]) -> None:
             raise ValueError(f'{name}: must be finite and non-negative, got {raw!r}')
 
 
+def number(name: str, value: Any, *, finite: bool = True) -> float:
+    """``value`` (a number, not a boolean) as a float, else ``ValueError`` naming ``name``.
+
+    ``finite`` refuses NaN and +/-inf.
+    """
+    if isinstance(value, bool):
+        raise ValueError(f'{name}: expected a number, got {value!r}')
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name}: expected a number, got {value!r}') from None
+    if finite and not math.isfinite(x):
+        raise ValueError(f'{name}: must be finite, got {x}')
+    return x
+
+
 @overload
 def floats(name: str, value: Any, n: Literal[3], *,
            finite: bool = True) -> tuple[float, float, float]: ...
@@ -85,18 +101,7 @@ def floats(name: str, value: Any, n: int | Sequence[int] | None = None, *,
     if lengths is not None and len(items) not in lengths:
         want = ' or '.join(str(k) for k in lengths)
         raise ValueError(f'{name}: expected {want} values, got {len(items)}')
-    numbers = []
-    for i, item in enumerate(items):
-        if isinstance(item, bool):
-            raise ValueError(f'{name}[{i}]: expected a number, got {item!r}')
-        try:
-            number = float(item)
-        except (TypeError, ValueError):
-            raise ValueError(f'{name}[{i}]: expected a number, got {item!r}') from None
-        if finite and not math.isfinite(number):
-            raise ValueError(f'{name}[{i}]: must be finite, got {number}')
-        numbers.append(number)
-    return tuple(numbers)
+    return tuple(number(f'{name}[{i}]', item, finite=finite) for i, item in enumerate(items))
 
 
 def vector(name: str, value: Any, n: int | Sequence[int], *,

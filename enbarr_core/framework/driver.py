@@ -50,7 +50,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.health import IntervalMeter, too_short_for_rate
-from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
+from enbarr_core.framework.node import EnbarrNode, RateLoop, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec
 
 #: How often a driver reports on ``/diagnostics`` [s].
@@ -175,6 +175,8 @@ class DeviceNode(EnbarrNode):
         self.faults = 0
         self.last_fault = ''
         self._report_ns = 0
+        self._open_loop: RateLoop | None = None
+        self._open_requested = False
         self._backoff = self.bind_settings(RECONNECT_SPECS, self._build_backoff,
                                            self._apply_backoff).settings
         self.create_periodic(self.supervision_period, self._supervise)
@@ -208,8 +210,32 @@ class DeviceNode(EnbarrNode):
         self.safe_state()
         super().start()
 
+    def open_on(self, loop: RateLoop) -> None:
+        """Open the device on ``loop``'s thread once the loop runs, never on the executor's.
+
+        For a driver whose open may block (a stalled bus, a camera): the first open, in
+        ``start`` before the loop runs, is made in place, so that an absent device is reported
+        at once; a later one (a reconnect) is left to the loop, whose callback calls
+        ``open_if_requested()`` while the device is not connected.
+        """
+        self._open_loop = loop
+
+    def open_if_requested(self) -> None:
+        """On the loop of ``open_on``: open the device now if a reconnect asked for it."""
+        if self._open_requested:
+            self._open_requested = False
+            self.connect()
+
     def connect(self) -> bool:
-        """Try to open the device now; on failure schedule a retry. True when connected."""
+        """Try to open the device now; on failure schedule a retry. True when connected.
+
+        With ``open_on``, a call from another thread than the running loop's only asks the
+        loop to open it (and returns False).
+        """
+        loop = self._open_loop
+        if loop is not None and loop.running and threading.current_thread().name != loop.name:
+            self._open_requested = True
+            return False
         try:
             self.open_device()
         except DeviceError as err:

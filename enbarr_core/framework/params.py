@@ -31,7 +31,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
 import re
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
@@ -187,6 +187,43 @@ class SettingsBinding(Generic[S]):
         if self._pending is not None and any(p.name in self.specs for p in params):
             self.settings, self._pending = self._pending, None
             self._apply(self.settings)
+
+
+class Validated(Protocol):
+    """Settings that check themselves: ``validate`` raises a ValueError starting 'field: '."""
+
+    def validate(self) -> None:
+        """Raise ``ValueError('field: reason')`` when the settings do not hold together."""
+
+
+def validate_as_parameters(settings: Validated, parameters: Mapping[str, str]) -> None:
+    """``settings.validate()``, its ``ValueError`` naming the parameter of the field it is about.
+
+    ``parameters`` maps a field to its parameter (``{'Kp': 'kp', 'M': 'vessel.inertia'}``); a
+    field it does not list is named as it is.
+    """
+    try:
+        settings.validate()
+    except ValueError as err:
+        field = str(err).split(':')[0]
+        raise ValueError(f'{parameters.get(field, field)}: {err}') from err
+
+
+def refuse_live_value(name: str, problem: Callable[[float], str | None]
+                      ) -> Callable[[list[Parameter]], SetParametersResult]:
+    """Return an on-set-parameters callback that refuses a float ``name`` with a reason.
+
+    ``problem(value)`` gives the reason, or None for a value that fits: a check against what
+    the node measures at run time, beside what ``build`` checks.
+    """
+    def check(params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name == name and isinstance(p.value, float):
+                reason = problem(p.value)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+    return check
 
 
 def _plain(value: Any) -> Any:

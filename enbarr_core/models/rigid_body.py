@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from enbarr_core.framework.checks import vector
+from enbarr_core.framework.checks import number, vector
 from enbarr_core.framework.kinematics import (
     quat_from_euler,
     quat_normalize,
@@ -50,18 +50,6 @@ _Six = tuple[float, float, float, float, float, float]  # a 6-DOF vector as floa
 
 # Relative tolerance of the symmetry check on a full 3x3 inertia matrix.
 _SYMMETRY_RTOL = 1e-9
-
-
-def _finite_scalar(name: str, value: Any) -> float:
-    if isinstance(value, bool):
-        raise ValueError(f'{name}: expected a number, got {value!r}')
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f'{name}: expected a number, got {value!r}') from None
-    if not math.isfinite(x):
-        raise ValueError(f'{name}: must be finite, got {x}')
-    return x
 
 
 def _shape(value: Any) -> tuple[int, ...] | None:
@@ -145,13 +133,13 @@ class RigidBodyParams:
 
     def validate(self) -> None:
         """Raise ValueError, starting with the field name, if a parameter is non-physical."""
-        mass = _finite_scalar('mass', self.mass)
+        mass = number('mass', self.mass)
         if mass <= 0.0:
             raise ValueError(f'mass: must be > 0 kg, got {mass}')
-        gravity = _finite_scalar('gravity', self.gravity)
+        gravity = number('gravity', self.gravity)
         if gravity <= 0.0:
             raise ValueError(f'gravity: must be > 0 m/s^2, got {gravity}')
-        buoyancy = _finite_scalar('buoyancy', self.buoyancy)
+        buoyancy = number('buoyancy', self.buoyancy)
         if buoyancy < 0.0:
             raise ValueError(f'buoyancy: must be >= 0 N, got {buoyancy}')
         r_g = vector('r_g', self.r_g, (3,), finite=True)
@@ -195,7 +183,7 @@ class RigidBodyParams:
                 raise ValueError(f'{f.name}: missing')
             value = d[f.name]
             if f.name in ('mass', 'buoyancy', 'gravity'):
-                kwargs[f.name] = _finite_scalar(f.name, value)
+                kwargs[f.name] = number(f.name, value)
             else:
                 if f.name == 'inertia' and _shape(value) == (3, 3):
                     value = np.ravel(value)  # a nested 3x3 list is row-major too

@@ -13,10 +13,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from enbarr_core.framework.checks import floats
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, validate_as_parameters
 from enbarr_core.models.vessel3dof import Vessel3DofParams
 
-_PARAMETER = {'M': 'inertia', 'D': 'linear_damping', 'Dn': 'nonlinear_damping'}
+#: The parameter of each vessel model field, for settings that carry the model (M, D, Dn).
+VESSEL_PARAMETERS = {'M': 'vessel.inertia', 'D': 'vessel.linear_damping',
+                     'Dn': 'vessel.nonlinear_damping'}
 
 VESSEL_SPECS = [
     ParamSpec('vessel.inertia', [0.0, 0.0, 0.0], 'Inertia M = M_RB + M_A, diagonal (surge, '
@@ -35,11 +37,7 @@ def vessel_from_params(v: Mapping[str, Any]) -> Vessel3DofParams:
         M=vector3(v, 'vessel.inertia'),
         D=vector3(v, 'vessel.linear_damping'),
         Dn=vector3(v, 'vessel.nonlinear_damping'))
-    try:
-        params.validate()
-    except ValueError as err:
-        field = str(err).split(':')[0]
-        raise ValueError(f'vessel.{_PARAMETER[field]}: {err}') from err
+    validate_as_parameters(params, VESSEL_PARAMETERS)
     return params
 
 

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
 from enbarr_core.allocation.azimuth import PwmCalibration
@@ -57,15 +55,6 @@ class DutyInput:
         """Why ``command_timeout`` [s] is too short for the measured duty period, or None."""
         return too_short_for_rate('command_timeout', command_timeout, topics.PWM_DUTY.name,
                                   self.period.period, _BETWEEN)
-
-    def check_command_timeout(self, params: list[Parameter]) -> SetParametersResult:
-        """Refuse a live ``command_timeout`` under two measured duty periods."""
-        for p in params:
-            if p.name == 'command_timeout' and isinstance(p.value, float):
-                problem = self.timeout_problem(p.value)
-                if problem:
-                    return SetParametersResult(successful=False, reason=problem)
-        return SetParametersResult(successful=True)
 
     def status(self, command_timeout: float,
                report_problem: Callable[[str], None]) -> tuple[int, str]:

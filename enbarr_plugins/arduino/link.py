@@ -50,7 +50,7 @@ from enbarr_core.allocation.layout_params import AZIMUTHS, pwm_layout_specs, Pwm
 from enbarr_core.framework.driver import ActuatorDriver, WARN
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.health import OK, worst
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, refuse_live_value
 from enbarr_interfaces import topics
 from enbarr_plugins import emulation
 from enbarr_plugins.arduino.common import DutyInput
@@ -465,7 +465,8 @@ class ArduinoPwmNode(ActuatorDriver):
         self.device = self.settings.port
         self.sessions = 0
         self.duties = DutyInput(self.calibration, CHANNELS)
-        self.add_on_set_parameters_callback(self.duties.check_command_timeout)
+        self.add_on_set_parameters_callback(
+            refuse_live_value('command_timeout', self.duties.timeout_problem))
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
 
     @property

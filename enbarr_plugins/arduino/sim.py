@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray
 from enbarr_core.allocation.layout_params import declare_pwm_layout, PwmLayout
 from enbarr_core.framework.driver import ActuatorDriver
 from enbarr_core.framework.health import worst
+from enbarr_core.framework.params import refuse_live_value
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.arduino.common import DutyInput
@@ -40,7 +41,8 @@ class SimArduinoNode(ActuatorDriver):
         self.calibration = self.settings.calibration
         self.channels = 2 * len(self.names)  # motor, servo per azimuth
         self.duties = DutyInput(self.calibration, self.channels)
-        self.add_on_set_parameters_callback(self.duties.check_command_timeout)
+        self.add_on_set_parameters_callback(
+            refuse_live_value('command_timeout', self.duties.timeout_problem))
         self._pub = self.create_topic_publisher(topics.SIM_AZIMUTH_COMMAND)
         self.create_topic_subscription(topics.PWM_DUTY, self._on_duty)
 

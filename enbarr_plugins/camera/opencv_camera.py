@@ -98,7 +98,6 @@ class CameraNode(SensorDriver):
         self._cap: Any = None
         self._cap_lock = threading.Lock()
         self._reading = False
-        self._open_requested = False
         self._last_frame_ns = 0
         self._size_warned = False
         self.ended = False
@@ -106,19 +105,13 @@ class CameraNode(SensorDriver):
         self.stalls = 0
         self.description = ''
         self._loop = self.create_rate_loop(s.frame_rate, self._tick)
+        self.open_on(self._loop)  # opening a source may block: never on the executor
 
     def _apply(self, settings: CameraSettings) -> None:
         self.settings = settings
         self._stall_ns = int(settings.stall_timeout * 1e9)
 
     # -- device lifecycle ---------------------------------------------------------------------
-    def connect(self) -> bool:
-        """Open the source on the capture thread once it runs (opening may block)."""
-        if self._loop.running and threading.current_thread().name != self._loop.name:
-            self._open_requested = True
-            return False
-        return super().connect()
-
     def open_device(self) -> None:
         """Open the source and note what it gives."""
         s = self.settings
@@ -149,9 +142,7 @@ class CameraNode(SensorDriver):
     # -- capture thread -----------------------------------------------------------------------
     def _tick(self) -> None:
         if not self.connected:
-            if self._open_requested:
-                self._open_requested = False
-                super().connect()
+            self.open_if_requested()
             return
         with self._cap_lock:
             cap = self._cap

@@ -29,7 +29,6 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
-import threading
 import time
 from typing import Any, TypeVar
 
@@ -298,26 +297,19 @@ class I2cImuNode(SensorDriver):
         self._mag_pub = self.create_topic_publisher(topics.IMU_MAG)
         self._bus: Bus | None = None
         self._chips: ImuChips | None = None
-        self._open_requested = False
         self._last_new_ns = 0
         self._corrupt_run = 0
         self.no_data = 0     # polls with no new sample
         self.corrupted = 0   # reads dropped as corrupted
         self.identity = ''
         self._loop = self.create_rate_loop(s.rate, self._tick)
+        self.open_on(self._loop)  # see the module docstring
 
     def _apply(self, settings: Any) -> None:
         self.settings = settings
         self._data_timeout_ns = int(settings.data_timeout * 1e9)
 
     # -- device lifecycle ---------------------------------------------------------------------
-    def connect(self) -> bool:
-        """Open the device on the loop thread once it runs (see the module docstring)."""
-        if self._loop.running and threading.current_thread().name != self._loop.name:
-            self._open_requested = True
-            return False
-        return super().connect()
-
     def open_device(self) -> None:
         """Open the bus, check the identities and configure the chips."""
         s = self.settings
@@ -346,9 +338,7 @@ class I2cImuNode(SensorDriver):
     def _tick(self) -> None:
         chips = self._chips
         if not self.connected or chips is None:
-            if self._open_requested:
-                self._open_requested = False
-                super().connect()
+            self.open_if_requested()
             return
         try:
             sample = chips.read()

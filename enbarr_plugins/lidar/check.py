@@ -12,8 +12,7 @@ import time
 import numpy as np
 
 from enbarr_core.framework.errors import DeviceError
-from enbarr_plugins import emulation
-from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.check import CheckTarget, device_endpoint
 from enbarr_plugins.lidar.rplidar import (
     handshake, set_motor, stable_name_advice, start_scan, stop)
 from enbarr_plugins.lidar.rplidar_emulator import RplidarEmulator
@@ -25,14 +24,7 @@ from enbarr_plugins.transport.serial_link import open_serial
 def check_device(target: CheckTarget) -> list[str]:
     """``enbarr check-device rplidar --port PORT``: identity, health, one revolution."""
     port = target.port or '/dev/ttyUSB0'
-    emulator = None
-    if emulation.is_emulated(port):
-        emulator = RplidarEmulator()
-        emulator.start()
-        path = emulator.path
-    else:
-        path = port
-    try:
+    with device_endpoint(port, port, RplidarEmulator) as path:
         try:
             ser = open_serial(path, BAUDRATE, timeout=0.05)
         except DeviceError as err:
@@ -56,9 +48,6 @@ def check_device(target: CheckTarget) -> list[str]:
             set_motor(ser, port, False)
         finally:
             ser.close()
-    finally:
-        if emulator is not None:
-            emulator.stop()
     rev = revs[0]
     hits = rev.distance_mm > 0
     lines = [f'{port}: {info.describe()}', f'{port}: {health.describe()}'

@@ -15,8 +15,7 @@ from typing import Any
 import qtm_rt
 
 from enbarr_core.framework.errors import DeviceError
-from enbarr_plugins import emulation
-from enbarr_plugins.check import CheckTarget
+from enbarr_plugins.check import CheckTarget, device_endpoint
 from enbarr_plugins.mocap.qtm_emulator import QtmEmulator
 from enbarr_plugins.mocap.qtm_protocol import DEFAULT_PORT
 from enbarr_plugins.mocap.qualisys import (
@@ -31,21 +30,15 @@ def check_device(target: CheckTarget) -> list[str]:
     if not target.host:
         raise DeviceError("qualisys: give --host (the QTM computer's address) or emulated")
     host, port = parse_host(target.host)
-    emulator = None
-    if emulation.is_emulated(host):
-        emulator = QtmEmulator()
-        host, port = emulator.start()
-    port = port or DEFAULT_PORT
     # qtm-rt logs its own lines (connected, disconnected, the error it met); the check says
     # what went wrong in its one line, as every check-device does
     qtm_log = logging.getLogger('qtm_rt')
     propagate, qtm_log.propagate = qtm_log.propagate, False
     try:
-        return asyncio.run(_check(host, port, target))
+        with device_endpoint(host, (host, port), QtmEmulator) as (host, port):
+            return asyncio.run(_check(host, port or DEFAULT_PORT, target))
     finally:
         qtm_log.propagate = propagate
-        if emulator is not None:
-            emulator.stop()
 
 
 async def _check(host: str, port: int, target: CheckTarget) -> list[str]:

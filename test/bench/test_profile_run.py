@@ -20,6 +20,7 @@ from mcap.writer import Writer
 import pytest
 
 from support.cli import enbarr, refused
+from support.processes import split_profile
 
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError
@@ -219,15 +220,7 @@ def test_bench_profile_runs_a_recorded_profile() -> None:
     assert r['machine']
 
 
-SPLIT_PROFILE = """
-include: [enbarr_sim]
-nodes:
-  filtering: {group: control}
-  control_loop: {group: control}
-  thruster_converter: {group: control}
-groups:
-  control: {}
-"""
+SPLIT_PROFILE = split_profile()
 
 
 @pytest.mark.e2e

@@ -342,11 +342,12 @@ CENTRED_AZIMUTHS = """
 
 
 def test_cross_check_error_names_the_users_file(tmp_path: Path) -> None:
-    # Before the fix: 'saucer_core.yaml: parameters.azimuth_names: ... cannot produce yaw',
+    # A layout that cannot yaw is refused (exit 2, one line, no traceback), naming the user's
+    # file. Before the fix: 'saucer_core.yaml: parameters.azimuth_names: ... cannot produce yaw',
     # the included file, which the user never touched.
     path = write(tmp_path / 'centred.yaml', CENTRED_AZIMUTHS)
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
-    assert 'cannot produce yaw' in line
+    assert 'cannot produce yaw' in line and 'azimuth' in line
     assert f'{path}: parameters.azimuths.az_bow.position' in line, line
 
 

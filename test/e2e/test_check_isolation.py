@@ -26,7 +26,7 @@ import time
 import pytest
 from support.bags import read_bag
 from support.cli import ENBARR, enbarr
-from support.processes import Output
+from support.processes import bringup
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -196,13 +196,9 @@ def test_a_check_and_a_refused_run_leave_a_running_vessel_in_guidance(tmp_path: 
     # Generous staleness limits: on a loaded machine the other processes' start can starve
     # the vessel of CPU long enough to trip the joystick or estimate timeout, which is not
     # what this test is about (a contested joystick and a latched mode do not wait for them).
-    vessel = subprocess.Popen([*ENBARR, 'bringup', '--profile', 'saucer_sim', '--output',
-                               str(bag), '--set', 'dp_control.joy_timeout=5.0', '--set',
-                               'dp_control.estimate_max_age=5.0'],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              start_new_session=True)
-    out = Output(vessel)
-    try:
+    with bringup('--profile', 'saucer_sim', '--output', str(bag), '--set',
+                 'dp_control.joy_timeout=5.0', '--set',
+                 'dp_control.estimate_max_age=5.0') as (vessel, out):
         out.wait_for(r'mode automatic -> guidance', 120)  # 20 s into the script
         mark = len(out.lines)
         t0 = time.time_ns()
@@ -216,10 +212,6 @@ def test_a_check_and_a_refused_run_leave_a_running_vessel_in_guidance(tmp_path: 
         assert vessel.poll() is None
         vessel.send_signal(signal.SIGINT)
         assert vessel.wait(timeout=60) == 0, out.text[-3000:]
-    finally:
-        if vessel.poll() is None:
-            os.killpg(vessel.pid, signal.SIGKILL)
-            vessel.wait()
     after = ''.join(out.lines[mark:])
     assert 'contested' not in after and 'mode guidance ->' not in after, after[-3000:]
     recorded = read_bag(bag)

@@ -6,49 +6,19 @@ fought over the same topics (a vehicle followed the other run's commands against
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
 import time
 from pathlib import Path
 
-from support.processes import Output
-from support.cli import ENBARR
+from support.processes import bringup, split_profile, stop
 
-SPLIT_PROFILE = """
-include: [enbarr_sim]
-nodes:
-  filtering: {group: control}
-  control_loop: {group: control}
-  thruster_converter: {group: control}
-groups:
-  control: {restart_limit: 1, restart_delay: 0.2}
-"""
-
-
-def start(*args: str) -> tuple[subprocess.Popen[str], Output]:
-    proc = subprocess.Popen([*ENBARR, 'bringup', *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    return proc, Output(proc)
-
-
-def stop(proc: subprocess.Popen[str]) -> int:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-    return proc.wait()
+SPLIT_PROFILE = split_profile({'restart_limit': 1, 'restart_delay': 0.2})
 
 
 def test_second_bringup_of_a_profile_is_refused_before_it_starts() -> None:
-    first, first_out = start('--profile', 'enbarr_sim')
-    second = None
-    try:
+    with bringup('--profile', 'enbarr_sim') as (first, first_out):
         first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # the first one drives
-        second, second_out = start('--profile', 'enbarr_sim')
-        rc = second.wait(timeout=90)
+        with bringup('--profile', 'enbarr_sim') as (second, second_out):
+            rc = second.wait(timeout=90)
         time.sleep(0.3)
         text = second_out.text
         assert rc == 2, text[-3000:]
@@ -61,18 +31,14 @@ def test_second_bringup_of_a_profile_is_refused_before_it_starts() -> None:
         first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 30, mark)  # the first drives on
         assert first.poll() is None
         assert 'must stop' not in first_out.text
-    finally:
-        if second is not None:
-            stop(second)
         assert stop(first) == 0
 
 
 def test_one_of_two_simultaneous_bringups_stops(tmp_path: Path) -> None:
     # Started together, they may miss each other at start (discovery is 0.2 s or 2.5 s):
     # then their claims decide, the later one stops. Either way they do not both run.
-    a, a_out = start('--profile', 'enbarr_sim')
-    b, b_out = start('--profile', 'enbarr_sim')
-    try:
+    with bringup('--profile', 'enbarr_sim') as (a, a_out), \
+            bringup('--profile', 'enbarr_sim') as (b, b_out):
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and a.poll() is None and b.poll() is None:
             time.sleep(0.2)
@@ -82,7 +48,6 @@ def test_one_of_two_simultaneous_bringups_stops(tmp_path: Path) -> None:
         for p, out in ((a, a_out), (b, b_out)):
             if p.poll() is not None:
                 assert p.returncode == 2 and 'Traceback' not in out.text, out.text[-3000:]
-    finally:
         for p in (a, b):
             stop(p)
 
@@ -92,12 +57,10 @@ def test_groups_of_one_split_profile_are_not_duplicates(tmp_path: Path) -> None:
     # the first one's own groups never refuse each other.
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
-    first, first_out = start('--profile', str(profile))
-    try:
+    with bringup('--profile', str(profile)) as (first, first_out):
         first_out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)
-        second, second_out = start('--profile', str(profile))
-        assert second.wait(timeout=90) == 2, second_out.text[-3000:]
+        with bringup('--profile', str(profile)) as (second, second_out):
+            assert second.wait(timeout=90) == 2, second_out.text[-3000:]
         assert 'refusing to start a second vessel' in second_out.text
         assert first.poll() is None
-    finally:
         assert stop(first) == 0

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import signal
 import subprocess
-import time
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +15,7 @@ import pytest
 import yaml
 from support.bags import read_bag, stamp
 from support.cli import ENBARR
+from support.waiting import wait_until
 
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.control import command_receiver_node, velocity_control_node
@@ -24,15 +24,6 @@ from enbarr_core.simulation import rov_simulator_node
 from enbarr_plugins.thrusters import sim as sim_thrusters
 
 DRIVE_SCRIPT = "surface.script=['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.2']"
-
-
-def _wait_for(cond: Any, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f'timed out after {timeout} s waiting for {what}')
 
 
 def _flushed(bag: Path, seconds: float = 0.0) -> bool:
@@ -396,7 +387,7 @@ def test_signal_leaves_thrusters_neutral(tmp_path: Path, sig: signal.Signals) ->
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--output', str(bag), '--set',
          DRIVE_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        _wait_for(lambda: _flushed(bag, 2.0), 60, 'two seconds flushed (three flushes)')
+        wait_until(lambda: _flushed(bag, 2.0), 60, 'two seconds flushed (three flushes)')
         proc.send_signal(sig)
         log, _ = proc.communicate(timeout=30)
     finally:
@@ -412,7 +403,7 @@ def test_sigkill_leaves_a_readable_bag(tmp_path: Path) -> None:
         [*ENBARR, 'bringup', '--profile', 'enbarr_sim', '--output', str(bag)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        _wait_for(lambda: _flushed(bag, 1.0), 60, 'a second flushed (two flushes)')
+        wait_until(lambda: _flushed(bag, 1.0), 60, 'a second flushed (two flushes)')
     finally:
         proc.kill()
         proc.wait()

@@ -17,24 +17,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.processes import Output
 from support.bags import read_bag
 from support.cli import ENBARR
+from support.processes import bringup, DRIVE_AHEAD, split_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 
-SPLIT_PROFILE = """
-include: [enbarr_sim]
-nodes:
-  filtering: {group: control}
-  control_loop: {group: control}
-  thruster_converter: {group: control}
-  surface:
-    parameters:
-      script: ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0']
-groups:
-  control: {restart_limit: 1, restart_delay: 0.2}
-"""
+RESTART_ONCE = {'restart_limit': 1, 'restart_delay': 0.2}
+SPLIT_PROFILE = split_profile(RESTART_ONCE, surface=DRIVE_AHEAD)
 
 
 @dataclass(frozen=True)
@@ -56,11 +46,7 @@ def crash_run(tmp_path_factory: pytest.TempPathFactory) -> CrashRun:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
-                             str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    out = Output(proc)
-    try:
+    with bringup('--profile', str(profile), '--output', str(bag)) as (proc, out):
         pid = int(out.wait_for(r'group control started \(pid (\d+)\)', 60).group(1))
         # The chain crosses processes (DDS): wait until thrust is applied.
         out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
@@ -72,10 +58,6 @@ def crash_run(tmp_path_factory: pytest.TempPathFactory) -> CrashRun:
         second = len(out.lines)
         os.kill(pid2, signal.SIGKILL)
         exit_code = proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     time.sleep(0.5)  # the reader thread takes the last lines
     leftover = subprocess.run(['pgrep', '-f', f'--profile {profile}'],
                               capture_output=True).stdout
@@ -130,20 +112,12 @@ def test_sigint_stops_every_group(tmp_path: Path) -> None:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
-                             str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    out = Output(proc)
-    try:
+    with bringup('--profile', str(profile), '--output', str(bag)) as (proc, out):
         out.wait_for(r'group control started', 60)
         out.wait_for(r'group main started', 60)
         out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=60) == 0
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     time.sleep(0.5)
     out.wait_for(r'SIGINT received', 5)
     assert 'died' not in out.text  # a requested stop is not a crash
@@ -218,8 +192,9 @@ def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> 
             in check.stdout)
 
 
-# -- every wait of the supervisor serves a stop request -------------------------------------
-LONG_DELAY_PROFILE = SPLIT_PROFILE.replace('restart_delay: 0.2', 'restart_delay: 3600')
+# -- every wait of the supervisor serves a stop request --------------------------------------
+LONG_DELAY_PROFILE = split_profile({**RESTART_ONCE, 'restart_delay': 3600},
+                                   surface=DRIVE_AHEAD)
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
@@ -228,11 +203,7 @@ def test_stop_request_is_served_during_a_long_restart_delay(tmp_path: Path, sig:
     # signal with restart_delay 3600.
     profile = tmp_path / 'split.yaml'
     profile.write_text(LONG_DELAY_PROFILE)
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-    out = Output(proc)
-    try:
+    with bringup('--profile', str(profile)) as (proc, out):
         pid = int(out.wait_for(r'group control started \(pid (\d+)\)', 60).group(1))
         out.wait_for(r'group main started', 60)
         out.wait_for(r'thrust +[1-9]\d*\.\d N', 60)
@@ -244,10 +215,6 @@ def test_stop_request_is_served_during_a_long_restart_delay(tmp_path: Path, sig:
         out.wait_for(rf'{signal.Signals(sig).name} received', 1.0 + 2.0)  # 2 s of slack: load
         rc = proc.wait(timeout=30)  # main still stops through its own safe state
         took = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     # A group died on the way: the run ends with problems, naming it, though the stop itself
     # went as asked (it used to exit 0 as if nothing had happened).
     assert rc == 3, out.text[-3000:]
@@ -309,8 +276,8 @@ def test_a_group_that_ends_with_problems_fails_the_supervisor(tmp_path: Path) ->
     (dist / 'entry_points.txt').write_text(
         '[enbarr.nodes]\nproblem_probe = problem_plugin:ProblemNode\n')
     profile = tmp_path / 'split.yaml'
-    profile.write_text(SPLIT_PROFILE.replace(
-        'nodes:\n', 'nodes:\n  probe: {plugin: problem_probe, group: control}\n', 1))
+    profile.write_text(split_profile(RESTART_ONCE, surface=DRIVE_AHEAD,
+                                     probe={'plugin': 'problem_probe', 'group': 'control'}))
     env = {**os.environ,
            'PYTHONPATH': os.pathsep.join([str(tmp_path), str(ROOT),
                                           os.environ.get('PYTHONPATH', '')])}

@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -140,22 +139,6 @@ def test_real_saucer_profile_validates() -> None:
                           capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert 'saucer.yaml: ok' in proc.stdout
-
-
-def test_azimuth_layout_that_cannot_yaw_is_refused(tmp_path: Path) -> None:
-    profile = tmp_path / 'noyaw.yaml'
-    profile.write_text(textwrap.dedent("""
-        include: [saucer_sim]
-        parameters:
-          azimuths:
-            az_bow: {position: [0.0, 0.0]}
-            az_port_aft: {position: [0.0, 0.0]}
-            az_stbd_aft: {position: [0.0, 0.0]}
-        """))
-    proc = subprocess.run([*ENBARR, 'bringup', '--profile', str(profile), '--check'],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
-    assert 'yaw' in proc.stderr and 'azimuth' in proc.stderr
 
 
 def test_saucer_sim_duration_end_leaves_pwm_neutral(tmp_path: Path) -> None:

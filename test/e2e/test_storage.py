@@ -22,7 +22,8 @@ from recording.small_disk import small_disk
 
 from e2e.test_groups import SPLIT_PROFILE
 from enbarr_interfaces.convert import stamp_to_ns
-from support.processes import Output
+from support.processes import bringup
+from support.waiting import poll_until
 
 MB = 1_000_000
 
@@ -33,12 +34,8 @@ def pgrep(pattern: str) -> list[int]:
 
 
 def wait_gone(pattern: str, timeout: float) -> list[int]:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        left = pgrep(pattern)
-        if not left:
-            return []
-        time.sleep(0.2)
+    """The processes ``pattern`` matches that are left after waiting ``timeout`` [s]."""
+    poll_until(lambda: not pgrep(pattern), timeout, step=0.2)
     return pgrep(pattern)
 
 
@@ -58,21 +55,18 @@ def orphan_run(tmp_path_factory: pytest.TempPathFactory) -> OrphanRun:
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
     bag = tmp_path / 'bag'
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile), '--output',
-                             str(bag)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    out = Output(proc)
     pattern = f'--profile {profile}'
-    try:
-        out.wait_for(r'group recorder started', 60)
-        out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # driving across processes
-        kill_ns = time.time_ns()
-        proc.kill()  # the supervisor only: the groups get PDEATHSIG
-        proc.wait()
-        leftover = wait_gone(pattern, 60)
-    finally:
-        for pid in pgrep(pattern):
-            os.kill(pid, signal.SIGKILL)
+    with bringup('--profile', str(profile), '--output', str(bag)) as (proc, out):
+        try:
+            out.wait_for(r'group recorder started', 60)
+            out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # driving across processes
+            kill_ns = time.time_ns()
+            proc.kill()  # the supervisor only: the groups get PDEATHSIG
+            proc.wait()
+            leftover = wait_gone(pattern, 60)
+        finally:
+            for pid in pgrep(pattern):
+                os.kill(pid, signal.SIGKILL)
     time.sleep(0.5)
     return OrphanRun(kill_ns, leftover, list(read_bag(bag).get('/thruster_output', [])),
                      out.text)
@@ -144,11 +138,7 @@ def full_disk_run(tmp_path_factory: pytest.TempPathFactory) -> FullDiskRun:
     with small_disk(tmp_path, '4m') as disk:
         profile = tmp_path / 'full.yaml'
         profile.write_text(FULL_DISK_PROFILE.format(bag=disk / 'bag'))
-        proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                start_new_session=True)
-        out = Output(proc)
-        try:
+        with bringup('--profile', str(profile)) as (proc, out):
             out.wait_for(r'enbarr_sim running', 60)
             t0 = time.monotonic()
             m = out.wait_for(r'No space left on device', 180)
@@ -160,10 +150,6 @@ def full_disk_run(tmp_path_factory: pytest.TempPathFactory) -> FullDiskRun:
             out.wait_for(r'thrust +[1-9]\d*\.\d N', 30, start)  # still driving
             proc.send_signal(signal.SIGINT)
             exit_code = proc.wait(timeout=60)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
         time.sleep(0.5)
         with Reader(disk / 'bag') as reader:
             count = sum(1 for _ in reader.messages())

@@ -16,51 +16,31 @@ at, so gaps between the outputs seen here say nothing; the watchdog's count does
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 import signal
-import subprocess
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
-from support.processes import Output
-from support.cli import ENBARR
+from support.participant import Participant
+from support.processes import bringup, DRIVE_AHEAD, split_profile
+from support.waiting import wait_until
 
 pytestmark = pytest.mark.e2e
 
-SPLIT_PROFILE = """
-include: [enbarr_sim]
-nodes:
-  filtering: {group: control}
-  control_loop: {group: control}
-  thruster_converter: {group: control}
-  thruster_control:
-    parameters: {command_timeout: 1.0}
-  surface:
-    parameters:
-      script: ['0.0 twist 0.3 0.0 0.0 0.0 0.0 0.0']
-groups:
-  control: {restart_limit: 0}
-"""
+SPLIT_PROFILE = split_profile({'restart_limit': 0},
+                              thruster_control={'parameters': {'command_timeout': 1.0}},
+                              surface=DRIVE_AHEAD)
 
 
-class Listener:
+class Listener(Participant):
     """This process on the run's graph: thruster_output and /diagnostics in, imu/data_raw out."""
 
     def __init__(self) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        from rclpy.signals import SignalHandlerOptions
         from diagnostic_msgs.msg import DiagnosticArray
         from enbarr_interfaces import topics
-        self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = Node('hostile_sensor', context=self.context)
+        super().__init__('hostile_sensor')
         self.outputs: list[tuple[int, bool]] = []  # (stamp [ns], neutral)
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.node.create_subscription(topics.THRUSTER_OUTPUT.msg_type, topics.THRUSTER_OUTPUT.name,
@@ -69,15 +49,7 @@ class Listener:
                                       self._on_diagnostics, topics.DIAGNOSTICS.qos)
         self.imu_pub = self.node.create_publisher(topics.IMU_RAW.msg_type, topics.IMU_RAW.name,
                                                   topics.IMU_RAW.qos)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
+        self.spin_in_background()
 
     def _on_output(self, msg: Any) -> None:
         from enbarr_interfaces import convert
@@ -102,62 +74,39 @@ class Listener:
         msg.linear_acceleration.z = 9.81
         self.imu_pub.publish(msg)
 
-    def close(self) -> None:
-        import rclpy
-        self._stop.set()
-        self._thread.join(5.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-def wait(condition: Any, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f'{what} within {timeout} s')
-
 
 def test_one_early_imu_sample_from_another_process_does_not_stop_control(tmp_path: Path):
     profile = tmp_path / 'split.yaml'
     profile.write_text(SPLIT_PROFILE)
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True, env=os.environ)
-    out = Output(proc)
     listener = None
-    try:
-        out.wait_for(r'group control started', 60)
-        out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # the chain drives over DDS
-        listener = Listener()
-        wait(lambda: listener.imu_pub.get_subscription_count() > 0, 30,
-             "the filter never matched this process's imu/data_raw publisher")
-        wait(lambda: len(listener.outputs) > 200
-             and listener.value('/thruster_control', 'timeouts') is not None, 30,
-             'no thruster_output or thruster diagnostics')
-        for ahead in (20.0, 2.0):
-            timeouts = listener.value('/thruster_control', 'timeouts')
-            first = len(listener.outputs)
-            listener.inject(ahead)
-            time.sleep(3.0)
-            window = listener.outputs[first:]
-            assert len(window) >= 30, f'+{ahead} s: {len(window)} outputs in 3 s'
-            assert not any(neutral for _, neutral in window), f'+{ahead} s: went neutral'
-            wait(lambda t=timeouts: listener.value('/thruster_control', 'timeouts') is not None,
-                 5, 'thruster diagnostics')
-            assert listener.value('/thruster_control', 'timeouts') == timeouts, \
-                f'+{ahead} s: the watchdog fired'
-        # The filter refused both (and said so on /diagnostics).
-        wait(lambda: (listener.value('/filtering', 'imu/data_raw.future') or 0) >= 2, 15,
-             'the filter did not report the two future samples')
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0, ''.join(out.lines)[-3000:]
-    finally:
-        if listener is not None:
-            listener.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    with bringup('--profile', str(profile)) as (proc, out):
+        try:
+            out.wait_for(r'group control started', 60)
+            out.wait_for(r'thrust +[1-9]\d*\.\d N', 90)  # the chain drives over DDS
+            listener = Listener()
+            wait_until(lambda: listener.imu_pub.get_subscription_count() > 0, 30,
+                       "the filter to match this process's imu/data_raw publisher", step=0.05)
+            wait_until(lambda: len(listener.outputs) > 200
+                       and listener.value('/thruster_control', 'timeouts') is not None, 30,
+                       'thruster_output and thruster diagnostics', step=0.05)
+            for ahead in (20.0, 2.0):
+                timeouts = listener.value('/thruster_control', 'timeouts')
+                first = len(listener.outputs)
+                listener.inject(ahead)
+                time.sleep(3.0)
+                window = listener.outputs[first:]
+                assert len(window) >= 30, f'+{ahead} s: {len(window)} outputs in 3 s'
+                assert not any(neutral for _, neutral in window), f'+{ahead} s: went neutral'
+                wait_until(lambda: listener.value('/thruster_control', 'timeouts') is not None,
+                           5, 'thruster diagnostics', step=0.05)
+                assert listener.value('/thruster_control', 'timeouts') == timeouts, \
+                    f'+{ahead} s: the watchdog fired'
+            # The filter refused both (and said so on /diagnostics).
+            wait_until(lambda: (listener.value('/filtering', 'imu/data_raw.future') or 0) >= 2,
+                       15, 'the filter to report the two future samples', step=0.05)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=60) == 0, ''.join(out.lines)[-3000:]
+        finally:
+            if listener is not None:
+                listener.close()
     assert 'Traceback' not in ''.join(out.lines)

@@ -12,9 +12,6 @@ no publisher of the topic is in its process): this test's publisher reaches it t
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -25,7 +22,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from std_msgs.msg import String
-from support.cli import ENBARR
+from support.participant import Participant
+from support.processes import bringup, stop
+from support.waiting import poll_until
 
 from enbarr_interfaces import convert, topics
 
@@ -47,13 +46,11 @@ AHEAD_S = 20.0  # how far ahead the bad pose is stamped; the run watches that lo
 MAX_ERROR = 0.1
 
 
-class Watcher:
+class Watcher(Participant):
     """This test's ROS side: the vessel's truth, the mode, the observer's diagnostics."""
 
-    def __init__(self, context: Any) -> None:
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        self.node = Node('outsider', context=context)
+    def __init__(self) -> None:
+        super().__init__('outsider')
         self.lock = threading.Lock()
         self.truth: list[tuple[float, np.ndarray]] = []  # (wall time, eta)
         self.modes: list[str] = []
@@ -66,15 +63,7 @@ class Watcher:
                                       self._on_diagnostics, topics.DIAGNOSTICS.qos)
         self.pose_pub = self.node.create_publisher(PoseStamped, topics.MOCAP_POSE.name,
                                                    topics.MOCAP_POSE.qos)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.1)
+        self.spin_in_background(0.1)
 
     def _on_truth(self, msg: Odometry) -> None:
         with self.lock:
@@ -87,13 +76,9 @@ class Watcher:
                                       **{kv.key: kv.value for kv in s.values}})
 
     def wait(self, condition: Any, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return
-            time.sleep(0.1)
-        raise AssertionError(f'{what} within {timeout} s (modes {self.modes}, '
-                             f'{len(self.truth)} truths, observer {self.observer[-1:]})')
+        if not poll_until(condition, timeout):
+            raise AssertionError(f'{what} within {timeout} s (modes {self.modes}, '
+                                 f'{len(self.truth)} truths, observer {self.observer[-1:]})')
 
     def latest(self) -> np.ndarray:
         with self.lock:
@@ -111,51 +96,34 @@ class Watcher:
         convert.set_pose_eta(msg.pose, self.latest())
         self.pose_pub.publish(msg)
 
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
 
-
-def test_station_is_kept_through_future_and_past_poses(tmp_path: Path, context: Any) -> None:
+def test_station_is_kept_through_future_and_past_poses(tmp_path: Path) -> None:
     profile = tmp_path / 'split.yaml'
     profile.write_text(PROFILE)
-    proc = subprocess.Popen([*ENBARR, 'bringup', '--profile', str(profile)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
-    reader.start()
-    w = Watcher(context)
-    try:
-        w.wait(lambda: 'automatic' in w.modes and len(w.truth) > 100, 90,
-               'automatic mode and the vessel truth')
-        w.wait(lambda: any(d.get('mocap/pose.accepted') for d in w.observer), 30,
-               'the observer taking poses over DDS')
-        time.sleep(5.0)  # settle on the held pose
-        t0 = time.monotonic()
-        held = w.since(t0 - 2.0)[:, :2].mean(axis=0)
-        w.inject(AHEAD_S)
-        time.sleep(3.0)
-        w.inject(-1.0)
-        time.sleep(AHEAD_S)
-        etas = w.since(t0)
-        error = np.linalg.norm(etas[:, :2] - held, axis=1)
-        modes_after = list(w.modes[w.modes.index('automatic'):])
-        time.sleep(1.5)  # the observer's next report
-        last = w.observer[-1]
-    finally:
-        w.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
+    with bringup('--profile', str(profile)) as (proc, out):
+        w = Watcher()
         try:
-            code = proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            code = proc.wait()
-        reader.join(5.0)
-    output = ''.join(lines)
+            w.wait(lambda: 'automatic' in w.modes and len(w.truth) > 100, 90,
+                   'automatic mode and the vessel truth')
+            w.wait(lambda: any(d.get('mocap/pose.accepted') for d in w.observer), 30,
+                   'the observer taking poses over DDS')
+            time.sleep(5.0)  # settle on the held pose
+            t0 = time.monotonic()
+            held = w.since(t0 - 2.0)[:, :2].mean(axis=0)
+            w.inject(AHEAD_S)
+            time.sleep(3.0)
+            w.inject(-1.0)
+            time.sleep(AHEAD_S)
+            etas = w.since(t0)
+            error = np.linalg.norm(etas[:, :2] - held, axis=1)
+            modes_after = list(w.modes[w.modes.index('automatic'):])
+            time.sleep(1.5)  # the observer's next report
+            last = w.observer[-1]
+        finally:
+            w.close()
+            code = stop(proc, session=True)
+        out.wait_closed(5.0)
+    output = out.text
     print(f'max position error {error.max():.4f} m over {len(etas)} truth samples; '
           f'modes {modes_after}; observer: {last}')
     assert modes_after == ['automatic'], f'left automatic: {modes_after}\n{output[-3000:]}'

@@ -64,8 +64,11 @@ def test_innovation_gate_is_off_by_default_and_can_be_switched_on(executor, spin
 class Imu400:
     """The filter node fed by hand: level, at rest, magnetometer ``mag_body``."""
 
-    def __init__(self, context: Any, executor: Any, mag_body: list[float]) -> None:
-        self.node = add(executor, AttitudeFilterNode(node_name='filtering', context=context))
+    def __init__(self, context: Any, executor: Any, mag_body: list[float],
+                 t0_ns: int = 5_000_000_000, **params: Any) -> None:
+        self.node = add(executor, AttitudeFilterNode(
+            node_name='filtering', context=context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]))
         p = probe(context, executor, 'imu')
         self._raw_pub = p.create_topic_publisher(topics.IMU_RAW)
         self._mag_pub = p.create_topic_publisher(topics.IMU_MAG)
@@ -73,7 +76,7 @@ class Imu400:
         p.create_topic_subscription(topics.IMU, self.out.append)
         LinkBus.of(context).connect()
         self.mag_body = mag_body
-        self.t = 5_000_000_000
+        self.t = t0_ns
 
     def sample(self, t_ns: int, gyro: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         mag = MagneticField()
@@ -170,18 +173,8 @@ class ClockedImu(Imu400):
     clock's present, as the in-process simulated IMU stamps it."""
 
     def __init__(self, context: Any, executor: Any, **params: Any) -> None:
-        self.node = add(executor, AttitudeFilterNode(
-            node_name='filtering', context=context,
-            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]))
+        super().__init__(context, executor, NORTH_BODY_Y, T0, **params)
         self.clock = SimClock(self.node, t0_ns=T0)
-        p = probe(context, executor, 'imu')
-        self._raw_pub = p.create_topic_publisher(topics.IMU_RAW)
-        self._mag_pub = p.create_topic_publisher(topics.IMU_MAG)
-        self.out: list[Imu] = []
-        p.create_topic_subscription(topics.IMU, self.out.append)
-        LinkBus.of(context).connect()
-        self.mag_body = NORTH_BODY_Y
-        self.t = T0
         self.reports: list[tuple[int, str, dict[str, Any]]] = []
         self.node.publish_diagnostics = lambda *a: self.reports.append(a)
 

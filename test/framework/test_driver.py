@@ -6,12 +6,14 @@ machine is.
 
 from __future__ import annotations
 
+import threading
 from types import SimpleNamespace
 from typing import Any
 
 import pytest
 from rclpy.parameter import Parameter
 from support.nodes import TIMEOUT, add, probe
+from support.waiting import poll_until
 
 from enbarr_core.framework import driver
 from enbarr_core.framework.driver import ERROR, OK, WARN, ActuatorDriver, SensorDriver
@@ -309,6 +311,38 @@ def test_a_second_fault_report_while_down_is_ignored(context, clock):
     node.device_fault(DeviceError('fake0: unplugged'))
     node.device_fault(DeviceError('fake0: again'))
     assert node.faults == 1 and node.closes == 1 and node.last_fault == 'fake0: unplugged'
+    node.destroy_node()
+
+
+class LoopSensor(SensorDriver):
+    """A device opened on its own loop's thread (``open_on``), as the camera and IMUs are."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.opened_on: list[str] = []  # the thread of every open
+        super().__init__('loop_sensor', device='fake2', **kwargs)
+        self.loop = self.create_rate_loop(200.0, self._tick)
+        self.open_on(self.loop)
+
+    def open_device(self) -> None:
+        self.opened_on.append(threading.current_thread().name)
+
+    def _tick(self) -> None:
+        if not self.connected:
+            self.open_if_requested()
+
+
+def test_a_device_opened_on_its_loop_reconnects_on_the_loop_thread(context, clock):
+    # Opening may block (a stalled bus, a camera): the executor must never wait for it.
+    node = LoopSensor(context=context, parameter_overrides=[
+        Parameter('reconnect.initial_delay', value=0.5)])
+    node.start()  # the first open is made in place: an absent device is reported at once
+    here = threading.current_thread().name
+    assert node.connected and node.opened_on == [here]
+    node.device_fault(DeviceError('fake2: unplugged'))
+    tick(node, clock, 1.0)  # the retry is due: asked of the loop, not made on this thread
+    assert node.opened_on == [here]
+    assert poll_until(lambda: node.connected, TIMEOUT, step=0.01)
+    assert node.opened_on == [here, node.loop.name]
     node.destroy_node()
 
 

@@ -7,14 +7,13 @@ A real driver never imports its emulator (the check-device command lives apart).
 
 from __future__ import annotations
 
-import ast
 import importlib
 import importlib.util
 import subprocess
 import sys
 
 import pytest
-from support.layering import algorithm_modules
+from support.layering import algorithm_modules, imports_in
 
 ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.errors', 'enbarr_core.framework.frames',
@@ -60,17 +59,7 @@ DRIVERS_AND_EMULATORS = {
 
 def imported_modules(module: str) -> set[str]:
     """Every module ``module``'s source imports, at any depth of its code."""
-    path = importlib.util.find_spec(module).origin
-    with open(path, encoding='utf-8') as f:
-        tree = ast.parse(f.read(), path)
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module:
-            found.add(node.module)
-            found.update(f'{node.module}.{alias.name}' for alias in node.names)
-    return found
+    return imports_in(importlib.util.find_spec(module).origin)
 
 
 @pytest.mark.parametrize('driver', sorted(DRIVERS_AND_EMULATORS))

@@ -9,7 +9,7 @@ from rclpy.parameter import Parameter
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.node import EnbarrNode
-from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.params import ParamSpec, validate_as_parameters
 
 SPECS = [
     ParamSpec('gain', 1.0, 'A gain', '1/s', 0.0, 10.0),
@@ -118,3 +118,27 @@ def test_a_refused_value_is_named_in_our_words(context, override, message):
     with pytest.raises(ConfigurationError) as info:
         make(context, [override])
     assert str(info.value) == message and info.value.parameter == override.name
+
+
+class Gains:
+    """Settings whose own check names a field (as the algorithms' settings do)."""
+
+    def __init__(self, problem: str | None) -> None:
+        self.problem = problem
+
+    def validate(self) -> None:
+        if self.problem:
+            raise ValueError(self.problem)
+
+
+def test_validate_as_parameters_names_the_parameter_of_the_field():
+    parameters = {'Kp': 'kp', 'M': 'vessel.inertia'}
+    validate_as_parameters(Gains(None), parameters)  # fine: nothing raised
+    with pytest.raises(ValueError, match=r'^kp: Kp: must be non-negative$') as info:
+        validate_as_parameters(Gains('Kp: must be non-negative'), parameters)
+    assert str(info.value.__cause__) == 'Kp: must be non-negative'
+    with pytest.raises(ValueError, match=r'^vessel\.inertia: M: inertia must be > 0$'):
+        validate_as_parameters(Gains('M: inertia must be > 0'), parameters)
+    # A field that is its own parameter keeps its name.
+    with pytest.raises(ValueError, match=r'^tau_max: tau_max: must be > 0$'):
+        validate_as_parameters(Gains('tau_max: must be > 0'), parameters)

@@ -16,18 +16,17 @@ from typing import Any
 
 import pytest
 import rclpy
-from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu
 
 from enbarr_core.bringup.compose import make_executor
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, links, topics
 from enbarr_interfaces.links import LinkBus, LinkPublisher, READER_CHECK_PERIOD
+from support.participant import Participant
 
 TIMEOUT = 15.0  # [s] discovery between participants on a loaded machine
 IMU_TYPE = 'sensor_msgs/msg/Imu'
@@ -72,15 +71,11 @@ def spinner(request: pytest.FixtureRequest, context: Any) -> Iterator[Spinner]:
         s.close()
 
 
-class Graph:
+class Graph(Participant):
     """What ``ros2 topic info`` sees: another participant asking the graph API."""
 
     def __init__(self) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.node = Node('ros2cli', context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__('ros2cli')
 
     def subscribers(self, topic: str) -> list[str]:
         """Return the names of the nodes subscribing to ``topic``, sorted."""
@@ -93,12 +88,6 @@ class Graph:
         except rclpy.exceptions.NodeNameNonExistentError:
             return {}
         return dict(found)
-
-    def close(self) -> None:
-        self.executor.remove_node(self.node)
-        self.node.destroy_node()
-        self.executor.shutdown()
-        rclpy.try_shutdown(context=self.context)
 
 
 @pytest.fixture
@@ -153,6 +142,22 @@ def publish_for(pub: LinkPublisher, spinner: Spinner, seconds: float) -> list[Im
     return sent
 
 
+def linked_only(spinner: Spinner, monkeypatch: pytest.MonkeyPatch
+                ) -> tuple[LinkPublisher, list[Imu], PublishSpy, list[Imu]]:
+    """``imu/data`` from attitude_filter to velocity_control in one process, published for two
+    reader checks: nothing went to DDS. The publisher, what the subscription got, the spy on
+    what goes to DDS and what was sent."""
+    producer = spinner.node('attitude_filter')
+    linked: list[Imu] = []
+    spinner.node('velocity_control').create_topic_subscription(topics.IMU, linked.append)
+    pub = producer.create_topic_publisher(topics.IMU)
+    LinkBus.of(spinner.context).connect()
+    spy = PublishSpy(pub, monkeypatch)
+    sent = publish_for(pub, spinner, 2 * READER_CHECK_PERIOD)
+    assert spy.count == 0
+    return pub, linked, spy, sent
+
+
 @pytest.mark.parametrize('order', ['publisher_first', 'subscriptions_first'])
 def test_link_subscriptions_show_in_the_graph_and_cost_no_dds(spinner, graph, monkeypatch,
                                                             order):
@@ -201,14 +206,7 @@ def test_link_subscriptions_show_in_the_graph_and_cost_no_dds(spinner, graph, mo
 
 
 def test_a_plain_ros_reader_in_the_same_process_counts_as_outside(spinner, monkeypatch):
-    producer = spinner.node('attitude_filter')
-    linked: list[Imu] = []
-    spinner.node('velocity_control').create_topic_subscription(topics.IMU, linked.append)
-    pub = producer.create_topic_publisher(topics.IMU)
-    LinkBus.of(spinner.context).connect()
-    spy = PublishSpy(pub, monkeypatch)
-    sent = publish_for(pub, spinner, 2 * READER_CHECK_PERIOD)
-    assert spy.count == 0
+    pub, linked, spy, sent = linked_only(spinner, monkeypatch)
 
     # A raw DDS reader in this very participant: not a shadow, so it is a reader outside.
     plain: list[Imu] = []
@@ -237,14 +235,7 @@ def test_a_plain_ros_reader_in_the_same_process_counts_as_outside(spinner, monke
 
 def test_outside_subscriber_gets_messages_and_nothing_is_delivered_twice(spinner, graph,
                                                                         monkeypatch):
-    producer = spinner.node('attitude_filter')
-    linked: list[Imu] = []
-    spinner.node('velocity_control').create_topic_subscription(topics.IMU, linked.append)
-    pub = producer.create_topic_publisher(topics.IMU)
-    LinkBus.of(spinner.context).connect()
-    spy = PublishSpy(pub, monkeypatch)
-    sent = publish_for(pub, spinner, 2 * READER_CHECK_PERIOD)
-    assert spy.count == 0
+    pub, linked, spy, sent = linked_only(spinner, monkeypatch)
 
     # ros2 topic echo /imu/data from another process.
     echoed: list[Imu] = []

@@ -12,50 +12,25 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu
 
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
+from support.nodes import add
+from support.participant import Participant
 
 TIMEOUT = 10.0  # [s]
 
 
-class Other:
-    """A second context with its own executor: what another process would be."""
-
-    def __init__(self) -> None:
-        import rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.node = Node('elsewhere', context=self.context)
-        self.executor.add_node(self.node)
-
-    def close(self) -> None:
-        import rclpy
-        self.executor.remove_node(self.node)
-        self.node.destroy_node()
-        self.executor.shutdown()
-        rclpy.try_shutdown(context=self.context)
-
-
 @pytest.fixture
-def other() -> Iterator[Other]:
-    o = Other()
+def other() -> Iterator[Participant]:
+    """A second context with its own executor: what another process would be."""
+    o = Participant('elsewhere')
     try:
         yield o
     finally:
         o.close()
-
-
-def add(executor: Any, node: Any) -> Any:
-    executor.add_node(node)
-    return node
 
 
 def imu(seq: int) -> Imu:

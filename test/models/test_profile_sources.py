@@ -179,3 +179,14 @@ def test_rov_thrust_limits_are_the_quoted_kgf() -> None:
     for n in v['thruster_names']:
         assert v[f'thrusters.{n}.max_forward'] == pytest.approx(5.25 * 9.80665, abs=0.05)
         assert v[f'thrusters.{n}.max_reverse'] == pytest.approx(4.1 * 9.80665, abs=0.05)
+
+
+def test_a_non_physical_vessel_names_its_parameter() -> None:
+    from enbarr_core.models.vessel3dof_params import vessel_from_params
+    v = {'vessel.inertia': [9.51, 0.0, 0.116], 'vessel.linear_damping': [1.96, 1.96, 0.168],
+         'vessel.nonlinear_damping': [0.0, 0.0, 0.0]}
+    with pytest.raises(ValueError, match=r'^vessel\.inertia: M: inertia must be > 0'):
+        vessel_from_params(v)
+    with pytest.raises(ValueError, match=r'^vessel\.nonlinear_damping: Dn: damping must be >= 0'):
+        vessel_from_params({**v, 'vessel.inertia': [9.51, 9.51, 0.116],
+                            'vessel.nonlinear_damping': [0.0, -1.0, 0.0]})

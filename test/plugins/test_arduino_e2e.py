@@ -8,12 +8,12 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
-import time
 from typing import Any
 
 import pytest
 
 from enbarr_plugins.arduino.emulator import ArduinoEmulator
+from support.waiting import poll_until
 
 pytestmark = pytest.mark.e2e
 
@@ -49,12 +49,7 @@ ex.spin()
 
 
 def wait(condition, timeout: float = 30.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return condition()
+    return poll_until(condition, timeout, step=0.02)
 
 
 def test_board_goes_neutral_when_the_driver_process_is_paused_or_killed():

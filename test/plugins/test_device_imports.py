@@ -11,12 +11,12 @@ source (every import, also those inside functions).
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
 import pytest
 
 import enbarr_plugins
+from support.layering import imports_in
 
 PACKAGE = Path(enbarr_plugins.__file__).parent
 DRIVERS = ['imu/lsm9ds1', 'imu/fxos8700', 'thrusters/pca9685', 'io/gpio_lights', 'io/stepper']
@@ -32,15 +32,7 @@ PROTOCOLS = ['imu/lsm9ds1_protocol', 'imu/fxos8700_protocol', 'thrusters/pca9685
 
 def imports(module: str) -> set[str]:
     """Every module ``module`` (a path below the package, without .py) imports, dotted."""
-    tree = ast.parse((PACKAGE / f'{module}.py').read_text(encoding='utf-8'))
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module:
-            found.add(node.module)
-            found.update(f'{node.module}.{alias.name}' for alias in node.names)
-    return found
+    return imports_in(PACKAGE / f'{module}.py')
 
 
 def ours(module: str) -> set[str]:

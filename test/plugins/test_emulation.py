@@ -87,3 +87,40 @@ def test_two_emulators_cannot_share_a_kind_and_name() -> None:
     assert emulation.lookup('serial', 'emulated:test_default') == '/dev/pts/2'
     emulation.unregister('serial', 'test_default', '/dev/pts/2')      # unplugged: free again
     emulation.register('serial', 'test_default', '/dev/pts/3', owner=lidar)
+
+
+class FakeEmulator:
+    """An endpoint emulator that notes what was done to it."""
+
+    built: list[FakeEmulator] = []
+
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+        FakeEmulator.built.append(self)
+
+    def start(self) -> str:
+        self.calls.append('start')
+        return '/dev/pts/42'
+
+    def stop(self) -> None:
+        self.calls.append('stop')
+
+
+def test_a_check_opens_the_device_itself_unless_emulated() -> None:
+    FakeEmulator.built.clear()
+    with check.device_endpoint('/dev/ttyUSB0', '/dev/ttyUSB0', FakeEmulator) as path:
+        assert path == '/dev/ttyUSB0'
+    assert FakeEmulator.built == []  # no emulator built for a real device
+
+
+@pytest.mark.parametrize('value', ['emulated', 'emulated:bow'])
+def test_an_emulated_check_starts_the_emulator_and_stops_it_even_on_failure(value: str) -> None:
+    FakeEmulator.built.clear()
+    with check.device_endpoint(value, value, FakeEmulator) as path:
+        [emulator] = FakeEmulator.built
+        assert path == '/dev/pts/42' and emulator.calls == ['start']
+    assert emulator.calls == ['start', 'stop']
+    with pytest.raises(DeviceError, match='no answer'):
+        with check.device_endpoint(value, value, FakeEmulator):
+            raise DeviceError('/dev/pts/42: no answer')
+    assert FakeEmulator.built[-1].calls == ['start', 'stop']

@@ -40,16 +40,13 @@ from enbarr_core.guidance.guidance import Reference
 from enbarr_core.guidance.guidance_node import msg_to_reference, reference_to_msg
 from enbarr_core.recording.bag import BagWriter
 from enbarr_interfaces import convert, topics
+from support.bags import mcap_messages, metadata
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T0 = 1_700_000_000_000_000_000  # ns
 CLASSES = {'sensor_msgs/msg/Imu': Imu, 'sensor_msgs/msg/JointState': JointState,
            'rcl_interfaces/msg/Parameter': Parameter,
            'geometry_msgs/msg/WrenchStamped': WrenchStamped}
-
-
-def metadata(bag: Path) -> dict[str, Any]:
-    return yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
 
 
 def stamp(msg: Any, t: int) -> Any:
@@ -409,16 +406,7 @@ def read_both(bag: Path) -> list[int]:
         msgs = [(c.topic, t, TYPESTORE.deserialize_cdr(raw, c.msgtype))
                 for c, t, raw in reader.messages()]
     assert len(msgs) == info['message_count']
-    by_mcap = []
-    for name, finfo in zip(info['relative_file_paths'], info['files']):
-        with open(bag / name, 'rb') as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            summary = reader.get_summary()
-            assert summary is not None and summary.statistics is not None
-            assert summary.statistics.message_count == finfo['message_count']
-            by_mcap += [(ch.topic, m.log_time) for _, ch, m, _ in
-                        reader.iter_decoded_messages()]
-    assert by_mcap == [(topic, t) for topic, t, _ in msgs]
+    assert mcap_messages(bag) == [(topic, t) for topic, t, _ in msgs]
     times = [t for _, t, _ in msgs]
     assert times == sorted(times)
     joints = [m for topic, _, m in msgs if topic == '/joint_states']

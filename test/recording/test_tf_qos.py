@@ -24,20 +24,16 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
-import yaml
 
 from enbarr_core.framework.frames import parse_frames, StampedTransform, Transform
 from enbarr_core.recording.bag import BagStorageError, BagWriter, repair_bag
 from enbarr_core.recording.qos import adapt_request, offered_qos_yaml, Qos, TF_STATIC_QOS
 from enbarr_core.recording.tf import decode_transforms, tf_message_cdr, TF_MESSAGE
+from support.bags import metadata
 
 T0 = 1_700_000_000_000_000_000
 IMU = serialize_message(Imu())
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-def metadata(bag: Path) -> dict[str, Any]:
-    return yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
 
 
 def by_file(bag: Path) -> list[list[tuple[str, int]]]:

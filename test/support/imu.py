@@ -6,7 +6,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 import itertools
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -19,6 +18,7 @@ from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
 from enbarr_plugins.transport.i2c import FakeI2cBus
 from support.devices import diagnostics_of
+from support.waiting import spin_until
 
 TIMEOUT = 10.0
 _names = itertools.count()
@@ -98,12 +98,7 @@ class Rig:
         return self.emulator.bus
 
     def spin_until(self, condition, timeout: float = TIMEOUT) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return condition()
+        return spin_until(self.executor, condition, timeout, step=0.02)
 
     def publishing(self) -> bool:
         """True once new samples arrive (waits for two)."""

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import itertools
 import threading
-import time
 from typing import Any
 
 import cv2
@@ -27,6 +26,7 @@ from enbarr_plugins.camera.emulator import CameraEmulatorNode
 from enbarr_plugins.camera.pattern_video import read_counter
 from enbarr_plugins.camera.opencv_camera import CameraNode
 from enbarr_plugins.check import CheckTarget
+from support.waiting import spin_until
 
 TIMEOUT = 10.0
 _names = itertools.count()
@@ -109,12 +109,7 @@ class Rig:
         return node
 
     def spin_until(self, condition, timeout: float = TIMEOUT) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return condition()
+        return spin_until(self.executor, condition, timeout, step=0.02)
 
     def frames_flow(self) -> bool:
         n = self.driver.samples
