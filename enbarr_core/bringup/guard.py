@@ -21,11 +21,12 @@ from enbarr_core.bringup.stop import STOP_POLL, StopRequest
 
 log = logging.getLogger('enbarr.bringup')
 
-#: How long a group watches the graph for a namesake before it builds its nodes [s].
-#: Discovery between two processes takes one of two quite different times (see
-#: docs/architecture.md); a later discovery is still caught by the claims, at the cost of a
-#: late stop.
-DISCOVERY_WAIT = 3.0
+#: How long a group watches the graph for a namesake before it builds its nodes [s]. Two
+#: processes discover each other either at once or at the next periodic announcement of
+#: the running one (Fast-DDS announces every 3 s by default): one period and a margin for
+#: a loaded machine. A later discovery is still caught by the claims, at the cost of a late
+#: stop after the nodes were built (docs/architecture.md, Safety).
+DISCOVERY_WAIT = 4.0
 #: Where every running group announces its node names and when it started (std_msgs/String,
 #: JSON). Latched: a process that joins later still gets every claim.
 CLAIM_TOPIC = topics.VESSEL_CLAIMS.name

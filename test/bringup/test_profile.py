@@ -251,8 +251,9 @@ def test_set_origin_is_reported_as_set() -> None:
 
 
 def test_set_leaves_the_file_untouched() -> None:
+    before = load_profile(SIM).node('control_loop').parameters['kp']
     load_profile(SIM, SETS)
-    assert 'kp' not in load_profile(SIM).node('control_loop').parameters
+    assert load_profile(SIM).node('control_loop').parameters['kp'] == before != [1, 2, 3, 4, 5, 6]
 
 
 # -- errors: each names the file, the key path and what was expected ---------------------------
