@@ -128,17 +128,27 @@ def test_absent_device_at_start_is_an_error_on_diagnostics(context, clock):
     node.destroy_node()
 
 
-def test_absent_device_is_retried_with_growing_backoff(context, clock):
-    clock.at(0.0)
-    node = actuator(context, present=False)
+def retry_times(node: Any, clock: FakeClock, seconds: float = 30.0,
+                after_open: Any = None) -> list[float]:
+    """Tick the supervision every 50 ms for ``seconds``; the times a retry opened the device
+    (``after_open`` runs after each)."""
     attempts = []
     t = 0.0
-    while t < 30.0:
+    while t < seconds:
         t = round(t + 0.05, 2)
         before = node.opens
         tick(node, clock, t)
         if node.opens > before:
             attempts.append(t)
+            if after_open is not None:
+                after_open()
+    return attempts
+
+
+def test_absent_device_is_retried_with_growing_backoff(context, clock):
+    clock.at(0.0)
+    node = actuator(context, present=False)
+    attempts = retry_times(node, clock)
     gaps = [round(b - a, 2) for a, b in zip([0.0] + attempts, attempts)]
     # 0.5 s, doubling, capped at reconnect.max_delay = 4 s.
     assert gaps[:6] == [0.5, 1.0, 2.0, 4.0, 4.0, 4.0]
@@ -221,16 +231,9 @@ def test_an_open_that_never_answers_backs_off_instead_of_being_back(context, clo
                                                'warn': lambda self, m, **k: None,
                                                'info': lambda self, m, **k: infos.append(m)})()
     assert node.connected and not node.confirmed
-    attempts = [0.0]
-    t = 0.0
     node.device_fault(DeviceError('fake2: no answer'))
-    while t < 30.0:
-        t = round(t + 0.05, 2)
-        before = node.opens
-        tick(node, clock, t)
-        if node.opens > before:
-            attempts.append(t)
-            node.device_fault(DeviceError('fake2: no answer'))  # opened, then nothing
+    attempts = [0.0, *retry_times(  # each time: opened, then nothing
+        node, clock, after_open=lambda: node.device_fault(DeviceError('fake2: no answer')))]
     gaps = [round(b - a, 2) for a, b in zip(attempts, attempts[1:])]
     assert gaps[:6] == [0.5, 1.0, 2.0, 4.0, 4.0, 4.0]
     assert not any('device back' in m for m in infos)
