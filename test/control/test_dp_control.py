@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import control
 import numpy as np
 import pytest
 from support import saucer_plant
@@ -385,6 +384,8 @@ def test_linearized_closed_loop_per_dof_matches_python_control(dof):
     python-control gives poles (all in the left half plane) and the step response; the
     simulated loop (controller at 100 Hz, linear plant: no D_n, no limits) follows it.
     """
+    import control  # python-control imports scipy.signal, slow: only this test needs it
+
     s = settings(tau_max=(math.inf,) * 3, integral_limit=(math.inf,) * 3,
                  Dn=(0.0, 0.0, 0.0), bias_feedforward=False)
     m, d = M[dof, dof], D[dof, dof]

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import control
 import numpy as np
 import pytest
 
@@ -343,6 +342,8 @@ def test_closed_loop_matches_python_control_transfer_functions(dof):
     includes e_k), D_f(z) = k_d (z - 1) / ((T_f + dt) z - T_f) (filtered backward difference on
     the measurement), F = the static feed-forward d_ff.
     """
+    import control  # python-control imports scipy.signal, slow: only this test needs it
+
     m, d = M[dof], D[dof]
     kp, ki, kd, t_f, d_ff = 3.0 * m, 2.0 * m, 0.1 * m, 0.02, 0.5 * d
     ctrl = VelocityController(settings(kp=six(kp), ki=six(ki), kd=six(kd), d_lin=six(d_ff),
