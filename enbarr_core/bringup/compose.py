@@ -37,6 +37,7 @@ from rclpy.signals import SignalHandlerOptions
 from enbarr_interfaces.links import LinkBus
 
 from enbarr_core.framework import registry
+from enbarr_core.framework.driver import DeviceNode
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.framework.node import EnbarrNode, install_frame_tree
 from enbarr_core.framework.threads import name_os_threads
@@ -401,7 +402,6 @@ def validate(profile: Profile, group: str | None = None) -> Validation:
     open nothing), publishes nothing (constructors publish nothing) and is invisible to every
     other participant (``isolated_context``).
     """
-    from enbarr_core.framework.driver import DeviceNode
     with isolated_context() as context:
         install_frame_tree(context, profile.frames)
         nodes = build_nodes(profile, context, group)

@@ -10,7 +10,6 @@ process, the restart (plugins start neutral) and the device's watchdog take over
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 import logging
 import os
 from pathlib import Path
@@ -19,12 +18,12 @@ import time
 
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-import yaml
 
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.bringup.compose import Composition, composed
 from enbarr_core.bringup.profile import Profile
 from enbarr_core.bringup.stop import StopRequest, die_with_parent
+from enbarr_core.recording.bag import read_counts
 from enbarr_core.recording.recorder import Recorder
 
 log = logging.getLogger('enbarr.bringup')
@@ -76,30 +75,11 @@ def run_group(profile: Profile, group: str | None = None,
     return EXIT_PROBLEMS if problems else 0
 
 
-@dataclass(frozen=True)
-class BagCount:
-    """What a bag's ``metadata.yaml`` says it holds."""
-
-    messages: int
-    topics: int
-
-
-def count_bag(path: str) -> BagCount | None:
-    """Read the message and topic counts of the rosbag2 bag at ``path`` (None: unreadable)."""
-    try:
-        with open(Path(path) / 'metadata.yaml', encoding='utf-8') as f:
-            info = yaml.safe_load(f)['rosbag2_bagfile_information']
-        topics = [t for t in info['topics_with_message_count'] if t['message_count']]
-        return BagCount(int(info['message_count']), len(topics))
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
-        return None
-
-
 def summary(profile: Profile, ran: float, problems: Sequence[str]) -> str:
     """Return the last line of a run: how long it ran, what it recorded, what failed."""
     parts = [f'{profile.name} ran {ran:.1f} s']
     if profile.record is not None:
-        count = count_bag(profile.record.path)
+        count = read_counts(profile.record.path)
         parts.append(f'bag {profile.record.path}: ' + (
             'no metadata (see the errors above)' if count is None
             else f'{count.messages} messages on {count.topics} topics'))

@@ -497,6 +497,25 @@ class BagWriter:
         self.closed = True
 
 
+@dataclass(frozen=True)
+class BagCounts:
+    """What a bag's ``metadata.yaml`` says it holds."""
+
+    messages: int
+    topics: int  # topics with at least one message
+
+
+def read_counts(path: str | Path) -> BagCounts | None:
+    """Read the message and topic counts of the rosbag2 bag at ``path`` (None: unreadable)."""
+    try:
+        with open(Path(path) / 'metadata.yaml', encoding='utf-8') as f:
+            info = yaml.safe_load(f)['rosbag2_bagfile_information']
+        listed = [t for t in info['topics_with_message_count'] if t['message_count']]
+        return BagCounts(int(info['message_count']), len(listed))
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
+
+
 def write_metadata(path: Path, files: list[FileInfo], typestore: Any) -> None:
     """Replace ``path/metadata.yaml`` (atomically) to list ``files`` and their topics.
 

@@ -833,3 +833,15 @@ def test_the_supervisor_repairs_the_bag_of_a_killed_recorder_group(tmp_path: Pat
         repair_recording(profile, 'recorder', 'signal SIGKILL')
     assert read_both(bag) in (list(range(flushed)), list(range(flushed + 5)))  # as above
     assert 'died (signal SIGKILL) while writing killed_0.mcap: repaired' in caplog.text
+
+
+def test_read_counts_gives_messages_and_topics_with_messages(tmp_path: Path) -> None:
+    from enbarr_core.recording.bag import BagCounts, read_counts
+    (tmp_path / 'metadata.yaml').write_text(
+        'rosbag2_bagfile_information:\n  message_count: 7\n  topics_with_message_count:\n'
+        '    - {topic_metadata: {name: /a}, message_count: 7}\n'
+        '    - {topic_metadata: {name: /b}, message_count: 0}\n')
+    assert read_counts(tmp_path) == BagCounts(messages=7, topics=1)
+    assert read_counts(tmp_path / 'nowhere') is None
+    (tmp_path / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    assert read_counts(tmp_path) is None
