@@ -25,9 +25,10 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
-    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField)
+    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField, PointCloud2)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
+from visualization_msgs.msg import MarkerArray
 
 #: Commands and events: nothing may be lost, a short queue.
 COMMAND_QOS = QoSProfile(
@@ -197,6 +198,14 @@ SCAN = TopicSpec(
     'angle_min..angle_max counter-clockwise from +x; REP-117: -inf too close, +inf no '
     "return, NaN no sample. Where the lidar sits is the frame tree's (base_link -> laser on "
     '/tf_static); consumers transform the scan with it.')
+OBSTACLES = TopicSpec(
+    'obstacles', PointCloud2, SENSOR_QOS, 'm, m/s, m^2', WORLD_FRAME,
+    'Tracked obstacles, one point per obstacle (a capsule: segment x,y-x2,y2 with radius), '
+    'with velocity and covariance; header.stamp = stamp of the measurement it came from. '
+    'Encoding: enbarr_interfaces.obstacles, docs/interfaces.md "Obstacles".')
+OBSTACLE_MARKERS = TopicSpec(
+    'obstacles/markers', MarkerArray, SENSOR_QOS, 'm', WORLD_FRAME,
+    'The obstacles drawn for a viewer (Foxglove, RViz): not for machines, read obstacles.')
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'Camera frames as captured (OpenCV, V4L2 or a video file).')
@@ -215,4 +224,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
     MODE,
     GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, CAMERA_IMAGE, CAMERA_INFO, VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
+    VESSEL_CLAIMS)

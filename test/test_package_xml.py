@@ -39,6 +39,7 @@ KEYS = {
     'nav_msgs': 'nav_msgs',
     'diagnostic_msgs': 'diagnostic_msgs',
     'trajectory_msgs': 'trajectory_msgs',
+    'visualization_msgs': 'visualization_msgs',
     'ament_index_python': 'ament_index_python',
     'tf2_msgs': 'tf2_msgs',
     # Python libraries (rosdistro rosdep/python.yaml)

@@ -1,0 +1,193 @@
+"""Obstacles as the perception publishes them and the collision avoidance reads them.
+
+Every obstacle is a *capsule* in the world frame (``odom``, ENU): the set of points within
+``radius`` of the segment from ``(x, y)`` to ``(x2, y2)``. A buoy or a boat is a circle (the
+two ends coincide); a basin wall or a pier is a segment (``radius`` its half thickness, or 0).
+One shape for both keeps every consumer's distance the same formula (:func:`distance`).
+
+On the wire (``obstacles``) it is a ``sensor_msgs/PointCloud2``: no custom message can be
+built in a pip install, and a point cloud is self-describing (named, typed fields), has a
+header, and a viewer draws it. One point per obstacle, fields in :data:`FIELDS` order, every
+one ``FLOAT64`` except ``id``, ``kind`` and the stamp's two fields (``UINT32``);
+``header.frame_id`` is the world frame and ``header.stamp`` the stamp of the scan (or image)
+that produced the message. A reader finds the fields by name (:func:`from_cloud`), so fields
+can be added later without breaking it. ``docs/interfaces.md`` ("Obstacles") documents the
+encoding for other tools.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sensor_msgs.msg import PointCloud2, PointField
+
+from enbarr_interfaces.convert import NS_PER_S, ns_to_stamp, stamp_to_ns
+
+CIRCLE = 0
+SEGMENT = 1
+KINDS = {CIRCLE: 'circle', SEGMENT: 'segment'}
+
+#: (name, numpy type, PointField datatype, meaning) of each field, in wire order.
+FIELDS: tuple[tuple[str, str, int, str], ...] = (
+    ('id', '<u4', PointField.UINT32, 'track id, unique while the track lives'),
+    ('kind', '<u4', PointField.UINT32, '0 circle, 1 segment'),
+    ('stamp_sec', '<u4', PointField.UINT32,
+     'stamp of the last measurement that updated this obstacle (builtin_interfaces/Time)'),
+    ('stamp_nanosec', '<u4', PointField.UINT32, ''),
+    ('x', '<f8', PointField.FLOAT64, 'centre (circle) or first end (segment) [m], odom'),
+    ('y', '<f8', PointField.FLOAT64, ''),
+    ('x2', '<f8', PointField.FLOAT64, 'second end [m] (a circle: equal to x, y)'),
+    ('y2', '<f8', PointField.FLOAT64, ''),
+    ('radius', '<f8', PointField.FLOAT64, 'extent around the segment [m]'),
+    ('vx', '<f8', PointField.FLOAT64, 'velocity [m/s], odom (0 for a static segment)'),
+    ('vy', '<f8', PointField.FLOAT64, ''),
+    ('cov_xx', '<f8', PointField.FLOAT64, 'position covariance [m^2]'),
+    ('cov_xy', '<f8', PointField.FLOAT64, ''),
+    ('cov_yy', '<f8', PointField.FLOAT64, ''),
+    ('cov_vxvx', '<f8', PointField.FLOAT64, 'velocity covariance [m^2/s^2]'),
+    ('cov_vxvy', '<f8', PointField.FLOAT64, ''),
+    ('cov_vyvy', '<f8', PointField.FLOAT64, ''),
+)
+DTYPE = np.dtype([(name, np_type) for name, np_type, _, _ in FIELDS])
+_OFFSETS = {name: int(DTYPE.fields[name][1]) for name, *_ in FIELDS}  # type: ignore[index]
+_NUMPY_OF = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4',
+             PointField.INT32: '<i4', PointField.UINT8: 'u1', PointField.INT8: 'i1',
+             PointField.UINT16: '<u2', PointField.INT16: '<i2'}
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One obstacle (a capsule) in the world frame; see the module docstring."""
+
+    id: int
+    kind: int                 # CIRCLE or SEGMENT
+    x: float
+    y: float
+    radius: float
+    x2: float | None = None   # None: a circle (the second end is the first)
+    y2: float | None = None
+    vx: float = 0.0
+    vy: float = 0.0
+    position_cov: tuple[float, float, float] = (0.0, 0.0, 0.0)   # xx, xy, yy [m^2]
+    velocity_cov: tuple[float, float, float] = (0.0, 0.0, 0.0)   # [m^2/s^2]
+    stamp_ns: int = 0
+
+    @property
+    def end(self) -> tuple[float, float]:
+        """The segment's second end (a circle's centre)."""
+        return (self.x if self.x2 is None else self.x2, self.y if self.y2 is None else self.y2)
+
+    def closest_point(self, px: float, py: float) -> tuple[float, float]:
+        """Return the point of the obstacle's segment (its axis) nearest to ``(px, py)``."""
+        return closest_on_segment(px, py, self.x, self.y, *self.end)
+
+    def distance(self, px: float, py: float) -> float:
+        """Distance [m] from ``(px, py)`` to the obstacle's surface (< 0 inside)."""
+        cx, cy = self.closest_point(px, py)
+        return math.hypot(px - cx, py - cy) - self.radius
+
+
+def closest_on_segment(px: float, py: float, ax: float, ay: float, bx: float,
+                       by: float) -> tuple[float, float]:
+    """Return the point of the segment a-b nearest to p (a when the segment has no length)."""
+    dx, dy = bx - ax, by - ay
+    n2 = dx * dx + dy * dy
+    if n2 <= 0.0:
+        return ax, ay
+    s = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
+    return ax + s * dx, ay + s * dy
+
+
+def distance(obstacle: Obstacle, px: float, py: float) -> float:
+    """Distance [m] from ``(px, py)`` to ``obstacle``'s surface (negative inside)."""
+    return obstacle.distance(px, py)
+
+
+def to_array(obstacles: Sequence[Obstacle]) -> NDArray[Any]:
+    """Return the obstacles as a structured array of :data:`DTYPE` (one row each)."""
+    out = np.zeros(len(obstacles), dtype=DTYPE)
+    for i, o in enumerate(obstacles):
+        x2, y2 = o.end
+        sec, nanosec = divmod(int(o.stamp_ns), NS_PER_S)
+        out[i] = (o.id, o.kind, sec, nanosec, o.x, o.y, x2, y2, o.radius, o.vx, o.vy,
+                  *o.position_cov, *o.velocity_cov)
+    return out
+
+
+def to_cloud(obstacles: Sequence[Obstacle], stamp_ns: int, frame_id: str,
+             out: PointCloud2 | None = None) -> PointCloud2:
+    """Encode ``obstacles`` as a ``PointCloud2`` stamped ``stamp_ns`` in ``frame_id``."""
+    rows = to_array(obstacles)
+    msg = out if out is not None else PointCloud2()
+    ns_to_stamp(stamp_ns, msg.header.stamp)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = 1, len(rows)
+    msg.fields = [PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
+                  for name, _, datatype, _ in FIELDS]
+    msg.is_bigendian = False
+    msg.point_step = DTYPE.itemsize
+    msg.row_step = DTYPE.itemsize * len(rows)
+    msg.data = rows.tobytes()
+    msg.is_dense = True
+    return msg
+
+
+class ObstacleEncodingError(ValueError):
+    """A point cloud that is not an obstacle message (names the field at fault)."""
+
+
+def from_cloud(msg: PointCloud2) -> list[Obstacle]:
+    """Decode an ``obstacles`` message; the fields are found by name and type.
+
+    Raises :class:`ObstacleEncodingError` naming what is missing or malformed.
+    """
+    if msg.is_bigendian:
+        raise ObstacleEncodingError('obstacles: big-endian point clouds are not read')
+    have = {f.name: f for f in msg.fields}
+    missing = [name for name, *_ in FIELDS if name not in have]
+    if missing:
+        raise ObstacleEncodingError(f'obstacles: missing field(s) {", ".join(missing)}')
+    n = int(msg.width) * int(msg.height)
+    step = int(msg.point_step)
+    data = bytes(msg.data)
+    if len(data) < n * step:
+        raise ObstacleEncodingError(f'obstacles: {len(data)} bytes of data for {n} points '
+                                    f'of {step} bytes')
+    formats = {}
+    for name, *_ in FIELDS:
+        f = have[name]
+        np_type = _NUMPY_OF.get(f.datatype)
+        if np_type is None or f.count != 1:
+            raise ObstacleEncodingError(f'obstacles: field {name!r} has datatype '
+                                        f'{f.datatype} x {f.count}')
+        if f.offset + np.dtype(np_type).itemsize > step:
+            raise ObstacleEncodingError(f'obstacles: field {name!r} at offset {f.offset} '
+                                        f'does not fit a point of {step} bytes')
+        formats[name] = (np_type, f.offset)
+    view = np.dtype({'names': list(formats), 'formats': [t for t, _ in formats.values()],
+                     'offsets': [o for _, o in formats.values()], 'itemsize': step})
+    rows = np.frombuffer(data[:n * step], dtype=view)
+    out: list[Obstacle] = []
+    for r in rows:
+        kind = int(r['kind'])
+        if kind not in KINDS:
+            raise ObstacleEncodingError(f'obstacles: point {len(out)} has kind {kind}')
+        x, y, x2, y2 = float(r['x']), float(r['y']), float(r['x2']), float(r['y2'])
+        out.append(Obstacle(
+            int(r['id']), kind, x, y, float(r['radius']),
+            None if kind == CIRCLE else x2, None if kind == CIRCLE else y2,
+            float(r['vx']), float(r['vy']),
+            (float(r['cov_xx']), float(r['cov_xy']), float(r['cov_yy'])),
+            (float(r['cov_vxvx']), float(r['cov_vxvy']), float(r['cov_vyvy'])),
+            int(r['stamp_sec']) * NS_PER_S + int(r['stamp_nanosec'])))
+    return out
+
+
+def cloud_stamp_ns(msg: PointCloud2) -> int:
+    """Return the stamp of the measurement that produced the message [ns]."""
+    return stamp_to_ns(msg.header.stamp)

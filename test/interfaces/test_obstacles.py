@@ -1,0 +1,99 @@
+"""The obstacle encoding: round trip, field layout as a generic reader sees it, and refusals."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import pytest
+from sensor_msgs.msg import PointCloud2, PointField
+
+from enbarr_interfaces import obstacles as ob
+
+pytestmark = pytest.mark.unit
+
+# sensor_msgs/msg/PointField.msg: UINT32 = 6, FLOAT64 = 8 (typed from the message definition).
+UINT32, FLOAT64 = 6, 8
+
+BUOY = ob.Obstacle(7, ob.CIRCLE, 1.5, -2.0, 0.3, vx=0.2, vy=-0.1,
+                   position_cov=(0.01, 0.002, 0.02), velocity_cov=(0.04, 0.0, 0.05),
+                   stamp_ns=1_700_000_123_456_789_012)
+WALL = ob.Obstacle(9, ob.SEGMENT, -20.0, 3.225, 0.0, x2=20.0, y2=3.225,
+                   stamp_ns=2_000_000_001)
+
+
+def test_round_trip_keeps_every_field_exactly() -> None:
+    msg = ob.to_cloud([BUOY, WALL], 5_000_000_007, 'odom')
+    assert msg.header.frame_id == 'odom'
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (5, 7)
+    assert ob.from_cloud(msg) == [BUOY, WALL]
+
+
+def test_layout_as_a_generic_point_cloud_reader_sees_it() -> None:
+    msg = ob.to_cloud([BUOY], 0, 'odom')
+    fields = {f.name: f for f in msg.fields}
+    assert [f.datatype for f in msg.fields[:4]] == [UINT32] * 4
+    assert all(f.datatype == FLOAT64 for f in msg.fields[4:])
+    assert msg.width == 1 and msg.height == 1 and msg.point_step == len(msg.data)
+    raw = bytes(msg.data)
+
+    def f8(name: str) -> float:
+        return struct.unpack_from('<d', raw, fields[name].offset)[0]
+
+    def u4(name: str) -> int:
+        return struct.unpack_from('<I', raw, fields[name].offset)[0]
+
+    assert (u4('id'), u4('kind')) == (7, 0)
+    assert (u4('stamp_sec'), u4('stamp_nanosec')) == (1_700_000_123, 456_789_012)
+    assert (f8('x'), f8('y'), f8('x2'), f8('y2'), f8('radius')) == (1.5, -2.0, 1.5, -2.0, 0.3)
+    assert (f8('vx'), f8('vy'), f8('cov_xy'), f8('cov_vyvy')) == (0.2, -0.1, 0.002, 0.05)
+
+
+def test_fields_are_found_by_name_not_position() -> None:
+    msg = ob.to_cloud([BUOY, WALL], 0, 'odom')
+    msg.fields = list(reversed(msg.fields))
+    assert ob.from_cloud(msg) == [BUOY, WALL]
+
+
+def test_empty_message_decodes_to_no_obstacles() -> None:
+    assert ob.from_cloud(ob.to_cloud([], 0, 'odom')) == []
+
+
+@pytest.mark.parametrize('break_it, words', [
+    (lambda m: setattr(m, 'fields', [f for f in m.fields if f.name != 'radius']),
+     'missing field(s) radius'),
+    (lambda m: setattr(m, 'data', bytes(m.data)[:-1]), 'bytes of data for 2 points'),
+    (lambda m: setattr(m, 'is_bigendian', True), 'big-endian'),
+    (lambda m: m.fields.__setitem__(1, PointField(name='kind', offset=m.fields[1].offset,
+                                                  datatype=42, count=1)),
+     "field 'kind' has datatype 42"),
+])
+def test_a_malformed_cloud_names_what_is_wrong(break_it, words) -> None:
+    msg = ob.to_cloud([BUOY, WALL], 0, 'odom')
+    break_it(msg)
+    with pytest.raises(ob.ObstacleEncodingError, match=words.replace('(', r'\(')
+                       .replace(')', r'\)')):
+        ob.from_cloud(msg)
+
+
+def test_unknown_kind_is_refused() -> None:
+    msg = ob.to_cloud([BUOY], 0, 'odom')
+    data = bytearray(msg.data)
+    kind_at = next(f.offset for f in msg.fields if f.name == 'kind')
+    data[kind_at:kind_at + 4] = struct.pack('<I', 5)
+    msg.data = bytes(data)
+    with pytest.raises(ob.ObstacleEncodingError, match='kind 5'):
+        ob.from_cloud(msg)
+
+
+def test_distance_to_a_circle_and_to_a_segment() -> None:
+    assert BUOY.distance(1.5, 0.0) == pytest.approx(2.0 - 0.3)
+    assert BUOY.distance(1.5, -2.0) == pytest.approx(-0.3)       # at the centre: inside
+    assert WALL.distance(3.0, 0.0) == pytest.approx(3.225)        # perpendicular foot
+    assert WALL.distance(23.0, 7.225) == pytest.approx(5.0)       # past the end: the end
+    assert ob.closest_on_segment(1.0, 1.0, 0.0, 0.0, 0.0, 0.0) == (0.0, 0.0)
+    assert math.isclose(ob.distance(WALL, -20.0, 3.225), 0.0)
+
+
+def test_cloud_type_is_sensor_msgs_point_cloud2() -> None:
+    assert isinstance(ob.to_cloud([], 0, 'odom'), PointCloud2)
