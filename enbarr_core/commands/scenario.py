@@ -13,7 +13,10 @@ from enbarr_core.framework.errors import EnbarrError
 
 EPILOG = (
     'The JSON line (definitions: enbarr_core/tools/metrics.py, docs/profiles.md): '
-    'modes, thrust_saturation_s (every kind; a run scenario has only these); '
+    "scenario, verdict (pass or fail: every target of the scenario's scenario.targets met), "
+    'failed (the figures whose target failed; error first when the run reported one); '
+    'initial_mode, modes, mode_changes, thrust_saturation_s, final_speed_mps (every kind; a '
+    'run scenario has only these); '
     'station keeping: position/heading error RMS and max '
     "over the fixed window from the scenario's settle_time after automatic began "
     '(window_s), time_to_settle_s (errors inside settle_band from then on), settled, '
@@ -21,7 +24,10 @@ EPILOG = (
     'dropout_position_error_max_m (with motion-capture dropouts); '
     'path: cross_track_rms_m (active leg, to the arrival), cross_track_max_m, '
     'all_waypoints_visited (in order), path_time_s, final_position_error_m; then '
-    'scenario, simulated_s, wall_s, real_time_factor, cpu_s, bag, plot.')
+    "targets (each target's bound, value and pass), simulated_s, wall_s, real_time_factor, "
+    'cpu_s, bag, plot. Exit status: 0 when the verdict is pass, 1 when it is fail (the JSON '
+    'line and the plot are written all the same), 2 on a mistake (unknown scenario, bad '
+    'option or profile).')
 
 
 class ScenarioCommand(Command):
@@ -34,8 +40,10 @@ class ScenarioCommand(Command):
         """Declare ``NAME``, ``--output``, ``--set``, ``--duration`` and the recording."""
         from enbarr_core.tools.scenario import known_scenarios
         parser.description = wrap(
-            'Run a named simulated scenario faster than real time, record it, print its '
-            'metrics as one JSON line and write a PNG plot. Scenarios (params/scenarios/; '
+            'Run a named simulated scenario faster than real time, record it, judge its '
+            'metrics against the targets the scenario states, print them and the verdict as '
+            'one JSON line and write a PNG plot; exit 1 when a target failed. Scenarios '
+            '(params/scenarios/; '
             f'enbarr list scenarios describes them): {", ".join(known_scenarios())}.')
         parser.add_argument('name', help='scenario name (params/scenarios/NAME.yaml) or path')
         parser.add_argument('-o', '--output', metavar='DIR',
@@ -51,8 +59,12 @@ class ScenarioCommand(Command):
                             "read, plus the scenario's record.topics)")
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
-        """Run the scenario and print its metrics as one JSON line."""
+        """Run the scenario and print its metrics and verdict as one JSON line.
+
+        Exit status 0 on a pass, ``targets.EXIT_FAILED`` on a fail.
+        """
         from enbarr_core.tools.scenario import run
+        from enbarr_core.tools.targets import EXIT_FAILED
 
         check_seconds('--duration', args.duration)
         if args.output is not None:
@@ -67,4 +79,4 @@ class ScenarioCommand(Command):
         result = run(args.name, args.output, args.set, plot=not args.no_plot,
                      duration=args.duration, record_all=args.record_all)
         print(json.dumps(result))
-        return 0
+        return 0 if result['verdict'] == 'pass' else EXIT_FAILED

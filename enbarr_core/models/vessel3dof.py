@@ -207,6 +207,48 @@ class Vessel3Dof:
         return [cp * u - sp * v, sp * u + cp * v, r, urd + r * vc, vrd - r * uc, rd]
 
 
+def current_at(t_s: float, current: Sequence[float], amplitude: Sequence[float],
+               period: float) -> tuple[float, float]:
+    """World current (V_x, V_y) [m/s] at time ``t_s`` [s]: V = current + sin(2 pi t / T) a.
+
+    ``current`` and ``amplitude`` are (east, north) [m/s], ``period`` T [s]: a steady current
+    with a slow sinusoidal variation on top (the simulator's, and what a plot compares with).
+    """
+    phase = math.sin(2.0 * math.pi * t_s / period)
+    return current[0] + phase * amplitude[0], current[1] + phase * amplitude[1]
+
+
+def disturbance_at_rest(params: Vessel3DofParams, psi: ArrayLike, current: ArrayLike,
+                        bias: ArrayLike) -> Vector:
+    """World-frame force [F_x, F_y, N] [N, N, N m] that current and bias put on a still hull.
+
+    With nu = 0 the water-relative velocity is nu_r = -nu_c, nu_c = R(psi)^T V, so the model's
+    damping pushes the hull with (D + D_n(nu_c)) nu_c (body frame; no yaw moment, the current
+    being irrotational, and no Coriolis force at r = 0); in the world frame
+
+        b_rest = b + R(psi) [(d11 + dn11 |u_c|) u_c, (d22 + dn22 |v_c|) v_c, 0].
+
+    This is the force that holding station must cancel, so it is what an observer's world-frame
+    bias estimate (which has no current in its model) converges to while the vessel holds
+    still. ``psi`` (n,) [rad, ENU], ``current`` (n, 2) or (2,) world (east, north) [m/s],
+    ``bias`` (3,) world [N, N, N m]; returns (n, 3).
+    """
+    psi = np.atleast_1d(np.asarray(psi, dtype=float))
+    V = np.broadcast_to(np.asarray(current, dtype=float), (len(psi), 2))
+    c, s = np.cos(psi), np.sin(psi)
+    u_c = c * V[:, 0] + s * V[:, 1]     # nu_c = R(psi)^T V
+    v_c = -s * V[:, 0] + c * V[:, 1]
+    (d1, d2, _), (n1, n2, _) = params.D, params.Dn
+    X = (d1 + n1 * np.abs(u_c)) * u_c   # body frame
+    Y = (d2 + n2 * np.abs(v_c)) * v_c
+    out = np.empty((len(psi), 3))
+    out[:, 0] = c * X - s * Y           # R(psi) [X, Y]
+    out[:, 1] = s * X + c * Y
+    out[:, 2] = 0.0
+    out += np.asarray(bias, dtype=float)
+    return out
+
+
 # -- azimuth thrusters ------------------------------------------------------------------------
 
 

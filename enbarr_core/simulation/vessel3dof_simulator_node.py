@@ -25,7 +25,8 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.models.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
+from enbarr_core.models.vessel3dof import (AzimuthActuators, current_at, Vessel3Dof,
+                                           Vessel3DofParams)
 from enbarr_core.allocation.layout_params import declare_azimuths
 from enbarr_core.models.vessel3dof_params import VESSEL_SPECS, vessel_from_params
 from enbarr_core.framework.node import EnbarrNode, sim_steps
@@ -121,9 +122,8 @@ class Vessel3DofSimulatorNode(EnbarrNode):
 
     def current_at(self, t_s: float) -> tuple[float, float]:
         """Return the current (east, north) [m/s] at simulated time ``t_s`` [s]."""
-        phase = math.sin(2.0 * math.pi * t_s / self.settings.current_period)
-        (c_e, c_n), (a_e, a_n) = self._current, self._current_amplitude
-        return c_e + phase * a_e, c_n + phase * a_n  # floats: once per step, no 2-array
+        return current_at(t_s, self._current, self._current_amplitude,
+                          self.settings.current_period)
 
     def step(self) -> None:
         """Advance to the clock's present (as RovSimulatorNode.step) and publish the truth."""

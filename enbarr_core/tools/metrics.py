@@ -62,6 +62,7 @@ and a heading error is positive when the vessel points clockwise of its referenc
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 from pathlib import Path
 from typing import Any
@@ -78,12 +79,45 @@ from enbarr_core.recording.bag import read_bag
 METRIC_TOPICS = ('/sim/odometry', '/mode', '/force_command', '/allocation/delivered',
                  '/guidance/reference')
 #: What ``plot_run`` reads besides them.
-PLOT_TOPICS = ('/azimuth_commands',)
+PLOT_TOPICS = ('/azimuth_commands', '/observer/bias')
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A figure of the JSON line that a scenario's ``targets`` may bound."""
+
+    kinds: tuple[str, ...] | None = None  # the scenario kinds that report it (None: every)
+    boolean: bool = False                 # a yes/no figure (its target: true or false)
+
+
+_SK, _PATH = ('station_keeping',), ('path',)
+#: Every figure a target may bound, by name (the module docstring defines them). A new
+#: metric that a scenario may be judged by is added here too.
+FIGURES: dict[str, Figure] = {
+    'mode_changes': Figure(), 'thrust_saturation_s': Figure(), 'final_speed_mps': Figure(),
+    **{name: Figure(_SK) for name in (
+        'automatic_s', 'position_error_rms_m', 'position_error_max_m', 'heading_error_rms_deg',
+        'heading_error_max_deg', 'time_to_settle_s', 'overall_position_error_rms_m',
+        'overall_position_error_max_m', 'overall_heading_error_rms_deg',
+        'overall_heading_error_max_deg', 'dropout_position_error_max_m')},
+    'settled': Figure(_SK, boolean=True), 'settled_in_time': Figure(_SK, boolean=True),
+    **{name: Figure(_PATH) for name in (
+        'cross_track_rms_m', 'cross_track_max_m', 'path_time_s', 'final_position_error_m')},
+    'all_waypoints_visited': Figure(_PATH, boolean=True),
+}
+
+
+def figures_of(kind: str) -> dict[str, bool]:
+    """Return the figures a scenario of ``kind`` reports: name -> whether it is yes/no."""
+    return {name: f.boolean for name, f in FIGURES.items()
+            if f.kinds is None or kind in f.kinds}
+
 GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to follow
 VISIT_RADIUS = 0.25    # a waypoint counts as visited this close [m]
 ARRIVAL_RADIUS = 0.1   # arrived at the last waypoint this close [m]
 DROPOUT_AFTER = 1.0    # the dropout error is judged up to this long after a window [s]
 STAMP_TOL = 1e-6       # times closer than this are equal: stamps are integer ns read as float s
+FINAL_SPEED_SPAN = 1.0  # final_speed_mps is over this last stretch of the run [s]
 
 
 def _stamp(msg: Any) -> float:
@@ -200,6 +234,17 @@ def _dropout_windows(profile: Any) -> list[tuple[float, float]]:
     return []
 
 
+def _final_speed(t: np.ndarray, eta: np.ndarray) -> float:
+    """Return the speed over ground over the last ``FINAL_SPEED_SPAN`` of the run [m/s].
+
+    The distance made good in it over its length (0 for a run shorter than two samples).
+    """
+    if len(t) < 2:
+        return 0.0
+    i = min(int(np.searchsorted(t, t[-1] - FINAL_SPEED_SPAN + STAMP_TOL)), len(t) - 2)
+    return float(np.linalg.norm(eta[-1, :2] - eta[i, :2]) / (t[-1] - t[i]))
+
+
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x ** 2)))
 
@@ -219,7 +264,9 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
     modes = _modes(msgs.get('/mode', []))
     changes = [(tm, m) for i, (tm, m) in enumerate(modes) if i and m != modes[i - 1][1]]
     out: dict[str, Any] = {'initial_mode': modes[0][1] if modes else None,
-                           'modes': [(round(tm - t0, 2), m) for tm, m in changes]}
+                           'modes': [(round(tm - t0, 2), m) for tm, m in changes],
+                           'mode_changes': len(changes),
+                           'final_speed_mps': round(_final_speed(t, eta), 4)}
     # Thrust saturation: allocation delivered less than the controller asked.
     asked = {_stamp(m): m.wrench for _, m in msgs.get('/force_command', [])}
     sat = [not math.isclose(_norm(m.wrench), _norm(asked[_stamp(m)]), rel_tol=1e-6,
@@ -330,11 +377,67 @@ def _norm(w: Any) -> float:
     return math.sqrt(w.force.x ** 2 + w.force.y ** 2 + w.torque.z ** 2)
 
 
-def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
-             msgs: Messages | None = None) -> Path:
-    """Path (north up) with the hull at intervals; errors, compass heading and thrust.
+# -- the picture ----------------------------------------------------------------------------
+SIMULATOR_PLUGIN = 'vessel3dof_simulator'  # the node whose current and bias are injected
+COURSE_MIN_SPEED = 0.02  # a course over ground is drawn only above this speed [m/s]
+NO_DATA = dict(ha='center', va='center', fontsize=8, color='tab:gray')
 
-    ``msgs``: the bag as ``read_bag`` returned it, when the caller has read it already.
+
+def _velocities(msgs: list[tuple[int, Any]]) -> np.ndarray:
+    """nu_d (n, 3) [m/s, m/s, rad/s] (body) of ``guidance/reference`` messages."""
+    return np.array([convert.twist_to_nu3(m.points[0].velocities[0]) for _, m in msgs]) \
+        if msgs else np.zeros((0, 3))
+
+
+def speed_over_ground(t: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """Speed over ground [m/s] at each sample, from the positions (central differences)."""
+    if len(t) < 2:
+        return np.zeros(len(t))
+    return np.hypot(np.gradient(eta[:, 0], t), np.gradient(eta[:, 1], t))
+
+
+def injected_disturbance(profile: Any, t: np.ndarray, psi: np.ndarray) -> np.ndarray | None:
+    """Return the simulator's injected disturbance at each sample (None without one).
+
+    The current and force bias, as the world-frame force [F_x east, F_y north, N]
+    [N, N, N m] they put on the hull held still
+    (``models.vessel3dof.disturbance_at_rest``: the simulator's own damping, the vessel's true
+    heading ``psi`` and the current at time ``t`` [s]); None without a 3-DOF simulator.
+
+    It is what the observer's bias estimate (world frame, no current in its model) converges to
+    while the vessel holds station; while it moves, the estimate also takes up the model error.
+    """
+    sim = next((n for n in profile.nodes if n.plugin == SIMULATOR_PLUGIN), None)
+    if sim is None:
+        return None
+    from enbarr_core.models.vessel3dof import current_at, disturbance_at_rest
+    from enbarr_core.simulation.vessel3dof_simulator_node import (
+        SPECS, Vessel3DofSimulatorSettings)
+    given = {**profile.parameters, **sim.parameters}
+    s = Vessel3DofSimulatorSettings.from_params({p.name: given.get(p.name, p.default)
+                                                 for p in SPECS})
+    V = np.array([current_at(ti, s.current, s.current_amplitude, s.current_period)
+                  for ti in t]).reshape(-1, 2)
+    return disturbance_at_rest(s.vessel, psi, V, s.bias)
+
+
+def _compass_axis(ax: Any) -> None:
+    ax.set_ylim(0.0, 360.0)
+    ax.set_yticks(range(0, 361, 90), ['N 0', 'E 90', 'S 180', 'W 270', 'N 360'])
+
+
+def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
+             msgs: Messages | None = None, verdict: dict[str, Any] | None = None) -> Path:
+    """Draw the run for an engineer (see the panels below) into ``png`` and return it.
+
+    Left: the path (north up) with the hull at intervals; for station keeping the position
+    about the hold point at the scale of its error [cm] with the settle band; the targets
+    and the verdict (``verdict``: ``targets.judge``'s answer). Right, against time: errors;
+    compass heading with its reference (and, in guidance, the course reference from nu_d
+    against the course over ground: line of sight steers by course); speed over ground against
+    the commanded speed; the observer's bias estimate against the injected disturbance; each
+    azimuth's commanded angle and thrust. ``msgs``: the bag as ``read_bag`` returned it, when
+    the caller has read it already.
     """
     import matplotlib
     matplotlib.use('Agg')
@@ -343,15 +446,44 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     msgs = read_bag(bag) if msgs is None else msgs
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
-    fig = plt.figure(figsize=(12, 9), layout='constrained')
-    grid = fig.add_gridspec(3, 2, width_ratios=(1.1, 1.0))
-    ax = fig.add_subplot(grid[:, 0])
+    ref_msgs = msgs.get('/guidance/reference', [])
+    ref_t, ref = _references(ref_msgs)
+    nu_d = _velocities(ref_msgs)
+    modes = _modes(msgs.get('/mode', []))
+    station = spec.kind == 'station_keeping'
+    fig = plt.figure(figsize=(15, 19), layout='constrained')
+    grid = fig.add_gridspec(6, 2, width_ratios=(1.0, 1.0))
+    _path_panel(fig.add_subplot(grid[0:3 if station else 4, 0]), plt, t, eta, ref_t, ref,
+                spec, profile)
+    if station:
+        _hold_panel(fig.add_subplot(grid[3:5, 0]), plt, t, eta, ref_t, ref, modes, spec)
+    _verdict_panel(fig.add_subplot(grid[5, 0] if station else grid[4:6, 0]), verdict)
+    ax = fig.add_subplot(grid[0, 1])
+    _errors_panel(ax, t, eta, ref_t, ref, modes, spec, profile)
+    _heading_panel(fig.add_subplot(grid[1, 1], sharex=ax), t, eta, ref_t, ref, nu_d, modes)
+    _speed_panel(fig.add_subplot(grid[2, 1], sharex=ax), t, eta, ref_t, nu_d, spec, profile)
+    _bias_panel(fig.add_subplot(grid[3, 1], sharex=ax), t, eta, msgs, profile)
+    cmds = msgs.get('/azimuth_commands', [])
+    _azimuth_panels(fig.add_subplot(grid[4, 1], sharex=ax),
+                    fig.add_subplot(grid[5, 1], sharex=ax), t0, cmds, profile)
+    if verdict is not None:
+        failed = verdict['failed']
+        fig.suptitle(f'{profile.name}: ' + ('PASS, every target met' if not failed
+                                            else f'FAIL: {", ".join(failed)}'),
+                     color='tab:green' if not failed else 'tab:red', fontsize=14,
+                     fontweight='bold')
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return png
+
+
+def _path_panel(ax: Any, plt: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray,
+                ref: np.ndarray, spec: Any, profile: Any) -> None:
     wps = _waypoints(profile) if spec.kind == 'path' else np.zeros((0, 2))
     radius = hull_radius(profile)
     if len(wps):
         ax.plot(wps[:, 0], wps[:, 1], 'k--', lw=1, label='path')
     ax.plot(eta[:, 0], eta[:, 1], lw=1.2, label='vessel (truth)')
-    ref_t, ref = _references(msgs.get('/guidance/reference', []))
     if len(ref_t):  # NaN (line of sight: no position reference) leaves gaps
         ax.plot(ref[:, 0], ref[:, 1], lw=0.8, alpha=0.7, label='reference')
     step = max(1, len(t) // 12)
@@ -365,7 +497,69 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     ax.set_title(f'{profile.name}: path, north up; hull and bow (red) at intervals')
     ax.legend(loc='best', fontsize=8)
     ax.grid(True, alpha=0.3)
-    ax2 = fig.add_subplot(grid[0, 1])
+
+
+def _hold_panel(ax: Any, plt: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray,
+                ref: np.ndarray, modes: list[tuple[float, str]], spec: Any) -> None:
+    """Position about the hold point in force, over the automatic period, in centimetres."""
+    ax.set_title('station keeping: position about the hold point, north up [cm]')
+    ax.set_xlabel('east of the hold point [cm]')
+    ax.set_ylabel('north of the hold point [cm]')
+    band_cm = 100.0 * spec.settle_band[0]
+    ax.add_patch(plt.Circle((0.0, 0.0), band_cm, fill=False, ls='--', color='tab:green',
+                            label=f'settle band {band_cm:g} cm'))
+    ax.plot([0.0], [0.0], 'k+', ms=12, label='hold point')
+    auto = _period(modes, 'automatic')
+    limit = 1.3 * band_cm
+    if auto is not None and len(ref_t):
+        sel = (t >= auto[0] - STAMP_TOL) & (t < auto[1] - STAMP_TOL)
+        idx = np.clip(np.searchsorted(ref_t, t[sel], side='right') - 1, 0, len(ref_t) - 1)
+        d = 100.0 * (eta[sel, :2] - ref[idx, :2])
+        window = t[sel] - auto[0] >= spec.settle_time - STAMP_TOL
+        ax.plot(d[~window, 0], d[~window, 1], lw=0.6, color='tab:gray', alpha=0.6,
+                label=f'first {spec.settle_time:g} s (settling; may leave the frame)')
+        ax.plot(d[window, 0], d[window, 1], lw=0.8, color='tab:blue',
+                label='evaluation window')
+        if window.any():
+            limit = max(limit, 1.2 * float(np.abs(d[window]).max()))
+    else:
+        ax.text(0.5, 0.2, 'never in automatic mode', transform=ax.transAxes, **NO_DATA)
+    ax.set_xlim(-limit, limit)
+    ax.set_ylim(-limit, limit)
+    ax.set_aspect('equal', adjustable='box')
+    ax.legend(loc='upper right', fontsize=7)
+    ax.grid(True, alpha=0.3)
+
+
+def _verdict_panel(ax: Any, verdict: dict[str, Any] | None) -> None:
+    from enbarr_core.tools.targets import describe
+    ax.set_axis_off()
+    ax.set_title('targets (scenario.targets) and the verdict')
+    if verdict is None:
+        ax.text(0.5, 0.5, 'not judged', transform=ax.transAxes, **NO_DATA)
+        return
+    lines = [('verdict: ' + verdict['verdict'].upper(),
+              'tab:green' if verdict['verdict'] == 'pass' else 'tab:red')]
+    if 'error' in verdict['failed']:
+        lines.append(('the run reported an error (see the JSON line)', 'tab:red'))
+    lines += [(describe(name, r), 'black' if r['pass'] else 'tab:red')
+              for name, r in verdict['targets'].items()]
+    for i, (text, color) in enumerate(lines):
+        ax.text(0.0, 1.0 - i / max(len(lines), 8), text, transform=ax.transAxes, va='top',
+                fontsize=9, family='monospace', color=color)
+
+
+def _mode_lines(ax: Any, modes: list[tuple[float, str]], t0: float, label: bool) -> None:
+    for tm, m in modes:
+        ax.axvline(tm - t0, color='k', lw=0.6, ls=':')
+        if label:
+            ax.text(tm - t0, ax.get_ylim()[1], m, fontsize=7, rotation=90, va='top')
+
+
+def _errors_panel(ax2: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray, ref: np.ndarray,
+                  modes: list[tuple[float, str]], spec: Any, profile: Any) -> None:
+    t0 = t[0]
+    wps = _waypoints(profile) if spec.kind == 'path' else np.zeros((0, 2))
     if len(ref_t):
         idx = np.clip(np.searchsorted(ref_t, t, side='right') - 1, 0, len(ref_t) - 1)
         valid = t >= ref_t[0]
@@ -379,36 +573,127 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
                   color='tab:orange', lw=0.8, label='heading error [deg], + clockwise')
         ax2b.set_ylabel('heading error [deg], + clockwise')
         ax2b.legend(loc='upper right', fontsize=7)
-    for tm, m in _modes(msgs.get('/mode', [])):
-        ax2.axvline(tm - t0, color='k', lw=0.6, ls=':')
-        ax2.text(tm - t0, ax2.get_ylim()[1], m, fontsize=7, rotation=90, va='top')
+    _mode_lines(ax2, modes, t0, label=True)
     ax2.set_ylabel('position error [m]')
     ax2.legend(loc='upper left', fontsize=7)
     ax2.set_title('errors against the guidance reference')
     ax2.grid(True, alpha=0.3)
-    axh = fig.add_subplot(grid[1, 1], sharex=ax2)
-    axh.plot(t - t0, compass_heading_deg(eta[:, 2]), '.', ms=1.5, label='vessel (truth)')
+
+
+def _heading_panel(axh: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray,
+                   ref: np.ndarray, nu_d: np.ndarray, modes: list[tuple[float, str]]) -> None:
+    """Compass heading and its reference; in guidance, the course reference and the course.
+
+    The course reference is the direction of the reference velocity nu_d in the world,
+    R(psi) nu_d, with psi the vessel's true heading at the reference's stamp (the guidance
+    law rotated it with the estimate's, a fraction of a degree away): in line of sight, the
+    LOS course chi_d. The course over ground is drawn only above ``COURSE_MIN_SPEED``.
+    """
+    t0 = t[0]
+    axh.plot(t - t0, compass_heading_deg(eta[:, 2]), '.', ms=1.5, label='heading (truth)')
     if len(ref_t):
         axh.plot(ref_t - t0, compass_heading_deg(ref[:, 2]), '.', ms=1.0, alpha=0.6,
-                 label='reference')
-    axh.set_ylim(0.0, 360.0)
-    axh.set_yticks(range(0, 361, 90), ['N 0', 'E 90', 'S 180', 'W 270', 'N 360'])
+                 label='heading reference')
+    guided = _period(modes, 'guidance')
+    if guided is not None and len(ref_t):
+        on = (ref_t >= guided[0] - STAMP_TOL) & (ref_t < guided[1] - STAMP_TOL) \
+            & (np.hypot(nu_d[:, 0], nu_d[:, 1]) > COURSE_MIN_SPEED)
+        psi = np.interp(ref_t[on], t, np.unwrap(eta[:, 2]))
+        chi_d = psi + np.arctan2(nu_d[on, 1], nu_d[on, 0])
+        axh.plot(ref_t[on] - t0, compass_heading_deg(chi_d), '.', ms=1.0, color='tab:red',
+                 label='course reference (R(psi) nu_d; LOS chi_d)')
+        moving = speed_over_ground(t, eta) > COURSE_MIN_SPEED
+        vx, vy = np.gradient(eta[:, 0], t), np.gradient(eta[:, 1], t)
+        axh.plot(t[moving] - t0, compass_heading_deg(np.arctan2(vy, vx)[moving]), '.',
+                 ms=1.0, color='tab:purple', alpha=0.6, label='course over ground (truth)')
+    _compass_axis(axh)
+    _mode_lines(axh, modes, t0, label=False)
     axh.set_ylabel('heading [deg] (compass)')
-    axh.set_title('compass heading: 0 = north, clockwise')
-    axh.legend(loc='upper right', fontsize=7)
+    axh.set_title('compass heading and course: 0 = north, clockwise')
+    axh.legend(loc='upper right', fontsize=7, markerscale=6)
     axh.grid(True, alpha=0.3)
-    ax3 = fig.add_subplot(grid[2, 1], sharex=ax2)
-    cmds = msgs.get('/azimuth_commands', [])
+
+
+def _speed_panel(ax: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray, nu_d: np.ndarray,
+                 spec: Any, profile: Any) -> None:
+    t0 = t[0]
+    ax.plot(t - t0, speed_over_ground(t, eta), lw=0.9, label='speed over ground (truth)')
+    if len(ref_t):
+        ax.plot(ref_t - t0, np.hypot(nu_d[:, 0], nu_d[:, 1]), lw=0.9, color='tab:red',
+                label='commanded: reference speed |nu_d|')
+    speed = _guidance_speed(profile) if spec.kind == 'path' else None
+    if speed is not None:
+        ax.axhline(speed, color='k', lw=0.6, ls='--', label=f'path.speed {speed:g} m/s')
+    ax.set_ylabel('speed [m/s]')
+    ax.set_title('speed over ground against the commanded speed')
+    ax.legend(loc='upper right', fontsize=7)
+    ax.grid(True, alpha=0.3)
+
+
+def _guidance_speed(profile: Any) -> float | None:
+    for n in profile.nodes:
+        if n.plugin in GUIDANCE_PLUGINS:
+            speed = {**profile.parameters, **n.parameters}.get('path.speed')
+            return None if speed is None else float(speed)
+    return None
+
+
+def _bias_panel(ax: Any, t: np.ndarray, eta: np.ndarray, msgs: Messages, profile: Any) -> None:
+    t0 = t[0]
+    ax.set_title('observer bias estimate (solid) against the injected disturbance on the '
+                 'still hull (dashed), world frame', fontsize=10)
+    ax.set_ylabel('force [N], moment [N m]')
+    bias = msgs.get('/observer/bias', [])
+    injected = injected_disturbance(profile, t, eta[:, 2])
+    if not bias and injected is None:
+        ax.text(0.5, 0.5, 'no observer bias and no 3-DOF simulator in this run',
+                transform=ax.transAxes, **NO_DATA)
+        return
+    labels = ('east X [N]', 'north Y [N]', 'yaw N [N m], + counter-clockwise')
+    colors = ('tab:blue', 'tab:orange', 'tab:green')
+    if bias:
+        tb = np.array([_stamp(m) for _, m in bias]) - t0
+        b = np.array([convert.wrench_to_tau3(m.wrench) for _, m in bias])
+        for i in range(3):
+            ax.plot(tb, b[:, i], lw=0.9, color=colors[i], label=f'b_hat {labels[i]}')
+    if injected is not None:
+        for i in range(3):
+            ax.plot(t - t0, injected[:, i], lw=0.9, ls='--', color=colors[i],
+                    label=f'injected {labels[i]}')
+    ax.legend(loc='upper right', fontsize=7, ncol=2)
+    ax.grid(True, alpha=0.3)
+
+
+def _azimuth_panels(axa: Any, axt: Any, t0: float, cmds: list[tuple[int, Any]],
+                    profile: Any) -> None:
+    """Draw each azimuth's commanded angle with its servo travel, and its thrust.
+
+    Angles as people read them: degrees from ahead, + to starboard (clockwise seen from above,
+    as a compass); the allocation's angle is counter-clockwise.
+    """
+    axa.set_title('azimuth angles (commanded): 0 = ahead, + to starboard (clockwise)')
+    axa.set_ylabel('azimuth angle [deg]')
+    axt.set_title('azimuth thrust (commanded)')
+    axt.set_ylabel('thrust [N]')
+    axt.set_xlabel('time [s]')
     if cmds:
         tc = np.array([_stamp(m) for _, m in cmds]) - t0
         thrust = np.array([list(m.effort) for _, m in cmds])
+        angle = -np.degrees(np.array([list(m.position) for _, m in cmds]))
+        p = profile.parameters
         for i, name in enumerate(cmds[0][1].name):
-            ax3.plot(tc, thrust[:, i], lw=0.8, label=name)
-        ax3.legend(fontsize=7)
-    ax3.set_xlabel('time [s]')
-    ax3.set_ylabel('thrust [N]')
-    ax3.set_title('azimuth thrust')
-    ax3.grid(True, alpha=0.3)
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return png
+            line, = axa.plot(tc, angle[:, i], lw=0.9, label=name)
+            axt.plot(tc, thrust[:, i], lw=0.8, label=name)
+            for key in ('angle_min', 'angle_max'):
+                if f'azimuths.{name}.{key}' in p:
+                    axa.axhline(-math.degrees(p[f'azimuths.{name}.{key}']), lw=0.6, ls=':',
+                                color=line.get_color())
+        axa.legend(loc='upper right', fontsize=7, title='dotted: servo travel',
+                   title_fontsize=7)
+        axt.legend(loc='upper right', fontsize=7)
+    else:
+        for ax in (axa, axt):
+            ax.text(0.5, 0.5, 'no azimuth_commands in this run', transform=ax.transAxes,
+                    **NO_DATA)
+    axa.grid(True, alpha=0.3)
+    axt.grid(True, alpha=0.3)

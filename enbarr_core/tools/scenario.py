@@ -8,6 +8,9 @@ A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenari
       settle_time: 20.0       # s after automatic began: the evaluation window starts here
                               # (station_keeping only, required there)
       settle_band: [0.05, 2.0] # m, deg: settled once the errors stay inside (default)
+      targets:                 # required: what the run must achieve (tools.targets)
+        position_error_rms_m: {max: 0.01}
+        settled_in_time: true
 
 The nodes are built exactly as ``bringup`` builds them, in one process, but time is
 simulated: every node's ROS clock is set to the simulated time, and the runner steps the
@@ -20,10 +23,12 @@ plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``), plus the topics 
 lists in its ``record`` section (its ``path`` is replaced by the output directory), or every
 topic with ``--record-all`` (several times slower: the recorder serializes each message of
 every 100 Hz topic). The metrics are computed from that bag (their definitions:
-:mod:`enbarr_core.tools.metrics`) and printed as one JSON line
-with ``scenario``, ``simulated_s``, ``wall_s``, ``real_time_factor``, ``cpu_s``, ``bag`` and
-``plot``; a PNG shows the path in the NE plane with the vessel outline, the errors and the
-thrust over time.
+:mod:`enbarr_core.tools.metrics`), judged against the scenario's targets
+(:mod:`enbarr_core.tools.targets`) and printed as one JSON line: ``scenario``, ``verdict``
+(``pass`` or ``fail``), ``failed``, the figures, ``targets`` (each with its bound, value and
+``pass``), ``simulated_s``, ``wall_s``, ``real_time_factor``, ``cpu_s``, ``bag`` and ``plot``.
+A run with ``--duration`` or ``--set`` is judged against the same targets. The PNG
+(``metrics.plot_run``) carries the verdict too.
 """
 
 from __future__ import annotations
@@ -37,9 +42,10 @@ from typing import Any
 
 from enbarr_core.framework.checks import MAX_SECONDS
 from enbarr_core.framework.errors import EnbarrError, ProfileError
+from enbarr_core.tools.targets import judge, parse_targets, Target
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
-SCENARIO_KEYS = ('duration', 'kind', 'settle_time', 'settle_band')
+SCENARIO_KEYS = ('duration', 'kind', 'settle_time', 'settle_band', 'targets')
 SCENARIO_KINDS = ('station_keeping', 'path', 'run')  # run: modes and saturation only
 
 
@@ -51,6 +57,7 @@ class ScenarioSpec:
     kind: str                         # station_keeping, path or run
     settle_band: tuple[float, float]  # [m, deg]
     settle_time: float | None = None  # [s] after automatic began (station_keeping only)
+    targets: tuple[Target, ...] = ()  # what the run must achieve (``tools.targets``)
 
 
 def scenario_spec(profile: Any) -> ScenarioSpec:
@@ -92,7 +99,9 @@ def scenario_spec(profile: Any) -> ScenarioSpec:
     elif 'settle_time' in raw:
         raise ProfileError('only for a station_keeping scenario', path=profile.path,
                            key='scenario.settle_time')
-    return ScenarioSpec(duration, kind, (band_m, band_deg), settle_time)
+    from enbarr_core.tools.metrics import figures_of
+    targets = parse_targets(raw.get('targets'), kind, figures_of(kind), profile.path)
+    return ScenarioSpec(duration, kind, (band_m, band_deg), settle_time, targets)
 
 
 def _number(value: Any, profile: Any, key: str, expected: str) -> float:
@@ -184,12 +193,16 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     from enbarr_core.recording.bag import read_bag
     from enbarr_core.tools.metrics import compute_metrics, plot_run
     msgs = read_bag(bag)  # once, for the metrics and the plot
-    result = compute_metrics(bag, spec, profile, msgs)
-    result.update({'scenario': profile.name, 'simulated_s': spec.duration,
-                   'wall_s': round(wall, 2), 'real_time_factor': round(spec.duration / wall, 1),
-                   'cpu_s': round(cpu, 2), 'bag': str(bag)})
+    figures = compute_metrics(bag, spec, profile, msgs)
+    verdict = judge(figures, spec.targets)
+    result = {'scenario': profile.name, 'verdict': verdict['verdict'],
+              'failed': verdict['failed'], **figures, 'targets': verdict['targets'],
+              'simulated_s': spec.duration, 'wall_s': round(wall, 2),
+              'real_time_factor': round(spec.duration / wall, 1), 'cpu_s': round(cpu, 2),
+              'bag': str(bag)}
     if plot:
-        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png', msgs))
+        result['plot'] = str(plot_run(bag, spec, profile, out / f'{profile.name}.png', msgs,
+                                      verdict))
     return result
 
 

@@ -17,7 +17,8 @@ What each test proves, in this order:
      widens discovery beyond LOCALHOST: it looks for a topside on the network) is only
      loaded (it exists, merges and validates), never started here.
    - ``scenario``: the named scenario (it must exist in params/scenarios) run for two
-     simulated seconds past its settle time, ``--no-plot``: it runs and prints its JSON.
+     simulated seconds past its settle time, ``--no-plot``: it runs and prints its JSON
+     with a verdict (exit 0 on pass, 1 on fail: a run cut short may miss its targets).
    - ``bench`` and ``chaos`` run for tens of seconds to minutes whatever their options: parsed
      only, and a ``--profile``/``PROFILE`` they name is loaded (it exists and validates).
    - ``list``, and ``check-device`` against an emulator: as written.
@@ -38,6 +39,7 @@ import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
+import json
 import os
 from pathlib import Path
 import re
@@ -145,8 +147,8 @@ def parse(args: list[str], monkeypatch: pytest.MonkeyPatch,
 _done: dict[tuple[str, ...], subprocess.CompletedProcess[str]] = {}
 
 
-def run(argv: list[str], cwd: Path, key: tuple[str, ...] | None = None
-        ) -> subprocess.CompletedProcess[str]:
+def run(argv: list[str], cwd: Path, key: tuple[str, ...] | None = None,
+        ok: tuple[int, ...] = (0,)) -> subprocess.CompletedProcess[str]:
     """Run ``argv`` once per session, in ``cwd`` (a temporary folder: nothing it writes lands
     in the clone), with a terminal as its input, as a user would. The docs write commands
     from the clone's root: an argument that is a path there is given as that path. ``key``
@@ -163,7 +165,7 @@ def run(argv: list[str], cwd: Path, key: tuple[str, ...] | None = None
             os.close(master)
             os.close(slave)
     result = _done[key]
-    assert result.returncode == 0, (
+    assert result.returncode in ok, (
         f'{shlex.join(argv)} exited {result.returncode}:\n{result.stderr[-3000:]}')
     return result
 
@@ -194,8 +196,9 @@ def run_scenario(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
     spec = yaml.safe_load(path.read_text(encoding='utf-8'))['scenario']
     seconds = float(spec.get('settle_time', 0.0)) + 2.0
     out = run([*ENBARR, 'scenario', ns.name, '--duration', str(seconds), '--no-plot',
-               '--output', str(tmp / 'scenario')], tmp, key=('scenario', ns.name))
-    assert out.stdout.strip().startswith('{'), out.stdout
+               '--output', str(tmp / 'scenario')], tmp, key=('scenario', ns.name), ok=(0, 1))
+    verdict = json.loads(out.stdout.strip().splitlines()[-1])['verdict']
+    assert out.returncode == {'pass': 0, 'fail': 1}[verdict], out.stderr[-3000:]
     return f'scenario {ns.name}: ran {seconds} simulated seconds'
 
 

@@ -1,5 +1,6 @@
 """End-to-end tier for the CS Saucer: the named scenarios run headless on simulated time
-(``enbarr scenario``), judged by their metrics against their targets (docs/benchmarks.md), and the
+(``enbarr scenario``), each passing its own targets (``scenario.targets``) and judged again
+here by the bounds below, and the
 profiles run and validated as users run them.
 """
 
@@ -21,6 +22,7 @@ def scenario(name: str, out: Path) -> dict[str, Any]:
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result['verdict'] == 'pass' and result['failed'] == []  # its own targets
     assert Path(result['plot']).stat().st_size > 10_000  # a PNG was drawn
     assert result['real_time_factor'] > 1.0              # faster than real time
     return result
@@ -94,11 +96,13 @@ def test_mocap_dropout_is_ridden_through(tmp_path: Path) -> None:
 
 
 def run_figures(name: str, out: Path, *args: str) -> dict[str, Any]:
-    """``enbarr scenario NAME --no-plot ARGS``: its figures (no timings, no paths)."""
+    """``enbarr scenario NAME --no-plot ARGS``: its figures and verdict (no timings, no
+    paths); the exit status is the verdict's (0 pass, 1 fail)."""
     proc = subprocess.run([*ENBARR, 'scenario', name, '--output', str(out), '--no-plot', *args],
                           capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert 'Traceback' not in proc.stderr, proc.stderr[-3000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == {'pass': 0, 'fail': 1}[result['verdict']], proc.stderr[-3000:]
     return {k: v for k, v in result.items()
             if k not in ('wall_s', 'real_time_factor', 'cpu_s', 'bag')}
 
@@ -118,6 +122,12 @@ def test_runs_repeat_and_the_recorded_selection_holds_the_metrics(tmp_path: Path
     everything = run_figures('mocap_dropout', tmp_path / 'all', *args, '--record-all')
     assert 'error' not in a, a['error']
     assert a == b == everything
+    # Cut at 22 s, the run never reaches the dropout at 40 s: that target has no figure and
+    # fails (so does the RMS of a 1 s window still converging), and the exit status says so
+    # (run_figures: 1 for a fail).
+    assert a['verdict'] == 'fail' and 'dropout_position_error_max_m' in a['failed']
+    assert a['targets']['dropout_position_error_max_m'] == {'max': 0.005, 'value': None,
+                                                            'pass': False}
     chosen = set(read_bag(tmp_path / 'a' / 'bag'))
     assert chosen == {*METRIC_TOPICS, '/observer/measurement_age'}  # the scenario's own too
     assert chosen < set(read_bag(tmp_path / 'all' / 'bag'))

@@ -16,6 +16,8 @@ from enbarr_core.models.vessel3dof import (
     Vessel3Dof,
     Vessel3DofParams,
     azimuth_tau,
+    current_at,
+    disturbance_at_rest,
 )
 
 # The manual's numbers typed again here (CS Saucer manual eqs. 1.2-1.5), not taken from the
@@ -225,6 +227,43 @@ def test_world_bias_gives_steady_speed():
         nu, [model.steady_surge_speed(Fb[0]), model.steady_surge_speed(Fb[1]), 0.0], atol=1e-8)
     v_world = _R(psi0) @ nu
     assert v_world[:2] @ F[:2] > 0.0  # pushed along the force
+
+
+def test_disturbance_at_rest_by_hand():
+    """Heading north (psi = 90 deg ENU), 0.1 m/s current east, a sway damping unlike surge's:
+    the current comes from port, nu_c = R^T V = (0, -0.1) (body, + to port), so the hull takes
+    Y = (d22 + dn22 |v_c|) v_c = (3 + 20 x 0.1) x -0.1 = -0.5 N (body: to starboard), which is
+    +0.5 N east in the world; plus the wind bias (0.5, -0.4, 0.08). Surge's damping in place
+    of sway's (a frame left out) would give 0.3 N, not 0.5.
+    """
+    params = Vessel3DofParams(M=(1.0, 1.0, 1.0), D=(2.0, 3.0, 0.5), Dn=(10.0, 20.0, 5.0))
+    b = disturbance_at_rest(params, [math.pi / 2], (0.1, 0.0), (0.5, -0.4, 0.08))
+    np.testing.assert_allclose(b, [[1.0, -0.4, 0.08]], atol=1e-12)
+    # Heading east: the current is along surge, (2 + 10 x 0.1) x 0.1 = 0.3 N east.
+    b = disturbance_at_rest(params, [0.0, math.pi / 2], [(0.1, 0.0), (0.0, 0.0)], (0, 0, 0))
+    np.testing.assert_allclose(b, [[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]], atol=1e-12)
+
+
+def test_disturbance_at_rest_is_what_holds_the_hull_still():
+    """Second formulation: the model's own derivatives. A body force that cancels the
+    disturbance (tau = -R^T b_rest) leaves a still hull in a current still: eta_dot = 0 and
+    nu_dot = 0, for any heading and current."""
+    model = Vessel3Dof(CS_SAUCER)
+    rng = np.random.default_rng(7)
+    for psi, vx, vy in zip(rng.uniform(-math.pi, math.pi, 5), rng.uniform(-0.2, 0.2, 5),
+                           rng.uniform(-0.2, 0.2, 5)):
+        bias = rng.uniform(-0.5, 0.5, 3)
+        b = disturbance_at_rest(CS_SAUCER, [psi], (vx, vy), bias)[0]
+        tau = -(_R(psi).T @ b)
+        rates = model.derivatives([0.0, 0.0, psi], [0.0, 0.0, 0.0], tau, current=(vx, vy),
+                                  bias=bias)
+        np.testing.assert_allclose(rates, 0.0, atol=1e-12)
+
+
+def test_current_at_is_the_steady_current_plus_its_sinusoid():
+    assert current_at(0.0, (0.05, -0.02), (0.01, 0.03), 60.0) == (0.05, -0.02)
+    assert current_at(15.0, (0.05, -0.02), (0.01, 0.03), 60.0) == pytest.approx((0.06, 0.01))
+    assert current_at(45.0, (0.05, -0.02), (0.01, 0.03), 60.0) == pytest.approx((0.04, -0.05))
 
 
 def test_params_validate_and_from_mapping():

@@ -46,8 +46,8 @@ def _vec(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Any:
     return T['geometry_msgs/msg/Vector3'](x=float(x), y=float(y), z=float(z))
 
 
-def _twist() -> Any:
-    return T['geometry_msgs/msg/Twist'](linear=_vec(), angular=_vec())
+def _twist(nu: Sequence[float] = (0.0, 0.0, 0.0)) -> Any:
+    return T['geometry_msgs/msg/Twist'](linear=_vec(nu[0], nu[1]), angular=_vec(0.0, 0.0, nu[2]))
 
 
 def odometry(t_s: float, eta: Sequence[float]) -> Any:
@@ -61,11 +61,12 @@ def odometry(t_s: float, eta: Sequence[float]) -> Any:
                                                           covariance=np.zeros(36)))
 
 
-def reference(t_s: float, eta_d: Sequence[float]) -> Any:
+def reference(t_s: float, eta_d: Sequence[float],
+              nu_d: Sequence[float] = (0.0, 0.0, 0.0)) -> Any:
     x, y, psi = (float(v) for v in eta_d)
     point = T['trajectory_msgs/msg/MultiDOFJointTrajectoryPoint'](
         transforms=[T['geometry_msgs/msg/Transform'](translation=_vec(x, y), rotation=_quat(psi))],
-        velocities=[_twist()], accelerations=[_twist()],
+        velocities=[_twist(nu_d)], accelerations=[_twist()],
         time_from_start=T['builtin_interfaces/msg/Duration'](sec=0, nanosec=0))
     return T['trajectory_msgs/msg/MultiDOFJointTrajectory'](
         header=_header(t_s, 'odom'), joint_names=['base_link'], points=[point])
@@ -78,14 +79,27 @@ def wrench(t_s: float, xyn: Sequence[float]) -> Any:
         wrench=T['geometry_msgs/msg/Wrench'](force=_vec(x, y), torque=_vec(0.0, 0.0, n)))
 
 
+def joint_state(t_s: float, names: Sequence[str], thrust: Sequence[float],
+                angle: Sequence[float]) -> Any:
+    return T['sensor_msgs/msg/JointState'](
+        header=_header(t_s, 'base_link'), name=list(names),
+        position=np.asarray(angle, dtype=float), velocity=np.zeros(0),
+        effort=np.asarray(thrust, dtype=float))
+
+
 def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] | np.ndarray,
               modes: Sequence[tuple[float, str]] = (), asked: np.ndarray | None = None,
-              delivered: np.ndarray | None = None) -> Path:
+              delivered: np.ndarray | None = None, nu_d: Sequence[float] = (0.0, 0.0, 0.0),
+              bias: np.ndarray | None = None,
+              azimuths: tuple[Sequence[str], np.ndarray, np.ndarray] | None = None) -> Path:
     """Write a synthetic run into ``bag`` (a new directory) and return it.
 
     ``t`` (n,) [s], ``eta`` (n, 3) truth poses; ``eta_d`` one hold pose (3,) or one per sample
-    (n, 3), written when it changes; ``modes`` (time [s], mode); ``asked`` / ``delivered``
-    (n, 3) forces [X, Y, N] at the sample times. Every message is recorded at its own stamp.
+    (n, 3), written when it changes, with the reference velocity ``nu_d`` (3,) (body);
+    ``modes`` (time [s], mode); ``asked`` / ``delivered`` (n, 3) forces [X, Y, N] at the
+    sample times; ``bias`` (n, 3) the observer's ``observer/bias``; ``azimuths`` (names,
+    thrust (n, k) [N], angle (n, k) [rad]) on ``azimuth_commands``. Every message is
+    recorded at its own stamp.
     """
     eta_d = np.broadcast_to(np.asarray(eta_d, dtype=float), (len(t), 3))
     out: list[tuple[int, str, str, Any]] = []
@@ -94,7 +108,15 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
         out.append((ns, '/sim/odometry', 'nav_msgs/msg/Odometry', odometry(ti, eta[i])))
         if i == 0 or not np.array_equal(eta_d[i], eta_d[i - 1], equal_nan=True):
             out.append((ns, '/guidance/reference',
-                        'trajectory_msgs/msg/MultiDOFJointTrajectory', reference(ti, eta_d[i])))
+                        'trajectory_msgs/msg/MultiDOFJointTrajectory',
+                        reference(ti, eta_d[i], nu_d)))
+        if bias is not None:
+            out.append((ns, '/observer/bias', 'geometry_msgs/msg/WrenchStamped',
+                        wrench(ti, bias[i])))
+        if azimuths is not None:
+            names, thrust, angle = azimuths
+            out.append((ns, '/azimuth_commands', 'sensor_msgs/msg/JointState',
+                        joint_state(ti, names, thrust[i], angle[i])))
         for topic, forces in (('/force_command', asked), ('/allocation/delivered', delivered)):
             if forces is not None:
                 out.append((ns, topic, 'geometry_msgs/msg/WrenchStamped', wrench(ti, forces[i])))
@@ -111,10 +133,17 @@ def write_run(bag: Path, t: np.ndarray, eta: np.ndarray, eta_d: Sequence[float] 
     return bag
 
 
-def profile(waypoints: Sequence[float] = (), dropout_windows: Sequence[float] = ()) -> Any:
-    """The parts of a profile the metrics read: the guidance path, the mocap dropouts."""
+def profile(waypoints: Sequence[float] = (), dropout_windows: Sequence[float] = (),
+            simulator: dict[str, Any] | None = None, parameters: dict[str, Any] | None = None,
+            speed: float = 0.2) -> Any:
+    """The parts of a profile the metrics and the plot read: the guidance path and speed,
+    the mocap dropouts, the simulator's parameters (a ``vessel3dof_simulator`` node when
+    given) and the common ``parameters``."""
     nodes = [NodeSpec('guidance', 'guidance',
-                      parameters={'path.waypoints': list(waypoints) or [0.0]}),
+                      parameters={'path.waypoints': list(waypoints) or [0.0],
+                                  'path.speed': speed}),
              NodeSpec('mocap', 'sim_mocap',
                       parameters={'dropout_windows': list(dropout_windows) or [0.0]})]
-    return SimpleNamespace(nodes=tuple(nodes), parameters={})
+    if simulator is not None:
+        nodes.append(NodeSpec('simulator', 'vessel3dof_simulator', parameters=simulator))
+    return SimpleNamespace(name='synthetic', nodes=tuple(nodes), parameters=parameters or {})

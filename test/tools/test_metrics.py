@@ -23,6 +23,7 @@ from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.tools.metrics import compute_metrics
 from enbarr_core.tools.scenario import resolve, ScenarioSpec, scenario_spec, with_duration
+from enbarr_core.tools.targets import Target
 
 MM = 0.5e-4     # the metrics round metres to 4 decimals
 MDEG = 0.5e-3   # and degrees to 3
@@ -341,11 +342,15 @@ def spec_error(**scenario) -> str:
     return str(info.value)
 
 
+TARGETS = {'mode_changes': {'max': 1}}  # every kind has it
+
+
 def test_settle_time_is_read() -> None:
     spec = spec_of(duration=90.0, kind='station_keeping', settle_time=20.0,
-                   settle_band=[0.05, 2.0])
-    assert spec == ScenarioSpec(90.0, 'station_keeping', (0.05, 2.0), 20.0)
-    assert spec_of(duration=60.0, kind='path').settle_time is None
+                   settle_band=[0.05, 2.0], targets=TARGETS)
+    assert spec == ScenarioSpec(90.0, 'station_keeping', (0.05, 2.0), 20.0,
+                                (Target('mode_changes', high=1.0),))
+    assert spec_of(duration=60.0, kind='path', targets=TARGETS).settle_time is None
 
 
 @pytest.mark.parametrize(('scenario', 'message'), [
@@ -384,11 +389,12 @@ def test_every_shipped_scenario_is_checked_here() -> None:
 
 @pytest.mark.parametrize('name', SHIPPED)
 def test_shipped_scenarios_state_their_settle_time(name: str) -> None:
-    """Every shipped scenario passes the checks; a station-keeping one leaves a window of at
-    least 10 s (1000 samples at 100 Hz) after its settle time, an RMS of the holding rather
-    than of a handful of samples.
+    """Every shipped scenario passes the checks and states its targets; a station-keeping one
+    leaves a window of at least 10 s (1000 samples at 100 Hz) after its settle time, an RMS of
+    the holding rather than of a handful of samples.
     """
     spec = scenario_spec(load_profile(resolve(name)))
+    assert spec.targets
     if spec.kind == 'station_keeping':
         assert spec.settle_time is not None and spec.settle_time + 10.0 <= spec.duration
 
@@ -406,8 +412,9 @@ def test_a_run_scenario_has_only_the_common_figures(tmp_path: Path) -> None:
     """kind: run (a test judges the bag): modes and saturation, no window, no error."""
     t = grid(20.0)
     r = run(tmp_path, t, offset(t, 0.5), ScenarioSpec(20.0, 'run', (0.05, 2.0)), modes=())
-    assert set(r) == {'initial_mode', 'modes', 'thrust_saturation_s'}
-    assert r['modes'] == [] and r['thrust_saturation_s'] == 0.0
+    assert set(r) == {'initial_mode', 'modes', 'mode_changes', 'thrust_saturation_s',
+                      'final_speed_mps'}
+    assert r['modes'] == [] and r['mode_changes'] == 0 and r['thrust_saturation_s'] == 0.0
     assert r['initial_mode'] == 'manual'
 
 
@@ -442,3 +449,124 @@ def test_the_plot_puts_north_up_and_reads_headings_as_a_compass(tmp_path: Path,
     truth, ref = heading.lines[:2]
     assert np.allclose(truth.get_ydata(), 350.0) and np.allclose(ref.get_ydata(), 0.0)
     assert np.allclose(error_twin.lines[0].get_ydata(), -10.0)
+
+
+def drawn(monkeypatch, bag: Path, spec: ScenarioSpec, profile, png: Path, verdict=None):
+    """``plot_run``'s figure, kept from ``plt.close``: its axes by title."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from enbarr_core.tools.metrics import plot_run
+    figures = []
+    monkeypatch.setattr(plt, 'close', figures.append)
+    assert plot_run(bag, spec, profile, png, verdict=verdict).stat().st_size > 0
+    [fig] = figures
+    return fig, {a.get_title(): a for a in fig.axes if a.get_title()}
+
+
+def line(ax, label: str):
+    return next(item for item in ax.lines if item.get_label() == label)
+
+
+SIM = {'current': [0.1, 0.0], 'bias': [0.5, -0.4, 0.08], 'vessel.inertia': [1.0, 1.0, 1.0],
+       'vessel.linear_damping': [2.0, 3.0, 0.5], 'vessel.nonlinear_damping': [10.0, 20.0, 5.0]}
+BIAS_TITLE = ('observer bias estimate (solid) against the injected disturbance on the still '
+              'hull (dashed), world frame')
+HOLD_TITLE = 'station keeping: position about the hold point, north up [cm]'
+
+
+def test_the_station_keeping_plot_draws_what_an_engineer_reads(tmp_path: Path,
+                                                               monkeypatch) -> None:
+    """Held 1.8 cm east and 2.4 cm north of a northward hold, in a 0.1 m/s current from the
+    east and a wind (the simulator's parameters, the case of test_vessel3dof's
+    test_disturbance_at_rest_by_hand): the injected disturbance on the still hull is
+    (1.0 N, -0.4 N, 0.08 N m) by hand; the observer's estimate, azimuth angles and thrusts
+    are drawn as recorded, the angles in degrees from ahead, + to starboard."""
+    from enbarr_core.tools.targets import judge
+    t = grid(30.0)
+    north = math.pi / 2
+    eta = np.column_stack((np.full(len(t), 1.018), np.full(len(t), 2.024), np.full(len(t), north)))
+    b_hat = np.tile([0.9, -0.35, 0.07], (len(t), 1))
+    angle = np.tile([0.5, -1.0], (len(t), 1))
+    thrust = np.tile([0.3, -0.2], (len(t), 1))
+    bag = synthetic.write_run(tmp_path / 'bag', t, eta, (1.0, 2.0, north), ((TA, 'automatic'),),
+                              bias=b_hat, azimuths=(['az_a', 'az_b'], thrust, angle))
+    profile = synthetic.profile(simulator=SIM,
+                                parameters={'azimuths.az_a.angle_max': math.radians(114.0)})
+    spec = ScenarioSpec(30.0, 'station_keeping', (0.05, 2.0), 10.0,
+                        (Target('position_error_rms_m', high=0.02),))
+    verdict = judge({'position_error_rms_m': 0.03}, spec.targets)
+    fig, axes = drawn(monkeypatch, bag, spec, profile, tmp_path / 'p.png', verdict)
+    assert fig.get_suptitle() == 'synthetic: FAIL: position_error_rms_m'
+    # The bias: the estimate as recorded, the disturbance as computed by hand.
+    bias = axes[BIAS_TITLE]
+    for name, got, injected in (('east X [N]', 0.9, 1.0), ('north Y [N]', -0.35, -0.4),
+                                ('yaw N [N m], + counter-clockwise', 0.07, 0.08)):
+        assert np.allclose(line(bias, f'b_hat {name}').get_ydata(), got)
+        assert np.allclose(line(bias, f'injected {name}').get_ydata(), injected), name
+    # The azimuths: compass-like angles (the allocation's are counter-clockwise), the travel.
+    angles = axes['azimuth angles (commanded): 0 = ahead, + to starboard (clockwise)']
+    assert angles.get_ylabel() == 'azimuth angle [deg]'
+    assert np.allclose(line(angles, 'az_a').get_ydata(), -math.degrees(0.5))
+    assert np.allclose(line(angles, 'az_b').get_ydata(), math.degrees(1.0))
+    assert any(np.allclose(item.get_ydata(), -114.0) for item in angles.lines)  # servo travel
+    thrusts = axes['azimuth thrust (commanded)']
+    assert np.allclose(line(thrusts, 'az_b').get_ydata(), -0.2)
+    # Station keeping at the scale of its error: centimetres about the hold point, the band.
+    hold = axes[HOLD_TITLE]
+    assert hold.get_xlabel() == 'east of the hold point [cm]'
+    window = line(hold, 'evaluation window')
+    assert np.allclose(window.get_xdata(), 1.8) and np.allclose(window.get_ydata(), 2.4)
+    [band] = hold.patches
+    assert band.get_radius() == pytest.approx(5.0)
+    assert hold.get_xlim()[1] == pytest.approx(6.5)   # the band's scale, not the hull's
+    # The speed: still, against a reference speed of zero.
+    speed = axes['speed over ground against the commanded speed']
+    assert np.allclose(line(speed, 'speed over ground (truth)').get_ydata(), 0.0)
+    # The verdict as text, the failed target in red.
+    table = axes['targets (scenario.targets) and the verdict']
+    texts = [(x.get_text(), x.get_color()) for x in table.texts]
+    assert texts == [('verdict: FAIL', 'tab:red'),
+                     ('position_error_rms_m = 0.03, <= 0.02: FAIL', 'tab:red')]
+
+
+def test_the_path_plot_draws_the_course_reference_and_the_speed(tmp_path: Path,
+                                                                monkeypatch) -> None:
+    """Line-of-sight style: the bow points north (compass 0) while the reference velocity is
+    to starboard, nu_d = (0, -0.2) m/s: the course reference is east (compass 90), which the
+    vessel makes good at 0.2 m/s. A wrong rotation sign would draw west (270)."""
+    t = grid(10.0)
+    north = math.pi / 2
+    x = 0.2 * np.maximum(t - TA, 0.0)
+    eta = np.column_stack((x, np.zeros(len(t)), np.full(len(t), north)))
+    # The reference: the vessel's own pose (a new one at each sample), velocity nu_d.
+    bag = synthetic.write_run(tmp_path / 'bag', t, eta, eta, ((TA, 'guidance'),),
+                              nu_d=(0.0, -0.2, 0.0))
+    profile = synthetic.profile(waypoints=[0.0, 0.0, 4.0, 0.0], speed=0.25)
+    fig, axes = drawn(monkeypatch, bag, PATH, profile, tmp_path / 'p.png')
+    heading = axes['compass heading and course: 0 = north, clockwise']
+    assert np.allclose(line(heading, 'heading (truth)').get_ydata(), 0.0)
+    course = line(heading, 'course reference (R(psi) nu_d; LOS chi_d)')
+    assert len(course.get_xdata()) and np.allclose(course.get_ydata(), 90.0)
+    made_good = line(heading, 'course over ground (truth)')
+    assert np.allclose(made_good.get_ydata(), 90.0)
+    speed = axes['speed over ground against the commanded speed']
+    sog = line(speed, 'speed over ground (truth)')
+    moving = (np.asarray(sog.get_xdata()) > TA - T0 + 0.05)
+    assert np.allclose(np.asarray(sog.get_ydata())[moving], 0.2)
+    assert np.allclose(line(speed, 'commanded: reference speed |nu_d|').get_ydata(), 0.2)
+    assert np.allclose(line(speed, 'path.speed 0.25 m/s').get_ydata(), 0.25)
+    assert HOLD_TITLE not in axes  # a path is not drawn about a hold point
+    assert fig.get_suptitle() == ''  # not judged: no verdict given
+
+
+def test_final_speed_and_mode_changes(tmp_path: Path) -> None:
+    """Driving along (0, 0) -> (3, 4) at 0.25 m/s to the end: 0.25 m/s over the last second;
+    guidance then automatic then guidance again: three changes after the latched manual."""
+    t = grid(12.0)
+    r = run(tmp_path, t, along(t, [(0.0, 0.0), (3.0, 4.0)], 0.25), PATH,
+            modes=((TA, 'guidance'), (TA + 1.0, 'automatic'), (TA + 2.0, 'guidance'),
+                   (TA + 2.5, 'guidance')),
+            profile=synthetic.profile(waypoints=[0.0, 0.0, 3.0, 4.0]))
+    assert r['final_speed_mps'] == pytest.approx(0.25, abs=MM)
+    assert r['mode_changes'] == 3
