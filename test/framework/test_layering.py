@@ -1,5 +1,5 @@
 """Algorithms know nothing of ROS: every module of the algorithm folders (estimation,
-control, guidance, allocation, models) except the nodes (``*_node.py``) and their parameter
+control, guidance, allocation, models, world) except the nodes (``*_node.py``) and their parameter
 declarations (``*_params.py``), and the framework's maths and the bag format, imports with
 rclpy made unimportable; so do the device transport layer and the pure plugin modules.
 A real driver never imports its emulator (the check-device command lives apart).
