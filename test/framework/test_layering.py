@@ -25,6 +25,7 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.yaml12', 'enbarr_core.tools.chaos.judge',
              'enbarr_core.commands.arguments',
              'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
+             'enbarr_plugins.lidar.sim_scan',
              'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
              'enbarr_plugins.camera.capture', 'enbarr_plugins.transport.reader')
 
