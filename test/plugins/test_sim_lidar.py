@@ -260,3 +260,16 @@ def test_the_simulated_scan_is_the_real_drivers(context, executor, spin):
     assert both.sum() > 250
     assert np.median(np.abs(a[both] - b[both])) < 0.02
     assert np.mean(np.isposinf(a) == np.isposinf(b)) > 0.95
+
+
+def test_the_scan_carries_its_truths_stamp_and_pose(context, executor, spin):
+    """A truth that arrives 5 ms after it was taken: the scan is stamped with the truth's
+    time (the pose and the world it was cast at), not with the clock's."""
+    lidar, clock, truth, scans = sim_rig(context, executor, World([BASIN]), noise_scale=0.0)
+    clock.advance(0.5)
+    taken = clock.ns - 5_000_000
+    truth.publish(odometry_msg(taken, [0.0, 2.0, 0.0]))
+    assert spin(executor, lambda: scans, TIMEOUT)
+    s = scans[0]
+    assert s.header.stamp.sec * 10**9 + s.header.stamp.nanosec == taken
+    assert s.ranges[270] == pytest.approx(1.225, abs=1e-3)  # the north wall from y = 2
