@@ -39,7 +39,7 @@ from enbarr_interfaces.links import LinkBus
 from enbarr_core.framework import registry
 from enbarr_core.framework.driver import DeviceNode
 from enbarr_core.framework.errors import EnbarrError, ProfileError
-from enbarr_core.framework.node import EnbarrNode, install_frame_tree
+from enbarr_core.framework.node import EnbarrNode, install_frame_tree, install_world
 from enbarr_core.framework.threads import name_os_threads
 from enbarr_core.bringup.guard import DuplicateVesselError, VesselGuard
 from enbarr_core.bringup.profile import GroupSpec, NodeSpec, Profile, RecordSpec
@@ -302,7 +302,7 @@ def node_names(profile: Profile, group: str | None = None) -> list[str]:
 @contextmanager
 def composed(profile: Profile, group: str | None = None, *, guard: bool = False,
              executor: Callable[[Context], Executor] = make_executor,
-             ) -> Iterator[Composition]:
+             world_epoch_ns: int | None = None) -> Iterator[Composition]:
     """Build the nodes of ``group`` (all when None) in a fresh context; always take them down.
 
     ``guard``: before any node exists, watch the graph for another run with the same node
@@ -311,6 +311,9 @@ def composed(profile: Profile, group: str | None = None, *, guard: bool = False,
     the running controller refuse its joystick as contested). On leaving: ``shutdown_nodes``
     (safe state first), or, when refused before anything started, just destroy them. bringup,
     the benchmark and scenarios all use it.
+
+    ``world_epoch_ns``: the clock time [ns] at which the profile's world time is 0 (a
+    scenario: its simulated start); None: now, as the nodes' ROS clock reads it.
     """
     configure_process()
     context = Context()
@@ -320,6 +323,8 @@ def composed(profile: Profile, group: str | None = None, *, guard: bool = False,
     vessel_guard: VesselGuard | None = None
     quiet = False
     install_frame_tree(context, profile.frames)  # EnbarrNode.frame_tree, in every group
+    install_world(context, profile.world,
+                  time.time_ns() if world_epoch_ns is None else world_epoch_ns)
     try:
         if guard:
             vessel_guard = VesselGuard(context, node_names(profile, group))
@@ -404,6 +409,7 @@ def validate(profile: Profile, group: str | None = None) -> Validation:
     """
     with isolated_context() as context:
         install_frame_tree(context, profile.frames)
+        install_world(context, profile.world)
         nodes = build_nodes(profile, context, group)
         try:
             devices = tuple((n.get_name(), n.device) for n in nodes

@@ -20,6 +20,8 @@ A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
     record: {path: bags/run, topics: [], flush_seconds: 1.0, split_size: 0, split_seconds: 0}
     frames: {odom: {}, base_link: {parent: odom, pose: observer/odometry}, ...}
                                          # the frame tree (enbarr_core.framework.frames)
+    world: {basin: {kind: walls, points: [...], closed: true}, buoy: {kind: circle, ...}}
+                                         # the simulated world (enbarr_core.world.parse)
 
 Everything is checked before any node starts; an error names the file, the key path and
 what was expected. YAML is read with 1.2 numbers (``enbarr_core.framework.yaml12``: ``1e9``
@@ -44,11 +46,13 @@ import yaml
 from enbarr_core.framework import registry, yaml12
 from enbarr_core.framework.errors import ProfileError, RegistryError
 from enbarr_core.framework.frames import DEFAULT_TREE, FrameTree, parse_frames
+from enbarr_core.world.model import EMPTY_WORLD, World
+from enbarr_core.world.parse import parse_world
 
 #: The top-level keys of a profile file. A new section adds its key here and its per-file
 #: check to ``_check_structure``; any other key is refused with the list (and a close match).
 TOP_KEYS = ('profile', 'description', 'fragment', 'include', 'environment', 'parameters',
-            'nodes', 'groups', 'record', 'scenario', 'frames')
+            'nodes', 'groups', 'record', 'scenario', 'frames', 'world')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
 RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds')
@@ -123,6 +127,7 @@ class Profile:
     origins: Mapping[str, str] = field(default_factory=dict, repr=False)
     scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
     frames: FrameTree = DEFAULT_TREE  # the ``frames`` section (framework.frames)
+    world: World = EMPTY_WORLD  # the ``world`` section (enbarr_core.world)
 
     def node(self, name: str) -> NodeSpec:
         """Return the node called ``name``; ``ProfileError`` listing the nodes if none."""
@@ -803,7 +808,8 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
         nodes=tuple(nodes), groups=groups,
         record=record, files=files, origins=dict(origins),
         scenario=merged.get('scenario'),
-        frames=parse_frames(merged.get('frames'), lambda key: _origin(origins, key, path)))
+        frames=parse_frames(merged.get('frames'), lambda key: _origin(origins, key, path)),
+        world=parse_world(merged.get('world'), lambda key: _origin(origins, key, path)))
 
 
 def _origin(origins: Mapping[str, str], key: str, default: str) -> str:

@@ -19,6 +19,10 @@ additions that bringup relies on:
   Bringup installs it per process (``install_frame_tree``) before it builds the nodes, so every
   group of a split profile has it; a node built alone (a test) gets ``DEFAULT_TREE`` unless
   its test installs one.
+- ``world`` and ``world_time``: the profile's simulated world (``enbarr_core.world``), which
+  simulated sensors and emulators measure, installed the same way (``install_world``, an
+  empty world unless installed), and the world time of a stamp: seconds since the world's
+  epoch (bringup: when the process composed its nodes; a scenario: when it began).
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.framework.frames import DEFAULT_TREE, FrameTree
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
+from enbarr_core.world.model import EMPTY_WORLD, World
 
 S = TypeVar('S')
 
@@ -148,6 +153,23 @@ class FrameTreeOf(PerContext):
 def install_frame_tree(context: Any, tree: FrameTree) -> None:
     """Give the nodes of ``context`` the frame tree ``tree`` (bringup: the profile's)."""
     FrameTreeOf.of(context).tree = tree
+
+
+class WorldOf(PerContext):
+    """The simulated world of one process (rclpy ``Context``) and its epoch."""
+
+    def __init__(self) -> None:
+        self.world: World = EMPTY_WORLD
+        self.epoch_ns = 0  # the clock time [ns] at which the world time is 0
+
+
+def install_world(context: Any, world: World, epoch_ns: int = 0) -> None:
+    """Give the nodes of ``context`` the world ``world`` (bringup: the profile's).
+
+    Its time 0 is the node clocks' time ``epoch_ns`` [ns].
+    """
+    held = WorldOf.of(context)
+    held.world, held.epoch_ns = world, int(epoch_ns)
 
 
 class RateLoop:
@@ -307,6 +329,16 @@ class EnbarrNode(Node):
     def frame_tree(self) -> FrameTree:
         """Return the profile's frame tree: ``self.frame_tree.lookup('base_link', 'laser')``."""
         return FrameTreeOf.of(self.context).tree
+
+    @property
+    def world(self) -> World:
+        """Return the profile's simulated world (``enbarr_core.world``; empty if none)."""
+        return WorldOf.of(self.context).world
+
+    def world_time(self, stamp_ns: int | None = None) -> float:
+        """Return the world time [s] of a clock time ``stamp_ns`` (None: now)."""
+        t = self.now_ns() if stamp_ns is None else stamp_ns
+        return (t - WorldOf.of(self.context).epoch_ns) * 1e-9
 
     # -- parameters -------------------------------------------------------------------------
     def bind_settings(self, specs: Sequence[ParamSpec], build: Callable[[dict[str, Any]], S],

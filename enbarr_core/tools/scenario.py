@@ -172,7 +172,8 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
     profile = add_recorder(with_record(replace(profile, record=None), str(bag), topics))
     apply_environment(profile)
     wall0, cpu0 = time.monotonic(), time.process_time()
-    with composed(profile) as c:  # bringup's own executor (EventsExecutor)
+    # bringup's own executor (EventsExecutor); the world's time 0 is the scenario's start
+    with composed(profile, world_epoch_ns=T0_NS) as c:
         sim = next((n for n in c.nodes if n.get_name() == 'simulator'), None)
         if sim is None or not hasattr(sim, 'step'):
             raise ProfileError('a scenario needs a node named simulator', path=profile.path)

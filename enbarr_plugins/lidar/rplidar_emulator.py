@@ -1,4 +1,4 @@
-"""An RPLidar A1 on a pseudo-terminal: the real byte protocol, ranges ray-cast in a basin.
+"""An RPLidar A1 on a pseudo-terminal: the real byte protocol, ranges ray-cast in the world.
 
 ``RplidarEmulator`` serves the master side of a pty (``os.openpty``, raw) on its own thread;
 a driver opens the slave path with pyserial exactly like ``/dev/ttyUSB0``. It answers STOP,
@@ -11,8 +11,9 @@ flag on the first sample of each revolution.
 
 Ranges are ray-cast from the lidar's pose (the vessel pose ``set_pose`` gives, usually from
 ``sim/odometry``, and the mounting pose ``mount``/``flip``, the profile's ``laser`` frame)
-against a basin: the walls of a rectangle and circular obstacles. No return (distance 0,
-quality 0) beyond 12 m or nearer than 0.15 m.
+in a ``World`` (``enbarr_core.world``: the node's is the profile's ``world`` section, at the
+world time of the node clock, so moving obstacles move), exactly, without the A1's range
+error. No return (distance 0, quality 0) beyond 12 m or nearer than 0.15 m.
 
 Faults for tests and demonstrations: ``unplug()``/``replug()`` (the pty closes; a new one,
 under the same registered name, opens), ``corrupt(n)`` (the next n samples with S == !S),
@@ -27,7 +28,8 @@ driver's DTR calls are tested on its pyserial object instead.
 ``RplidarEmulatorNode`` wraps it for profiles (``emulator_node.DeviceEmulatorNode``): when
 started it opens the pty and registers it as the ``serial`` emulator ``name`` (``port:
 emulated`` or ``emulated:NAME`` in the driver); it follows ``sim/odometry`` and reports what
-it received and sent on ``/diagnostics``.
+it received and sent on ``/diagnostics``. A profile without a ``world`` leaves the A1 in empty
+space: every sample is a no-return.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.world.model import EMPTY_WORLD, World
 from enbarr_plugins.emulator_node import commands_line, DeviceEmulatorNode
 
 # The emulator's own copy of the bytes, typed from Slamtec's "RPLIDAR Interface Protocol and
@@ -95,7 +98,7 @@ class Mount:
 
     x, y [m], yaw [rad]; ``flip``: mounted upside down (the rotation then looks
     counter-clockwise from above). The same pose as the profile's ``laser`` frame: the
-    emulator measures the basin from there, the driver publishes in ``laser``.
+    emulator measures the world from there, the driver publishes in ``laser``.
     """
 
     x: float = 0.0
@@ -109,47 +112,24 @@ class Mount:
         return self.yaw + (theta if self.flip else -theta)
 
 
-@dataclass(frozen=True)
-class Basin:
-    """Walls ``(x_min, y_min, x_max, y_max)`` [m] in odom and circles ``(x, y, r)`` [m]."""
-
-    walls: tuple[float, float, float, float] = (-20.0, -3.225, 20.0, 3.225)
-    circles: tuple[tuple[float, float, float], ...] = ()
-
-    def raycast(self, ox: float, oy: float, bearing: np.ndarray) -> np.ndarray:
-        """Distance [m] from (ox, oy) along each bearing [rad] to the first surface."""
-        dx, dy = np.cos(bearing), np.sin(bearing)
-        x0, y0, x1, y1 = self.walls
-        with np.errstate(divide='ignore', invalid='ignore'):
-            tx = np.where(dx > 0, (x1 - ox) / dx, np.where(dx < 0, (x0 - ox) / dx, np.inf))
-            ty = np.where(dy > 0, (y1 - oy) / dy, np.where(dy < 0, (y0 - oy) / dy, np.inf))
-        t = np.minimum(tx, ty)
-        t = np.where(t > 0, t, np.inf)
-        for cx, cy, r in self.circles:
-            ocx, ocy = ox - cx, oy - cy
-            b = ocx * dx + ocy * dy
-            disc = b * b - (ocx * ocx + ocy * ocy - r * r)
-            with np.errstate(invalid='ignore'):
-                tc = -b - np.sqrt(disc)
-            t = np.where((disc >= 0) & (tc > 0), np.minimum(t, tc), t)
-        return t
-
-
 class RplidarEmulator:
     """See the module docstring.
 
-    ``on_path(path)`` is called after every (re)plug, ``on_gone(path)`` when the pty closes
-    (a stale path must not be opened again: the kernel gives its number to the next pty,
-    possibly another program's).
+    ``world``: what the A1 sees, placed at ``world_time()`` [s] (called from the serving
+    thread). ``on_path(path)`` is called after every (re)plug, ``on_gone(path)`` when the pty
+    closes (a stale path must not be opened again: the kernel gives its number to the next
+    pty, possibly another program's).
     """
 
-    def __init__(self, *, basin: Basin = Basin(), mount: Mount = Mount(),
+    def __init__(self, *, world: World = EMPTY_WORLD,
+                 world_time: Callable[[], float] = lambda: 0.0, mount: Mount = Mount(),
                  rotation_hz: float = 5.5, sample_rate: float = 2000.0, model: int = 0x18,
                  firmware: tuple[int, int] = (1, 29), hardware: int = 7,
                  serial_number: bytes = bytes(range(0xA0, 0xB0)),
                  on_path: Callable[[str], None] | None = None,
                  on_gone: Callable[[str], None] | None = None) -> None:
-        self.basin = basin
+        self.world = world
+        self.world_time = world_time
         self.mount = mount
         self.rotation_hz = rotation_hz
         self.sample_rate = sample_rate
@@ -354,7 +334,7 @@ class RplidarEmulator:
         m = self.mount
         c, s = math.cos(psi), math.sin(psi)
         ox, oy = x + c * m.x - s * m.y, y + s * m.x + c * m.y
-        r = self.basin.raycast(ox, oy, psi + m.world_angles(angle_deg))
+        r = self.world.raycast((ox, oy), psi + m.world_angles(angle_deg), self.world_time())
         return np.where((r >= RANGE_MIN) & (r <= RANGE_MAX), r * 1000.0, 0.0)
 
     def _stream(self) -> None:
@@ -393,10 +373,6 @@ class RplidarEmulator:
 SPECS = [
     ParamSpec('name', 'default', "Emulator name: the driver's port emulated:NAME",
               read_only=True),
-    ParamSpec('basin.walls', [-20.0, -3.225, 20.0, 3.225], 'Basin rectangle x_min, y_min, '
-              'x_max, y_max in odom (default: the NTNU MC-lab, 40 x 6.45 m, centred)', 'm'),
-    ParamSpec('basin.circles', [0.0], 'Circular obstacles x, y, r, x, y, r, ... in odom; '
-              '[0.0]: none', 'm'),
     ParamSpec('mount.x', 0.0, "Lidar centre ahead of base_link's origin (the laser frame's x)",
               'm', -20.0, 20.0),
     ParamSpec('mount.y', 0.0, "Lidar centre left of base_link's origin (the laser frame's y)",
@@ -417,7 +393,6 @@ class RplidarEmulatorSettings:
     """Settings of ``RplidarEmulatorNode`` (see ``SPECS``)."""
 
     name: str
-    basin: Basin
     mount: Mount
     rotation_hz: float
     sample_rate: float
@@ -426,17 +401,7 @@ class RplidarEmulatorSettings:
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> RplidarEmulatorSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
-        w = [float(a) for a in v['basin.walls']]
-        if len(w) != 4 or not (w[0] < w[2] and w[1] < w[3]):
-            raise ValueError('basin.walls: expected x_min, y_min, x_max, y_max with min < max')
-        c = [float(a) for a in v['basin.circles']]
-        circles: tuple[tuple[float, float, float], ...] = ()
-        if c != [0.0]:
-            if len(c) % 3 or any(r <= 0.0 for r in c[2::3]):
-                raise ValueError('basin.circles: expected x, y, r triples with r > 0')
-            circles = tuple(zip(c[0::3], c[1::3], c[2::3]))
-        return cls(v['name'], Basin((w[0], w[1], w[2], w[3]), circles),
-                   Mount(v['mount.x'], v['mount.y'], v['mount.yaw'], bool(v['flip'])),
+        return cls(v['name'], Mount(v['mount.x'], v['mount.y'], v['mount.yaw'], bool(v['flip'])),
                    v['rotation_hz'], v['sample_rate'], int(v['model']))
 
 
@@ -452,14 +417,14 @@ class RplidarEmulatorNode(DeviceEmulatorNode):
     def make_emulator(self, s: RplidarEmulatorSettings, plugged: Callable[[str], None],
                       unplugged: Callable[[str], None]) -> RplidarEmulator:
         """Build the A1 on a pty, plugged in (its path offered) on ``start``."""
-        return RplidarEmulator(basin=s.basin, mount=s.mount, rotation_hz=s.rotation_hz,
+        return RplidarEmulator(world=self.world, world_time=self.world_time, mount=s.mount,
+                               rotation_hz=s.rotation_hz,
                                sample_rate=s.sample_rate, model=s.model, on_path=plugged,
                                on_gone=unplugged)
 
     def apply(self, s: RplidarEmulatorSettings) -> None:
-        """Basin, mount and model change live."""
-        self.emulator.basin, self.emulator.mount, self.emulator.model = (
-            s.basin, s.mount, s.model)
+        """Mount and model change live."""
+        self.emulator.mount, self.emulator.model = s.mount, s.model
 
     def report(self) -> tuple[str, dict[str, Any]]:
         """Report the pty and what went through it."""

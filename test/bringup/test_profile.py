@@ -289,7 +289,7 @@ def test_unknown_top_key_lists_allowed_keys(tmp_path: Path) -> None:
     err = load_error(path)
     assert str(err) == (f"{path}: nodez: unknown key (did you mean 'nodes'?); expected one of: "
                         'profile, description, fragment, include, environment, parameters, '
-                        'nodes, groups, record, scenario, frames')
+                        'nodes, groups, record, scenario, frames, world')
     assert (err.path, err.key) == (path, 'nodez')
 
 

@@ -21,6 +21,7 @@ from support.bags import read_bag, stamp
 from support.cli import ENBARR
 
 from enbarr_core.bringup.profile import load_profile
+from enbarr_core.world.model import Circle
 
 pytestmark = pytest.mark.e2e
 
@@ -37,8 +38,6 @@ NEUTRAL = 6.85      # [%] motors (no thrust) and servos (angle 0): saucer_core's
 DEAD_BAND = (6.7, 7.0)
 TOPICS = ['/emulator/arduino', '/mode', '/scan', '/mocap/pose', '/sim/odometry', '/joy',
           '/diagnostics', '/camera/camera_info']  # not the images: 15 MB/s
-WALLS = PROFILE.node('lidar_emulator').parameters['basin.walls']
-CIRCLES = PROFILE.node('lidar_emulator').parameters['basin.circles']
 
 
 @pytest.fixture(scope='module')
@@ -127,11 +126,17 @@ def test_motion_capture_measures_the_simulated_vessel(run: dict[str, Any]) -> No
 
 
 def _nearest_obstacle(x: float, y: float) -> float:
-    x0, y0, x1, y1 = WALLS
-    d = min(x - x0, x1 - x, y - y0, y1 - y)
-    for i in range(0, len(CIRCLES) - 2, 3):
-        cx, cy, r = CIRCLES[i:i + 3]
-        d = min(d, math.hypot(x - cx, y - cy) - r)
+    """By hand, not by World.distance: the profile's world is the basin's rectangle of walls
+    and circular buoys."""
+    d = math.inf
+    for o in PROFILE.world.obstacles:
+        assert not o.moving
+        if isinstance(o.shape, Circle):
+            (cx, cy), r = o.shape.center, o.shape.radius
+            d = min(d, math.hypot(x - cx, y - cy) - r)
+        else:
+            xs, ys = zip(*o.shape.points)
+            d = min(d, x - min(xs), max(xs) - x, y - min(ys), max(ys) - y)
     return d
 
 

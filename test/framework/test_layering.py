@@ -1,5 +1,5 @@
 """Algorithms know nothing of ROS: every module of the algorithm folders (estimation,
-control, guidance, allocation, models) except the nodes (``*_node.py``) and their parameter
+control, guidance, allocation, models, world) except the nodes (``*_node.py``) and their parameter
 declarations (``*_params.py``), and the framework's maths and the bag format, imports with
 rclpy made unimportable; so do the device transport layer and the pure plugin modules.
 A real driver never imports its emulator (the check-device command lives apart).
@@ -25,6 +25,7 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_core.framework.yaml12', 'enbarr_core.tools.chaos.judge',
              'enbarr_core.commands.arguments',
              'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
+             'enbarr_plugins.lidar.sim_scan',
              'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
              'enbarr_plugins.camera.capture', 'enbarr_plugins.transport.reader')
 

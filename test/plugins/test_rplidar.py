@@ -29,13 +29,19 @@ from enbarr_plugins.lidar import rplidar
 from enbarr_plugins.lidar.check import check_device
 from enbarr_plugins.lidar.rplidar import RplidarNode
 from enbarr_plugins.lidar.rplidar_protocol import ScanDecoder
-from enbarr_plugins.lidar.rplidar_emulator import Basin, RplidarEmulator, RplidarEmulatorNode
+from enbarr_plugins.lidar.rplidar_emulator import RplidarEmulator, RplidarEmulatorNode
+from enbarr_core.framework.node import install_world
+from enbarr_core.world.model import Circle, ConstantVelocity, Obstacle, Walls, World
+
+#: The NTNU MC-lab basin as the profiles declare it (40 x 6.45 m, centred on odom).
+BASIN = Obstacle('basin', Walls(((-20.0, -3.225), (20.0, -3.225), (20.0, 3.225),
+                                 (-20.0, 3.225)), closed=True))
 
 # -- unit: the emulator's bytes, from the document -------------------------------------------
 
 
 def test_the_emulator_answers_with_the_documented_bytes():
-    emu = RplidarEmulator()
+    emu = RplidarEmulator(world=World([BASIN]))
     emu.start()
     try:
         ser = serial.Serial(emu.path, 115200, timeout=2.0)
@@ -61,12 +67,24 @@ def test_the_emulator_answers_with_the_documented_bytes():
 
 
 def test_the_emulator_ray_casts_walls_and_circles():
-    emu = RplidarEmulator(basin=Basin((-5.0, -2.0, 5.0, 2.0), ((3.0, 0.0, 0.5),)))
+    box = Walls(((-5.0, -2.0), (5.0, -2.0), (5.0, 2.0), (-5.0, 2.0)), closed=True)
+    emu = RplidarEmulator(world=World([Obstacle('box', box),
+                                       Obstacle('buoy', Circle((3.0, 0.0), 0.5))]))
     emu.set_pose(1.0, 0.0, 0.0)
     # ahead: the circle at 1.5 m (3 - 0.5 - 1); 90 deg clockwise (right): wall at 2 m
     assert emu.ranges_mm(np.array([0.0, 90.0, 270.0])) == pytest.approx([1500.0, 2000.0, 2000.0])
     emu.set_pose(0.0, 1.0, math.pi)  # facing -x: the circle is behind, the wall at -5 ahead
     assert emu.ranges_mm(np.array([0.0, 90.0])) == pytest.approx([5000.0, 1000.0])
+
+
+def test_the_emulator_sees_a_moving_obstacle_at_its_world_time():
+    now = [0.0]
+    boat = Obstacle('boat', Circle((10.0, 0.0), 0.5), ConstantVelocity((-1.0, 0.0)))
+    emu = RplidarEmulator(world=World([boat]), world_time=lambda: now[0])
+    assert emu.ranges_mm(np.array([0.0])) == pytest.approx([9500.0])
+    now[0] = 4.0  # the boat's centre at x = 6
+    assert emu.ranges_mm(np.array([0.0])) == pytest.approx([5500.0])
+    assert emu.ranges_mm(np.array([180.0])) == [0.0]  # nothing behind: no return
 
 
 def test_check_device_against_the_emulator_and_an_absent_port():
@@ -88,6 +106,7 @@ def test_check_device_command_line(capsys):
 # -- node tests: the driver on the emulator's pty ---------------------------------------------
 
 def lidar_pair(context, executor, name='default', **driver):
+    install_world(context, World([BASIN]))
     emu = add(executor, RplidarEmulatorNode(node_name=f'emu_{name}', context=context,
                                             parameter_overrides=[Parameter('name', value=name)]))
     emu.start()
@@ -139,6 +158,7 @@ def test_scans_in_the_lidars_own_frame(context, executor, spin):
 def test_the_driver_leaves_the_mount_to_the_frame_tree(context, executor, spin):
     """The A1 sits 0.5 m ahead of base_link with its 0 deg mark to port (the laser frame's
     pose): the scan stays in the lidar's frame, named by frame_id, unrotated."""
+    install_world(context, World([BASIN]))
     emu = add(executor, RplidarEmulatorNode(node_name='emu_turned', context=context,
                                             parameter_overrides=[
         Parameter('name', value='turned'), Parameter('mount.x', value=0.5),

@@ -20,6 +20,7 @@ from enbarr_plugins.lidar.rplidar_protocol import (
     decode_descriptor, Descriptor, DeviceInfo, Health, RANGE_MAX, RANGE_MIN, request,
     ScanDecoder)
 from enbarr_plugins.lidar.scan import bin_revolution, RevolutionAssembler
+from enbarr_core.world.model import Circle, Obstacle, Walls, World
 
 #: (name, value, where the number is written), typed from the sources above.
 DOCUMENTED = [
@@ -162,7 +163,9 @@ def truncate(sample: bytes) -> bytes:
 @functools.cache
 def clean_revolutions() -> tuple[tuple[bytes, ...], ...]:
     """Revolutions of the emulator's samples: a vessel in the MC-lab basin, a buoy ahead."""
-    emu = emulator.RplidarEmulator(basin=emulator.Basin(circles=((1.5, 0.8, 0.3),)))
+    basin = Walls(((-20.0, -3.225), (20.0, -3.225), (20.0, 3.225), (-20.0, 3.225)), closed=True)
+    emu = emulator.RplidarEmulator(world=World([Obstacle('basin', basin),
+                                                Obstacle('buoy', Circle((1.5, 0.8), 0.3))]))
     emu.set_pose(0.0, 0.2, 0.3)
     step = 360.0 / PER_REV
     revolutions = []

@@ -1,0 +1,169 @@
+"""Simulated RPLidar A1 (``sim_lidar``): the profile's world scanned from the true pose.
+
+It ray-casts the profile's ``world`` (``EnbarrNode.world``) from the lidar's mount, the
+frame tree's ``frame_id`` frame in ``base_link``, at the simulated vessel's true pose
+(``sim/odometry``), with the A1's error model of ``sim_scan`` (the CS Saucer manual's
+figures), and publishes what the real driver (``rplidar``) publishes: one
+``sensor_msgs/LaserScan`` per revolution on ``scan``, in the lidar's own frame, ``bins``
+rays of a fixed increment from -pi (``scan.bin_revolution``, REP-117 special values),
+``time_increment`` 0, ``range_min`` 0.15 m and ``range_max`` 12 m.
+
+Time: the truth's stamps schedule the revolutions, one every ``1 / rotation_hz`` of the
+node clock (simulated time in a scenario, as ``sim_mocap`` does). A revolution is cast at
+one instant: the truth's pose and the world at that stamp (``EnbarrNode.world_time``), and
+the scan carries that stamp and ``scan_time`` = 1 / ``rotation_hz``. The real A1 sweeps for
+a whole period, so a scan taken while turning smears; the simulated one does not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import LaserScan
+
+from enbarr_core.framework.driver import SensorDriver
+from enbarr_core.framework.errors import ConfigurationError, FrameError
+from enbarr_core.framework.health import InputHealth, worst
+from enbarr_core.framework.params import ParamSpec
+from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_interfaces import convert, topics
+from enbarr_plugins.lidar.sim_scan import A1Model, RANGE_MAX, RANGE_MIN, SimulatedA1
+
+#: Truths stamped further ahead of the clock than this are refused [s] (as ``sim_mocap``).
+TRUTH_MAX_FUTURE = 0.01
+
+SPECS = [
+    ParamSpec('frame_id', topics.LASER_FRAME, "The lidar's own frame: the scan is published "
+              'in it, and the frame tree places it on the vessel (base_link)', read_only=True),
+    ParamSpec('rotation_hz', 5.5, 'Rotation rate: one scan per revolution (A1: about 5.5 Hz, '
+              'adjustable)', 'Hz', 1.0, 15.0),
+    ParamSpec('samples', 360, 'Samples per revolution (manual Table 1.1: 1 deg resolution)',
+              '', 36, 7200, read_only=True),
+    ParamSpec('bins', 360, 'Rays per revolution in the published scan (as the rplidar '
+              "driver's bins)", '', 36, 7200, read_only=True),
+    ParamSpec('noise_scale', 1.0, "Range error in units of the manual's accuracy (1 % below "
+              '3 m, 2 % to 5 m, 2.5 % beyond, read as one standard deviation); 0: exact', '',
+              0.0, 10.0),
+    ParamSpec('dropout_probability', 0.0, 'Probability that a sample returns nothing', '',
+              0.0, 1.0),
+    ParamSpec('mask_sectors', [0.0], 'Sectors hidden by the marker rods: start, end, start, '
+              'end, ... bearings in the laser frame, CCW (start > end: through 180 deg); the '
+              'CS Saucer keeps [-90, 90] clear; [0.0]: none', 'deg', -180.0, 180.0),
+    ParamSpec('mask_range', 0.0, "What a masked sample reports: the rod's distance; 0: no "
+              'return (a rod inside the 0.15 m blind zone)', 'm', 0.0, RANGE_MAX),
+    ParamSpec('seed', 3, 'Seed of the noise generator', '', 0, 2**31 - 1, read_only=True),
+]
+
+
+@dataclass(frozen=True)
+class SimLidarSettings:
+    """Settings of ``SimLidarNode`` (see ``SPECS``)."""
+
+    frame_id: str
+    rotation_hz: float  # [Hz]
+    bins: int
+    model: A1Model
+    seed: int
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> SimLidarSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        frame_id = v['frame_id'].strip()
+        if not frame_id or frame_id.startswith('/') or ' ' in frame_id:
+            raise ValueError(f"frame_id: a frame name such as 'laser' (no leading '/', no "
+                             f"spaces), got {v['frame_id']!r}")
+        m = [float(a) for a in v['mask_sectors']]
+        sectors: tuple[tuple[float, float], ...] = ()
+        if m != [0.0]:
+            if len(m) % 2 or any(a == b for a, b in zip(m[::2], m[1::2])):
+                raise ValueError('mask_sectors: expected pairs of start, end bearings [deg], '
+                                 'start != end')
+            sectors = tuple(zip(m[::2], m[1::2]))
+        if 0.0 < v['mask_range'] < RANGE_MIN:
+            raise ValueError(f'mask_range: 0 (no return) or a distance the A1 measures, '
+                             f'{RANGE_MIN} to {RANGE_MAX} m; got {v["mask_range"]}')
+        model = A1Model(int(v['samples']), v['noise_scale'], v['dropout_probability'],
+                        sectors, v['mask_range'])
+        return cls(frame_id, v['rotation_hz'], int(v['bins']), model, int(v['seed']))
+
+
+class SimLidarNode(SensorDriver):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = 'lidar', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: SimLidarSettings
+        self.bind_settings(SPECS, SimLidarSettings.from_params, self._apply)
+        s = self.settings
+        try:
+            mount = self.frame_tree.lookup(topics.BODY_FRAME, s.frame_id)
+        except FrameError as err:
+            raise ConfigurationError(f'node {self.get_name()!r}: frame_id: the frame tree '
+                                     f'cannot place the lidar: {err}',
+                                     parameter='frame_id') from err
+        self.lidar = SimulatedA1(self.world, mount, s.model, np.random.default_rng(s.seed))
+        self._next_ns: int | None = None
+        self.revolutions = 0
+        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
+        self.health = InputHealth()
+        self._pub = self.create_topic_publisher(topics.SCAN)
+        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
+
+    def _apply(self, s: SimLidarSettings) -> None:
+        self.settings = s
+        lidar = getattr(self, 'lidar', None)
+        if lidar is not None:
+            lidar.set_model(s.model)
+
+    def status_values(self) -> dict[str, Any]:
+        """Return the driver's status, with the revolutions published and truths refused."""
+        return {**super().status_values(), 'revolutions': self.revolutions,
+                'obstacles': len(self.world), 'refused': self._gate.refused}
+
+    def status(self) -> tuple[int, str]:
+        """Return the driver's status, DEGRADED while truths are refused."""
+        level, message, _ = self.health.report(1.0)
+        return worst(super().status(), (level, message))
+
+    def _on_truth(self, truth: Odometry) -> None:
+        t = convert.stamp_to_ns(truth.header.stamp)
+        verdict = self._gate.offer(t, self.now_ns())
+        if verdict is not StampVerdict.ACCEPTED:
+            self.health.refused('sim/odometry', verdict.value)
+            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
+                                   throttle_duration_sec=1.0)
+            return
+        self.health.accepted('sim/odometry')
+        if not self.started:  # a source: silent before start and after stop
+            return
+        s = self.settings
+        period_ns = round(1e9 / s.rotation_hz)
+        if self._next_ns is None:
+            self._next_ns = t
+        if t < self._next_ns:
+            return
+        self._next_ns += period_ns * max(1, (t - self._next_ns) // period_ns + 1)
+        pose = truth.pose.pose
+        ranges = self.lidar.scan(pose.position.x, pose.position.y,
+                                 convert.quaternion_to_yaw(pose.orientation),
+                                 self.world_time(t), s.bins)
+        msg = LaserScan()
+        msg.header.stamp = truth.header.stamp
+        msg.header.frame_id = s.frame_id
+        inc = 2.0 * math.pi / s.bins
+        msg.angle_min = -math.pi
+        msg.angle_increment = inc
+        msg.angle_max = -math.pi + (s.bins - 1) * inc
+        msg.time_increment = 0.0
+        msg.scan_time = 1.0 / s.rotation_hz
+        msg.range_min = RANGE_MIN
+        msg.range_max = RANGE_MAX
+        msg.ranges = ranges.tolist()
+        self._pub.publish(msg)
+        self.revolutions += 1
+        self.sample_received()
