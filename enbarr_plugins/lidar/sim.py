@@ -11,7 +11,8 @@ rays of a fixed increment from -pi (``scan.bin_revolution``, REP-117 special val
 Time: the truth's stamps schedule the revolutions, one every ``1 / rotation_hz`` of the
 node clock (simulated time in a scenario, as ``sim_mocap`` does). A revolution is cast at
 one instant: the truth's pose and the world at that stamp (``EnbarrNode.world_time``), and
-the scan carries that stamp and ``scan_time`` = 1 / ``rotation_hz``. The real A1 sweeps for
+the scan carries that stamp and ``scan_time`` = 1 / ``rotation_hz``. In ``stall_windows``
+(world time) no scan is published at all, as when the lidar is unplugged or stalls. The real A1 sweeps for
 a whole period, so a scan taken while turning smears; the simulated one does not.
 """
 
@@ -56,6 +57,9 @@ SPECS = [
               'CS Saucer keeps [-90, 90] clear; [0.0]: none', 'deg', -180.0, 180.0),
     ParamSpec('mask_range', 0.0, "What a masked sample reports: the rod's distance; 0: no "
               'return (a rod inside the 0.15 m blind zone)', 'm', 0.0, RANGE_MAX),
+    ParamSpec('stall_windows', [0.0], 'No scan at all (the lidar unplugged or stalled): start, '
+              'end, start, end, ... [s] of world time (a scenario: since its start); [0.0]: '
+              'never', 's', 0.0, 1e6),
     ParamSpec('seed', 3, 'Seed of the noise generator', '', 0, 2**31 - 1, read_only=True),
 ]
 
@@ -69,6 +73,7 @@ class SimLidarSettings:
     bins: int
     model: A1Model
     seed: int
+    stall_windows: tuple[tuple[float, float], ...] = ()  # (start, end) world time [s]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> SimLidarSettings:
@@ -89,7 +94,13 @@ class SimLidarSettings:
                              f'{RANGE_MIN} to {RANGE_MAX} m; got {v["mask_range"]}')
         model = A1Model(int(v['samples']), v['noise_scale'], v['dropout_probability'],
                         sectors, v['mask_range'])
-        return cls(frame_id, v['rotation_hz'], int(v['bins']), model, int(v['seed']))
+        w = [float(a) for a in v['stall_windows']]
+        stalls: tuple[tuple[float, float], ...] = ()
+        if w != [0.0]:
+            if len(w) % 2 or any(b <= a for a, b in zip(w[::2], w[1::2])):
+                raise ValueError('stall_windows: expected pairs of start < end times [s]')
+            stalls = tuple(zip(w[::2], w[1::2]))
+        return cls(frame_id, v['rotation_hz'], int(v['bins']), model, int(v['seed']), stalls)
 
 
 class SimLidarNode(SensorDriver):
@@ -109,6 +120,7 @@ class SimLidarNode(SensorDriver):
         self.lidar = SimulatedA1(self.world, mount, s.model, np.random.default_rng(s.seed))
         self._next_ns: int | None = None
         self.revolutions = 0
+        self.stalled = 0
         self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
         self.health = InputHealth()
         self._pub = self.create_topic_publisher(topics.SCAN)
@@ -123,6 +135,7 @@ class SimLidarNode(SensorDriver):
     def status_values(self) -> dict[str, Any]:
         """Return the driver's status, with the revolutions published and truths refused."""
         return {**super().status_values(), 'revolutions': self.revolutions,
+                'stalled': self.stalled,
                 'obstacles': len(self.world), 'refused': self._gate.refused}
 
     def status(self) -> tuple[int, str]:
@@ -148,10 +161,14 @@ class SimLidarNode(SensorDriver):
         if t < self._next_ns:
             return
         self._next_ns += period_ns * max(1, (t - self._next_ns) // period_ns + 1)
+        now = self.world_time(t)
+        if any(a <= now < b for a, b in s.stall_windows):
+            self.stalled += 1  # a stalled lidar sends nothing: consumers see the silence
+            return
         pose = truth.pose.pose
         ranges = self.lidar.scan(pose.position.x, pose.position.y,
                                  convert.quaternion_to_yaw(pose.orientation),
-                                 self.world_time(t), s.bins)
+                                 now, s.bins)
         msg = LaserScan()
         msg.header.stamp = truth.header.stamp
         msg.header.frame_id = s.frame_id

@@ -214,6 +214,19 @@ def test_rotation_rate_and_mask_are_tuned_live(context, executor, spin):
         pytest.approx(3.225, abs=1e-3)
 
 
+def test_a_stalled_lidar_sends_nothing_in_its_windows(context, executor, spin):
+    """An unplugged or stalled lidar publishes no scan (a scan of +inf would read as clear
+    water): in world time [0.3, 0.7) s the revolutions at 0.37 and 0.55 s are not sent."""
+    lidar, clock, truth, scans = sim_rig(context, executor, World([BASIN]), noise_scale=0.0,
+                                         stall_windows=[0.3, 0.7])
+    for _ in range(101):
+        feed(spin, executor, lidar, truth, clock, scans)
+    times = [(sc.header.stamp.sec * 10**9 + sc.header.stamp.nanosec - T0_NS) * 1e-9
+             for sc in scans]
+    assert times == pytest.approx([0.0, 0.19, 0.73, 0.91], abs=0.011)
+    assert lidar.status_values()['stalled'] == 2
+
+
 def test_bad_parameters_and_a_missing_frame_are_named(context):
     install_world(context, World())
     install_frame_tree(context, FrameTree.of([Frame('base_link')]))
@@ -224,6 +237,10 @@ def test_bad_parameters_and_a_missing_frame_are_named(context):
         SimLidarNode(context=context, parameter_overrides=[
             Parameter('frame_id', value='base_link'),
             Parameter('mask_sectors', value=[100.0, 120.0, 130.0])])
+    with pytest.raises(ConfigurationError, match='stall_windows: expected pairs of start < end'):
+        SimLidarNode(context=context, parameter_overrides=[
+            Parameter('frame_id', value='base_link'),
+            Parameter('stall_windows', value=[5.0, 2.0])])
     with pytest.raises(ConfigurationError, match='mask_range: 0 .* got 0.1'):
         SimLidarNode(context=context, parameter_overrides=[
             Parameter('frame_id', value='base_link'), Parameter('mask_range', value=0.1)])
