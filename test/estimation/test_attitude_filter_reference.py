@@ -182,17 +182,17 @@ DEFAULT = AttitudeFilterSettings()
 # (sample index, action) applied to both filters before that sample. The settings swaps fall
 # inside runs of a steady dt (see tumbling_imu), so that only the swap can change Q.
 EVENTS: dict[int, object] = {
-    650: replace(DEFAULT, use_innovation_gate=True, accel_gate_timeout=0.4),
-    1250: replace(DEFAULT, use_magnetometer=False, gyro_noise=0.01, accel_noise=0.2),
-    1500: 'reset',                      # re-initialised without magnetometer: heading unknown
-    1850: replace(DEFAULT, mag_noise=0.02, gyro_bias_walk=1e-4, accel_gate=2.0),
-    2450: 'initialize without mag',     # then aligned by the first usable sample
-    3050: replace(DEFAULT, use_innovation_gate=True, accel_innovation_gate=6.0),
+    450: replace(DEFAULT, use_innovation_gate=True, accel_gate_timeout=0.4),
+    850: replace(DEFAULT, use_magnetometer=False, gyro_noise=0.01, accel_noise=0.2),
+    1000: 'reset',                      # re-initialised without magnetometer: heading unknown
+    1250: replace(DEFAULT, mag_noise=0.02, gyro_bias_walk=1e-4, accel_gate=2.0),
+    1650: 'initialize without mag',     # then aligned by the first usable sample
+    2050: replace(DEFAULT, use_innovation_gate=True, accel_innovation_gate=6.0),
 }
 # Samples whose gyro reads exactly zero: right after the reset the bias is still zero, so the
 # predicted rotation is exactly zero (the small-angle branch of the rotation vector).
-ZERO_GYRO = range(1500, 1503)
-N_SAMPLES = 3600
+ZERO_GYRO = range(1000, 1003)
+N_SAMPLES = 2400
 
 
 def tumbling_imu(n: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray],
@@ -206,13 +206,13 @@ def tumbling_imu(n: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray],
     bias = rng.normal(0.0, 0.02, 3)
     gyro, accel, mag, dts = [], [], [], []
     for k in range(n):
-        # Runs of 300 samples of a steady dt (Q built once), runs of jitter.
-        dt = 1.0 / FS if (k // 300) % 2 == 0 else rng.uniform(0.6, 1.4) / FS
+        # Runs of 200 samples of a steady dt (Q built once), runs of jitter.
+        dt = 1.0 / FS if (k // 200) % 2 == 0 else rng.uniform(0.6, 1.4) / FS
         rate += rng.normal(0.0, 0.15, 3) - 0.002 * rate
-        if k % 600 == 450:
+        if k % 400 == 300:
             rate = rng.normal(0.0, 4.0, 3)                      # a sudden spin
         q = quat_integrate(q, rate, dt)
-        if k % 150 == 0:                                        # a new specific force
+        if k % 100 == 0:                                        # a new specific force
             force = rng.normal(0.0, 0.4 if rng.uniform() < 0.7 else 2.0, 3)
         R = quat_to_rotmat(q)
         gyro.append(np.zeros(3) if k in ZERO_GYRO else
