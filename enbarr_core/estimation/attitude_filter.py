@@ -84,7 +84,11 @@ Each step:
    ``P <- G P G'`` with ``G = blockdiag(I - S(dtheta / 2), I)`` (Sola 2017, sec. 7).
 
 The step does a 6x6 predict and one small update: no scipy and no per-step allocation of the
-filter object, so it runs at IMU rate (400 Hz) on a Raspberry Pi.
+filter object, so it runs at IMU rate (400 Hz) on a Raspberry Pi. What is not a matrix
+product of the filter (the nominal quaternion and bias, rotations of 3-vectors, the entries
+of ``F``, ``H`` and ``G``) is computed in Python floats, where a numpy call would cost more
+than its arithmetic; what depends only on the settings and ``dt`` (``Q``, ``R``) is built
+once and rebuilt when they change.
 """
 
 from __future__ import annotations
@@ -99,7 +103,6 @@ from numpy.typing import ArrayLike, NDArray
 from enbarr_core.framework.kinematics import (
     quat_from_euler,
     quat_from_rotvec,
-    quat_integrate,
     quat_multiply,
     quat_normalize,
     quat_to_rotmat,
@@ -108,6 +111,9 @@ from enbarr_core.framework.kinematics import (
 )
 
 Vector = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]          # [x, y, z, w]
+RotMat = tuple[float, float, float, float, float, float, float, float, float]  # row-major
 
 # A magnetometer vector shorter than this is "no reading" (a driver publishing zeros).
 _MIN_MAG_NORM = 1e-12
@@ -198,13 +204,59 @@ class AttitudeEstimate:
     mag_used: bool = False
 
 
-def _vector3(value: ArrayLike, name: str) -> Vector:
+def _vector3(value: ArrayLike, name: str) -> Vec3:
     v = np.asarray(value, dtype=float)
     if v.shape != (3,):
         raise ValueError(f'{name} must have shape (3,), got {v.shape}')
-    if not np.isfinite(v).all():
+    x, y, z = v.tolist()
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         raise ValueError(f'{name} is not finite: {v!r}')
-    return v
+    return x, y, z
+
+
+# The quaternion helpers of ``kinematics`` in Python floats, for the per-sample path; the
+# reference test of the filter checks them (through the step) against ``kinematics``.
+
+def _as_quat(q: Vector) -> Quat:
+    x, y, z, w = q.tolist()
+    return x, y, z, w
+
+
+def _quat_normalize(x: float, y: float, z: float, w: float) -> Quat:
+    """``kinematics.quat_normalize``: unit norm, w >= 0."""
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if n == 0.0 or not math.isfinite(n):
+        raise ValueError(f'cannot normalize quaternion {[x, y, z, w]!r}')
+    if w < 0.0:
+        n = -n
+    return x / n, y / n, z / n, w / n
+
+
+def _quat_from_rotvec(x: float, y: float, z: float) -> Quat:
+    """``kinematics.quat_from_rotvec``: quaternion of the rotation vector [rad], exact."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return _quat_normalize(0.5 * x, 0.5 * y, 0.5 * z, 1.0)
+    s = math.sin(0.5 * angle) / angle
+    return s * x, s * y, s * z, math.cos(0.5 * angle)
+
+
+def _quat_multiply(q1: Quat, q2: Quat) -> Quat:
+    """``kinematics.quat_multiply``: Hamilton product q1 (x) q2."""
+    x1, y1, z1, w1 = q1
+    x2, y2, z2, w2 = q2
+    return (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
+
+
+def _rotmat(q: Quat) -> RotMat:
+    """``kinematics.quat_to_rotmat``, row-major: R(q) (body -> world)."""
+    x, y, z, w = q
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
+            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
+            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
 
 
 def _frozen(a: Vector) -> Vector:
@@ -217,17 +269,33 @@ class AttitudeFilter:
 
     def __init__(self, settings: AttitudeFilterSettings = AttitudeFilterSettings()) -> None:
         settings.validate()
-        self._settings = settings
         self._kf = KalmanFilter(dim_x=6, dim_z=4)
-        self._q = np.array([0.0, 0.0, 0.0, 1.0])
-        self._b = np.zeros(3)
+        self._q: Quat = (0.0, 0.0, 0.0, 1.0)
+        self._b: Vec3 = (0.0, 0.0, 0.0)
         self._initialized = False
         self._heading_known = False
         self._accel_rejected = 0.0  # time the gravity innovation gate has failed in a row [s]
-        # Preallocated per-step matrices, filled in place.
+        # Per-step matrices, filled in place: F and G through flat views of their top rows
+        # (one numpy call each), H and z as one 4-row buffer whose first three rows are the
+        # gravity update and whose last row is the heading update.
         self._F = np.eye(6)
-        self._Q = np.zeros((6, 6))
         self._G = np.eye(6)
+        self._F_flat = self._F.reshape(36)
+        self._G_flat = self._G.reshape(36)
+        self._H = np.zeros((4, 6))
+        self._H_flat = self._H.reshape(24)
+        self._z = np.zeros((4, 1))
+        self._z_flat = self._z.reshape(4)
+        # What depends on the settings and dt only, rebuilt when either changes.
+        self._Q = np.zeros((6, 6))
+        self._omega_noise = np.zeros((3, 3))   # gyro noise of one sample in omega_cov
+        self._noise_dt: float | None = None    # the dt that Q and _omega_noise are for
+        self._R_gravity = self._R_heading = self._R_both = np.zeros((0, 0))
+        self.settings = settings
+        # filterpy's own F and Q are ours, filled in place: predict() reads them without the
+        # checks it makes of matrices passed as arguments.
+        self._kf.F = self._F
+        self._kf.Q = self._Q
         self.reset()
 
     @property
@@ -240,6 +308,24 @@ class AttitudeFilter:
         """Swap in new settings; Q and R use them from the next step, the state is kept."""
         settings.validate()
         self._settings = settings
+        ra, rm = settings.accel_noise ** 2, settings.mag_noise ** 2
+        self._R_gravity = np.diag([ra, ra, ra])
+        self._R_heading = np.array([[rm]])
+        self._R_both = np.diag([ra, ra, ra, rm])
+        self._noise_dt = None
+
+    def _use_dt(self, dt: float) -> None:
+        """Build Q and the one-sample gyro noise of omega for ``dt`` unless already done."""
+        if dt == self._noise_dt:
+            return
+        s = self._settings
+        sg2, sb2 = s.gyro_noise ** 2, s.gyro_bias_walk ** 2
+        Q = self._Q
+        Q[:3, :3] = (sg2 * dt + sb2 * dt ** 3 / 3.0) * _I3
+        Q[:3, 3:] = Q[3:, :3] = (-0.5 * sb2 * dt * dt) * _I3
+        Q[3:, 3:] = (sb2 * dt) * _I3
+        self._omega_noise = (sg2 / dt) * _I3
+        self._noise_dt = dt
 
     @property
     def initialized(self) -> bool:
@@ -251,8 +337,8 @@ class AttitudeFilter:
         self._initialized = False
         self._heading_known = False
         self._accel_rejected = 0.0
-        self._q = np.array([0.0, 0.0, 0.0, 1.0])
-        self._b = np.zeros(3)
+        self._q = (0.0, 0.0, 0.0, 1.0)
+        self._b = (0.0, 0.0, 0.0)
         self._kf.x = np.zeros((6, 1))
         self._kf.P = np.eye(6)
 
@@ -271,21 +357,23 @@ class AttitudeFilter:
         The gyro bias starts at zero with std ``initial_bias_std``.
         """
         s = self._settings
-        a = _vector3(accel, 'accel')
+        ax, ay, az = _vector3(accel, 'accel')
         m = None if mag is None else _vector3(mag, 'mag')
-        if math.sqrt(float(a @ a)) < _MIN_ACCEL_NORM:
-            raise ValueError(f'accel {a!r} is too small to give the gravity direction')
+        if math.sqrt(ax * ax + ay * ay + az * az) < _MIN_ACCEL_NORM:
+            raise ValueError(f'accel {[ax, ay, az]!r} is too small to give the gravity '
+                             'direction')
         # a = g [-sin(theta), sin(phi) cos(theta), cos(phi) cos(theta)] at rest.
-        roll = math.atan2(a[1], a[2])
-        pitch = math.atan2(-a[0], math.hypot(a[1], a[2]))
+        roll = math.atan2(ay, az)
+        pitch = math.atan2(-ax, math.hypot(ay, az))
         # One sample of a possibly moving vehicle: tilt std from noise or the largest accepted
         # non-gravitational specific force, whichever is larger [rad].
         tilt_std = max(s.accel_noise, s.accel_gate) / s.gravity
-        self._q = quat_normalize(quat_from_euler(roll, pitch, 0.0))
-        self._b = np.zeros(3)
+        q = quat_normalize(quat_from_euler(roll, pitch, 0.0))
+        self._q = _as_quat(q)
+        self._b = (0.0, 0.0, 0.0)
         # Attitude covariance is diagonal in the world frame (tilt, tilt, heading); express it
         # about the body axes: dtheta_body = R' dtheta_world.
-        R = quat_to_rotmat(self._q)
+        R = quat_to_rotmat(q)
         P = np.zeros((6, 6))
         P[:3, :3] = R.T @ np.diag([tilt_std ** 2, tilt_std ** 2, 0.0]) @ R
         P[3:, 3:] = s.initial_bias_std ** 2 * _I3
@@ -297,7 +385,7 @@ class AttitudeFilter:
         if s.use_magnetometer and m is not None:
             self._align_heading(m)
 
-    def _align_heading(self, m: Vector) -> bool:
+    def _align_heading(self, mag: Vec3) -> bool:
         """Rotate the estimate about world z so the magnetometer points north; True if done.
 
         Used instead of a Kalman update while the heading is unknown: a yaw error of up to pi
@@ -305,6 +393,7 @@ class AttitudeFilter:
         covariance are replaced by the heading variance of the magnetometer, which is
         ``mag_noise^2`` plus the tilt variance times tan(inclination)^2.
         """
+        m = np.array(mag)
         m_norm = math.sqrt(float(m @ m))
         if m_norm <= _MIN_MAG_NORM:
             return False
@@ -313,9 +402,10 @@ class AttitudeFilter:
         if horizontal <= _MIN_MAG_HORIZONTAL_FRACTION * m_norm:
             return False
         dpsi = float(ssa(0.5 * math.pi - math.atan2(m_w[1], m_w[0])))
-        self._q = quat_normalize(quat_multiply(quat_from_rotvec([0.0, 0.0, dpsi]), self._q))
+        q = quat_normalize(quat_multiply(quat_from_rotvec([0.0, 0.0, dpsi]), self._q))
+        self._q = _as_quat(q)
         T = np.zeros((6, 6))                                        # body -> world error axes
-        T[:3, :3] = quat_to_rotmat(self._q)
+        T[:3, :3] = quat_to_rotmat(q)
         T[3:, 3:] = _I3
         Pw = T @ self._kf.P @ T.T
         tilt_var = max(Pw[0, 0], Pw[1, 1])
@@ -338,97 +428,108 @@ class AttitudeFilter:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'dt must be positive and finite, got {dt!r}')
-        w_m = _vector3(gyro, 'gyro')
-        a = _vector3(accel, 'accel')
+        wmx, wmy, wmz = _vector3(gyro, 'gyro')
+        ax, ay, az = _vector3(accel, 'accel')
         m = None if mag is None else _vector3(mag, 'mag')
         s = self._settings
         kf = self._kf
+        self._use_dt(dt)
 
         if not self._initialized:
-            self.initialize(a, m)
-            return self._estimate(w_m - self._b, dt, False, False)
+            self.initialize((ax, ay, az), m)
+            bx, by, bz = self._b
+            return self._estimate((wmx - bx, wmy - by, wmz - bz), False, False)
 
         # --- predict -----------------------------------------------------------------------
-        w = w_m - self._b
-        wdt = w * dt
-        self._q = quat_integrate(self._q, w, dt)
-        S = skew(wdt)
-        F = self._F
-        F[:3, :3] = quat_to_rotmat(quat_from_rotvec(wdt)).T       # exp(-S(w dt))
-        F[:3, 3:] = -dt * (_I3 - 0.5 * S)
-        sg2, sb2 = s.gyro_noise ** 2, s.gyro_bias_walk ** 2
-        Q = self._Q
-        Q[:3, :3] = (sg2 * dt + sb2 * dt ** 3 / 3.0) * _I3
-        Q[:3, 3:] = Q[3:, :3] = (-0.5 * sb2 * dt * dt) * _I3
-        Q[3:, 3:] = (sb2 * dt) * _I3
-        kf.F = F
-        kf.Q = Q
+        bx, by, bz = self._b
+        px, py, pz = (wmx - bx) * dt, (wmy - by) * dt, (wmz - bz) * dt     # w dt
+        dq = _quat_from_rotvec(px, py, pz)
+        self._q = _quat_normalize(*_quat_multiply(self._q, dq))      # q (x) exp(w dt / 2)
+        r = _rotmat(dq)
+        hx, hy, hz = 0.5 * px, 0.5 * py, 0.5 * pz
+        # F[:3] = [R(w dt)', -dt (I - S(w dt) / 2)]: R(w dt)' = exp(-S(w dt)).
+        self._F_flat[:18] = [r[0], r[3], r[6], -dt, -dt * hz, dt * hy,
+                             r[1], r[4], r[7], dt * hz, -dt, -dt * hx,
+                             r[2], r[5], r[8], -dt * hy, dt * hx, -dt]
         kf.predict()                                                # P = FPF' + Q
 
         # --- update ------------------------------------------------------------------------
-        R_wb = quat_to_rotmat(self._q)
-        rows = 0
-        H = np.zeros((4, 6))
-        z = np.zeros((4, 1))
-        r = np.zeros(4)
-        a_norm = math.sqrt(float(a @ a))
-        accel_used = abs(a_norm - s.gravity) <= s.accel_gate
+        R = _rotmat(self._q)
+        g = s.gravity
+        accel_used = abs(math.sqrt(ax * ax + ay * ay + az * az) - g) <= s.accel_gate
         if accel_used:
-            h = s.gravity * R_wb[2]                                 # h = R' [0, 0, g]
-            Hg = skew(h)
-            y = a - h                                               # y = z - h(x)
-            ra = s.accel_noise ** 2
+            gx, gy, gz = g * R[6], g * R[7], g * R[8]               # h = R' [0, 0, g]
+            y = (ax - gx, ay - gy, az - gz)                         # y = z - h(x)
             if s.use_innovation_gate:
-                accel_used = self._gravity_consistent(Hg, h, y, ra, dt)
-        if accel_used:
-            H[:3, :3] = Hg
-            z[:3, 0] = y
-            r[:3] = ra
-            rows = 3
+                accel_used = self._gravity_consistent((gx, gy, gz), y, dt)
+        heading: float | None = None
         mag_used = False
         if s.use_magnetometer and m is not None:
-            m_norm = math.sqrt(float(m @ m))
+            mx, my, mz = m
+            m_norm = math.sqrt(mx * mx + my * my + mz * mz)
             if m_norm > _MIN_MAG_NORM:
-                m_w = R_wb @ m
-                horizontal = math.hypot(m_w[0], m_w[1])
+                mwx = R[0] * mx + R[1] * my + R[2] * mz             # m_w = R m
+                mwy = R[3] * mx + R[4] * my + R[5] * mz
+                horizontal = math.hypot(mwx, mwy)
                 if horizontal > _MIN_MAG_HORIZONTAL_FRACTION * m_norm:
                     mag_used = True
                     if self._heading_known:
-                        H[rows, :3] = R_wb[2]                       # e_z' R
-                        z[rows, 0] = ssa(0.5 * math.pi - math.atan2(m_w[1], m_w[0]))
-                        r[rows] = s.mag_noise ** 2
-                        rows += 1
-        if rows:
-            kf.update(z[:rows], R=np.diag(r[:rows]), H=H[:rows])    # K = PH'inv(HPH' + R)
+                        heading = ssa(0.5 * math.pi - math.atan2(mwy, mwx))
+        if accel_used or heading is not None:
+            # Rows 0-2: gravity, H = [S(h), 0]; row 3: heading, H = [e_z' R, 0].
+            H, z = self._H, self._z
+            if accel_used:
+                self._H_flat[:18] = [0.0, -gz, gy, 0.0, 0.0, 0.0,
+                                     gz, 0.0, -gx, 0.0, 0.0, 0.0,
+                                     -gy, gx, 0.0, 0.0, 0.0, 0.0]
+                self._z_flat[:3] = y
+            if heading is not None:
+                self._H_flat[18:21] = R[6:]
+                self._z_flat[3] = heading
+            # filterpy's R set rather than passed: update() then skips its scalar check.
+            if not accel_used:
+                kf.R = self._R_heading
+                kf.update(z[3:], H=H[3:])                           # K = PH'inv(HPH' + R)
+            elif heading is None:
+                kf.R = self._R_gravity
+                kf.update(z[:3], H=H[:3])
+            else:
+                kf.R = self._R_both
+                kf.update(z, H=H)
             # --- inject the error into the nominal state and reset it ----------------------
-            x = kf.x[:, 0]
-            dtheta = x[:3]
-            self._q = quat_normalize(quat_multiply(self._q, quat_from_rotvec(dtheta)))
-            self._b = self._b + x[3:]
+            dx, dy, dz, dbx, dby, dbz = kf.x.ravel().tolist()
+            self._q = _quat_normalize(*_quat_multiply(self._q, _quat_from_rotvec(dx, dy, dz)))
+            self._b = (bx + dbx, by + dby, bz + dbz)
+            ex, ey, ez = 0.5 * dx, 0.5 * dy, 0.5 * dz
+            self._G_flat[:18] = [1.0, ez, -ey, 0.0, 0.0, 0.0,       # G = I - S(dtheta / 2)
+                                 -ez, 1.0, ex, 0.0, 0.0, 0.0,
+                                 ey, -ex, 1.0, 0.0, 0.0, 0.0]
             G = self._G
-            G[:3, :3] = _I3 - skew(0.5 * dtheta)
             P = G @ kf.P @ G.T                                      # P = GPG'
             kf.P = 0.5 * (P + P.T)
             kf.x = np.zeros((6, 1))
         if mag_used and not self._heading_known and m is not None:  # mag_used: m is given
             mag_used = self._align_heading(m)                       # first heading: snap to it
-        return self._estimate(w_m - self._b, dt, accel_used, mag_used)
+        bx, by, bz = self._b
+        return self._estimate((wmx - bx, wmy - by, wmz - bz), accel_used, mag_used)
 
-    def _gravity_consistent(self, Hg: Vector, h: Vector, y: Vector, ra: float,
-                            dt: float) -> bool:
+    def _gravity_consistent(self, h: Vec3, y: Vec3, dt: float) -> bool:
         """Whether the gravity update may run: its tilt innovation passes the chi-square gate.
 
         The normalized innovation squared of the two components of ``y`` across ``h`` (the
         ones that correct the tilt) is ``y' S^-1 y - (y . h)^2 / (r g^2)`` with
-        ``S = Hg P Hg' + r I``: ``h`` is an eigenvector of ``S`` with eigenvalue ``r``, so the
-        along-``h`` term is taken out exactly. A sample that fails is skipped, unless the
-        gate has failed for ``accel_gate_timeout`` in a row: then the estimate is more
-        likely wrong than the vehicle still accelerating, and samples are used again until
-        one passes.
+        ``S = Hg P Hg' + r I``, ``Hg = S(h)``: ``h`` is an eigenvector of ``S`` with eigenvalue
+        ``r``, so the along-``h`` term is taken out exactly. A sample that fails is skipped,
+        unless the gate has failed for ``accel_gate_timeout`` in a row: then the estimate is
+        more likely wrong than the vehicle still accelerating, and samples are used again
+        until one passes.
         """
         s = self._settings
+        ra = s.accel_noise ** 2
+        Hg = skew(h)
+        h_, y_ = np.array(h), np.array(y)
         S = Hg @ self._kf.P[:3, :3] @ Hg.T + ra * _I3
-        nis = float(y @ np.linalg.solve(S, y)) - float(y @ h) ** 2 / (ra * s.gravity ** 2)
+        nis = float(y_ @ np.linalg.solve(S, y_)) - float(y_ @ h_) ** 2 / (ra * s.gravity ** 2)
         if nis <= s.accel_innovation_gate:
             self._accel_rejected = 0.0
             return True
@@ -437,16 +538,14 @@ class AttitudeFilter:
             return False
         return True
 
-    def _estimate(self, omega: Vector, dt: float, accel_used: bool,
-                  mag_used: bool) -> AttitudeEstimate:
+    def _estimate(self, omega: Vec3, accel_used: bool, mag_used: bool) -> AttitudeEstimate:
         P = self._kf.P
-        omega_cov = P[3:, 3:] + (self._settings.gyro_noise ** 2 / dt) * _I3
         return AttitudeEstimate(
-            q=_frozen(self._q.copy()),
-            omega=_frozen(omega),
-            gyro_bias=_frozen(self._b.copy()),
+            q=_frozen(np.array(self._q)),
+            omega=_frozen(np.array(omega)),
+            gyro_bias=_frozen(np.array(self._b)),
             orientation_cov=_frozen(P[:3, :3].copy()),
-            omega_cov=_frozen(omega_cov),
+            omega_cov=_frozen(P[3:, 3:] + self._omega_noise),
             accel_used=accel_used,
             mag_used=mag_used,
         )
