@@ -254,8 +254,10 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
             cx, cy, _, jac = held
             e = np.hypot(*(points - (cx, cy)).T) - min_radius
             e2 = float(e @ e)
-            return CircleFit(cx, cy, min_radius, _circle_cov(jac, e2, n, sigma),
-                             math.sqrt(e2 / n))
+            # The radius was assumed, not measured: the centre is not known better than it.
+            xx, xy, yy = _circle_cov(jac, e2, n, sigma)
+            r2 = min_radius * min_radius
+            return CircleFit(cx, cy, min_radius, (xx + r2, xy, yy + r2), math.sqrt(e2 / n))
     return fallback_circle(points, sensor, sigma, min_radius, max_radius)
 
 
