@@ -79,7 +79,7 @@ SPECS = [
               'dropped', '', 1, 1000),
     ParamSpec('gate', 9.21, 'Association gate: squared Mahalanobis distance (9.21: 99 % of a '
               '2-dof chi-square)', '', 0.1, 1000.0),
-    ParamSpec('accel_noise', 0.5, 'Process noise of a circle track: white acceleration, one '
+    ParamSpec('accel_noise', 0.2, 'Process noise of a circle track: white acceleration, one '
               'standard deviation', 'm/s^2', 1e-4, 100.0),
     ParamSpec('initial_speed_std', 1.0, 'Speed standard deviation of a new circle track',
               'm/s', 1e-3, 100.0),

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from enbarr_interfaces.obstacles import CIRCLE, Obstacle, SEGMENT
+from enbarr_interfaces.obstacles import CIRCLE, closest_on_segment, Obstacle, SEGMENT
 
 from enbarr_core.estimation.filterpy_kalman import KalmanFilter
 from enbarr_core.perception.fitting import CircleFit, SegmentFit
@@ -207,6 +207,21 @@ class SegmentTrack:
                         position_cov=(self.var, 0.0, self.var), stamp_ns=self.stamp_ns)
 
 
+def front_of(z: SegmentFit, t: CircleTrack) -> CircleFit | None:
+    """Segment ``z`` read as the visible front of circle track ``t``, or None when too long."""
+    if z.length > 2.0 * t.radius + 3.0 * z.rms:
+        return None
+    c = t.kf.x[:2, 0]
+    qx, qy = closest_on_segment(float(c[0]), float(c[1]), z.x1, z.y1, z.x2, z.y2)
+    dx, dy = float(c[0]) - qx, float(c[1]) - qy
+    d = math.hypot(dx, dy)
+    if d <= 0.0:
+        return None
+    var = z.rms * z.rms + t.radius * t.radius
+    return CircleFit(qx + t.radius * dx / d, qy + t.radius * dy / d, t.radius,
+                     (var, 0.0, var), z.rms, fallback=True)
+
+
 def assign(cost: Vector, gate: float) -> list[tuple[int, int]]:
     """Return the (row, column) pairs of least total cost, pairs above ``gate`` ruled out."""
     if cost.size == 0:
@@ -255,17 +270,38 @@ class Tracker:
                 for t in self.circles:
                     t.predict(dt, s.accel_noise)
         self._stamp_ns = stamp_ns
-        self._update_circles(circles, stamp_ns)
-        self._update_segments(segments, stamp_ns)
+        # only a segment no longer than a tracked circle may be that circle's front
+        widest = 2.0 * max((t.radius for t in self.circles), default=0.0)
+        short = [z for z in segments if z.length <= widest + s.segment_gate]
+        rest = self._update_circles(circles, short, stamp_ns)
+        self._update_segments([z for z in segments if z not in short] + rest, stamp_ns)
 
-    def _update_circles(self, measured: Sequence[CircleFit], stamp_ns: int) -> None:
+    def _update_circles(self, measured: Sequence[CircleFit], short: Sequence[SegmentFit],
+                        stamp_ns: int) -> list[SegmentFit]:
+        """Assign circles (and short segments, as seen fronts of tracked circles) to tracks.
+
+        Return the segments no circle track took.
+        """
         s = self.settings
-        cost = np.array([[t.innovation(z) for z in measured] for t in self.circles])
-        pairs = assign(cost.reshape(len(self.circles), len(measured)), s.gate)
+        # A short segment near a circle track is that circle's front: a far buoy's few noisy
+        # points fit a line as well as a circle, and the classification of one scan must not
+        # break a track. As a measurement of track i it is the centre one radius behind the
+        # segment's point nearest the prediction, with the radius as its uncertainty.
+        fronts = [[front_of(z, t) for z in short] for t in self.circles]
+        cost = np.array([[t.innovation(z) for z in measured]
+                         + [t.innovation(f) if f is not None else math.inf for f in row]
+                         for t, row in zip(self.circles, fronts)])
+        width = len(measured) + len(short)
+        pairs = assign(cost.reshape(len(self.circles), width), s.gate)
         used = set()
         hit = set()
         for i, j in pairs:
-            self.circles[i].update(measured[j], stamp_ns, s.radius_smoothing)
+            if j < len(measured):
+                self.circles[i].update(measured[j], stamp_ns, s.radius_smoothing)
+            else:
+                front = fronts[i][j - len(measured)]
+                assert front is not None
+                self.circles[i].update(front, stamp_ns, 0.0)   # its radius was not measured
             used.add(j)
             hit.add(i)
         for i, t in enumerate(self.circles):
@@ -276,6 +312,7 @@ class Tracker:
             if j not in used:
                 self.circles.append(CircleTrack(self._new_id(), z, stamp_ns,
                                                 s.initial_speed_std))
+        return [z for k, z in enumerate(short) if len(measured) + k not in used]
 
     def _update_segments(self, measured: Sequence[SegmentFit], stamp_ns: int) -> None:
         s = self.settings
