@@ -152,3 +152,16 @@ def test_split_keeps_a_straight_run_whole_and_cuts_a_corner_once():
 def test_settings_refuse_a_minimum_radius_above_the_maximum():
     with pytest.raises(ValueError, match='^min_radius:'):
         FitSettings(2.0, 1.0, 0.4, 0.8, 0.1).validate()
+
+
+@pytest.mark.parametrize(('x', 'length'), [(3.0, 0.6), (4.0, 0.8)])
+def test_noisy_short_wall_pieces_stay_segments_though_a_circle_fits_them_too(x, length):
+    # Short enough for a circle, and at 2 % noise a circle often fits as well (a quarter of
+    # these 40 scans): only a clearly better circle takes a cluster from the line.
+    segments = 0
+    for seed in range(40):
+        pts = points_of(cast(0.0, 0.0, 0.0, [], [Wall(x, 0.2, x, 0.2 + length)], seed=seed))
+        sigma = (0.01 if x < 3.0 else 0.02) * x
+        shapes = fit_cluster(pts, ORIGIN, sigma, SETTINGS)
+        segments += all(isinstance(s, SegmentFit) for s in shapes)
+    assert segments >= 35
