@@ -148,3 +148,21 @@ def test_a_scan_older_than_the_last_is_refused():
 def test_settings_refuse_zero_hits():
     with pytest.raises(ValueError, match='^confirm_hits:'):
         dataclasses.replace(TRACKER, confirm_hits=0).validate()
+
+
+def test_a_short_segment_at_a_tracked_buoy_is_its_front_not_a_wall():
+    # A far buoy's few noisy points may fit a line as well as a circle in one scan.
+    from enbarr_core.perception.fitting import SegmentFit
+    tracker = Tracker(TRACKER)
+    buoy = CircleFit(3.0, 0.0, 0.3, (0.01, 0.0, 0.01), 0.01)
+    for k in range(N):
+        tracker.update([buoy], [], k * PERIOD_NS)
+    (track,) = tracker.circles
+    front = SegmentFit(2.72, -0.25, 2.72, 0.25, 0.03, 6)
+    tracker.update([], [front], N * PERIOD_NS)
+    assert tracker.segments == [] and tracker.circles == [track]
+    assert track.misses == 0 and track.stamp_ns == N * PERIOD_NS
+    assert track.kf.x[0, 0] == pytest.approx(3.0, abs=0.05)
+    # a long segment there is a wall in front of it, not the buoy
+    tracker.update([], [SegmentFit(2.6, -2.0, 2.6, 2.0, 0.03, 40)], (N + 1) * PERIOD_NS)
+    assert len(tracker.segments) == 1 and track.misses == 1
