@@ -11,7 +11,9 @@ breakpoints, ``segmentation``), each cluster fitted with a circle or segments (`
 the shapes tracked across scans (``tracking``); ``enbarr_core.perception.pipeline`` chains them.
 
 Every scan that could be placed in the world is answered on ``obstacles`` with the confirmed
-tracks, also when there are none: ``header.stamp`` is the scan's stamp, so a consumer judges
+tracks, also when there are none (and on ``obstacles/markers`` while a viewer subscribes:
+cylinders for circles, line strips for segments, a label with id and speed, deletions for the
+tracks dropped since): ``header.stamp`` is the scan's stamp, so a consumer judges
 freshness by it, and each obstacle carries the stamp of the last scan that measured it. A scan
 that cannot be placed (no pose within ``pose_tolerance`` of one of its rays, or a frame the
 tree does not have) is counted and answered with nothing: publishing the old tracks under its
@@ -198,7 +200,10 @@ class ScanObstaclesNode(EnbarrNode):
         self.last_process_s = 0.0
         self._unplaced_reported = 0
         self._obstacles_pub = self.create_topic_publisher(topics.OBSTACLES)
-        self._markers_pub = self.create_topic_publisher(topics.OBSTACLE_MARKERS)
+        # A viewer's topic, never a link: a ROS publisher, whose subscriber count decides
+        # whether markers are built at all.
+        spec = topics.OBSTACLE_MARKERS
+        self._markers_pub = self.create_publisher(spec.msg_type, spec.name, spec.qos)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_odometry)
         self.create_topic_subscription(topics.SCAN, self._on_scan)
         self.create_periodic(1.0, self._report)
@@ -261,6 +266,11 @@ class ScanObstaclesNode(EnbarrNode):
             return
         obstacles = outcome.obstacles
         self._obstacles_pub.publish(to_cloud(obstacles, stamp_ns, topics.WORLD_FRAME))
+        # Markers are for a person watching: building them costs more than the obstacles
+        # (docs/benchmarks.md, perception), so only while a viewer subscribes.
+        if self._markers_pub.get_subscription_count() == 0:
+            self._drawn = set()
+            return
         ids = {o.id for o in obstacles}
         gone = sorted(self._drawn - ids)
         self._drawn = ids
