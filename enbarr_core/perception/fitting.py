@@ -94,30 +94,32 @@ def solve_small(a: Vector, b: Vector) -> Vector | None:
     Written out because ``numpy.linalg.solve`` costs more in its checks than the arithmetic
     of a 3x3 system, and a scan solves dozens (``docs/benchmarks.md``, perception).
     """
-    m = a.tolist()
-    v = b.tolist()
+    x = _solve(a.tolist(), b.tolist())
+    return None if x is None else np.array(x)
+
+
+def _solve(m: list[list[float]], v: list[float]) -> list[float] | None:
+    """:func:`solve_small` on lists (the normal equations of the circle fit are built so)."""
     if len(v) == 2:
         det = m[0][0] * m[1][1] - m[0][1] * m[1][0]
         if abs(det) < 1e-300 or not math.isfinite(det):
             return None
-        return np.array([(v[0] * m[1][1] - m[0][1] * v[1]) / det,
-                         (m[0][0] * v[1] - v[0] * m[1][0]) / det])
+        return [(v[0] * m[1][1] - m[0][1] * v[1]) / det, (m[0][0] * v[1] - v[0] * m[1][0]) / det]
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = m
     c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
     det = a00 * c00 + a01 * c01 + a02 * c02
     if abs(det) < 1e-300 or not math.isfinite(det):
         return None
-    x0 = (v[0] * c00 + a01 * (a12 * v[2] - v[1] * a22) + a02 * (v[1] * a21 - a11 * v[2])) / det
-    x1 = (a00 * (v[1] * a22 - a12 * v[2]) + v[0] * c01 + a02 * (a10 * v[2] - v[1] * a20)) / det
-    x2 = (a00 * (a11 * v[2] - v[1] * a21) + a01 * (v[1] * a20 - a10 * v[2]) + v[0] * c02) / det
-    return np.array([x0, x1, x2])
+    return [(v[0] * c00 + a01 * (a12 * v[2] - v[1] * a22) + a02 * (v[1] * a21 - a11 * v[2])) / det,
+            (a00 * (v[1] * a22 - a12 * v[2]) + v[0] * c01 + a02 * (a10 * v[2] - v[1] * a20)) / det,
+            (a00 * (a11 * v[2] - v[1] * a21) + a01 * (v[1] * a20 - a10 * v[2]) + v[0] * c02) / det]
 
 
 def kasa(points: Vector) -> tuple[float, float, float] | None:
     """Algebraic circle fit (Kasa): (cx, cy, R) [m], or None for collinear points."""
     if len(points) < 3:
         return None
-    m = points.mean(axis=0)
+    m = points.sum(axis=0) / len(points)
     p = points - m   # centred: better conditioned
     a = np.column_stack((p, np.ones(len(p))))
     b = -(p * p).sum(axis=1)
@@ -133,60 +135,65 @@ def kasa(points: Vector) -> tuple[float, float, float] | None:
 
 def refine_circle(points: Vector, cx: float, cy: float, radius: float,
                   fixed_radius: bool = False, iterations: int = 8
-                  ) -> tuple[float, float, float, Vector] | None:
+                  ) -> tuple[float, float, float, list[list[float]]] | None:
     """Geometric fit: minimise sum (|p_i - c| - R)^2 by Levenberg-Marquardt from a start.
 
-    Return (cx, cy, R, J) with J the Jacobian of the residuals at the solution (for the
+    Return (cx, cy, R, J^T J) with J the Jacobian of the residuals at the solution (for the
     covariance), or None when a point sits on the centre. With ``fixed_radius`` only the
-    centre moves.
+    centre moves. The residual e_i = |p_i - c| - R has the Jacobian row -[u_i, 1], u_i the
+    unit vector from c to p_i, so J^T J and J^T e are sums over the points, built directly.
     """
-    x = np.array([cx, cy, radius])
+    px, py = points[:, 0], points[:, 1]
+    n = float(len(px))
     k = 2 if fixed_radius else 3
     mu = 1e-6
 
-    def residuals(x: Vector) -> tuple[Vector, Vector] | None:
-        d = points - x[:2]
-        dist = np.hypot(d[:, 0], d[:, 1])
+    def normal(cx: float, cy: float, r: float
+               ) -> tuple[float, list[list[float]], list[float]] | None:
+        """Cost, J^T J and J^T e at the circle (cx, cy, r)."""
+        dx, dy = px - cx, py - cy
+        dist = np.sqrt(dx * dx + dy * dy)
         if not dist.min() > 1e-12:
             return None
-        jac = np.empty((len(points), k))
-        jac[:, 0] = -d[:, 0] / dist
-        jac[:, 1] = -d[:, 1] / dist
-        if k == 3:
-            jac[:, 2] = -1.0
-        return dist - x[2], jac
+        ux, uy = dx / dist, dy / dist
+        e = dist - r
+        sxy = float(ux @ uy)
+        if k == 2:
+            return (float(e @ e), [[float(ux @ ux), sxy], [sxy, float(uy @ uy)]],
+                    [-float(ux @ e), -float(uy @ e)])
+        sx, sy = float(ux.sum()), float(uy.sum())
+        return (float(e @ e), [[float(ux @ ux), sxy, sx], [sxy, float(uy @ uy), sy],
+                               [sx, sy, n]], [-float(ux @ e), -float(uy @ e), -float(e.sum())])
 
-    now = residuals(x)
+    x = [cx, cy, radius]
+    now = normal(cx, cy, radius)
     if now is None:
         return None
-    e, jac = now
-    cost = float(e @ e)
+    cost, jtj, jte = now
     for _ in range(iterations):
-        a = jac.T @ jac
-        g = jac.T @ e
-        a[np.diag_indices(k)] *= 1.0 + mu
-        step = solve_small(a, -g)
+        a = [row[:] for row in jtj]
+        for i in range(k):
+            a[i][i] *= 1.0 + mu
+        step = _solve(a, [-g for g in jte])
         if step is None:
             return None
-        trial = x.copy()
-        trial[:k] += step
-        new = residuals(trial)
-        if new is not None and float(new[0] @ new[0]) <= cost:
-            x, (e, jac) = trial, new
-            cost = float(e @ e)
+        trial = [x[i] + step[i] if i < k else x[i] for i in range(3)]
+        new = normal(*trial)
+        if new is not None and new[0] <= cost:
+            x, (cost, jtj, jte) = trial, new
             mu *= 0.1
-            if float(step @ step) < STEP_TOLERANCE ** 2:
+            if sum(d * d for d in step) < STEP_TOLERANCE ** 2:
                 break
         else:
             mu *= 10.0
             if mu > 1e8:
                 break
-    return float(x[0]), float(x[1]), float(x[2]), jac
+    return x[0], x[1], x[2], jtj
 
 
 def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
     """Whether the centre lies beyond the points' middle, seen from the sensor."""
-    mid = points.mean(axis=0)
+    mid = points.sum(axis=0) / len(points)
     return float((np.array([cx, cy]) - mid) @ (mid - sensor)) > 0.0
 
 
@@ -206,14 +213,15 @@ def fallback_circle(points: Vector, sensor: Vector, sigma: float,
     return CircleFit(float(c[0]), float(c[1]), radius, (var, 0.0, var), rms, fallback=True)
 
 
-def _circle_cov(jac: Vector, e2: float, n: int, sigma: float) -> tuple[float, float, float]:
+def _circle_cov(jtj: list[list[float]], e2: float, n: int,
+                sigma: float) -> tuple[float, float, float]:
     """Return the centre's covariance: the top-left 2x2 of s^2 (J^T J)^-1.
 
     s is the larger of the residual's and the noise's; infinite when J^T J is singular.
     """
-    k = jac.shape[1]
+    k = len(jtj)
     s2 = max(e2 / (n - k) if n > k else 0.0, sigma * sigma)
-    m = (jac.T @ jac).tolist()
+    m = jtj
     if k == 2:
         det = m[0][0] * m[1][1] - m[0][1] * m[1][0]
         i00, i01, i11 = m[1][1], -m[0][1], m[0][0]
@@ -235,13 +243,13 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
     if start is not None:
         fit = refine_circle(points, *start)
         if fit is not None:
-            cx, cy, radius, jac = fit
+            cx, cy, radius, jtj = fit
             if radius < min_radius and _behind(cx, cy, points, sensor):
                 pass   # too small: refit below with the radius held at the minimum
             elif min_radius <= radius <= max_radius and _behind(cx, cy, points, sensor):
                 e = np.hypot(*(points - (cx, cy)).T) - radius
                 e2 = float(e @ e)
-                return CircleFit(cx, cy, radius, _circle_cov(jac, e2, n, sigma),
+                return CircleFit(cx, cy, radius, _circle_cov(jtj, e2, n, sigma),
                                  math.sqrt(e2 / n))
             else:
                 return fallback_circle(points, sensor, sigma, min_radius, max_radius)
@@ -251,11 +259,11 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
         guess = fallback_circle(points, sensor, sigma, min_radius, min_radius)
         held = refine_circle(points, guess.x, guess.y, min_radius, fixed_radius=True)
         if held is not None and _behind(held[0], held[1], points, sensor):
-            cx, cy, _, jac = held
+            cx, cy, _, jtj = held
             e = np.hypot(*(points - (cx, cy)).T) - min_radius
             e2 = float(e @ e)
             # The radius was assumed, not measured: the centre is not known better than it.
-            xx, xy, yy = _circle_cov(jac, e2, n, sigma)
+            xx, xy, yy = _circle_cov(jtj, e2, n, sigma)
             r2 = min_radius * min_radius
             return CircleFit(cx, cy, min_radius, (xx + r2, xy, yy + r2), math.sqrt(e2 / n))
     return fallback_circle(points, sensor, sigma, min_radius, max_radius)
@@ -264,7 +272,7 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
 # -- segments ------------------------------------------------------------------------------
 def fit_line(points: Vector) -> tuple[Vector, Vector, float]:
     """Total least squares line: (a point on it, unit direction, sum of squared distances)."""
-    m = points.mean(axis=0)
+    m = points.sum(axis=0) / len(points)
     p = points - m
     sxx, syy, sxy = float(p[:, 0] @ p[:, 0]), float(p[:, 1] @ p[:, 1]), float(p[:, 0] @ p[:, 1])
     theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)   # the principal axis
