@@ -165,3 +165,17 @@ def test_noisy_short_wall_pieces_stay_segments_though_a_circle_fits_them_too(x, 
         shapes = fit_cluster(pts, ORIGIN, sigma, SETTINGS)
         segments += all(isinstance(s, SegmentFit) for s in shapes)
     assert segments >= 35
+
+
+def test_the_centre_covariance_is_s2_times_the_inverse_of_jtj():
+    # Written out here with numpy: J's rows -[(p - c) / |p - c|, 1], s^2 the larger of the
+    # residual variance (n - 3 degrees of freedom) and the noise's.
+    pts = half_arc(2.0, -1.0, 0.4, 10, 0.02, 3)
+    fit = fit_circle(pts, ORIGIN, 0.01, 0.05, 1.0)
+    d = pts - (fit.x, fit.y)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    jac = -np.column_stack((d / dist[:, None], np.ones(len(pts))))
+    e = dist - fit.radius
+    s2 = max(float(e @ e) / (len(pts) - 3), 0.01 ** 2)
+    cov = s2 * np.linalg.inv(jac.T @ jac)
+    assert fit.cov == pytest.approx((cov[0, 0], cov[0, 1], cov[1, 1]), rel=1e-6)
