@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from enbarr_interfaces.obstacles import Obstacle
 
 from enbarr_core.perception.fitting import CircleFit, fit_cluster, FitSettings, SegmentFit
-from enbarr_core.perception.scan_geometry import PoseHistory, scan_points, to_world
+from enbarr_core.perception.scan_geometry import (PoseHistory, ray_offsets_ns, scan_points,
+                                                  SWEEPS, to_world)
 from enbarr_core.perception.segmentation import BreakpointSettings, clusters
 from enbarr_core.perception.tracking import Tracker, TrackerSettings
 
@@ -33,6 +34,7 @@ class PerceptionSettings:
     fit: FitSettings
     tracker: TrackerSettings
     pose_tolerance_ns: int      # a ray is posed only within this of a pose [ns]
+    sweep: str                  # scans without time_increment: scan_geometry.SWEEPS
 
     def validate(self) -> None:
         """Raise ``ValueError('field: reason')`` when the settings do not hold together."""
@@ -43,6 +45,8 @@ class PerceptionSettings:
         self.tracker.validate()
         if self.pose_tolerance_ns <= 0:
             raise ValueError(f'pose_tolerance_ns: {self.pose_tolerance_ns} must be > 0')
+        if self.sweep not in SWEEPS:
+            raise ValueError(f'sweep: {self.sweep!r} is not one of {", ".join(SWEEPS)}')
 
 
 @dataclass(frozen=True)
@@ -91,7 +95,8 @@ class ScanObstacles:
 
     def measure(self, ranges: Vector, angle_min: float, angle_increment: float,
                 time_increment: float, stamp_ns: int, mount: LidarMount,
-                poses: PoseHistory) -> tuple[list[CircleFit | SegmentFit], int, int] | None:
+                poses: PoseHistory, scan_time: float = 0.0
+                ) -> tuple[list[CircleFit | SegmentFit], int, int] | None:
         """Return the shapes one scan measures in the world, with counts of points and clusters.
 
         None when the scan cannot be posed (no pose within the tolerance of one of its rays).
@@ -101,8 +106,8 @@ class ScanObstacles:
         if len(scan.r) == 0:
             ray_times = np.array([stamp_ns], dtype=np.int64)
         else:
-            ray_times = stamp_ns + np.rint(
-                scan.index * (time_increment * 1e9)).astype(np.int64)
+            ray_times = stamp_ns + ray_offsets_ns(scan.index, angle_min, angle_increment,
+                                                  time_increment, scan_time, s.sweep)
         eta = poses.at(ray_times, s.pose_tolerance_ns)
         if eta is None:
             return None
@@ -124,13 +129,13 @@ class ScanObstacles:
 
     def process(self, ranges: Vector, angle_min: float, angle_increment: float,
                 time_increment: float, stamp_ns: int, mount: LidarMount,
-                poses: PoseHistory) -> ScanOutcome:
+                poses: PoseHistory, scan_time: float = 0.0) -> ScanOutcome:
         """Measure one scan (``measure``) and update the tracks; the confirmed obstacles.
 
         A scan that cannot be posed changes no track (its obstacles are the last ones).
         """
         measured = self.measure(ranges, angle_min, angle_increment, time_increment, stamp_ns,
-                                mount, poses)
+                                mount, poses, scan_time)
         if measured is None:
             return ScanOutcome(self.tracker.obstacles(), False, 0, 0, 0, 0)
         shapes, points, kept = measured

@@ -5,7 +5,9 @@ from ``angle_min`` in steps of ``angle_increment`` [rad], with REP-117's non-fin
 (-inf too close, +inf no return, NaN no sample); only finite ranges become points. Ray i was
 measured ``i * time_increment`` [s] after the scan's stamp, so each ray is put in the world
 with the pose of its own time (the vessel turns while the lidar does: at a yaw rate of
-0.5 rad/s one revolution of 0.18 s turns a point at 5 m by 0.45 m).
+0.5 rad/s one revolution of 0.18 s turns a point at 5 m by 0.45 m). A scan whose
+``time_increment`` is 0 does not say when each ray was taken; for it :data:`SWEEPS` names how
+the lidar turns (:func:`ray_offsets_ns`).
 
 World: ENU ``odom``; pose eta = [x, y, psi] of ``base_link`` (Fossen 2021, ch. 2, REP-105).
 """
@@ -21,6 +23,12 @@ from numpy.typing import NDArray
 from enbarr_core.framework.kinematics import ssa
 
 Vector = NDArray[np.float64]
+
+#: How the rays of a scan without ``time_increment`` were taken over its ``scan_time``:
+#: ``clockwise_from_zero``: from the lidar's 0 deg mark (bearing 0), turning clockwise, as the
+#: RPLidar turns and the ``rplidar`` plugin publishes (``enbarr_plugins/lidar/rplidar.py``);
+#: ``at_stamp``: all at the scan's stamp.
+SWEEPS = ('clockwise_from_zero', 'at_stamp')
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,24 @@ def scan_points(ranges: Vector, angle_min: float, angle_increment: float) -> Sca
     laser[:, 0] = r * np.cos(theta)
     laser[:, 1] = r * np.sin(theta)
     return ScanPoints(index, r, laser, len(ranges), float(angle_increment))
+
+
+def ray_offsets_ns(index: NDArray[np.intp], angle_min: float, angle_increment: float,
+                   time_increment: float, scan_time: float, sweep: str) -> NDArray[np.int64]:
+    """Return when each ray ``index`` was taken after the scan's stamp [ns].
+
+    ``time_increment`` [s] when the scan gives it (REP: ray i at i * time_increment);
+    otherwise as ``sweep`` says (:data:`SWEEPS`) over ``scan_time`` [s].
+    """
+    if time_increment != 0.0:
+        t = index * (time_increment * 1e9)
+    elif sweep == 'clockwise_from_zero' and scan_time > 0.0:
+        bearing = angle_min + index * angle_increment
+        t = np.mod(-bearing, 2.0 * math.pi) * (scan_time * 1e9 / (2.0 * math.pi))
+    else:
+        t = np.zeros(len(index))
+    out: NDArray[np.int64] = np.rint(t).astype(np.int64)
+    return out
 
 
 class PoseHistory:

@@ -6,9 +6,12 @@ of ``enbarr_interfaces.obstacles``) and ``obstacles/markers`` (``MarkerArray`` f
 Each scan's finite rays become points in its frame, then in ``base_link`` through the profile's
 frame tree (``base_link`` -> the scan's ``header.frame_id``), then in ``odom`` with the pose
 estimate at each ray's own time (the last poses of ``observer/odometry`` kept and interpolated;
-``enbarr_core.perception.scan_geometry``). The points are cut into clusters (adaptive
-breakpoints, ``segmentation``), each cluster fitted with a circle or segments (``fitting``) and
-the shapes tracked across scans (``tracking``); ``enbarr_core.perception.pipeline`` chains them.
+``enbarr_core.perception.scan_geometry``): ``time_increment`` says it when the scan gives it;
+a scan without it (the ``rplidar`` plugin's: its rays are binned) is read as ``sweep`` says,
+by default as the RPLidar turns, clockwise from its 0 deg mark over ``scan_time``. The points
+are cut into clusters (adaptive breakpoints, ``segmentation``), each cluster fitted with a
+circle or segments (``fitting``) and the shapes tracked across scans (``tracking``);
+``enbarr_core.perception.pipeline`` chains them.
 
 Every scan that could be placed in the world is answered on ``obstacles`` with the confirmed
 tracks, also when there are none (and on ``obstacles/markers`` while a viewer subscribes:
@@ -93,6 +96,9 @@ SPECS = [
               'differs by less than this', 'rad', 0.001, 1.5707963267948966),
     ParamSpec('pose_tolerance', 0.1, 'A ray is placed in the world only within this of a pose '
               'of observer/odometry', 's', 0.001, 5.0),
+    ParamSpec('sweep', 'clockwise_from_zero', 'When the rays of a scan without time_increment '
+              'were taken over its scan_time: clockwise_from_zero (from bearing 0, turning '
+              'clockwise: the RPLidar and the rplidar plugin) or at_stamp (all at the stamp)'),
 ]
 
 _PARAMETER = {'lam': 'breakpoint_lambda', 'max_gap': 'max_gap_rays',
@@ -128,7 +134,7 @@ class ScanObstaclesSettings:
                 accel_noise=v['accel_noise'], initial_speed_std=v['initial_speed_std'],
                 radius_smoothing=v['radius_smoothing'], segment_gate=v['segment_gate'],
                 segment_angle_gate=v['segment_angle_gate']),
-            pose_tolerance_ns=round(v['pose_tolerance'] * 1e9))
+            pose_tolerance_ns=round(v['pose_tolerance'] * 1e9), sweep=v['sweep'])
         validate_as_parameters(s, _PARAMETER)
         return cls(s)
 
@@ -251,7 +257,7 @@ class ScanObstaclesNode(EnbarrNode):
             try:
                 outcome = self.pipeline.process(
                     msg.ranges, msg.angle_min, msg.angle_increment, msg.time_increment,
-                    stamp_ns, mount, self.poses)
+                    stamp_ns, mount, self.poses, msg.scan_time)
             except ValueError as err:   # a scan older than the last one taken
                 self.get_logger().warn(f'scan refused: {err}', throttle_duration_sec=5.0)
                 return

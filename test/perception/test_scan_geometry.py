@@ -63,7 +63,8 @@ def test_the_history_keeps_its_newest_poses():
     assert h.at(np.array([2 * MS]), 0) is None
 
 
-def measure(ranges, time_increment, mount, poses, stamp=0):
+def measure(ranges, time_increment, mount, poses, stamp=0, scan_time=0.0,
+            sweep='clockwise_from_zero'):
     from enbarr_core.perception.fitting import FitSettings
     from enbarr_core.perception.pipeline import PerceptionSettings, ScanObstacles
     from enbarr_core.perception.segmentation import BreakpointSettings
@@ -71,9 +72,9 @@ def measure(ranges, time_increment, mount, poses, stamp=0):
     settings = PerceptionSettings(
         BreakpointSettings(math.radians(10.0), 2, RangeNoise(NOISE_LIMITS, NOISE_FRACTIONS)),
         2, FitSettings(0.05, 1.0, 0.4, 0.8, 0.1),
-        TrackerSettings(3, 5, 9.21, 0.2, 1.0, 0.3, 0.3, 0.2), 100 * MS)
+        TrackerSettings(3, 5, 9.21, 0.2, 1.0, 0.3, 0.3, 0.2), 100 * MS, sweep)
     return ScanObstacles(settings).measure(ranges, -math.pi, INC, time_increment, stamp,
-                                           mount, poses)
+                                           mount, poses, scan_time)
 
 
 def test_each_ray_is_posed_at_its_own_time_while_the_vessel_turns():
@@ -100,6 +101,32 @@ def test_each_ray_is_posed_at_its_own_time_while_the_vessel_turns():
     assert still is not None
     off = [s for s in still[0] if isinstance(s, CircleFit)]
     assert math.dist((off[0].x, off[0].y), (0.0, 3.0)) > 0.3
+
+
+@pytest.mark.parametrize('bearing', [0.5 * math.pi, -0.5 * math.pi, 0.9 * math.pi])
+def test_a_scan_without_time_increment_is_read_as_the_rplidar_sweeps(bearing):
+    # The RPLidar (the rplidar plugin's scans: time_increment 0): the revolution starts at
+    # bearing 0 and turns clockwise over scan_time, so the ray at bearing b was taken
+    # ((-b) mod 2 pi) / 2 pi of a revolution after the stamp. Turning at 1 rad/s.
+    rate, scan_time = 1.0, 1.0 / 5.5
+    buoy = Circle(3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.3)
+    ranges = np.full(RAYS, np.inf)
+    for i in range(RAYS):
+        b = -math.pi + i * INC
+        psi = rate * (-b % (2.0 * math.pi)) / (2.0 * math.pi) * scan_time
+        ranges[i] = cast(0.0, 0.0, psi, [buoy], noise=False)[i]
+    poses = PoseHistory()
+    for k in range(-2, 12):
+        poses.add(k * 20 * MS, 0.0, 0.0, rate * k * 0.02)
+    mount = LidarMount(np.eye(3), np.zeros(3))
+    got = measure(ranges, 0.0, mount, poses, scan_time=scan_time)
+    assert got is not None
+    (circle,) = [s for s in got[0] if isinstance(s, CircleFit)]
+    assert math.dist((circle.x, circle.y), (buoy.x, buoy.y)) < 0.02
+    still = measure(ranges, 0.0, mount, poses, scan_time=scan_time, sweep='at_stamp')
+    assert still is not None
+    (off,) = [s for s in still[0] if isinstance(s, CircleFit)]
+    assert math.dist((off.x, off.y), (buoy.x, buoy.y)) > 0.1
 
 
 def test_the_lidar_mount_and_the_pose_place_points_in_the_world():

@@ -77,7 +77,8 @@ class Harness:
         self.k = 0
 
     def poses(self, until_ns: int) -> None:
-        for t in range(until_ns - PERIOD_NS, until_ns + 40 * MS, 20 * MS):
+        # up to the end of the revolution: the scan arrives after its last ray
+        for t in range(until_ns - PERIOD_NS, until_ns + PERIOD_NS + 40 * MS, 20 * MS):
             self.odom_pub.publish(odometry_msg(t, VESSEL))
 
     def scan(self, ranges: np.ndarray, with_pose: bool = True, frame: str = 'laser',

@@ -24,7 +24,7 @@ TRACKER = TrackerSettings(confirm_hits=N, drop_misses=M, gate=9.21, accel_noise=
                           segment_angle_gate=0.2)
 SETTINGS = PerceptionSettings(
     BreakpointSettings(math.radians(10.0), 2, RangeNoise(NOISE_LIMITS, NOISE_FRACTIONS)), 2,
-    FitSettings(0.05, 1.0, 0.4, 0.8, 0.1), TRACKER, 100_000_000)
+    FitSettings(0.05, 1.0, 0.4, 0.8, 0.1), TRACKER, 100_000_000, 'at_stamp')
 PERIOD_NS = round(1e9 / 5.5)     # the manual's 5.5 Hz revolutions
 INC = 2.0 * math.pi / 360
 LEVEL = LidarMount(np.eye(3), np.zeros(3))
