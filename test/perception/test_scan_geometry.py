@@ -103,7 +103,7 @@ def test_each_ray_is_posed_at_its_own_time_while_the_vessel_turns():
     assert math.dist((off[0].x, off[0].y), (0.0, 3.0)) > 0.3
 
 
-@pytest.mark.parametrize('bearing', [0.5 * math.pi, -0.5 * math.pi, 0.9 * math.pi])
+@pytest.mark.parametrize('bearing', [0.5 * math.pi, -0.5 * math.pi, 0.9 * math.pi, 0.0, 0.03])
 def test_a_scan_without_time_increment_is_read_as_the_rplidar_sweeps(bearing):
     # The RPLidar (the rplidar plugin's scans: time_increment 0): the revolution starts at
     # bearing 0 and turns clockwise over scan_time, so the ray at bearing b was taken
@@ -123,6 +123,8 @@ def test_a_scan_without_time_increment_is_read_as_the_rplidar_sweeps(bearing):
     assert got is not None
     (circle,) = [s for s in got[0] if isinstance(s, CircleFit)]
     assert math.dist((circle.x, circle.y), (buoy.x, buoy.y)) < 0.02
+    if abs(bearing) < 0.5:
+        return   # dead ahead: its rays are the first and the last of the sweep, seen once
     still = measure(ranges, 0.0, mount, poses, scan_time=scan_time, sweep='at_stamp')
     assert still is not None
     (off,) = [s for s in still[0] if isinstance(s, CircleFit)]
