@@ -162,3 +162,20 @@ def test_a_minimum_radius_above_the_maximum_is_refused_naming_it(context):
         ScanObstaclesNode(context=context, parameter_overrides=[
             Parameter('min_radius', value=2.0), Parameter('max_radius', value=1.0)])
     assert err.value.parameter == 'min_radius'
+
+
+def test_parameters_change_live_keeping_the_tracks_and_refuse_a_contradiction(
+        context, executor, spin):
+    from support.nodes import param_client, set_param
+    h = Harness(context, executor, spin, confirm_hits=3)
+    h.scan(h.buoy_scan())
+    (track,) = h.node.pipeline.tracker.circles
+    client = param_client(executor, spin, context, 'scan_obstacles')
+    assert set_param(executor, spin, client, 'confirm_hits', 1).successful
+    assert h.node.pipeline.tracker.settings.confirm_hits == 1
+    assert h.node.pipeline.tracker.circles == [track]        # kept
+    h.scan(h.buoy_scan())
+    assert [o.id for o in from_cloud(h.clouds[-1])] == [track.id]
+    refused = set_param(executor, spin, client, 'max_radius', 0.01)
+    assert not refused.successful and 'min_radius' in refused.reason
+    assert h.node.settings.perception.fit.max_radius == 1.0
