@@ -21,8 +21,9 @@ freshness by it, and each obstacle carries the stamp of the last scan that measu
 that cannot be placed (no pose within ``pose_tolerance`` of one of its rays, or a frame the
 tree does not have) is counted and answered with nothing: publishing the old tracks under its
 stamp would tell the avoidance they were just seen. ``/diagnostics`` (every second) counts
-scans, the scans without a pose or frame, clusters, tracks and confirmed tracks; DEGRADED
-while scans went unplaced in the last second.
+scans, the scans without a pose or frame, scans older than the last one (refused: the filters
+only go forward), clusters, tracks and confirmed tracks; DEGRADED while scans went unplaced in
+the last second.
 
 Parameters (all live; the tracks are kept when they change): see ``SPECS``. The range noise
 defaults are the CS Saucer manual's figures for its RPLidar A1 (Table 1.1), read as one
@@ -202,6 +203,7 @@ class ScanObstaclesNode(EnbarrNode):
         self.without_pose = 0
         self.unknown_frame = 0
         self.refused_poses = 0
+        self.out_of_order = 0
         self.last_outcome: Any = None
         self.last_process_s = 0.0
         self._unplaced_reported = 0
@@ -259,6 +261,7 @@ class ScanObstaclesNode(EnbarrNode):
                     msg.ranges, msg.angle_min, msg.angle_increment, msg.time_increment,
                     stamp_ns, mount, self.poses, msg.scan_time)
             except ValueError as err:   # a scan older than the last one taken
+                self.out_of_order += 1
                 self.get_logger().warn(f'scan refused: {err}', throttle_duration_sec=5.0)
                 return
         self.last_process_s = time.thread_time() - start
@@ -296,7 +299,8 @@ class ScanObstaclesNode(EnbarrNode):
         tracker = self.pipeline.tracker if self.pipeline is not None else None
         return level, message, {
             'scans': self.scans, 'scans_without_pose': self.without_pose,
-            'scans_unknown_frame': self.unknown_frame, 'refused_poses': self.refused_poses,
+            'scans_unknown_frame': self.unknown_frame, 'scans_out_of_order': self.out_of_order,
+            'refused_poses': self.refused_poses,
             'clusters': o.clusters if o else 0, 'circles': o.circles if o else 0,
             'segments': o.segments if o else 0,
             'tracks': (len(tracker.circles) + len(tracker.segments)) if tracker else 0,

@@ -179,3 +179,17 @@ def test_parameters_change_live_keeping_the_tracks_and_refuse_a_contradiction(
     refused = set_param(executor, spin, client, 'max_radius', 0.01)
     assert not refused.successful and 'min_radius' in refused.reason
     assert h.node.settings.perception.fit.max_radius == 1.0
+
+
+def test_a_scan_older_than_the_last_is_counted_and_not_answered(context, executor, spin):
+    h = Harness(context, executor, spin)
+    h.scan(h.buoy_scan())
+    h.scan(h.buoy_scan())
+    answered = len(h.clouds)
+    h.k -= 2      # the first scan's stamp again: its poses are still in the history
+    h.scan(h.buoy_scan(), expect_answer=False)
+    assert h.node.out_of_order == 1
+    h.k += 2
+    stamp = h.scan(np.full(RAYS, np.inf))
+    assert len(h.clouds) == answered + 1 and cloud_stamp_ns(h.clouds[-1]) == stamp
+    assert h.node.diagnostic_status()[2]['scans_out_of_order'] == 1
