@@ -133,6 +133,15 @@ class PoseHistory:
         """Forget every pose."""
         self._n = 0
 
+    def snapshot(self) -> PoseHistory:
+        """Return a copy of the poses held (to read while this one takes new ones)."""
+        out = PoseHistory(self.capacity)
+        n = self._n
+        out._t[:n] = self._t[:n]
+        out._eta[:n] = self._eta[:n]
+        out._n = n
+        return out
+
     def add(self, stamp_ns: int, x: float, y: float, psi: float) -> bool:
         """Append a pose [m, m, rad] stamped ``stamp_ns``; False (ignored) when not newer."""
         n = self._n

@@ -194,8 +194,11 @@ class ScanObstaclesNode(EnbarrNode):
         self.settings: ScanObstaclesSettings
         self.pipeline: ScanObstacles | None = None
         self.poses = PoseHistory()
-        # Poses arrive on the chain's thread (a fast topic), scans on the executor's.
-        self._lock = threading.Lock()
+        # Poses arrive on the control chain's thread (a fast topic: the observer's publish
+        # calls us), scans on the executor's. The chain must never wait for a scan's
+        # processing: a pose only takes _pose_lock, and a scan holds it only to copy them.
+        self._pose_lock = threading.Lock()
+        self._lock = threading.Lock()   # the pipeline: scans and parameter changes
         self._mounts: dict[str, LidarMount] = {}
         self._drawn: set[int] = set()
         self.bind_settings(SPECS, ScanObstaclesSettings.from_params, self._apply)
@@ -229,7 +232,7 @@ class ScanObstaclesNode(EnbarrNode):
         if not convert.all_finite(eta):
             self.refused_poses += 1
             return
-        with self._lock:
+        with self._pose_lock:
             if not self.poses.add(convert.stamp_to_ns(msg.header.stamp), *eta.tolist()):
                 self.refused_poses += 1
 
@@ -254,12 +257,14 @@ class ScanObstaclesNode(EnbarrNode):
             self.unknown_frame += 1
             return
         start = time.thread_time()
+        with self._pose_lock:
+            poses = self.poses.snapshot()
         with self._lock:
             assert self.pipeline is not None
             try:
                 outcome = self.pipeline.process(
                     msg.ranges, msg.angle_min, msg.angle_increment, msg.time_increment,
-                    stamp_ns, mount, self.poses, msg.scan_time)
+                    stamp_ns, mount, poses, msg.scan_time)
             except ValueError as err:   # a scan older than the last one taken
                 self.out_of_order += 1
                 self.get_logger().warn(f'scan refused: {err}', throttle_duration_sec=5.0)

@@ -156,3 +156,15 @@ def test_a_scan_without_a_pose_near_it_measures_nothing():
     ranges = cast(0.0, 0.0, 0.0, [Circle(2.0, 0.0, 0.3)])
     assert measure(ranges, 0.0, LidarMount(np.eye(3), np.zeros(3)), poses,
                    stamp=500 * MS) is None
+
+
+def test_a_snapshot_keeps_the_poses_of_its_time():
+    h = PoseHistory()
+    h.add(0, 0.0, 0.0, 0.0)
+    h.add(20 * MS, 1.0, 0.0, 0.0)
+    copy = h.snapshot()
+    h.add(40 * MS, 2.0, 0.0, 0.0)
+    assert len(copy) == 2 and len(h) == 3
+    eta = copy.at(np.array([10 * MS]), 15 * MS)
+    assert eta is not None and eta[0, 0] == pytest.approx(0.5)
+    assert copy.at(np.array([40 * MS]), 5 * MS) is None

@@ -193,3 +193,16 @@ def test_a_scan_older_than_the_last_is_counted_and_not_answered(context, executo
     stamp = h.scan(np.full(RAYS, np.inf))
     assert len(h.clouds) == answered + 1 and cloud_stamp_ns(h.clouds[-1]) == stamp
     assert h.node.diagnostic_status()[2]['scans_out_of_order'] == 1
+
+
+def test_a_pose_never_waits_for_a_scan_being_processed(context, executor, spin):
+    # The observer's publish calls the node on the control chain's thread: it must not
+    # wait for the pipeline (held here as a scan in progress holds it).
+    import threading
+    h = Harness(context, executor, spin)
+    with h.node._lock:
+        t = threading.Thread(target=h.odom_pub.publish, args=(odometry_msg(5 * MS, VESSEL),))
+        t.start()
+        t.join(TIMEOUT)
+        assert not t.is_alive()
+    assert len(h.node.poses) == 1
