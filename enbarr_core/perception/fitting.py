@@ -135,17 +135,20 @@ def kasa(points: Vector) -> tuple[float, float, float] | None:
 
 def refine_circle(points: Vector, cx: float, cy: float, radius: float,
                   fixed_radius: bool = False, iterations: int = 8
-                  ) -> tuple[float, float, float, list[list[float]]] | None:
+                  ) -> tuple[float, float, float, list[list[float]], float] | None:
     """Geometric fit: minimise sum (|p_i - c| - R)^2 by Levenberg-Marquardt from a start.
 
-    Return (cx, cy, R, J^T J) with J the Jacobian of the residuals at the solution (for the
-    covariance), or None when a point sits on the centre. With ``fixed_radius`` only the
-    centre moves. The residual e_i = |p_i - c| - R has the Jacobian row -[u_i, 1], u_i the
-    unit vector from c to p_i, so J^T J and J^T e are sums over the points, built directly.
+    Return (cx, cy, R, J^T J, sum e_i^2) with J the Jacobian of the residuals at the solution
+    (for the covariance), or None when a point sits on the centre. With ``fixed_radius`` only
+    the centre moves. The residual e_i = |p_i - c| - R has the Jacobian row -[u_i, 1], u_i
+    the unit vector from c to p_i: with U the rows [u_x; u_y; 1], J^T J = U U^T and
+    J^T e = -U e.
     """
-    px, py = points[:, 0], points[:, 1]
-    n = float(len(px))
     k = 2 if fixed_radius else 3
+    px, py = points[:, 0], points[:, 1]
+    u = np.empty((3, len(px)))
+    u[2] = 1.0
+    uk = u[:k]
     mu = 1e-6
 
     def normal(cx: float, cy: float, r: float
@@ -155,15 +158,10 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
         dist = np.sqrt(dx * dx + dy * dy)
         if not dist.min() > 1e-12:
             return None
-        ux, uy = dx / dist, dy / dist
+        np.divide(dx, dist, out=u[0])
+        np.divide(dy, dist, out=u[1])
         e = dist - r
-        sxy = float(ux @ uy)
-        if k == 2:
-            return (float(e @ e), [[float(ux @ ux), sxy], [sxy, float(uy @ uy)]],
-                    [-float(ux @ e), -float(uy @ e)])
-        sx, sy = float(ux.sum()), float(uy.sum())
-        return (float(e @ e), [[float(ux @ ux), sxy, sx], [sxy, float(uy @ uy), sy],
-                               [sx, sy, n]], [-float(ux @ e), -float(uy @ e), -float(e.sum())])
+        return float(e @ e), (uk @ uk.T).tolist(), (-(uk @ e)).tolist()
 
     x = [cx, cy, radius]
     now = normal(cx, cy, radius)
@@ -188,7 +186,7 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
             mu *= 10.0
             if mu > 1e8:
                 break
-    return x[0], x[1], x[2], jtj
+    return x[0], x[1], x[2], jtj, cost
 
 
 def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
@@ -243,12 +241,10 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
     if start is not None:
         fit = refine_circle(points, *start)
         if fit is not None:
-            cx, cy, radius, jtj = fit
+            cx, cy, radius, jtj, e2 = fit
             if radius < min_radius and _behind(cx, cy, points, sensor):
                 pass   # too small: refit below with the radius held at the minimum
             elif min_radius <= radius <= max_radius and _behind(cx, cy, points, sensor):
-                e = np.hypot(*(points - (cx, cy)).T) - radius
-                e2 = float(e @ e)
                 return CircleFit(cx, cy, radius, _circle_cov(jtj, e2, n, sigma),
                                  math.sqrt(e2 / n))
             else:
@@ -259,9 +255,7 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
         guess = fallback_circle(points, sensor, sigma, min_radius, min_radius)
         held = refine_circle(points, guess.x, guess.y, min_radius, fixed_radius=True)
         if held is not None and _behind(held[0], held[1], points, sensor):
-            cx, cy, _, jtj = held
-            e = np.hypot(*(points - (cx, cy)).T) - min_radius
-            e2 = float(e @ e)
+            cx, cy, _, jtj, e2 = held
             # The radius was assumed, not measured: the centre is not known better than it.
             xx, xy, yy = _circle_cov(jtj, e2, n, sigma)
             r2 = min_radius * min_radius

@@ -61,6 +61,7 @@ def test_the_geometric_fit_is_scipys_least_squares(seed):
 
     ref = least_squares(residuals, start, method='lm', xtol=1e-12, ftol=1e-12).x
     assert ours[:3] == pytest.approx(tuple(ref), abs=1e-4)
+    assert ours[4] == pytest.approx(float(residuals(ref) @ residuals(ref)), rel=1e-6)
 
 
 def test_the_fit_corrects_kasas_bias_on_a_short_arc():
