@@ -18,6 +18,7 @@ CHAIN_SECONDS = 10.0
 IDLE_SECONDS = 10.0
 #: The chain rate a run takes [Hz] (the simulator and sensors refuse far less).
 MAX_RATE = 10_000.0
+PERCEPTION_SCANS = 500
 
 EPILOG = """\
 --chain (default rov): drive the sensor -> filter -> control -> allocation -> actuator
@@ -35,6 +36,10 @@ profile's fixed cost instead (its nodes composed and spun, no source started).
 --recording: what the recorder costs per message, by message type and for the mix of
 each chain (--messages per type, --repeat runs; the median is kept).
 
+--perception: the CPU one 360-ray lidar scan costs, scan -> tracked obstacles (--scans
+scans of a synthetic basin with walls and buoys; per-scan CPU, share of a core at 5.5 Hz
+and its Raspberry Pi 4 estimate).
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -43,7 +48,8 @@ class BenchCommand(Command):
 
     help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
     description = ('Measure one of: a control chain in one process (--chain, the default), '
-                   'a whole profile as processes (--profile), the recorder (--recording). '
+                   'a whole profile as processes (--profile), the recorder (--recording), '
+                   'the lidar perception (--perception). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -58,6 +64,8 @@ class BenchCommand(Command):
                           help='a whole profile under bringup instead (see below)')
         what.add_argument('--recording', action='store_true',
                           help='the recorder alone: CPU per recorded message')
+        what.add_argument('--perception', action='store_true',
+                          help='the lidar perception alone: CPU per scan')
         parser.add_argument('--rate', type=float, default=None,
                             help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
         parser.add_argument('--seconds', type=float, default=None,
@@ -84,11 +92,15 @@ class BenchCommand(Command):
         parser.add_argument('--repeat', type=int, default=None, metavar='N',
                             help='--recording: runs per case, the median kept '
                             f'(default {recording.DEFAULT_REPEAT})')
+        parser.add_argument('--scans', type=int, default=None, metavar='N',
+                            help=f'--perception: scans measured (default {PERCEPTION_SCANS})')
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
         if args.recording:
             result = _recording(args)
+        elif args.perception:
+            result = _perception(args)
         elif args.profile is not None:
             result = _idle(args) if args.idle else _profile(args)
         else:
@@ -102,7 +114,8 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
     given = {'--rate': args.rate is not None, '--seconds': args.seconds is not None,
              '--warmup': args.warmup is not None, '--record': args.record,
              '--set': bool(args.set), '--idle': args.idle,
-             '--messages': args.messages is not None, '--repeat': args.repeat is not None}
+             '--messages': args.messages is not None, '--repeat': args.repeat is not None,
+             '--scans': args.scans is not None}
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
@@ -113,6 +126,7 @@ def _chain(args: argparse.Namespace) -> dict:
     _refuse(args, ('--record', '--set', '--warmup', '--idle'),
             'is for --profile; --chain runs the chain alone')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--scans',), 'is for --perception')
     rate = CHAIN_RATE if args.rate is None else args.rate
     seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
     check_rate('--rate', rate, MAX_RATE)
@@ -125,6 +139,7 @@ def _idle(args: argparse.Namespace) -> dict:
     _refuse(args, ('--record', '--rate', '--warmup'), 'does not go with --idle: nothing '
             'flows there')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--scans',), 'is for --perception')
     seconds = IDLE_SECONDS if args.seconds is None else args.seconds
     check_seconds('--seconds', seconds)
     return chain.run_idle(args.profile, args.set, seconds)
@@ -136,6 +151,7 @@ def _profile(args: argparse.Namespace) -> dict:
         raise EnbarrError('--rate is for --chain: a profile runs at its own rates '
                           '(change them with --set NODE.rate=HZ)')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--scans',), 'is for --perception')
     seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
     check_seconds('--seconds', seconds)
@@ -145,8 +161,19 @@ def _profile(args: argparse.Namespace) -> dict:
 
 def _recording(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import recording
-    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle'),
-            'is not for --recording (it takes --messages and --repeat)')
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--scans'), 'is not for --recording (it takes --messages and --repeat)')
     return recording.measure(
         recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
         recording.DEFAULT_REPEAT if args.repeat is None else args.repeat)
+
+
+def _perception(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import perception
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat'), 'is not for --perception (it takes --scans)')
+    scans = PERCEPTION_SCANS if args.scans is None else args.scans
+    if scans < 50:
+        raise EnbarrError(f'--scans must be >= 50 (the first 20 confirm the tracks), '
+                          f'got {scans}')
+    return perception.measure(scans)

@@ -1,8 +1,8 @@
 """Which modules are pure algorithms: every module of the algorithm packages (estimation,
-control, guidance, allocation, models, world) except the nodes (``*_node``) and their parameter
-declarations (``*_params``). The layering rule (``test/framework/test_layering.py``: they
-import without rclpy) and the strict type check (``mypy.ini``, ``test/test_typecheck.py``)
-both stand on this one definition. ``imports_in``: what a source file imports, for the
+control, guidance, allocation, models, world, perception) except the nodes (``*_node``) and
+their parameter declarations (``*_params``). The layering rule
+(``test/framework/test_layering.py``: they import without rclpy) and the strict type check
+(``mypy.ini``, ``test/test_typecheck.py``) both stand on this one definition. ``imports_in``: what a source file imports, for the
 import rules of the layering and device tests.
 """
 
@@ -14,7 +14,8 @@ from pathlib import Path
 import pkgutil
 
 ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_core.guidance',
-                      'enbarr_core.allocation', 'enbarr_core.models', 'enbarr_core.world')
+                      'enbarr_core.allocation', 'enbarr_core.models', 'enbarr_core.world',
+                      'enbarr_core.perception')
 
 
 def algorithm_modules() -> list[str]:

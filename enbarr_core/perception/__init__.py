@@ -1,0 +1,1 @@
+"""Perception: obstacles from the lidar scan (segmentation, fitting, tracking), beside its node."""

@@ -1,0 +1,350 @@
+"""Shapes fitted to a cluster of lidar points: circles (buoys, boats) and segments (walls).
+
+Pure numpy, no ROS; points (N, 2) [m] in the world, in ring order.
+
+Circle: the algebraic fit of Kasa (1976) (x^2 + y^2 + D x + E y + F = 0 in least squares,
+closed form) starts a geometric refinement, Levenberg-Marquardt on the distances
+e_i = |p_i - c| - R (Chernov 2010, "Circular and linear regression", ch. 4), which corrects
+Kasa's bias towards small circles on a short arc. A lidar sees only the near side of a
+buoy, so a fit is kept only when its centre lies behind the visible arc (away from the
+sensor); below ``min_radius`` the radius is held there and the centre refitted; a cluster of
+one or two points, or a fit that fails, gets the honest *fallback*: radius half the chord
+(at least ``min_radius``), centre behind the chord's middle, and a covariance as large as the
+radius (the centre is not known better than that).
+
+Segment: total least squares line (the principal axis of the points), endpoints the extreme
+projections of the points. A cluster bent at a corner is cut where it is furthest from the
+chord (split and merge, iterative end-point fit: Nguyen et al. 2005, "A comparison of line
+extraction algorithms using 2D laser rangefinder"), so an L-shaped wall is two segments.
+
+:func:`fit_cluster` decides: a cluster longer than a circle may be is segments; a short one a
+circle; in between, a circle when its residual is clearly smaller than the line's (per degree
+of freedom, ``circle_ratio``), else segments. Walls stay segments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+Vector = NDArray[np.float64]
+#: The geometric circle fit stops when a step moves the circle less than this [m].
+STEP_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class CircleFit:
+    """A circle measured in one scan: centre [m], radius [m], centre covariance [m^2]."""
+
+    x: float
+    y: float
+    radius: float
+    cov: tuple[float, float, float]   # xx, xy, yy [m^2]
+    rms: float                        # rms distance of the points to the circle [m]
+    fallback: bool = False            # True: too few points or no fit; see the module doc
+
+
+@dataclass(frozen=True)
+class SegmentFit:
+    """A segment measured in one scan: ends [m] and the rms distance of its points [m]."""
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    rms: float
+    points: int
+
+    @property
+    def length(self) -> float:
+        """Return the length [m]."""
+        return math.hypot(self.x2 - self.x1, self.y2 - self.y1)
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Settings of :func:`fit_cluster`."""
+
+    min_radius: float          # smallest circle [m]
+    max_radius: float          # largest circle [m]; a longer cluster is a wall
+    min_segment_length: float  # a cluster shorter than this is a circle [m]
+    circle_ratio: float        # circle if its residual < ratio * the line's (per dof)
+    split_distance: float      # a corner further than this (+ 3 sigma) from the chord cuts [m]
+
+    def validate(self) -> None:
+        """Raise ``ValueError('field: reason')`` when the settings do not hold together."""
+        if not 0.0 < self.min_radius <= self.max_radius:
+            raise ValueError(f'min_radius: {self.min_radius} m must be > 0 and at most '
+                             f'max_radius ({self.max_radius} m)')
+        if not self.min_segment_length > 0.0:
+            raise ValueError(f'min_segment_length: {self.min_segment_length} m must be > 0')
+        if not self.circle_ratio > 0.0:
+            raise ValueError(f'circle_ratio: {self.circle_ratio} must be > 0')
+        if not self.split_distance > 0.0:
+            raise ValueError(f'split_distance: {self.split_distance} m must be > 0')
+
+
+# -- circles -------------------------------------------------------------------------------
+def solve_small(a: Vector, b: Vector) -> Vector | None:
+    """Solve a x = b for a 2x2 or 3x3 ``a`` by Cramer's rule; None when singular.
+
+    Written out because ``numpy.linalg.solve`` costs more in its checks than the arithmetic
+    of a 3x3 system, and a scan solves dozens (``docs/benchmarks.md``, perception).
+    """
+    x = _solve(a.tolist(), b.tolist())
+    return None if x is None else np.array(x)
+
+
+def _solve(m: list[list[float]], v: list[float]) -> list[float] | None:
+    """:func:`solve_small` on lists (the normal equations of the circle fit are built so)."""
+    if len(v) == 2:
+        det = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+        if abs(det) < 1e-300 or not math.isfinite(det):
+            return None
+        return [(v[0] * m[1][1] - m[0][1] * v[1]) / det, (m[0][0] * v[1] - v[0] * m[1][0]) / det]
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = m
+    c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if abs(det) < 1e-300 or not math.isfinite(det):
+        return None
+    return [(v[0] * c00 + a01 * (a12 * v[2] - v[1] * a22) + a02 * (v[1] * a21 - a11 * v[2])) / det,
+            (a00 * (v[1] * a22 - a12 * v[2]) + v[0] * c01 + a02 * (a10 * v[2] - v[1] * a20)) / det,
+            (a00 * (a11 * v[2] - v[1] * a21) + a01 * (v[1] * a20 - a10 * v[2]) + v[0] * c02) / det]
+
+
+def kasa(points: Vector) -> tuple[float, float, float] | None:
+    """Algebraic circle fit (Kasa): (cx, cy, R) [m], or None for collinear points."""
+    if len(points) < 3:
+        return None
+    m = points.sum(axis=0) / len(points)
+    p = points - m   # centred: better conditioned
+    a = np.column_stack((p, np.ones(len(p))))
+    b = -(p * p).sum(axis=1)
+    sol = solve_small(a.T @ a, a.T @ b)
+    if sol is None:
+        return None
+    cx, cy = -0.5 * sol[0], -0.5 * sol[1]
+    r2 = cx * cx + cy * cy - sol[2]
+    if not r2 > 0.0 or not math.isfinite(r2):
+        return None
+    return float(cx + m[0]), float(cy + m[1]), math.sqrt(r2)
+
+
+def refine_circle(points: Vector, cx: float, cy: float, radius: float,
+                  fixed_radius: bool = False, iterations: int = 8
+                  ) -> tuple[float, float, float, list[list[float]], float] | None:
+    """Geometric fit: minimise sum (|p_i - c| - R)^2 by Levenberg-Marquardt from a start.
+
+    Return (cx, cy, R, J^T J, sum e_i^2) with J the Jacobian of the residuals at the solution
+    (for the covariance), or None when a point sits on the centre. With ``fixed_radius`` only
+    the centre moves. The residual e_i = |p_i - c| - R has the Jacobian row -[u_i, 1], u_i
+    the unit vector from c to p_i: with U the rows [u_x; u_y; 1], J^T J = U U^T and
+    J^T e = -U e.
+    """
+    k = 2 if fixed_radius else 3
+    px, py = points[:, 0], points[:, 1]
+    u = np.empty((3, len(px)))
+    u[2] = 1.0
+    uk = u[:k]
+    mu = 1e-6
+
+    def normal(cx: float, cy: float, r: float
+               ) -> tuple[float, list[list[float]], list[float]] | None:
+        """Cost, J^T J and J^T e at the circle (cx, cy, r)."""
+        dx, dy = px - cx, py - cy
+        dist = np.sqrt(dx * dx + dy * dy)
+        if not dist.min() > 1e-12:
+            return None
+        np.divide(dx, dist, out=u[0])
+        np.divide(dy, dist, out=u[1])
+        e = dist - r
+        return float(e @ e), (uk @ uk.T).tolist(), (-(uk @ e)).tolist()
+
+    x = [cx, cy, radius]
+    now = normal(cx, cy, radius)
+    if now is None:
+        return None
+    cost, jtj, jte = now
+    for _ in range(iterations):
+        a = [row[:] for row in jtj]
+        for i in range(k):
+            a[i][i] *= 1.0 + mu
+        step = _solve(a, [-g for g in jte])
+        if step is None:
+            return None
+        trial = [x[i] + step[i] if i < k else x[i] for i in range(3)]
+        new = normal(*trial)
+        if new is not None and new[0] <= cost:
+            x, (cost, jtj, jte) = trial, new
+            mu *= 0.1
+            if sum(d * d for d in step) < STEP_TOLERANCE ** 2:
+                break
+        else:
+            mu *= 10.0
+            if mu > 1e8:
+                break
+    return x[0], x[1], x[2], jtj, cost
+
+
+def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
+    """Whether the centre lies beyond the points' middle, seen from the sensor."""
+    mid = points.sum(axis=0) / len(points)
+    return float((np.array([cx, cy]) - mid) @ (mid - sensor)) > 0.0
+
+
+def fallback_circle(points: Vector, sensor: Vector, sigma: float,
+                    min_radius: float, max_radius: float) -> CircleFit:
+    """Return the circle of what cannot be fitted (the fallback of the module docstring)."""
+    chord = points[-1] - points[0]
+    half = 0.5 * math.hypot(*chord)
+    radius = min(max(half, min_radius), max_radius)
+    mid = 0.5 * (points[0] + points[-1])
+    out = mid - sensor
+    norm = math.hypot(*out)
+    u = out / norm if norm > 0.0 else np.array([1.0, 0.0])
+    c = mid + math.sqrt(max(radius * radius - half * half, 0.0)) * u
+    var = sigma * sigma + radius * radius
+    rms = float(np.sqrt(np.mean((np.hypot(*(points - c).T) - radius) ** 2)))
+    return CircleFit(float(c[0]), float(c[1]), radius, (var, 0.0, var), rms, fallback=True)
+
+
+def _circle_cov(jtj: list[list[float]], e2: float, n: int,
+                sigma: float) -> tuple[float, float, float]:
+    """Return the centre's covariance: the top-left 2x2 of s^2 (J^T J)^-1.
+
+    s is the larger of the residual's and the noise's; infinite when J^T J is singular.
+    """
+    k = len(jtj)
+    s2 = max(e2 / (n - k) if n > k else 0.0, sigma * sigma)
+    m = jtj
+    if k == 2:
+        det = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+        i00, i01, i11 = m[1][1], -m[0][1], m[0][0]
+    else:
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = m
+        c00 = a11 * a22 - a12 * a21
+        det = a00 * c00 + a01 * (a12 * a20 - a10 * a22) + a02 * (a10 * a21 - a11 * a20)
+        i00, i01, i11 = c00, a02 * a21 - a01 * a22, a00 * a22 - a02 * a20
+    if not abs(det) > 1e-300:
+        return (math.inf, 0.0, math.inf)
+    return s2 * i00 / det, s2 * i01 / det, s2 * i11 / det
+
+
+def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
+               max_radius: float) -> CircleFit:
+    """Fit a circle to ``points`` seen from ``sensor`` (2,) with range noise ``sigma`` [m]."""
+    n = len(points)
+    start = kasa(points) if n >= 3 else None
+    if start is not None:
+        fit = refine_circle(points, *start)
+        if fit is not None:
+            cx, cy, radius, jtj, e2 = fit
+            if radius < min_radius and _behind(cx, cy, points, sensor):
+                pass   # too small: refit below with the radius held at the minimum
+            elif min_radius <= radius <= max_radius and _behind(cx, cy, points, sensor):
+                return CircleFit(cx, cy, radius, _circle_cov(jtj, e2, n, sigma),
+                                 math.sqrt(e2 / n))
+            else:
+                return fallback_circle(points, sensor, sigma, min_radius, max_radius)
+    if n >= 3:
+        # Short arcs and tiny buoys: the radius held at its minimum, the centre fitted
+        # behind the points (started there, so it stays on the far side).
+        guess = fallback_circle(points, sensor, sigma, min_radius, min_radius)
+        held = refine_circle(points, guess.x, guess.y, min_radius, fixed_radius=True)
+        if held is not None and _behind(held[0], held[1], points, sensor):
+            cx, cy, _, jtj, e2 = held
+            # The radius was assumed, not measured: the centre is not known better than it.
+            xx, xy, yy = _circle_cov(jtj, e2, n, sigma)
+            r2 = min_radius * min_radius
+            return CircleFit(cx, cy, min_radius, (xx + r2, xy, yy + r2), math.sqrt(e2 / n))
+    return fallback_circle(points, sensor, sigma, min_radius, max_radius)
+
+
+# -- segments ------------------------------------------------------------------------------
+def fit_line(points: Vector) -> tuple[Vector, Vector, float]:
+    """Total least squares line: (a point on it, unit direction, sum of squared distances)."""
+    m = points.sum(axis=0) / len(points)
+    p = points - m
+    sxx, syy, sxy = float(p[:, 0] @ p[:, 0]), float(p[:, 1] @ p[:, 1]), float(p[:, 0] @ p[:, 1])
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)   # the principal axis
+    u = np.array([math.cos(theta), math.sin(theta)])
+    dist = p @ np.array([-u[1], u[0]])
+    return m, u, float(dist @ dist)
+
+
+def fit_segment(points: Vector) -> SegmentFit:
+    """Fit a segment: the TLS line, ends the extreme projections of the points."""
+    m, u, ss = fit_line(points)
+    t = (points - m) @ u
+    a, b = m + t.min() * u, m + t.max() * u
+    return SegmentFit(float(a[0]), float(a[1]), float(b[0]), float(b[1]),
+                      math.sqrt(ss / len(points)), len(points))
+
+
+def split(points: Vector, threshold: float, min_points: int = 2) -> list[tuple[int, int]]:
+    """Split and merge: ranges [start, end) of ``points`` that are each straight.
+
+    A range is cut at its point furthest from its chord when that is more than
+    ``threshold`` [m] away (the corner belongs to both sides, so they meet); neighbours
+    whose union is straight within ``threshold`` merge again.
+    """
+    out: list[tuple[int, int]] = []
+    todo = [(0, len(points))]
+    while todo:
+        start, end = todo.pop()
+        if end - start < 2 * min_points - 1:
+            out.append((start, end))
+            continue
+        a, b = points[start], points[end - 1]
+        ab = b - a
+        norm = math.hypot(*ab)
+        p = points[start:end] - a
+        if norm > 0.0:
+            dist = np.abs(p[:, 0] * ab[1] - p[:, 1] * ab[0]) / norm
+        else:
+            dist = np.hypot(p[:, 0], p[:, 1])
+        k = int(np.argmax(dist))
+        if (dist[k] > threshold and k + 1 >= min_points and end - start - k >= min_points):
+            todo += [(start + k, end), (start, start + k + 1)]
+        else:
+            out.append((start, end))
+    out.sort()
+    merged = [out[0]]
+    for start, end in out[1:]:
+        s0, _ = merged[-1]
+        union = points[s0:end]
+        m, u, _ = fit_line(union)
+        dist = np.abs((union - m) @ np.array([-u[1], u[0]]))
+        if float(dist.max()) <= threshold:
+            merged[-1] = (s0, end)
+        else:
+            merged.append((start, end))
+    return merged
+
+
+def fit_cluster(points: Vector, sensor: Vector, sigma: float,
+                s: FitSettings) -> list[CircleFit | SegmentFit]:
+    """Circle or segments for one cluster (module docstring); ``sigma`` the range noise [m]."""
+    n = len(points)
+    extent = math.dist(points[0], points[-1])
+    if n >= 3:
+        extent = max(extent, float(np.ptp(points, axis=0).max()))
+    if extent > 2.0 * s.max_radius:
+        return _segments(points, sigma, s)
+    circle = fit_circle(points, sensor, sigma, s.min_radius, s.max_radius)
+    if n < 4 or extent < s.min_segment_length:
+        return [circle]
+    _, _, line_ss = fit_line(points)
+    line_s2 = line_ss / (n - 2)
+    circle_s2 = n * circle.rms * circle.rms / (n - 3)
+    if not circle.fallback and circle_s2 < s.circle_ratio ** 2 * line_s2:
+        return [circle]
+    return _segments(points, sigma, s)
+
+
+def _segments(points: Vector, sigma: float, s: FitSettings) -> list[CircleFit | SegmentFit]:
+    ranges = split(points, s.split_distance + 3.0 * sigma)
+    return [fit_segment(points[a:b]) for a, b in ranges if b - a >= 2]

@@ -1,0 +1,112 @@
+"""Adaptive breakpoint segmentation (pure): clusters of scans cast in support.lidar_scene.
+
+The expected splits come from the breakpoint rule written out here from the paper (Borges and
+Aldon 2004, D_max = r_{n-1} sin(dphi) / sin(lambda - dphi) + 3 sigma_r) with the manual's
+noise figures typed in support.lidar_scene, not from the module under test.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from support.lidar_scene import Circle, NOISE_FRACTIONS, NOISE_LIMITS, Wall, cast
+
+from enbarr_core.perception.scan_geometry import RangeNoise, scan_points
+from enbarr_core.perception.segmentation import BreakpointSettings, clusters
+
+LAM = math.radians(10.0)
+INC = 2.0 * math.pi / 360
+SETTINGS = BreakpointSettings(LAM, 2, RangeNoise(NOISE_LIMITS, NOISE_FRACTIONS))
+
+
+def d_max(r: float, rays_apart: int) -> float:
+    """The paper's bound, sigma_r from the manual (1 % < 3 m, 2 % 3-5 m, 2.5 % beyond)."""
+    sigma = r * (0.01 if r < 3.0 else 0.02 if r < 5.0 else 0.025)
+    dphi = rays_apart * INC
+    return r * math.sin(dphi) / math.sin(LAM - dphi) + 3.0 * sigma
+
+
+def cluster_rays(ranges: np.ndarray, settings: BreakpointSettings = SETTINGS) -> list[set[int]]:
+    scan = scan_points(ranges, -math.pi, INC)
+    return [set(scan.index[c].tolist()) for c in clusters(scan, settings)]
+
+
+def test_two_buoys_one_behind_the_other_split_exactly_where_the_breakpoint_says():
+    outcomes = set()
+    for behind in np.linspace(0.0, 1.0, 21):
+        a = Circle(3.0, 0.0, 0.3)
+        b = Circle(3.0 + behind, 0.55, 0.3)   # beside a, then further behind it
+        ranges = cast(0.0, 0.0, 0.0, [a, b], seed=int(behind * 1000))
+        only_a = cast(0.0, 0.0, 0.0, [a], noise=False)
+        only_b = cast(0.0, 0.0, 0.0, [b], noise=False)
+        ray_a = np.isfinite(only_a) & ~(only_b < only_a)
+        rays = np.flatnonzero(np.isfinite(ranges))
+        # the consecutive pair where a's rays give way to b's
+        last_a = max(i for i in rays if ray_a[i])
+        first_b = min(i for i in rays if i > last_a)
+        pts = [ranges[i] * np.array([math.cos(-math.pi + i * INC),
+                                     math.sin(-math.pi + i * INC)]) for i in (last_a, first_b)]
+        apart = first_b - last_a   # more than max_gap + 1 = 3: too many rays missing
+        split = apart > 3 or math.dist(*pts) > d_max(ranges[last_a], apart)
+        got = cluster_rays(ranges)
+        assert len(got) == (2 if split else 1), behind
+        outcomes.add(split)
+    assert outcomes == {True, False}   # the sweep saw both sides of the bound
+
+
+def test_a_wall_behind_a_buoy_is_cut_in_two_around_it():
+    buoy = Circle(2.0, 0.0, 0.25)
+    ranges = cast(0.0, 0.0, 0.0, [buoy], [Wall(5.0, -3.0, 5.0, 3.0)], seed=3)
+    got = cluster_rays(ranges)
+    assert len(got) == 3
+    scan = scan_points(ranges, -math.pi, INC)
+    xy = dict(zip(scan.index.tolist(), scan.laser))
+    on_buoy = [c for c in got if all(abs(math.dist(xy[i], (2.0, 0.0)) - 0.25) < 0.1 for i in c)]
+    assert len(on_buoy) == 1
+    walls = [c for c in got if c is not on_buoy[0]]
+    assert all(all(abs(xy[i][0] - 5.0) < 0.5 for i in c) for c in walls)
+
+
+def test_a_buoy_across_the_seam_at_pi_is_one_cluster():
+    # Straight astern: its rays are the scan's first and last (angle_min = -pi).
+    ranges = cast(0.0, 0.0, 0.0, [Circle(-3.0, 0.0, 0.3)], seed=1)
+    assert np.isfinite(ranges[0]) and np.isfinite(ranges[-1])
+    got = cluster_rays(ranges)
+    assert len(got) == 1 and {0, 359} <= got[0]
+
+
+def test_two_buoys_either_side_of_the_seam_stay_two():
+    ranges = cast(0.0, 0.0, 0.0, [Circle(-3.0, 0.4, 0.2), Circle(-3.0, -0.4, 0.2)], seed=2)
+    got = cluster_rays(ranges)
+    assert len(got) == 2
+
+
+@pytest.mark.parametrize(('missing', 'pieces'), [(2, 1), (3, 2)])
+def test_rays_without_a_sample_are_bridged_up_to_max_gap(missing, pieces):
+    ranges = cast(0.0, 0.0, 0.0, [], [Wall(2.0, -2.0, 2.0, 2.0)], noise=False)
+    middle = 180   # straight ahead: the wall's nearest point
+    ranges[middle:middle + missing] = np.nan
+    assert len(cluster_rays(ranges)) == pieces
+
+
+def test_a_ray_too_close_or_without_return_is_a_gap_like_a_missing_sample():
+    ranges = cast(0.0, 0.0, 0.0, [], [Wall(2.0, -2.0, 2.0, 2.0)], noise=False)
+    ranges[180] = -np.inf
+    ranges[182] = np.inf
+    assert len(cluster_rays(ranges)) == 1
+
+
+def test_an_empty_scan_has_no_cluster_and_one_point_is_one():
+    ranges = np.full(360, np.inf)
+    assert cluster_rays(ranges) == []
+    ranges[10] = 4.0
+    assert cluster_rays(ranges) == [{10}]
+
+
+def test_settings_refuse_a_lambda_beyond_a_right_angle():
+    with pytest.raises(ValueError, match='^lam:'):
+        BreakpointSettings(2.0, 2, SETTINGS.noise).validate()
+    with pytest.raises(ValueError, match='^fractions:'):
+        BreakpointSettings(LAM, 2, RangeNoise((3.0,), (0.01,))).validate()
