@@ -12,8 +12,10 @@ Time: the truth's stamps schedule the revolutions, one every ``1 / rotation_hz``
 node clock (simulated time in a scenario, as ``sim_mocap`` does). A revolution is cast at
 one instant: the truth's pose and the world at that stamp (``EnbarrNode.world_time``), and
 the scan carries that stamp and ``scan_time`` = 1 / ``rotation_hz``. In ``stall_windows``
-(world time) no scan is published at all, as when the lidar is unplugged or stalls. The real A1 sweeps for
-a whole period, so a scan taken while turning smears; the simulated one does not.
+(world time) no scan is published at all, as when the lidar is unplugged or stalls. The real
+A1 sweeps for a whole period, so a scan taken while turning smears; the simulated one does
+not, so ``scan_obstacles`` reads it with ``sweep: at_stamp`` (its default reads the A1's
+sweep from the stamp on).
 """
 
 from __future__ import annotations

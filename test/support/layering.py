@@ -2,8 +2,8 @@
 control, guidance, allocation, models, world, perception) except the nodes (``*_node``) and
 their parameter declarations (``*_params``). The layering rule
 (``test/framework/test_layering.py``: they import without rclpy) and the strict type check
-(``mypy.ini``, ``test/test_typecheck.py``) both stand on this one definition. ``imports_in``: what a source file imports, for the
-import rules of the layering and device tests.
+(``mypy.ini``, ``test/test_typecheck.py``) both stand on this one definition. ``imports_in``:
+what a source file imports, for the import rules of the layering and device tests.
 """
 
 from __future__ import annotations
