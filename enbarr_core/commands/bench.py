@@ -35,6 +35,10 @@ profile's fixed cost instead (its nodes composed and spun, no source started).
 --recording: what the recorder costs per message, by message type and for the mix of
 each chain (--messages per type, --repeat runs; the median is kept).
 
+--avoidance: what the collision avoidance's safety filter costs per step with --obstacles
+obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
+solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -58,6 +62,10 @@ class BenchCommand(Command):
                           help='a whole profile under bringup instead (see below)')
         what.add_argument('--recording', action='store_true',
                           help='the recorder alone: CPU per recorded message')
+        what.add_argument('--avoidance', action='store_true',
+                          help='the collision avoidance safety filter alone: time per step')
+        parser.add_argument('--obstacles', type=int, default=None, metavar='N',
+                            help='--avoidance: obstacles around the vessel (default 10)')
         parser.add_argument('--rate', type=float, default=None,
                             help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
         parser.add_argument('--seconds', type=float, default=None,
@@ -87,7 +95,9 @@ class BenchCommand(Command):
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
-        if args.recording:
+        if args.avoidance:
+            result = _avoidance(args)
+        elif args.recording:
             result = _recording(args)
         elif args.profile is not None:
             result = _idle(args) if args.idle else _profile(args)
@@ -102,10 +112,22 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
     given = {'--rate': args.rate is not None, '--seconds': args.seconds is not None,
              '--warmup': args.warmup is not None, '--record': args.record,
              '--set': bool(args.set), '--idle': args.idle,
-             '--messages': args.messages is not None, '--repeat': args.repeat is not None}
+             '--messages': args.messages is not None, '--repeat': args.repeat is not None,
+             '--obstacles': args.obstacles is not None}
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
+
+
+def _avoidance(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import avoidance
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages'), 'is not for --avoidance')
+    obstacles = avoidance.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
+    repeat = avoidance.DEFAULT_REPEAT if args.repeat is None else args.repeat
+    if not (0 <= obstacles <= 1000) or repeat < 1:
+        raise EnbarrError('--obstacles must be 0..1000 and --repeat at least 1')
+    return avoidance.measure(obstacles, repeat)
 
 
 def _chain(args: argparse.Namespace) -> dict:
@@ -113,6 +135,7 @@ def _chain(args: argparse.Namespace) -> dict:
     _refuse(args, ('--record', '--set', '--warmup', '--idle'),
             'is for --profile; --chain runs the chain alone')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     rate = CHAIN_RATE if args.rate is None else args.rate
     seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
     check_rate('--rate', rate, MAX_RATE)
@@ -125,6 +148,7 @@ def _idle(args: argparse.Namespace) -> dict:
     _refuse(args, ('--record', '--rate', '--warmup'), 'does not go with --idle: nothing '
             'flows there')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = IDLE_SECONDS if args.seconds is None else args.seconds
     check_seconds('--seconds', seconds)
     return chain.run_idle(args.profile, args.set, seconds)
@@ -136,6 +160,7 @@ def _profile(args: argparse.Namespace) -> dict:
         raise EnbarrError('--rate is for --chain: a profile runs at its own rates '
                           '(change them with --set NODE.rate=HZ)')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
     check_seconds('--seconds', seconds)
@@ -145,8 +170,8 @@ def _profile(args: argparse.Namespace) -> dict:
 
 def _recording(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import recording
-    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle'),
-            'is not for --recording (it takes --messages and --repeat)')
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--obstacles'), 'is not for --recording (it takes --messages and --repeat)')
     return recording.measure(
         recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
         recording.DEFAULT_REPEAT if args.repeat is None else args.repeat)

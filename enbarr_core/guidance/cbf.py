@@ -93,15 +93,29 @@ _ALL = (True, True, True)
 class ObstacleLike(Protocol):
     """What :func:`obstacle_rows` reads (``enbarr_interfaces.obstacles.Obstacle`` has it)."""
 
-    x: float
-    y: float
-    radius: float
-    vx: float
-    vy: float
+    @property
+    def x(self) -> float:
+        """First end (a circle: its centre) [m]."""
+
+    @property
+    def y(self) -> float:
+        """First end [m]."""
 
     @property
     def end(self) -> tuple[float, float]:
-        """The segment's second end (a circle: its centre)."""
+        """The segment's second end (a circle: its centre) [m]."""
+
+    @property
+    def radius(self) -> float:
+        """Extent about the segment [m]."""
+
+    @property
+    def vx(self) -> float:
+        """Velocity [m/s]."""
+
+    @property
+    def vy(self) -> float:
+        """Velocity [m/s]."""
 
 
 def obstacle_rows(obstacles: Iterable[ObstacleLike], age: float = 0.0) -> Vector:
@@ -111,7 +125,12 @@ def obstacle_rows(obstacles: Iterable[ObstacleLike], age: float = 0.0) -> Vector
     runs on: each obstacle is carried along its velocity for that long (constant velocity).
     """
     rows = [(o.x, o.y, *o.end, o.radius, o.vx, o.vy) for o in obstacles]
-    out = np.array(rows, dtype=float).reshape(-1, 7)
+    return moved(np.array(rows, dtype=float).reshape(-1, 7), age)
+
+
+def moved(rows: Vector, age: float) -> Vector:
+    """Return a copy of obstacle ``rows`` carried along their velocities for ``age`` [s]."""
+    out = rows.copy()
     if age and len(out):
         out[:, 0:4] += age * np.tile(out[:, 5:7], 2)
     return out
@@ -187,30 +206,37 @@ def constraints(p: Vector, rows: Vector, settings: CbfSettings
                 ) -> tuple[Vector, Vector, Vector]:
     """(n, b, B): normals n_i (k, 2), lower bounds b_i = n_i^T v_o,i - gamma B_i and B_i.
 
-    The constraint of obstacle i is n_i^T v >= b_i (see the module docstring).
+    The constraint of obstacle i is n_i^T v >= b_i (see the module docstring). A loop over
+    Python floats: for the ten or so obstacles of a basin it is faster than numpy, whose
+    per-call cost would be the whole cost (docs/benchmarks.md).
     """
-    a, d = rows[:, 0:2], rows[:, 2:4] - rows[:, 0:2]
-    n2 = np.einsum('ij,ij->i', d, d)
-    s = np.einsum('ij,ij->i', p - a, d) / np.where(n2 > 0.0, n2, 1.0)
-    c = a + np.clip(s, 0.0, 1.0)[:, None] * d
-    diff = p - c
-    dist = np.hypot(diff[:, 0], diff[:, 1])
-    # p on the segment's axis: no gradient there; any unit vector is a valid choice (the
-    # distance is then 0 and the barrier far negative, the constraint pushes out that way).
-    safe = np.where(dist > 1e-12, dist, 1.0)
-    n = np.where((dist > 1e-12)[:, None], diff / safe[:, None], np.array([1.0, 0.0]))
-    B = dist - (rows[:, 4] + settings.margin)
-    b = np.einsum('ij,ij->i', n, rows[:, 5:7]) - settings.gamma * B
-    return n, b, B
+    px, py = float(p[0]), float(p[1])
+    margin, gamma = settings.margin, settings.gamma
+    out = []
+    for ax, ay, bx, by, r, vx, vy in rows.tolist():
+        dx, dy, ex, ey = bx - ax, by - ay, px - ax, py - ay
+        n2 = dx * dx + dy * dy
+        s = (ex * dx + ey * dy) / n2 if n2 > 0.0 else 0.0   # c_i = a + s d, s in [0, 1]
+        s = 0.0 if s < 0.0 else (1.0 if s > 1.0 else s)
+        gx, gy = ex - s * dx, ey - s * dy                     # p - c_i
+        dist = math.hypot(gx, gy)
+        # p on the segment's axis: no gradient there; any unit vector is a valid choice (the
+        # barrier is then far negative and the constraint pushes out that way).
+        nx, ny = (gx / dist, gy / dist) if dist > 1e-12 else (1.0, 0.0)
+        B = dist - r - margin
+        out.append((nx, ny, nx * vx + ny * vy - gamma * B, B))
+    a = np.array(out, dtype=float).reshape(-1, 4)
+    return a[:, 0:2], a[:, 2], a[:, 3]
 
 
 def solve_qp(v_nom: Vector, n: Vector, b: Vector, max_speed: float) -> QpResult:
     """Solve min |v - v_nom|^2 s.t. n v >= b and the speed polygon by daqp (module doc)."""
     limit = max_speed * _INSCRIBED
-    speeds = _DIRECTIONS @ v_nom
-    if bool(np.all(n @ v_nom >= b)) and bool(np.all(np.abs(speeds) <= limit)):
-        return QpResult(v_nom, True, False, np.zeros(len(b), dtype=bool))
     k = len(b)
+    vx, vy = float(v_nom[0]), float(v_nom[1])
+    inside = math.hypot(vx, vy) <= limit or bool(np.all(np.abs(_DIRECTIONS @ v_nom) <= limit))
+    if inside and (k == 0 or float((n[:, 0] * vx + n[:, 1] * vy - b).min()) >= 0.0):
+        return QpResult(v_nom, True, False, np.zeros(k, dtype=bool))
     A = np.vstack((n, _DIRECTIONS))
     bu = np.concatenate((np.full(k, _INF), np.full(len(_DIRECTIONS), limit)))
     bl = np.concatenate((b, np.full(len(_DIRECTIONS), -limit)))

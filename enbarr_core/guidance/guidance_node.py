@@ -1,4 +1,4 @@
-"""Guidance node: ``observer/odometry`` + ``mode`` -> ``guidance/reference``.
+"""Guidance node: ``observer/odometry`` + ``mode`` (+ ``obstacles``) -> ``guidance/reference``.
 
 The guidance block of the manual's graph (observer -> guidance -> controller -> allocation).
 It follows the operator mode the controller publishes (``mode``, latched): entering
@@ -10,8 +10,18 @@ estimate outside manual it publishes the reference for that estimate on
 stamped with the estimate's stamp. It announces on ``guidance/path_available`` (latched)
 whether it has a path, which the controller needs to refuse guidance without one.
 
-Another guidance law (say, one that avoids collisions) replaces this node with one
-``plugin:`` line of the profile, as long as it speaks the same three topics.
+Collision avoidance (``avoidance.*``, off by default): the law's reference goes through the
+control-barrier-function safety filter of ``guidance.cbf`` with the latest ``obstacles``
+(carried along their velocities from their stamp to the estimate's), and what it did goes out
+on ``guidance/avoidance`` (``enbarr_interfaces.avoidance``). Blind (no obstacles message, its
+stamp older than ``avoidance.staleness`` against the estimate's, or
+``observer/measurement_age`` above it: lidar unplugged or stalled, pose lost) the node holds
+the pose of the estimate it was at, with the reason in the log and on ``/diagnostics``, and
+the law's clock stops; fresh again, the law resumes and the filter starts from the hold. In
+manual nothing is published, avoidance or not: the operator always has the vessel.
+
+Another guidance law replaces this node with one ``plugin:`` line of the profile, as long as
+it speaks the same three topics.
 
 Time (``framework.stamps``): an estimate stamped more than ``max_future`` ahead of
 the clock, or not later than the last one taken, is refused and counted: it neither becomes
@@ -44,7 +54,7 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.guidance.cbf import (
-    blind_reason, CbfOutput, CbfSettings, obstacle_rows, SafetyFilter)
+    blind_reason, CbfOutput, CbfSettings, moved, obstacle_rows, SafetyFilter)
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
 SPECS = [
@@ -348,9 +358,7 @@ class GuidanceNode(EnbarrNode):
             self.blind = self.blind_reason = None
         nominal = self.law.reference(eta, dt)
         assert self._obstacles_ns is not None   # else blind
-        rows = self._obstacle_rows.copy()
-        if len(rows):   # carried along their velocity to the estimate's time
-            rows[:, 0:4] += (t - self._obstacles_ns) * 1e-9 * np.tile(rows[:, 5:7], 2)
+        rows = moved(self._obstacle_rows, (t - self._obstacles_ns) * 1e-9)  # to the estimate
         start = time.perf_counter()
         out = self.filter.step(eta, nominal, rows, dt)
         elapsed = time.perf_counter() - start

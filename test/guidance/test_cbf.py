@@ -228,12 +228,13 @@ def test_los_engages_at_the_vessel_and_keeps_the_course_heading():
     f = SafetyFilter(SETTINGS)
     wall = rows([1.0, -1.0, 1.0, 1.0, 0.05, 0.0, 0.0])
     eta = np.array((0.0, 0.1, 0.05))
-    while True:
+    for _ in range(250):                     # 1 m at 0.2 m/s: the wall's zone is reached
         nominal = law.reference(eta, DT)
         out = f.step(eta, nominal, wall, DT)
         if out.engaged:
             break
         eta = eta + DT * np.array((0.2, 0.0, 0.0))
+    assert out.engaged
     np.testing.assert_allclose(out.reference.eta_d[:2], eta[:2])      # no position step
     assert out.reference.eta_d[2] == nominal.eta_d[2]                  # the LOS course
     assert out.reference.nu_d[2] == nominal.nu_d[2]

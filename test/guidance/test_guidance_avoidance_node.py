@@ -158,6 +158,18 @@ def test_avoidance_message_carries_the_obstacle_stamp_and_the_barrier(context, e
     assert got['obstacles'] == 1 and got['blind'] == 0.0 and got['solve_time'] >= 0.0
 
 
+def test_moving_obstacles_are_carried_to_the_estimates_time(context, executor, spin):
+    h = AvoidHarness(context, executor, spin, **ON)
+    h.estimate([0.0, 0.0, 0.0])
+    h.mode(Mode.AUTOMATIC)
+    boat = Obstacle(id=2, kind=CIRCLE, x=3.0, y=0.0, radius=0.3, vx=-1.0)
+    h.obstacles([boat], h.t - 200_000_000)           # scanned 0.2 s before this estimate
+    h.drive([0.0, 0.0, 0.0])                          # one more estimate: 0.22 s after
+    # The boat is 0.22 m nearer than scanned.
+    assert h.node.avoidance_output.min_barrier == pytest.approx(
+        3.0 - 0.22 - 0.3 - 0.1375 - 0.2 - 0.1)
+
+
 def test_live_parameter_change_takes_effect(context, executor, spin):
     h = AvoidHarness(context, executor, spin, **ON)
     h.estimate([0.0, 0.0, 0.0])
