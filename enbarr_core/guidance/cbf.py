@@ -237,10 +237,12 @@ def solve_qp(v_nom: Vector, n: Vector, b: Vector, max_speed: float) -> QpResult:
     inside = math.hypot(vx, vy) <= limit or bool(np.all(np.abs(_DIRECTIONS @ v_nom) <= limit))
     if inside and (k == 0 or float((n[:, 0] * vx + n[:, 1] * vy - b).min()) >= 0.0):
         return QpResult(v_nom, True, False, np.zeros(k, dtype=bool))
-    A = np.vstack((n, _DIRECTIONS))
-    bu = np.concatenate((np.full(k, _INF), np.full(len(_DIRECTIONS), limit)))
-    bl = np.concatenate((b, np.full(len(_DIRECTIONS), -limit)))
-    x, _, exitflag, _ = daqp.solve(_H, -v_nom, A, bu, bl, np.zeros(len(bu), dtype=np.int32))
+    m = k + len(_DIRECTIONS)
+    A = np.empty((m, 2))
+    A[:k], A[k:] = n, _DIRECTIONS
+    bu, bl = np.full(m, limit), np.full(m, -limit)
+    bu[:k], bl[:k] = _INF, b
+    x, _, exitflag, _ = daqp.solve(_H, -v_nom, A, bu, bl, np.zeros(m, dtype=np.int32))
     if exitflag != 1 or not np.all(np.isfinite(x)):
         return QpResult(np.zeros(2), False, True, np.zeros(k, dtype=bool))
     v = np.asarray(x, dtype=float)
