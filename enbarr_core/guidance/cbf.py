@@ -2,7 +2,7 @@
 
 After Solheim 2022 (Integration between lidar- and camera-based situational awareness and
 control barrier functions for an autonomous surface vessel, NTNU; listed in the CS Saucer
-manual), whose filter follows Thyri et al. 2020 (Reactive collision avoidance for ASVs using
+manual), in the line of Thyri et al. 2020 (Reactive collision avoidance for ASVs using
 control barrier functions, IEEE CCTA) and Ames et al. 2019 (Control barrier functions: theory
 and applications, ECC): the guidance law's reference is passed through a quadratic program
 that changes the desired velocity as little as it can while keeping the desired position
@@ -51,16 +51,21 @@ back (nu_d in the body frame the law used: R(psi_d) for a law with a position, R
 LOS, so that it is the same velocity as the nominal one at engagement). It releases, back to
 the nominal, once v_nom is feasible again and p_d is within
 ``release_distance`` of the pull target. The heading is always the law's: a course or a
-held heading keeps being followed (the Saucer is round and fully actuated; its heading does
-not change the distances). The feed-forward acceleration while engaged is the finite
+held heading keeps being followed (the hull is taken as a circle and the vessel as fully
+actuated: the heading does not change the distances). The feed-forward acceleration while engaged is the finite
 difference of v*, low-pass filtered with ``accel_time`` (started from the law's
 acceleration at engagement), so a new obstacle's jump in v* does not kick the controller.
+
+Passing (an addition to the filter above, ``pass_gain``; 0 turns it off): a CBF QP alone
+stops p_d in front of an obstacle that lies across v_nom (its known local minimum), so the
+speed lost to a binding barrier is given back along that barrier's tangent and the QP solved
+again (:meth:`SafetyFilter._pass`); every constraint still holds.
 
 An infeasible QP (moving obstacles closing in from all sides, faster than v_max) never
 raises: the output is the safest command, zero velocity at the present p_d, with a reason.
 
-Speed: obstacles are numpy rows (:func:`obstacle_rows`), the geometry is vectorized, and the
-QP is only solved when v_nom violates a constraint (then it is exactly its solution).
+Speed: obstacles are numpy rows (:func:`obstacle_rows`), their geometry a loop over floats,
+and the QP is only solved when v_nom violates a constraint (then it is exactly its solution).
 """
 
 from __future__ import annotations
