@@ -52,9 +52,10 @@ LOS, so that it is the same velocity as the nominal one at engagement). It relea
 the nominal, once v_nom is feasible again and p_d is within
 ``release_distance`` of the pull target. The heading is always the law's: a course or a
 held heading keeps being followed (the hull is taken as a circle and the vessel as fully
-actuated: the heading does not change the distances). The feed-forward acceleration while engaged is the finite
-difference of v*, low-pass filtered with ``accel_time`` (started from the law's
-acceleration at engagement), so a new obstacle's jump in v* does not kick the controller.
+actuated: the heading does not change the distances). The feed-forward acceleration while
+engaged is the finite difference of v*, low-pass filtered with ``accel_time`` (started from
+the law's acceleration at engagement), so a new obstacle's jump in v* does not kick the
+controller.
 
 Passing (an addition to the filter above, ``pass_gain``; 0 turns it off): a CBF QP alone
 stops p_d in front of an obstacle that lies across v_nom (its known local minimum), so the
