@@ -44,7 +44,7 @@ def _time_steps(case: str, k: int) -> float:
     from enbarr_core.guidance.guidance import LosPath
     rng = np.random.default_rng(1)
     world = _world(k, rng)
-    settings = CbfSettings(safety_radius=0.2, vessel_radius=0.1375, tracking_margin=0.1)
+    settings = CbfSettings(safety_radius=0.2, vessel_radius=0.1375, tracking_margin=0.2)
     if case == 'far':
         world[:, 0:4] += 100.0
     f = SafetyFilter(settings)

@@ -49,9 +49,11 @@ point with the velocity v* (so eta_d and nu_d are continuous); engaged, the refe
 (p_d, psi_d of the law), nu_d = [R^T v*, r_d of the law], every pose component fed
 back (nu_d in the body frame the law used: R(psi_d) for a law with a position, R(psi) for
 LOS, so that it is the same velocity as the nominal one at engagement). It releases, back to
-the nominal, once v_nom is feasible again and p_d is within
-``release_distance`` of the pull target. The heading is always the law's: a course or a
-held heading keeps being followed (the hull is taken as a circle and the vessel as fully
+the nominal, once v_nom is feasible again and p_d is within ``release_distance`` of the pull
+target. A law that changes kind (LOS finishing into a hold of the last waypoint) engages the
+filter from the last reference position and velocity, so its position step is taken at the
+speed limit and within the constraints. The heading is always the law's: a course or a held
+heading keeps being followed (the hull is taken as a circle and the vessel as fully
 actuated: the heading does not change the distances). The feed-forward acceleration while
 engaged is the finite difference of v*, low-pass filtered with ``accel_time`` (started from
 the law's acceleration at engagement), so a new obstacle's jump in v* does not kick the
@@ -148,7 +150,7 @@ class CbfSettings:
 
     safety_radius: float = 0.2      # clearance hull -> obstacle that must hold [m]
     vessel_radius: float = 0.0      # hull radius about the CO [m]
-    tracking_margin: float = 0.1    # how far the vessel may lag p_d [m]
+    tracking_margin: float = 0.2    # how far the vessel may lag p_d [m]
     gamma: float = 0.5              # barrier decay rate [1/s] (gamma dt < 1)
     max_speed: float = 0.3          # |v| limit of the desired position [m/s]
     pull_gain: float = 0.5          # k_pull [1/s]
@@ -276,10 +278,14 @@ class SafetyFilter:
         self.a_ff = np.zeros(2)
         self.side = 0             # passing side of this engagement: +1 starboard, -1 port
         self.infeasible_count = 0
+        # The last output's position, world velocity and kind of law (a position reference
+        # or LOS): a law that changes kind (LOS finishing into a hold) moves its position
+        # reference at once, which the filter must not follow in one step.
+        self._last: tuple[Vector, Vector, bool] | None = None
 
     def reset(self) -> None:
         """Forget p_d: the next step starts from the nominal reference."""
-        self.engaged, self.side = False, 0
+        self.engaged, self.side, self._last = False, 0, None
 
     def engage_at(self, p: Vector) -> None:
         """Start engaged at rest at ``p`` (e.g. the pose held while blind).
@@ -306,6 +312,12 @@ class SafetyFilter:
         R = _rot2(psi_v)
         v_ff = R @ nominal.nu_d[:2]
         target = np.array(nominal.eta_d[:2] if own_position else eta_hat[:2], dtype=float)
+        if not self.engaged and self._last is not None and self._last[2] != own_position:
+            # The position reference jumps (LOS -> hold at the last waypoint): go on from
+            # where the reference was, with its velocity, and let the pull take p_d there
+            # within the constraints (the new target may lie in a zone, or behind one).
+            self.engaged, self.side = True, 0
+            self.p_d, self.v, self.a_ff = self._last[0], self._last[1], np.zeros(2)
         p = self.p_d + dt * self.v if self.engaged else target
         v_nom = v_ff + s.pull_gain * (target - p)
         n, b, B = constraints(p, rows, s)
@@ -313,6 +325,7 @@ class SafetyFilter:
         if not qp.solved and (not self.engaged
                               or float(np.hypot(*(p - target))) <= s.release_distance):
             self.engaged, self.side = False, 0
+            self._last = (target, v_ff, own_position)
             return CbfOutput(nominal, False, False, 0, False, _min(B))
         if qp.active and s.pass_gain > 0.0:
             qp = self._pass(qp, v_nom, n, b, B)
@@ -327,6 +340,7 @@ class SafetyFilter:
         self.a_ff = self.a_ff + min(1.0, dt / s.accel_time if s.accel_time > 0.0 else 1.0) \
             * ((qp.v - self.v) / dt - self.a_ff)
         self.engaged, self.p_d, self.v = True, p, qp.v
+        self._last = (p, qp.v, own_position)
         return CbfOutput(self._reference(psi_d, psi_v, nominal), True, qp.solved, qp.active,
                          not qp.feasible, _min(B), reason)
 

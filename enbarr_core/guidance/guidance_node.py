@@ -76,7 +76,7 @@ SPECS = [
               'every obstacle', 'm', 0.0, 10.0),
     ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 when '
               'avoidance is enabled)', 'm', 0.0, 50.0),
-    ParamSpec('avoidance.tracking_margin', 0.1, 'How far the vessel may lag the desired '
+    ParamSpec('avoidance.tracking_margin', 0.2, 'How far the vessel may lag the desired '
               'position: added to the zone the desired position keeps out of', 'm', 0.0, 10.0),
     ParamSpec('avoidance.gamma', 0.5, 'Barrier decay rate: dB/dt >= -gamma B', '1/s', 0.01,
               10.0),

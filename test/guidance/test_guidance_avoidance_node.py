@@ -153,8 +153,8 @@ def test_avoidance_message_carries_the_obstacle_stamp_and_the_barrier(context, e
     got = avoidance.from_msg(h.avoid[-1])
     assert got['obstacles_stamp_ns'] == stamp
     assert got['estimate_stamp_ns'] == h.t
-    # 2 m to the centre - 0.3 buoy - 0.1375 hull - 0.2 safety - 0.1 tracking margin
-    assert got['min_barrier'] == pytest.approx(2.0 - 0.3 - 0.1375 - 0.2 - 0.1)
+    # 2 m to the centre - 0.3 buoy - 0.1375 hull - 0.2 safety - 0.2 tracking margin
+    assert got['min_barrier'] == pytest.approx(2.0 - 0.3 - 0.1375 - 0.2 - 0.2)
     assert got['obstacles'] == 1 and got['blind'] == 0.0 and got['solve_time'] >= 0.0
 
 
@@ -167,7 +167,7 @@ def test_moving_obstacles_are_carried_to_the_estimates_time(context, executor, s
     h.drive([0.0, 0.0, 0.0])                          # one more estimate: 0.22 s after
     # The boat is 0.22 m nearer than scanned.
     assert h.node.avoidance_output.min_barrier == pytest.approx(
-        3.0 - 0.22 - 0.3 - 0.1375 - 0.2 - 0.1)
+        3.0 - 0.22 - 0.3 - 0.1375 - 0.2 - 0.2)
 
 
 def test_live_parameter_change_takes_effect(context, executor, spin):
