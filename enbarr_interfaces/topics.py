@@ -170,6 +170,12 @@ GUIDANCE_REFERENCE = TopicSpec(
     'accelerations[0] = nu_d_dot (body frame). A pose component that is not fed back (line '
     'of sight tracks surge/sway velocity only) is NaN. See '
     'enbarr_core.guidance.guidance_node.reference_to_msg.', fast=True)
+GUIDANCE_AVOIDANCE = TopicSpec(
+    'guidance/avoidance', Float64MultiArray, SENSOR_QOS, 's; m', '',
+    'What the collision avoidance did for each estimate while it is on (automatic or '
+    'guidance): stamps of the estimate and of the obstacles used, safety filter time, '
+    'binding constraints, infeasible, min barrier, engaged, blind. layout.dim[0].label = the '
+    'comma-joined field names; encoding enbarr_interfaces.avoidance, docs/interfaces.md.')
 GUIDANCE_PATH_AVAILABLE = TopicSpec(
     'guidance/path_available', Bool, LATCHED_QOS, '', '',
     'Whether the guidance node has a path or waypoint to follow (the controller refuses '
@@ -223,6 +229,7 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
     MODE,
-    GUIDANCE_REFERENCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS, ALLOCATION_DELIVERED,
+    GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS,
+    ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
     VESSEL_CLAIMS)

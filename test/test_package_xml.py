@@ -61,6 +61,8 @@ KEYS = {
     # No rosdistro key (package.xml says so): the -pip convention
     'mcap': 'python3-mcap-pip',
     'qtm_rt': 'python3-qtm-rt-pip',
+    'daqp': 'python3-daqp-pip',
+    'quadprog': 'python3-quadprog-pip',
 }
 
 RUN_TAGS = ('depend', 'exec_depend')

@@ -40,6 +40,10 @@ each chain (--messages per type, --repeat runs; the median is kept).
 scans of a synthetic basin with walls and buoys; per-scan CPU, share of a core at 5.5 Hz
 and its Raspberry Pi 4 estimate).
 
+--avoidance: what the collision avoidance's safety filter costs per step with --obstacles
+obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
+solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -66,6 +70,10 @@ class BenchCommand(Command):
                           help='the recorder alone: CPU per recorded message')
         what.add_argument('--perception', action='store_true',
                           help='the lidar perception alone: CPU per scan')
+        what.add_argument('--avoidance', action='store_true',
+                          help='the collision avoidance safety filter alone: time per step')
+        parser.add_argument('--obstacles', type=int, default=None, metavar='N',
+                            help='--avoidance: obstacles around the vessel (default 10)')
         parser.add_argument('--rate', type=float, default=None,
                             help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
         parser.add_argument('--seconds', type=float, default=None,
@@ -97,7 +105,9 @@ class BenchCommand(Command):
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
-        if args.recording:
+        if args.avoidance:
+            result = _avoidance(args)
+        elif args.recording:
             result = _recording(args)
         elif args.perception:
             result = _perception(args)
@@ -115,10 +125,22 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
              '--warmup': args.warmup is not None, '--record': args.record,
              '--set': bool(args.set), '--idle': args.idle,
              '--messages': args.messages is not None, '--repeat': args.repeat is not None,
-             '--scans': args.scans is not None}
+             '--scans': args.scans is not None,
+             '--obstacles': args.obstacles is not None}
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
+
+
+def _avoidance(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import avoidance
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--scans'), 'is not for --avoidance')
+    obstacles = avoidance.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
+    repeat = avoidance.DEFAULT_REPEAT if args.repeat is None else args.repeat
+    if not (0 <= obstacles <= 1000) or repeat < 1:
+        raise EnbarrError('--obstacles must be 0..1000 and --repeat at least 1')
+    return avoidance.measure(obstacles, repeat)
 
 
 def _chain(args: argparse.Namespace) -> dict:
@@ -127,6 +149,7 @@ def _chain(args: argparse.Namespace) -> dict:
             'is for --profile; --chain runs the chain alone')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     rate = CHAIN_RATE if args.rate is None else args.rate
     seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
     check_rate('--rate', rate, MAX_RATE)
@@ -140,6 +163,7 @@ def _idle(args: argparse.Namespace) -> dict:
             'flows there')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = IDLE_SECONDS if args.seconds is None else args.seconds
     check_seconds('--seconds', seconds)
     return chain.run_idle(args.profile, args.set, seconds)
@@ -152,6 +176,7 @@ def _profile(args: argparse.Namespace) -> dict:
                           '(change them with --set NODE.rate=HZ)')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
     check_seconds('--seconds', seconds)
@@ -162,7 +187,8 @@ def _profile(args: argparse.Namespace) -> dict:
 def _recording(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import recording
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--scans'), 'is not for --recording (it takes --messages and --repeat)')
+                   '--scans', '--obstacles'),
+            'is not for --recording (it takes --messages and --repeat)')
     return recording.measure(
         recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
         recording.DEFAULT_REPEAT if args.repeat is None else args.repeat)
@@ -171,7 +197,8 @@ def _recording(args: argparse.Namespace) -> dict:
 def _perception(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import perception
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--messages', '--repeat'), 'is not for --perception (it takes --scans)')
+                   '--messages', '--repeat', '--obstacles'),
+            'is not for --perception (it takes --scans)')
     scans = PERCEPTION_SCANS if args.scans is None else args.scans
     if scans < 50:
         raise EnbarrError(f'--scans must be >= 50 (the first 20 confirm the tracks), '

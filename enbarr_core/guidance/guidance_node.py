@@ -1,4 +1,4 @@
-"""Guidance node: ``observer/odometry`` + ``mode`` -> ``guidance/reference``.
+"""Guidance node: ``observer/odometry`` + ``mode`` (+ ``obstacles``) -> ``guidance/reference``.
 
 The guidance block of the manual's graph (observer -> guidance -> controller -> allocation).
 It follows the operator mode the controller publishes (``mode``, latched): entering
@@ -10,8 +10,18 @@ estimate outside manual it publishes the reference for that estimate on
 stamped with the estimate's stamp. It announces on ``guidance/path_available`` (latched)
 whether it has a path, which the controller needs to refuse guidance without one.
 
-Another guidance law (say, one that avoids collisions) replaces this node with one
-``plugin:`` line of the profile, as long as it speaks the same three topics.
+Collision avoidance (``avoidance.*``, off by default): the law's reference goes through the
+control-barrier-function safety filter of ``guidance.cbf`` with the latest ``obstacles``
+(carried along their velocities from their stamp to the estimate's), and what it did goes out
+on ``guidance/avoidance`` (``enbarr_interfaces.avoidance``). Blind (no obstacles message, its
+stamp older than ``avoidance.staleness`` against the estimate's, or
+``observer/measurement_age`` above it: lidar unplugged or stalled, pose lost) the node holds
+the pose of the estimate it was at, with the reason in the log and on ``/diagnostics``, and
+the law's clock stops; fresh again, the law resumes and the filter starts from the hold. In
+manual nothing is published, avoidance or not: the operator always has the vessel.
+
+Another guidance law replaces this node with one ``plugin:`` line of the profile, as long as
+it speaks the same three topics.
 
 Time (``framework.stamps``): an estimate stamped more than ``max_future`` ahead of
 the clock, or not later than the last one taken, is refused and counted: it neither becomes
@@ -24,15 +34,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
+import time
 from typing import Any
 
 from geometry_msgs.msg import Transform, Twist
 from nav_msgs.msg import Odometry
 import numpy as np
-from std_msgs.msg import Bool, String
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
-from enbarr_interfaces import convert, topics
+from enbarr_interfaces import avoidance, convert, topics
+from enbarr_interfaces.obstacles import cloud_stamp_ns, from_cloud, ObstacleEncodingError
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.health import (
@@ -40,6 +53,8 @@ from enbarr_core.framework.health import (
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.guidance.cbf import (
+    blind_reason, CbfOutput, CbfSettings, moved, obstacle_rows, SafetyFilter)
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
 SPECS = [
@@ -54,6 +69,26 @@ SPECS = [
               "refused (at least the observer's)", 's', 0.0, 0.5),
     ParamSpec('path.heading', 'fixed', 'Heading along the path: fixed (keep the heading held '
               'when guidance starts) or course (face the direction of travel)'),
+    # Collision avoidance (guidance.cbf): off unless the profile turns it on.
+    ParamSpec('avoidance.enabled', False, 'Filter the reference through the control barrier '
+              'functions of the obstacles (automatic and guidance modes)'),
+    ParamSpec('avoidance.safety_radius', 0.2, 'Clearance that must hold between the hull and '
+              'every obstacle', 'm', 0.0, 10.0),
+    ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 when '
+              'avoidance is enabled)', 'm', 0.0, 50.0),
+    ParamSpec('avoidance.tracking_margin', 0.2, 'How far the vessel may lag the desired '
+              'position: added to the zone the desired position keeps out of', 'm', 0.0, 10.0),
+    ParamSpec('avoidance.gamma', 0.5, 'Barrier decay rate: dB/dt >= -gamma B', '1/s', 0.01,
+              10.0),
+    ParamSpec('avoidance.max_speed', 0.3, 'Speed limit of the desired position (above '
+              'path.speed / cos(pi/16), so that the nominal speed passes unchanged)', 'm/s',
+              0.01, 10.0),
+    ParamSpec('avoidance.staleness', 0.5, 'Obstacles older than this against the estimate, or '
+              'no pose for this long: stop and hold', 's', 0.02, 10.0),
+    ParamSpec('avoidance.pull_gain', 0.5, 'Rate at which the desired position returns to the '
+              "law's reference", '1/s', 0.01, 10.0),
+    ParamSpec('avoidance.pass_gain', 1.0, 'Tangential speed along a blocking obstacle per unit '
+              'of speed lost to it (0: stop in front of it)', '', 0.0, 10.0),
 ]
 
 #: The one joint of a reference trajectory: the vessel's body.
@@ -108,6 +143,38 @@ def msg_to_reference(msg: MultiDOFJointTrajectory) -> Reference:
 
 
 @dataclass(frozen=True)
+class AvoidanceSettings:
+    """The ``avoidance.*`` parameters (see ``SPECS``)."""
+
+    enabled: bool
+    staleness: float            # obstacles or pose older than this: blind [s]
+    cbf: CbfSettings
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any], path_speed: float) -> AvoidanceSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        cbf = CbfSettings(
+            safety_radius=v['avoidance.safety_radius'],
+            vessel_radius=v['avoidance.vessel_radius'],
+            tracking_margin=v['avoidance.tracking_margin'], gamma=v['avoidance.gamma'],
+            max_speed=v['avoidance.max_speed'], pull_gain=v['avoidance.pull_gain'],
+            pass_gain=v['avoidance.pass_gain'])
+        try:
+            cbf.validate()
+        except ValueError as err:
+            raise ValueError(f'avoidance.{err}') from err
+        enabled = bool(v['avoidance.enabled'])
+        if enabled and cbf.vessel_radius <= 0.0:
+            raise ValueError('avoidance.vessel_radius: give the hull radius (> 0) to enable '
+                             'avoidance')
+        if enabled and path_speed > cbf.identity_speed:
+            raise ValueError(f'avoidance.max_speed: {cbf.max_speed} m/s would slow the path '
+                             f'speed {path_speed} m/s everywhere (need path.speed <= '
+                             f'max_speed cos(pi/16))')
+        return cls(enabled, float(v['avoidance.staleness']), cbf)
+
+
+@dataclass(frozen=True)
 class GuidanceSettings:
     """Settings of ``GuidanceNode`` (see ``SPECS``)."""
 
@@ -118,6 +185,7 @@ class GuidanceSettings:
     acceptance_radius: float   # waypoint acceptance radius [m]
     heading: str               # 'fixed' or 'course'
     max_future: float = 0.01   # estimates stamped further ahead of the clock are refused [s]
+    avoidance: AvoidanceSettings = AvoidanceSettings(False, 0.5, CbfSettings())
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> GuidanceSettings:
@@ -133,7 +201,8 @@ class GuidanceSettings:
                                  'y1, ... of a path')
             waypoints = [(float(x), float(y)) for x, y in zip(w[::2], w[1::2])]
         s = cls(tuple(waypoints), v['path.speed'], v['path.accel'], v['path.lookahead'],
-                v['path.acceptance_radius'], v['path.heading'], v['max_future'])
+                v['path.acceptance_radius'], v['path.heading'], v['max_future'],
+                AvoidanceSettings.from_params(v, v['path.speed']))
         if len(waypoints) > 1:  # a path: check it now (a single waypoint is checked on use)
             try:
                 s.path_law()
@@ -167,11 +236,24 @@ class GuidanceNode(EnbarrNode):
         self.health = InputHealth()
         self.estimate_period = IntervalMeter()
         self._gate = StampGate()
+        # Collision avoidance: the latest obstacles (rows at their stamp), the observer's
+        # measurement age, the filter, and the hold taken while blind.
+        self.filter: SafetyFilter | None = None
+        self._obstacle_rows = obstacle_rows(())
+        self._obstacles_ns: int | None = None
+        self._measurement_age: float | None = None
+        self.blind: HoldPose | None = None
+        self.blind_reason: str | None = None
+        self.avoidance_output: CbfOutput | None = None
+        self.counts = {'blind': 0, 'infeasible': 0, 'qp_solves': 0, 'obstacles_refused': 0}
         self._ref_pub = self.create_topic_publisher(topics.GUIDANCE_REFERENCE)
+        self._avoid_pub = self.create_topic_publisher(topics.GUIDANCE_AVOIDANCE)
         self._path_pub = self.create_topic_publisher(topics.GUIDANCE_PATH_AVAILABLE)
         self.bind_settings(SPECS, self._build, self._apply)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
         self.create_topic_subscription(topics.MODE, self._on_mode)
+        self.create_topic_subscription(topics.OBSTACLES, self._on_obstacles)
+        self.create_topic_subscription(topics.OBSERVER_AGE, self._on_measurement_age)
         self.create_periodic(1.0, self._report)
 
     def _build(self, v: Mapping[str, Any]) -> GuidanceSettings:
@@ -185,6 +267,10 @@ class GuidanceNode(EnbarrNode):
     def _apply(self, settings: GuidanceSettings) -> None:
         self._gate.policy = StampPolicy(max_future=settings.max_future)
         self.settings = settings
+        if self.filter is not None:   # live: the state (p_d, engaged) is kept
+            self.filter.settings = settings.avoidance.cbf
+        if not settings.avoidance.enabled:
+            self.blind = self.blind_reason = None
         if self.started:  # the first value goes out at start: constructing publishes nothing
             self._publish_path_available()
 
@@ -205,6 +291,8 @@ class GuidanceNode(EnbarrNode):
         if mode is self.mode:
             return
         self.mode, self.law = mode, None
+        self.blind = self.blind_reason = None
+        self.filter = SafetyFilter(self.settings.avoidance.cbf)
         if mode is Mode.MANUAL:
             return
         if self._eta is None:
@@ -241,8 +329,69 @@ class GuidanceNode(EnbarrNode):
         self._eta = eta = convert.pose_to_eta(msg.pose.pose)
         if self.law is None or last is None:
             return
-        self.reference = ref = self.law.reference(eta, (t - last) * 1e-9)
+        dt = (t - last) * 1e-9
+        if self.settings.avoidance.enabled and self.filter is not None:
+            ref = self._avoid(eta, t, dt)
+        else:
+            ref = self.law.reference(eta, dt)
+        self.reference = ref
         self._ref_pub.publish(reference_to_msg(ref, msg.header))
+
+    def _avoid(self, eta: np.ndarray, t: int, dt: float) -> Reference:
+        """Filter the law's reference (a hold at the estimate while blind)."""
+        assert self.law is not None and self.filter is not None
+        av = self.settings.avoidance
+        reason = blind_reason(t, self._obstacles_ns, self._measurement_age, av.staleness)
+        if reason is not None:
+            if self.blind is None:   # the law's clock stops: it resumes where it was
+                self.blind = HoldPose(eta)
+                self.counts['blind'] += 1
+                self.get_logger().warn(f'collision avoidance blind, holding: {reason}')
+            self.blind_reason = reason
+            ref = self.blind.reference(eta, dt)
+            self.avoidance_output = None
+            self._publish_avoidance(t, 0.0, None, blind=True)
+            return ref
+        if self.blind is not None:
+            self.get_logger().info('collision avoidance sees again: resuming')
+            self.filter.engage_at(np.array(self.blind.eta[:2]))   # from the hold, no step
+            self.blind = self.blind_reason = None
+        nominal = self.law.reference(eta, dt)
+        assert self._obstacles_ns is not None   # else blind
+        rows = moved(self._obstacle_rows, (t - self._obstacles_ns) * 1e-9)  # to the estimate
+        start = time.perf_counter()
+        out = self.filter.step(eta, nominal, rows, dt)
+        elapsed = time.perf_counter() - start
+        self.avoidance_output = out
+        self.counts['qp_solves'] += out.solved
+        if out.infeasible:
+            self.counts['infeasible'] += 1
+            self.get_logger().warn(f'collision avoidance: {out.reason}',
+                                   throttle_duration_sec=1.0)
+        self._publish_avoidance(t, elapsed, out, blind=False)
+        return out.reference
+
+    def _publish_avoidance(self, t: int, elapsed: float, out: CbfOutput | None, *,
+                           blind: bool) -> None:
+        values = {'solve_time': elapsed, 'active': out.active if out else 0,
+                  'infeasible': float(bool(out and out.infeasible)),
+                  'min_barrier': out.min_barrier if out else math.nan,
+                  'engaged': float(bool(out and out.engaged)), 'blind': float(blind),
+                  'obstacles': len(self._obstacle_rows)}
+        self._avoid_pub.publish(avoidance.to_msg(values, t, self._obstacles_ns))
+
+    def _on_obstacles(self, msg: PointCloud2) -> None:
+        try:
+            obstacles = from_cloud(msg)
+        except ObstacleEncodingError as err:   # kept stale: avoidance then holds
+            self.counts['obstacles_refused'] += 1
+            self.get_logger().warn(str(err), throttle_duration_sec=1.0)
+            return
+        self._obstacle_rows = obstacle_rows(obstacles)
+        self._obstacles_ns = cloud_stamp_ns(msg)
+
+    def _on_measurement_age(self, msg: Float64) -> None:
+        self._measurement_age = float(msg.data)
 
     def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
         """(level, message, values) for ``/diagnostics``; closes the input-health window."""
@@ -256,11 +405,22 @@ class GuidanceNode(EnbarrNode):
         if problem:
             rates = (DEGRADED, problem)
             self.report_problem(f'parameter {problem}')
-        level, message = worst(own, (level, message), rates)
+        avoid = (OK, 'ok')
+        if self.blind_reason is not None:
+            avoid = (DEGRADED, f'holding: {self.blind_reason}')
+        elif self.avoidance_output is not None and self.avoidance_output.infeasible:
+            avoid = (DEGRADED, f'avoidance {self.avoidance_output.reason}')
+        level, message = worst(own, (level, message), rates, avoid)
+        out = self.avoidance_output
         return level, (self.mode.value if level == OK else message), {
             'mode': self.mode.value, 'failures': self.failures,
             'finished': ref is not None and ref.finished,
-            'cross_track': 'none' if cross_track is None else cross_track, **totals}
+            'cross_track': 'none' if cross_track is None else cross_track,
+            'avoidance': 'on' if self.settings.avoidance.enabled else 'off',
+            'avoidance_blind': self.blind_reason or 'no',
+            'avoidance_engaged': bool(out and out.engaged),
+            'avoidance_min_barrier': 'none' if out is None else out.min_barrier,
+            **{f'avoidance_{k}': v for k, v in self.counts.items()}, **totals}
 
     def _report(self) -> None:
         self.publish_diagnostics(*self.diagnostic_status())
