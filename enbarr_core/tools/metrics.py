@@ -74,6 +74,9 @@ from enbarr_interfaces import convert
 from enbarr_core.framework.frames import compass_error_deg, compass_heading_deg
 from enbarr_core.framework.kinematics import ssa
 from enbarr_core.recording.bag import read_bag
+from enbarr_core.tools.scenario import T0_NS
+from enbarr_core.tools.avoidance_metrics import (AVOIDANCE_FIGURES, avoidance_figures,
+                                                 avoids, draw_world)
 
 #: The topics ``compute_metrics`` reads (``enbarr scenario`` records these by default).
 METRIC_TOPICS = ('/sim/odometry', '/mode', '/force_command', '/allocation/delivered',
@@ -104,6 +107,7 @@ FIGURES: dict[str, Figure] = {
     **{name: Figure(_PATH) for name in (
         'cross_track_rms_m', 'cross_track_max_m', 'path_time_s', 'final_position_error_m')},
     'all_waypoints_visited': Figure(_PATH, boolean=True),
+    **{name: Figure() for name in AVOIDANCE_FIGURES},
 }
 
 
@@ -116,6 +120,8 @@ GUIDANCE_PLUGINS = ('guidance',)  # nodes whose path.waypoints is the path to fo
 VISIT_RADIUS = 0.25    # a waypoint counts as visited this close [m]
 ARRIVAL_RADIUS = 0.1   # arrived at the last waypoint this close [m]
 DROPOUT_AFTER = 1.0    # the dropout error is judged up to this long after a window [s]
+WORLD_EPOCH_S = T0_NS * 1e-9  # a scenario's world time 0 on its clock [s]
+WORLD_MARGIN = 1.5      # the path panel shows the world this far around the run [m]
 STAMP_TOL = 1e-6       # times closer than this are equal: stamps are integer ns read as float s
 FINAL_SPEED_SPAN = 1.0  # final_speed_mps is over this last stretch of the run [s]
 
@@ -281,7 +287,24 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
         out.update(_station_keeping(t, eta, ref_t, ref, modes, spec, profile))
     elif spec.kind == 'path':
         out.update(_path(t, eta, modes, profile))
+    if avoids(profile):
+        out.update(avoidance_figures(msgs, profile, t, eta, WORLD_EPOCH_S,
+                                     path=out if spec.kind == 'path' else None,
+                                     cross_track=_guidance_cross_track(t, eta, modes, profile)))
     return out
+
+
+def _guidance_cross_track(t: np.ndarray, eta: np.ndarray, modes: list[tuple[float, str]],
+                          profile: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """Return (times, cross-track errors) over the guidance period, as the path figures do."""
+    guided = _period(modes, 'guidance')
+    wps = _waypoints(profile)
+    if guided is None or len(wps) < 2:
+        return None
+    sel = (t >= guided[0] - STAMP_TOL) & (t < guided[1] - STAMP_TOL)
+    if not sel.any():
+        return None
+    return t[sel], _cross_track(eta[sel, :2], wps)
 
 
 def _station_keeping(t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray, ref: np.ndarray,
@@ -453,8 +476,18 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     station = spec.kind == 'station_keeping'
     fig = plt.figure(figsize=(15, 19), layout='constrained')
     grid = fig.add_gridspec(6, 2, width_ratios=(1.0, 1.0))
-    _path_panel(fig.add_subplot(grid[0:3 if station else 4, 0]), plt, t, eta, ref_t, ref,
-                spec, profile)
+    path_ax = fig.add_subplot(grid[0:3 if station else 4, 0])
+    world = len(getattr(profile, 'world', ()))
+    if world:
+        draw_world(path_ax, plt, msgs, profile, t, eta, WORLD_EPOCH_S)
+    _path_panel(path_ax, plt, t, eta, ref_t, ref, spec, profile)
+    if world:  # at the scale of the run, not of the basin's walls
+        wps = _waypoints(profile) if spec.kind == 'path' else np.zeros((0, 2))
+        around = np.vstack((eta[:, :2], wps))
+        lo, hi = around.min(axis=0) - WORLD_MARGIN, around.max(axis=0) + WORLD_MARGIN
+        path_ax.set_xlim(lo[0], hi[0])
+        path_ax.set_ylim(lo[1], hi[1])
+        path_ax.set_aspect('equal', adjustable='box')
     if station:
         _hold_panel(fig.add_subplot(grid[3:5, 0]), plt, t, eta, ref_t, ref, modes, spec)
     _verdict_panel(fig.add_subplot(grid[5, 0] if station else grid[4:6, 0]), verdict)

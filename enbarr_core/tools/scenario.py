@@ -144,11 +144,13 @@ def resolve(name: str) -> str:
 
 def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> tuple[str, ...]:
     """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
+    from enbarr_core.tools.avoidance_metrics import AVOIDANCE_TOPICS, avoids
     from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
     if record_all:
         return ()
     listed = profile.record.topics if profile.record is not None else ()
-    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *listed}))
+    avoiding = AVOIDANCE_TOPICS if avoids(profile) else ()
+    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *listed}))
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),

@@ -54,8 +54,8 @@ class Target:
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not math.isfinite(value):
             return False
-        return ((self.low is None or value >= self.low)
-                and (self.high is None or value <= self.high))
+        return bool((self.low is None or value >= self.low)
+                    and (self.high is None or value <= self.high))  # numpy's bool too
 
 
 def parse_targets(raw: Any, kind: str, known: Mapping[str, bool],
