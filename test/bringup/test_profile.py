@@ -987,7 +987,8 @@ def test_fragment_must_be_boolean(tmp_path: Path) -> None:
 
 def test_installed_profiles_tell_fragments_and_descriptions() -> None:
     listed = {p.name: p for p in profiles.installed_profiles()}
-    assert {n for n, p in listed.items() if p.fragment} == {'core', 'saucer_core', 'skiff_core'}
+    assert {n for n, p in listed.items() if p.fragment} == {'core', 'saucer_core', 'skiff_core',
+                                                            'saucer_ca_core'}
     assert listed['enbarr_sim'].description == (
         'Enbarr ROV, everything simulated, scripted surface commands.')
     assert all(p.description and p.readable for p in listed.values())

@@ -1,0 +1,67 @@
+"""End-to-end tier for the CS Saucer's collision avoidance: the ``ca_*`` scenarios run headless
+on simulated time (``enbarr scenario``) through the whole chain: the simulated A1 scanning
+the scenario's world, ``scan_obstacles``, the barrier functions in the guidance, the DP
+controller and the allocation, on the simulated vessel. Each passes its own targets
+(``scenario.targets``: the clearance from the world's ground truth first), and each is judged
+again here on what makes it that scenario.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import subprocess
+from typing import Any
+
+from support.cli import ENBARR
+
+SAFETY_RADIUS = 0.2   # params/saucer_ca_core.yaml: hull to obstacle [m]
+MARGIN = 0.04         # the range noise and pose error the targets allow (their comments) [m]
+
+
+def scenario(name: str, out: Path) -> dict[str, Any]:
+    proc = subprocess.run([*ENBARR, 'scenario', name, '--output', str(out)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result['verdict'] == 'pass' and result['failed'] == []  # its own targets
+    assert result['min_clearance_m'] >= SAFETY_RADIUS - MARGIN     # the hard bound
+    assert result['all_waypoints_visited']
+    return result
+
+
+def test_buoy_on_the_box_path_is_gone_round(tmp_path: Path) -> None:
+    r = scenario('ca_buoy', tmp_path / 'out')
+    assert r['nearest_obstacle'] == 'buoy'
+    assert r['avoidance_s'] > 5.0           # the filter steered, and let go again:
+    assert r['cross_track_outside_avoidance_rms_m'] < 0.09
+    assert r['infeasible_steps'] == 0 and r['blind_s'] == 0.0
+
+
+def test_a_boat_head_on_is_given_way_to(tmp_path: Path) -> None:
+    """The boat closes at 0.4 m/s: the filter acts on its tracked velocity."""
+    r = scenario('ca_head_on', tmp_path / 'out')
+    assert r['nearest_obstacle'] == 'boat'
+    assert r['tracking_velocity_error_rms_mps'] < 0.15
+
+
+def test_the_corridor_is_kept_to(tmp_path: Path) -> None:
+    r = scenario('ca_corridor', tmp_path / 'out')
+    assert r['cross_track_max_m'] < 0.05
+    assert abs(r['clearance_by_obstacle']['wall_north']
+               - r['clearance_by_obstacle']['wall_south']) < 0.05   # down the middle
+
+
+def test_ten_scattered_buoys(tmp_path: Path) -> None:
+    r = scenario('ca_ten_buoys', tmp_path / 'out')
+    assert len(r['clearance_by_obstacle']) == 11   # ten buoys and the basin
+    assert min(r['clearance_by_obstacle'].values()) == r['min_clearance_m']
+
+
+def test_a_lidar_stalled_during_an_avoidance_stops_and_holds(tmp_path: Path) -> None:
+    """Stalled 4-10 s: blind from 0.5 s after the last scan to the first confirmed one again,
+    holding still; then on round the buoy."""
+    r = scenario('ca_lidar_dropout', tmp_path / 'out')
+    assert 5.0 <= r['blind_s'] <= 6.5
+    assert r['blind_travel_m'] < 0.3
+    assert r['nearest_obstacle'] == 'buoy'
