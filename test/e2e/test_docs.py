@@ -59,7 +59,10 @@ SH_BLOCK = re.compile(r'^```sh\n(.*?)^```', re.M | re.S)
 TIMEOUT = 120.0
 
 #: ``python -m MODULE`` in the docs -> the smallest options that run it through.
-MODULE_RUNS: dict[str, list[str]] = {}  # none today: the benchmarks are `enbarr bench`
+#: ``python -m MODULE`` commands of the docs and what is appended to run them bounded.
+MODULE_RUNS: dict[str, list[str]] = {
+    'timeit': [],   # the attitude filter's step: the doc's -n bounds it (a second or so)
+}
 
 
 @dataclass(frozen=True)
