@@ -17,13 +17,15 @@ from enbarr_core.framework.frames import Transform
 from enbarr_interfaces import topics
 
 SHIPPED = sorted(p.stem for d in search_dirs()[-1:] for p in d.glob('*.yaml'))
+#: Fragments that only add nodes to a vessel's tree: checked in the profiles that include them.
+ADD_ONS = {'saucer_ca_core': ('saucer_ca', 'saucer_ca_sim')}
 #: Which node kind publishes each pose topic a tree may name.
 POSE_PUBLISHERS = {'observer/odometry': {'dp_observer'}, 'imu/data': {'attitude_filter'}}
-LIDARS, CAMERAS = {'rplidar'}, {'camera'}
+LIDARS, CAMERAS = {'rplidar', 'sim_lidar'}, {'camera'}
 IMUS = {'sim_imu', 'lsm9ds1_imu', 'fxos8700_imu'}
 
 
-@pytest.mark.parametrize('name', SHIPPED)
+@pytest.mark.parametrize('name', [n for n in SHIPPED if n not in ADD_ONS])
 def test_every_shipped_tree_names_what_its_nodes_publish(name: str) -> None:
     profile = load_profile(name, allow_fragment=True)
     tree, plugins = profile.frames, {n.plugin for n in profile.nodes}
@@ -37,6 +39,15 @@ def test_every_shipped_tree_names_what_its_nodes_publish(name: str) -> None:
         assert {topics.CAMERA_FRAME, topics.CAMERA_OPTICAL_FRAME} <= set(tree.names())
     if plugins & IMUS:
         assert topics.IMU_FRAME in tree
+
+
+@pytest.mark.parametrize('fragment', sorted(ADD_ONS))
+def test_an_add_on_fragment_declares_no_tree_and_shipped_profiles_include_it(
+        fragment: str) -> None:
+    text = (search_dirs()[-1] / f'{fragment}.yaml').read_text()
+    assert 'frames:' not in text and 'include:' not in text  # nodes added to another's tree
+    for name in ADD_ONS[fragment]:  # a tree with its lidar, checked above
+        assert name in SHIPPED and fragment in {Path(f).stem for f in load_profile(name).files}
 
 
 def test_the_contract_names_the_frames_the_drivers_stamp() -> None:
