@@ -4,6 +4,10 @@ private rclpy context with a bounded spin helper for node tests.
 Test tiers (markers registered in ``setup.cfg``, run one with ``./dev test -m unit``):
 
 - ``unit``: pure Python, no rclpy context, no subprocess (seconds; the edit-test loop).
+- ``sim``: pure Python as ``unit``, but a closed loop or a long horizon integrated step by
+  step (a vessel, its observer and controller over a manoeuvre; a filter converging over
+  minutes of samples): seconds each. Marked explicitly (``@pytest.mark.sim``), so the
+  edit-test loop stays fast; ``./dev test`` runs it with the others.
 - ``node``: nodes built on an in-process executor (the ``context``/``executor`` fixtures).
 - ``e2e``: whole profiles or the command line, run in processes as a user runs them.
 
@@ -11,9 +15,10 @@ Every test gets exactly one tier, derived at collection (``pytest_collection_mod
 a tier marker on the test (``pytestmark = pytest.mark.e2e`` in the module, or a decorator)
 wins; otherwise a test under ``test/e2e/`` is ``e2e``, a test that uses the ``context`` or
 ``executor`` fixture is ``node``, and anything else is ``unit``. Collection fails (exit code
-4, naming the tests) when a test carries two tiers, or is marked ``unit`` but asks for an
-rclpy context. A ``unit`` test that starts a process or initializes rclpy fails at that call
-(``_unit_tier_guard``): mark it ``e2e`` (processes) or use the ``context`` fixture (node).
+4, naming the tests) when a test carries two tiers, or is marked ``unit`` or ``sim`` but asks
+for an rclpy context. A ``unit`` or ``sim`` test that starts a process or initializes rclpy
+fails at that call (``_unit_tier_guard``): mark it ``e2e`` (processes) or use the
+``context`` fixture (node).
 ``test/test_tiers.py`` checks these rules.
 """
 
@@ -36,7 +41,8 @@ import subprocess  # noqa: E402
 import pytest  # noqa: E402
 from support.waiting import spin_until  # noqa: E402
 
-TIERS = ('unit', 'node', 'e2e')
+TIERS = ('unit', 'sim', 'node', 'e2e')
+PURE_TIERS = ('unit', 'sim')  # no rclpy context, no process
 NODE_FIXTURES = frozenset({'context', 'executor'})
 E2E_DIR = Path('test', 'e2e')  # relative to the root directory (where setup.cfg is)
 
@@ -47,9 +53,9 @@ def tier_of(item: pytest.Item) -> tuple[str | None, str | None]:
     uses_node = sorted(NODE_FIXTURES & set(getattr(item, 'fixturenames', ())))
     if len(marked) > 1:
         return None, f'two tiers ({", ".join(marked)}); a test has exactly one'
-    if marked == ['unit'] and uses_node:
-        return None, (f'marked unit but uses the {uses_node[0]!r} fixture (an rclpy context): '
-                      'that is the node tier')
+    if len(marked) == 1 and marked[0] in PURE_TIERS and uses_node:
+        return None, (f'marked {marked[0]} but uses the {uses_node[0]!r} fixture (an rclpy '
+                      'context): that is the node tier')
     if marked:
         return marked[0], None
     if (item.config.rootpath / E2E_DIR) in Path(item.path).parents:
@@ -72,14 +78,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 class TierError(AssertionError):
-    """A unit-tier test did what only the node or e2e tier may do."""
+    """A unit- or sim-tier test did what only the node or e2e tier may do."""
 
 
 @pytest.fixture(autouse=True)
 def _unit_tier_guard(request: pytest.FixtureRequest,
                      monkeypatch: pytest.MonkeyPatch) -> None:
-    """In a unit test, starting a process or initializing rclpy raises ``TierError``."""
-    if request.node.get_closest_marker('unit') is None:
+    """In a unit or sim test, starting a process or initializing rclpy raises ``TierError``."""
+    if not any(request.node.get_closest_marker(t) for t in PURE_TIERS):
         return
 
     def refuse(what: str) -> Callable[..., None]:

@@ -110,3 +110,36 @@ def test_unit_test_initializing_rclpy_fails(tree: pytest.Pytester) -> None:
     result = tree.runpytest_inprocess()
     result.assert_outcomes(failed=1)
     result.stdout.fnmatch_lines(['*TierError: a unit test initialized an rclpy context*'])
+
+
+def test_sim_is_marked_and_leaves_the_unit_tier(tree: pytest.Pytester) -> None:
+    """A closed loop of seconds is marked sim: out of the edit-test loop, pure all the same."""
+    write(tree, 'test/test_a.py', """
+        @pytest.mark.sim
+        def test_closed_loop(): pass
+        def test_pure(): pass
+    """)
+    assert selected(tree, 'sim') == {'test_closed_loop'}
+    assert selected(tree, 'unit') == {'test_pure'}
+
+
+def test_sim_marker_with_an_rclpy_context_fails_collection(tree: pytest.Pytester) -> None:
+    write(tree, 'test/test_a.py', """
+        @pytest.mark.sim
+        def test_claims_sim(executor): pass
+    """)
+    result = tree.runpytest_inprocess()
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines(["*test_claims_sim: marked sim but uses the 'context'*"])
+
+
+@pytest.mark.node  # not unit: this test's own guard would refuse the inner test's process
+def test_sim_test_starting_a_process_fails(tree: pytest.Pytester) -> None:
+    write(tree, 'test/test_a.py', """
+        import subprocess, sys
+        @pytest.mark.sim
+        def test_spawns(): subprocess.run([sys.executable, '-c', 'pass'])
+    """)
+    result = tree.runpytest_inprocess()
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(['*TierError: a unit test started a process*'])

@@ -68,6 +68,7 @@ def test_the_plant_written_out_is_the_manuals_matrix_form(quadratic):
 # --- station keeping ---------------------------------------------------------------------
 
 
+@pytest.mark.sim
 def test_integral_removes_the_steady_error_of_a_current_like_bias():
     """Truth feedback, no bias feed-forward: only the integral can cancel the bias."""
     s = settings(bias_feedforward=False, integral_limit=(1.0, 1.0, 0.1))
@@ -107,6 +108,7 @@ def station_keeping(seconds=120.0, seed=3, bias_feedforward=True):
     return np.array(log)
 
 
+@pytest.mark.sim
 def test_station_keeping_with_observer_and_noise():
     log = station_keeping()
     late = log[:, 0] > 60.0
@@ -375,6 +377,7 @@ def test_feed_forward_terms():
 # --- second formulation: python-control ----------------------------------------------------
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('dof', range(3))
 def test_linearized_closed_loop_per_dof_matches_python_control(dof):
     """Per DOF, linear plant 1 / (M s^2 + D s) with the PID (derivative on nu):

@@ -172,6 +172,7 @@ def test_truth_rates_match_the_attitude_trajectory() -> None:
 # --- accuracy and consistency (60 s, 400 Hz, magnetometer) --------------------------------
 
 
+@pytest.mark.sim
 def test_attitude_converges_and_tracks(mag_run: Run) -> None:
     """From a 6/6/30 deg initial error: after 10 s, RMS roll/pitch < 0.5 deg, yaw < 1 deg."""
     err = mag_run.euler_errors()[mag_run.mask()]
@@ -225,6 +226,7 @@ def test_estimate_arrays_are_read_only(mag_run: Run) -> None:
 # --- without magnetometer -----------------------------------------------------------------
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('use_magnetometer, pass_mag', [(False, True), (True, False)])
 def test_roll_pitch_converge_without_magnetometer(imu30: Imu, use_magnetometer: bool,
                                                   pass_mag: bool) -> None:
@@ -251,6 +253,7 @@ def test_roll_pitch_converge_without_magnetometer(imu30: Imu, use_magnetometer: 
 START_HEADINGS = [-math.pi + 0.02, -2.0, -0.7, 1.2, math.pi - 0.02]
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('yaw0', START_HEADINGS)
 def test_heading_is_found_from_any_start_heading(yaw0: float) -> None:
     """The vehicle starts at heading yaw0 (rocking, turning 0.15 rad/s, so the near-pi starts
@@ -268,6 +271,7 @@ def test_heading_is_found_from_any_start_heading(yaw0: float) -> None:
     assert rms_deg(np.radians(yaw_err[r.mask()])) < YAW_RMS_DEG
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('yaw0', START_HEADINGS)
 def test_heading_error_converges_through_the_wrap(yaw0: float) -> None:
     """Started 20 deg off in heading (and 3 deg in roll and pitch): the magnetometer's Kalman
@@ -415,6 +419,7 @@ def surge_run(yaw0: float, settings: AttitudeFilterSettings = GATED) -> tuple[
     return t, est
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('yaw0', [0.0, math.pi, -2.0, math.pi / 2])
 def test_surge_acceleration_does_not_turn_heading_or_yaw_rate(yaw0: float) -> None:
     """Driving off and stopping (0.5 m/s^2 along body x, 0.8 s each) must not move the tilt,
@@ -522,6 +527,7 @@ def pendulous_drive(gyro_density: float, seed: int = 5, yaw0: float = 0.3) -> tu
     return t, rot, rate, gyro, accel, mag, alpha
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('gyro_noise', [1e-4, SETTINGS.gyro_noise], ids=['matched', 'default'])
 def test_fresh_filter_on_a_pendulous_hull_keeps_gravity(gyro_noise: float) -> None:
     """The simulated ROV with the filter's gyro_noise matched to its gyro (1e-4) drove off at
@@ -557,6 +563,7 @@ def test_fresh_filter_on_a_pendulous_hull_keeps_gravity(gyro_noise: float) -> No
     assert np.mean([e.accel_used for e in est[1:]]) > 0.99
 
 
+@pytest.mark.sim
 def test_innovation_gate_gives_way_after_its_timeout() -> None:
     """Two 3 s accelerations (0.6 of accel_gate_timeout each, rest between) are skipped
     whole: the count of failed samples starts again after a passing one. A 5 deg roll step

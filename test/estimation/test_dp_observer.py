@@ -75,6 +75,7 @@ def converged_observer(seconds=90.0, seed=1, noise=True):
 # --- convergence -----------------------------------------------------------------------------
 
 
+@pytest.mark.sim
 def test_estimates_converge_with_noise_and_a_world_bias():
     obs, x, t, log, _ = converged_observer(120.0)
     late = log[:, 0] > 60.0
@@ -96,6 +97,7 @@ def test_estimates_converge_with_noise_and_a_world_bias():
     assert np.ptp(log[:, 13]) > 1.0 and np.ptp(log[:, 14]) > 1.0
 
 
+@pytest.mark.sim
 def test_noise_free_error_converges_to_zero_exponentially():
     """T_b = inf (pure bias integrator): the whole error (pose, velocity, bias) decays
     exponentially to the O(dt^2) floor of the 50 Hz discretization.
@@ -311,6 +313,7 @@ def heun_vs_rk4(dt, noise, seconds=30.0):
     return np.abs(diff).max(axis=0), np.abs(ref).max(axis=0)
 
 
+@pytest.mark.sim
 def test_heun_discretization_matches_a_fine_rk4_reference():
     err, scale = heun_vs_rk4(DT, noise=True)
     assert np.all(err < 5e-3 * scale)        # within 0.5 % of each state's range at 50 Hz

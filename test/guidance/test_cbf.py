@@ -343,6 +343,7 @@ STRAIGHT = [(0.0, 0.0), (5.0, 0.0)]
 BOX = [(0.0, 0.0), (3.0, 0.0), (3.0, 3.0), (0.0, 3.0), (0.0, 0.0)]
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('path, seconds', [(STRAIGHT, 35.0), (BOX, 70.0)])
 @pytest.mark.parametrize('scale', [0.7, 1.0, 1.3])
 def test_true_vessel_keeps_the_safety_radius_on_randomized_obstacles(path, seconds, scale):
@@ -356,6 +357,7 @@ def test_true_vessel_keeps_the_safety_radius_on_randomized_obstacles(path, secon
         assert f.infeasible_count == 0
 
 
+@pytest.mark.sim
 def test_without_the_barrier_the_vessel_hits_the_same_obstacles():
     """The closed-loop test can fail: the same loop without the filter comes too close."""
     obstacles = [circle(2.5, 0.1, 0.3)]
@@ -368,6 +370,7 @@ def test_without_the_barrier_the_vessel_hits_the_same_obstacles():
     assert eta[0] > 4.5                     # and it got past
 
 
+@pytest.mark.sim
 def test_head_on_boat_on_the_path_in_closed_loop():
     boat = [circle(5.0, 0.05, 0.2, vx=-0.12)]
     law = LosPath(STRAIGHT, 0.2, 0.5, 0.1, heading='course')
@@ -376,6 +379,7 @@ def test_head_on_boat_on_the_path_in_closed_loop():
     assert f.infeasible_count == 0
 
 
+@pytest.mark.sim
 def test_go_to_waypoint_behind_an_obstacle_in_closed_loop():
     law = GoToWaypoint((0.0, 0.0, 0.0), (3.0, 0.0), 0.2, 0.05)
     worst, eta, _ = closed_loop(law, [circle(1.5, 0.0, 0.3)], 50.0, (0.0, 0.0, 0.0),
@@ -412,6 +416,7 @@ def force_closed_loop(path, obstacles, seconds, *, scale, seed):
     return worst, eta, f
 
 
+@pytest.mark.sim
 def test_force_level_hocbf_against_the_guidance_level_filter():
     """With its own model the force-level filter keeps the clearance (within the estimate's
     noise and the 50 Hz step: 1 cm) and needs no tracking margin; with the plant 30 % heavier

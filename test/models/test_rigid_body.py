@@ -196,6 +196,7 @@ def _surge_only(**overrides) -> RigidBodyParams:
         **overrides)
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('yaw, heading', [(0.0, (1.0, 0.0)), (math.pi / 2, (0.0, 1.0))])
 def test_surge_steady_state_is_root_of_damping_quadratic(yaw, heading):
     """Neutral vessel, surge damping only: d_lin u + d_quad u|u| = X at steady state."""
@@ -213,6 +214,7 @@ def test_surge_steady_state_is_root_of_damping_quadratic(yaw, heading):
     assert abs(state.p[2]) < 1e-12
 
 
+@pytest.mark.sim
 def test_positively_buoyant_vessel_rises_at_terminal_velocity():
     """B > W: the vessel goes up (+z ENU) and d_lin w + d_quad w|w| = B - W at steady state."""
     prm = RigidBodyParams(
@@ -275,6 +277,7 @@ def _bottom_heavy() -> RigidBodyParams:
         d_lin=(4.0, 6.0, 5.0, 0.3, 0.3, 0.3), d_quad=(20.0, 20.0, 30.0, 0.5, 0.5, 0.5))
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('axis', [0, 1])
 def test_bottom_heavy_vessel_rights_itself(axis):
     """CG below CB, tilted 20 deg and released: righting moment -W BG sin(angle), back to level."""
@@ -518,6 +521,7 @@ def test_moving_with_the_water_is_force_free(yaw):
     assert np.linalg.norm(model.nu_dot(q, nu, np.zeros(6))) > 0.01
 
 
+@pytest.mark.sim
 def test_vehicle_at_rest_is_carried_by_the_current():
     """No thrust, starting at rest: the neutral vehicle ends moving with the water over ground
     (p_dot -> v_c) and stops turning. Budget: the slowest mode is yaw, (I_z + N_rdot) / N_r =
@@ -535,6 +539,7 @@ def test_vehicle_at_rest_is_carried_by_the_current():
     assert np.all(np.abs(state.p - p0 - 120.0 * CURRENT) < np.abs(5.0 * CURRENT) + 1e-9)
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('yaw', [0.0, math.pi / 2])
 def test_surge_in_a_head_current_is_still_water_speed_plus_current(yaw):
     """Surge damping only, thrust X ahead, current u_c along the heading: the damping sees

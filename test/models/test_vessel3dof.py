@@ -105,6 +105,7 @@ def reference_run(y0, t_end, current, bias):
     return y
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize('with_env', [False, True], ids=['calm', 'current+bias'])
 def test_rk4_matches_reference_integration(with_env):
     current = (0.12, -0.07) if with_env else (0.0, 0.0)
