@@ -175,7 +175,8 @@ GUIDANCE_AVOIDANCE = TopicSpec(
     'What the collision avoidance did for each estimate while it is on (automatic or '
     'guidance): stamps of the estimate and of the obstacles used, safety filter time, '
     'binding constraints, infeasible, min barrier, engaged, blind. layout.dim[0].label = the '
-    'comma-joined field names; encoding enbarr_interfaces.avoidance, docs/interfaces.md.')
+    'comma-joined field names; encoding enbarr_interfaces.avoidance, docs/interfaces.md.',
+    fast=True)
 GUIDANCE_PATH_AVAILABLE = TopicSpec(
     'guidance/path_available', Bool, LATCHED_QOS, '', '',
     'Whether the guidance node has a path or waypoint to follow (the controller refuses '
@@ -208,7 +209,7 @@ OBSTACLES = TopicSpec(
     'obstacles', PointCloud2, SENSOR_QOS, 'm, m/s, m^2', WORLD_FRAME,
     'Tracked obstacles, one point per obstacle (a capsule: segment x,y-x2,y2 with radius), '
     'with velocity and covariance; header.stamp = stamp of the measurement it came from. '
-    'Encoding: enbarr_interfaces.obstacles, docs/interfaces.md "Obstacles".')
+    'Encoding: enbarr_interfaces.obstacles, docs/interfaces.md "Obstacles".', fast=True)
 OBSTACLE_MARKERS = TopicSpec(
     'obstacles/markers', MarkerArray, SENSOR_QOS, 'm', WORLD_FRAME,
     'The obstacles drawn for a viewer (Foxglove, RViz): not for machines, read obstacles.')

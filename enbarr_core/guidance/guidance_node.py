@@ -239,8 +239,9 @@ class GuidanceNode(EnbarrNode):
         # Collision avoidance: the latest obstacles (rows at their stamp), the observer's
         # measurement age, the filter, and the hold taken while blind.
         self.filter: SafetyFilter | None = None
-        self._obstacle_rows = obstacle_rows(())
-        self._obstacles_ns: int | None = None
+        # (rows, stamp of their scan): one object, swapped whole, because the obstacles
+        # arrive on another thread than the estimates that read them.
+        self._obstacles: tuple[np.ndarray, int | None] = (obstacle_rows(()), None)
         self._measurement_age: float | None = None
         self.blind: HoldPose | None = None
         self.blind_reason: str | None = None
@@ -341,7 +342,8 @@ class GuidanceNode(EnbarrNode):
         """Filter the law's reference (a hold at the estimate while blind)."""
         assert self.law is not None and self.filter is not None
         av = self.settings.avoidance
-        reason = blind_reason(t, self._obstacles_ns, self._measurement_age, av.staleness)
+        rows, obstacles_ns = self._obstacles
+        reason = blind_reason(t, obstacles_ns, self._measurement_age, av.staleness)
         if reason is not None:
             if self.blind is None:   # the law's clock stops: it resumes where it was
                 self.blind = HoldPose(eta)
@@ -350,15 +352,15 @@ class GuidanceNode(EnbarrNode):
             self.blind_reason = reason
             ref = self.blind.reference(eta, dt)
             self.avoidance_output = None
-            self._publish_avoidance(t, 0.0, None, blind=True)
+            self._publish_avoidance(t, 0.0, None, len(rows), obstacles_ns, blind=True)
             return ref
         if self.blind is not None:
             self.get_logger().info('collision avoidance sees again: resuming')
             self.filter.engage_at(np.array(self.blind.eta[:2]))   # from the hold, no step
             self.blind = self.blind_reason = None
         nominal = self.law.reference(eta, dt)
-        assert self._obstacles_ns is not None   # else blind
-        rows = moved(self._obstacle_rows, (t - self._obstacles_ns) * 1e-9)  # to the estimate
+        assert obstacles_ns is not None   # else blind
+        rows = moved(rows, (t - obstacles_ns) * 1e-9)  # to the estimate's time
         start = time.perf_counter()
         out = self.filter.step(eta, nominal, rows, dt)
         elapsed = time.perf_counter() - start
@@ -368,17 +370,17 @@ class GuidanceNode(EnbarrNode):
             self.counts['infeasible'] += 1
             self.get_logger().warn(f'collision avoidance: {out.reason}',
                                    throttle_duration_sec=1.0)
-        self._publish_avoidance(t, elapsed, out, blind=False)
+        self._publish_avoidance(t, elapsed, out, len(rows), obstacles_ns, blind=False)
         return out.reference
 
-    def _publish_avoidance(self, t: int, elapsed: float, out: CbfOutput | None, *,
-                           blind: bool) -> None:
+    def _publish_avoidance(self, t: int, elapsed: float, out: CbfOutput | None, count: int,
+                           obstacles_ns: int | None, *, blind: bool) -> None:
         values = {'solve_time': elapsed, 'active': out.active if out else 0,
                   'infeasible': float(bool(out and out.infeasible)),
                   'min_barrier': out.min_barrier if out else math.nan,
                   'engaged': float(bool(out and out.engaged)), 'blind': float(blind),
-                  'obstacles': len(self._obstacle_rows)}
-        self._avoid_pub.publish(avoidance.to_msg(values, t, self._obstacles_ns))
+                  'obstacles': count}
+        self._avoid_pub.publish(avoidance.to_msg(values, t, obstacles_ns))
 
     def _on_obstacles(self, msg: PointCloud2) -> None:
         try:
@@ -387,8 +389,7 @@ class GuidanceNode(EnbarrNode):
             self.counts['obstacles_refused'] += 1
             self.get_logger().warn(str(err), throttle_duration_sec=1.0)
             return
-        self._obstacle_rows = obstacle_rows(obstacles)
-        self._obstacles_ns = cloud_stamp_ns(msg)
+        self._obstacles = (obstacle_rows(obstacles), cloud_stamp_ns(msg))
 
     def _on_measurement_age(self, msg: Float64) -> None:
         self._measurement_age = float(msg.data)

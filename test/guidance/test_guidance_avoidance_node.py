@@ -43,7 +43,7 @@ class AvoidHarness(Harness):
 
     def obstacles(self, obstacles: list[Obstacle], stamp_ns: int) -> None:
         self.obstacles_pub.publish(to_cloud(obstacles, stamp_ns, topics.WORLD_FRAME))
-        assert self.spin(self.executor, lambda: self.node._obstacles_ns == stamp_ns, TIMEOUT)
+        assert self.spin(self.executor, lambda: self.node._obstacles[1] == stamp_ns, TIMEOUT)
 
     def drive(self, eta: Any, n: int = 1) -> Any:
         """n estimates at eta; the last reference as read from the topic."""
