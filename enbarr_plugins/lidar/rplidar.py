@@ -38,20 +38,19 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import errno
-import math
 import os
 import re
 import time
 from typing import Any
 
 import numpy as np
-from sensor_msgs.msg import LaserScan
 
 from enbarr_core.framework.driver import SensorDriver, WARN
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
+from enbarr_interfaces import topics
 from enbarr_plugins import emulation
+from enbarr_plugins.lidar.common import laser_scan
 from enbarr_plugins.lidar.rplidar_protocol import (
     A1_MAJOR, ANS_TYPE_DEVHEALTH, ANS_TYPE_DEVINFO, ANS_TYPE_MEASUREMENT, BAUDRATE,
     CMD_GET_HEALTH, CMD_GET_INFO, CMD_RESET, CMD_SCAN, CMD_STOP, Descriptor, decode_descriptor,
@@ -379,20 +378,9 @@ class RplidarNode(SensorDriver):
         if not self.started:  # a source: silent before start and after stop
             return
         s = self.settings
-        msg = LaserScan()
-        convert.ns_to_stamp(rev.stamp_ns, msg.header.stamp)
-        msg.header.frame_id = s.frame_id
-        inc = 2.0 * math.pi / s.bins
-        msg.angle_min = -math.pi
-        msg.angle_increment = inc
-        msg.angle_max = -math.pi + (s.bins - 1) * inc
-        msg.time_increment = 0.0
-        msg.scan_time = rev.duration
-        msg.range_min = RANGE_MIN
-        msg.range_max = RANGE_MAX
-        msg.ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.bins, RANGE_MIN,
-                                    RANGE_MAX).tolist()
-        self._pub.publish(msg)
+        ranges = bin_revolution(rev.angle_deg, rev.distance_mm, s.bins, RANGE_MIN, RANGE_MAX)
+        self._pub.publish(laser_scan(rev.stamp_ns, s.frame_id, ranges, rev.duration,
+                                     RANGE_MIN, RANGE_MAX))
         self.revolutions += 1
         self.sample_received()
 

@@ -22,12 +22,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-import math
 from typing import Any
 
 import numpy as np
 from nav_msgs.msg import Odometry
-from sensor_msgs.msg import LaserScan
 
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import ConfigurationError, FrameError
@@ -35,6 +33,7 @@ from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_interfaces import convert, topics
+from enbarr_plugins.lidar.common import laser_scan
 from enbarr_plugins.lidar.sim_scan import A1Model, RANGE_MAX, RANGE_MIN, SimulatedA1
 
 #: Truths stamped further ahead of the clock than this are refused [s] (as ``sim_mocap``).
@@ -171,18 +170,7 @@ class SimLidarNode(SensorDriver):
         ranges = self.lidar.scan(pose.position.x, pose.position.y,
                                  convert.quaternion_to_yaw(pose.orientation),
                                  now, s.bins)
-        msg = LaserScan()
-        msg.header.stamp = truth.header.stamp
-        msg.header.frame_id = s.frame_id
-        inc = 2.0 * math.pi / s.bins
-        msg.angle_min = -math.pi
-        msg.angle_increment = inc
-        msg.angle_max = -math.pi + (s.bins - 1) * inc
-        msg.time_increment = 0.0
-        msg.scan_time = 1.0 / s.rotation_hz
-        msg.range_min = RANGE_MIN
-        msg.range_max = RANGE_MAX
-        msg.ranges = ranges.tolist()
-        self._pub.publish(msg)
+        self._pub.publish(laser_scan(t, s.frame_id, ranges, 1.0 / s.rotation_hz, RANGE_MIN,
+                                     RANGE_MAX))
         self.revolutions += 1
         self.sample_received()
