@@ -210,3 +210,24 @@ def test_manual_stays_manual_with_avoidance_on(context, executor, spin):
     h.estimate([0.0, 0.0, 0.0])
     assert not h.refs and h.node.mode is Mode.MANUAL and h.node.blind_reason is None
     assert T0_NS < h.t
+
+
+def test_a_malformed_obstacles_message_is_counted_and_leaves_them_stale(context, executor,
+                                                                        spin):
+    """A point cloud without the obstacle fields (another tool's cloud on the topic) is
+    refused with a warning and counted; the last good obstacles age on, so the vessel holds
+    once they are stale rather than trusting an empty sea."""
+    h = AvoidHarness(context, executor, spin, **ON)
+    h.estimate([0.0, 0.0, 0.0])
+    h.mode(Mode.GUIDANCE)
+    h.obstacles([BUOY], h.t)
+    h.drive([0.0, 0.0, 0.0])
+    good = h.node._obstacles
+    bad = to_cloud([BUOY], h.t, topics.WORLD_FRAME)
+    bad.fields = [f for f in bad.fields if f.name != 'radius']
+    h.obstacles_pub.publish(bad)
+    assert spin(executor, lambda: h.node.counts['obstacles_refused'] == 1, TIMEOUT)
+    assert h.node._obstacles is good
+    ref = h.drive([0.0, 0.0, 0.0], 30)       # 0.6 s on: the good ones are stale now
+    assert 'obstacles 0.6' in h.node.blind_reason
+    np.testing.assert_array_equal(ref.nu_d, [0.0, 0.0, 0.0])
