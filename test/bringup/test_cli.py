@@ -246,7 +246,7 @@ def test_list_profiles_separates_fragments_and_describes_each(listed: dict[str, 
     found = sections(listed['profiles'])
     assert list(found) == ['Profiles', 'Fragments']
     assert {'enbarr_sim', 'saucer_sim', 'skiff_sim', 'enbarr_rov'} <= set(found['Profiles'])
-    assert found['Fragments'] == ['core', 'saucer_core', 'skiff_core']
+    assert found['Fragments'] == ['core', 'saucer_ca_core', 'saucer_core', 'skiff_core']
     described = rows(listed['profiles'])
     assert described['enbarr_sim'] == ('Enbarr ROV, everything simulated, scripted surface '
                                        'commands.')
