@@ -3,7 +3,8 @@
 Every obstacle is a *capsule* in the world frame (``odom``, ENU): the set of points within
 ``radius`` of the segment from ``(x, y)`` to ``(x2, y2)``. A buoy or a boat is a circle (the
 two ends coincide); a basin wall or a pier is a segment (``radius`` its half thickness, or 0).
-One shape for both keeps every consumer's distance the same formula (:func:`distance`).
+One shape for both keeps every consumer's distance the same formula
+(:meth:`Obstacle.distance`).
 
 On the wire (``obstacles``) it is a ``sensor_msgs/PointCloud2``: no custom message can be
 built in a pip install, and a point cloud is self-describing (named, typed fields), has a
@@ -101,11 +102,6 @@ def closest_on_segment(px: float, py: float, ax: float, ay: float, bx: float,
         return ax, ay
     s = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
     return ax + s * dx, ay + s * dy
-
-
-def distance(obstacle: Obstacle, px: float, py: float) -> float:
-    """Distance [m] from ``(px, py)`` to ``obstacle``'s surface (negative inside)."""
-    return obstacle.distance(px, py)
 
 
 def to_array(obstacles: Sequence[Obstacle]) -> NDArray[Any]:

@@ -92,7 +92,7 @@ def test_distance_to_a_circle_and_to_a_segment() -> None:
     assert WALL.distance(3.0, 0.0) == pytest.approx(3.225)        # perpendicular foot
     assert WALL.distance(23.0, 7.225) == pytest.approx(5.0)       # past the end: the end
     assert ob.closest_on_segment(1.0, 1.0, 0.0, 0.0, 0.0, 0.0) == (0.0, 0.0)
-    assert math.isclose(ob.distance(WALL, -20.0, 3.225), 0.0)
+    assert math.isclose(WALL.distance(-20.0, 3.225), 0.0)
 
 
 def test_cloud_type_is_sensor_msgs_point_cloud2() -> None:
