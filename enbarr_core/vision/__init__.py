@@ -1,0 +1,1 @@
+"""Camera geometry without ROS: a checkerboard renderer and intrinsic calibration."""
