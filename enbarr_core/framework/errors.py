@@ -52,3 +52,7 @@ class RecorderError(EnbarrError):
 
 class FrameError(EnbarrError):
     """A frame tree is inconsistent, or a frame asked for is not in it."""
+
+
+class CalibrationError(EnbarrError):
+    """A calibration cannot be made from what was given (no board seen, unreadable input)."""

@@ -38,6 +38,7 @@ import math
 import cv2
 import numpy as np
 
+from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.vision.board import Board
 
 #: An inner corner this close to the image edge rejects the view [px] (calibrator.py BORDER).
@@ -49,10 +50,6 @@ PARAM_NAMES = ('X', 'Y', 'Size', 'Skew')
 MIN_DISTANCE = 0.2
 #: With this many views kept, calibration is allowed whatever the coverage (calibrator.py).
 ENOUGH_VIEWS = 40
-
-
-class CalibrationError(ValueError):
-    """The views cannot give a calibration (none, too few, a solver failure)."""
 
 
 @dataclass(frozen=True)
