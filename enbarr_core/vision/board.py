@@ -238,7 +238,8 @@ def render_board(camera: Camera, board: Board, pose: Pose, *, supersample: int =
 
     ``supersample``: rays per pixel side (box filter); ``blur``: Gaussian sigma [px] (defocus);
     ``noise``: Gaussian sensor noise, standard deviation in grey levels, seeded by ``seed``.
-    The square at the board origin (its first inner corner's upper left) is black.
+    The square at the board origin (its first inner corner's upper left) is black, and so
+    are the other three corner squares of a board of odd x odd squares, as printed ones are.
     """
     if supersample < 1:
         raise ValueError(f'supersample must be at least 1, got {supersample}')
@@ -275,7 +276,7 @@ def render_board(camera: Camera, board: Board, pose: Pose, *, supersample: int =
         fx = np.floor(x)
         fy = np.floor(y)
         on_paper = (x >= -1 - m) & (x < cols + m) & (y >= -1 - m) & (y < rows + m)
-        black = (fx >= -1) & (fx < cols) & (fy >= -1) & (fy < rows) & ((fx + fy) % 2 == 1)
+        black = (fx >= -1) & (fx < cols) & (fy >= -1) & (fy < rows) & ((fx + fy) % 2 == 0)
         acc += paper * on_paper
         acc += black * hit * np.float32(BLACK - WHITE)
     img: np.ndarray = BACKGROUND + acc / (supersample * supersample)
@@ -316,7 +317,7 @@ def fits(camera: Camera, board: Board, pose: Pose, border: float) -> bool:
 
 
 def calibration_poses(camera: Camera, board: Board, n: int, seed: int = 0, *,
-                      max_tilt: float = math.radians(40), border: float = 10.0
+                      max_tilt: float = math.radians(50), border: float = 10.0
                       ) -> list[Pose]:
     """``n`` board poses of a calibration run, as a person waving the board gives them.
 
@@ -330,8 +331,8 @@ def calibration_poses(camera: Camera, board: Board, n: int, seed: int = 0, *,
         raise ValueError(f'n must be at least 1, got {n}')
     rng = np.random.default_rng(seed)
     width_m = (board.cols + 1) * board.square
-    places = [(0.5, 0.5), (0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8),
-              (0.5, 0.2), (0.8, 0.5), (0.5, 0.8), (0.2, 0.5)]
+    places = [(0.5, 0.5), (0.1, 0.1), (0.9, 0.1), (0.9, 0.9), (0.1, 0.9),
+              (0.5, 0.1), (0.9, 0.5), (0.5, 0.9), (0.1, 0.5)]
     sizes = (0.35, 0.55, 0.75, 0.3)
     poses: list[Pose] = []
     for i in range(n):
@@ -339,8 +340,13 @@ def calibration_poses(camera: Camera, board: Board, n: int, seed: int = 0, *,
         size = sizes[(i // len(places) + i) % len(sizes)]
         # The board turned by up to max_tilt about an axis in its plane: small boards
         # turned far show squares a few pixels across, which no one calibrates with.
-        tilt = rng.uniform(0.3, 1.0) * max_tilt * (1.0 if size >= 0.35 else 0.6)
+        tilt = rng.uniform(0.4, 0.8) * max_tilt
         heading = rng.uniform(-math.pi, math.pi)
+        if i % 3 == 2:   # every third view turned fully about a diagonal: the most skew
+            tilt = max_tilt
+            heading = math.pi / 4 + (i // 3 % 4) * math.pi / 2
+        if size < 0.35:
+            tilt *= 0.6
         tilt_x, tilt_y = tilt * math.cos(heading), tilt * math.sin(heading)
         roll = rng.uniform(-0.25, 0.25)
         for attempt in range(40):

@@ -7,9 +7,9 @@ line):
 - detection (``_get_corners``): ``cv2.findChessboardCorners`` with adaptive threshold,
   image normalization and the fast check, on a pattern of (max, min) of the two sizes; a view
   with an inner corner within 8 px of the image edge is rejected; the corners are ordered
-  top to bottom; ``cornerSubPix`` with a window of half the smallest corner spacing
-  (calibrator.py indexes rows with ``n_rows`` where it means ``n_cols`` when it looks for
-  that spacing; the spacing meant is used here);
+  top to bottom; ``cornerSubPix`` with a window sized by the smallest corner spacing
+  (``REFINE_WINDOW``: calibrator.py takes half of it; and it indexes rows with ``n_rows``
+  where it means ``n_cols`` when it looks for that spacing; the spacing meant is used here);
 - coverage (``get_parameters``): per view X, Y, size and skew in [0, 1] from the four outer
   inner corners: area = |p x q| / 2 of the quadrilateral, border = sqrt(area), X = (mean u -
   border / 2) / (width - border) clipped, likewise Y, size = sqrt(area / (width height)),
@@ -46,6 +46,10 @@ BORDER = 8
 #: The spread of X, Y, size and skew that counts as full coverage (calibrator.py).
 PARAM_RANGES = (0.7, 0.7, 0.4, 0.5)
 PARAM_NAMES = ('X', 'Y', 'Size', 'Skew')
+#: cornerSubPix's half window as a share of the smallest corner spacing. calibrator.py takes
+#: half; in a foreshortened view that window reached the paper's edge beside an outer corner
+#: and pulled the corner pixels off (test_intrinsics), a third of a spacing does not.
+REFINE_WINDOW = 0.35
 #: A view is kept when its L1 distance to every kept view exceeds this (calibrator.py).
 MIN_DISTANCE = 0.2
 #: With this many views kept, calibration is allowed whatever the coverage (calibrator.py).
@@ -107,7 +111,7 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     grid = c.reshape(rows, cols, 2)
     spacing = min(np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
                   np.linalg.norm(np.diff(grid, axis=0), axis=2).min())
-    radius = max(1, int(math.ceil(spacing * 0.5)))
+    radius = max(1, int(math.ceil(spacing * REFINE_WINDOW)))
     refined = cv2.cornerSubPix(
         gray, np.ascontiguousarray(c.reshape(-1, 1, 2), dtype=np.float32), (radius, radius),
         (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.1))
