@@ -25,6 +25,7 @@ from enbarr_core.commands.arguments import check_seconds
 from enbarr_core.commands.calibrate import CalibrationAction
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.vision.board import Board
+from enbarr_interfaces import topics
 from enbarr_core.vision.intrinsics import (
     calibrate, format_progress, Intrinsics, ViewSelector)
 
@@ -37,8 +38,7 @@ DEFAULT_SQUARE = 0.040      # [m]
 #: A square this large [m] is more likely a slip of the decimal point (the manual's own
 #: command line says 0.40 for its 40 mm squares) than a board.
 SUSPECT_SQUARE = 0.2
-DEFAULT_TOPIC = 'camera/image_raw'
-DEFAULT_SERVICE = 'camera/set_camera_info'
+DEFAULT_TOPIC = topics.CAMERA_IMAGE.name
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -99,8 +99,8 @@ class CameraCalibration(CalibrationAction):
                             help='camera_name in the YAML (default camera)')
         parser.add_argument('--commit', action='store_true',
                             help="send the result to the driver's set_camera_info service")
-        parser.add_argument('--service', default=DEFAULT_SERVICE,
-                            help=f'the service --commit calls (default {DEFAULT_SERVICE})')
+        parser.add_argument('--service', default=topics.CAMERA_SET_INFO,
+                            help=f'the service --commit calls (default {topics.CAMERA_SET_INFO})')
         parser.add_argument('--timeout', type=float, default=10.0,
                             help='live and --commit: wait this long for the topic or the '
                             'service [s] (default 10)')
@@ -198,7 +198,6 @@ def collect_live(board: Board, topic: str, duration: float, timeout: float,
     from sensor_msgs.msg import Image
 
     from enbarr_core.vision.sources import decode_image
-    from enbarr_interfaces import topics
 
     ctx = Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
