@@ -197,7 +197,7 @@ def test_an_image_encoding_we_cannot_read(tmp_path, capsys, views):
 
 
 @pytest.mark.parametrize('argv, message', [
-    (['--size', '8by6'], "--size: expected COLSxROWS inner corners, each at least 2"),
+    (['--size', '8by6'], '--size: expected COLSxROWS inner corners, each at least 2'),
     (['--size', '1x6'], '--size: expected COLSxROWS'),
     (['--square', '0'], '--square must be a positive length in metres, got 0.0'),
     (['--square', 'nan'], '--square must be a positive length in metres, got nan'),
