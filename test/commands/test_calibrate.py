@@ -17,6 +17,7 @@ from enbarr_core.commands import main as cli
 from enbarr_core.commands.calibrate import ACTIONS, CalibrationAction, load_action
 from enbarr_core.recording.bag import BagWriter
 from enbarr_core.vision.board import Board, calibration_poses, Camera, render_board
+from enbarr_core.vision.sources import decode_image
 from enbarr_plugins.camera.calibration import load_calibration
 
 pytestmark = pytest.mark.unit
@@ -216,6 +217,23 @@ def test_the_manuals_square_of_0_40_is_warned_about(tmp_path, capsys, views):
     assert rc == 0
     assert ('enbarr calibrate: warning: --square 0.4 m is a square of 40 cm; a 40 mm square '
             'is 0.040') in err
+
+
+@pytest.mark.parametrize('encoding, data, bigendian, want', [
+    ('rgb8', [255, 0, 0], 0, [0, 0, 255]),            # red
+    ('bgr8', [255, 0, 0], 0, [255, 0, 0]),            # blue
+    ('rgba8', [255, 0, 0, 7], 0, [0, 0, 255]),
+    ('bgra8', [255, 0, 0, 7], 0, [255, 0, 0]),
+    ('mono8', [200], 0, 200),
+    ('mono16', [0x12, 0xAB], 1, 0x12),                # big-endian: the high byte first
+    ('mono16', [0x12, 0xAB], 0, 0xAB),
+])
+def test_image_encodings(encoding, data, bigendian, want):
+    msg = Image()
+    msg.height, msg.width, msg.encoding, msg.is_bigendian = 1, 1, encoding, bigendian
+    msg.step = len(data) + 3                            # rows padded, as drivers may
+    msg.data = bytes(data + [0, 0, 0])
+    assert decode_image(msg, 'here')[0, 0].tolist() == want
 
 
 def test_calibrate_has_a_table_of_actions():

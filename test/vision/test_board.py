@@ -108,12 +108,22 @@ def test_anti_aliasing_is_what_makes_the_corners_sub_pixel():
     assert errors[4] < 0.25 < errors[1]
 
 
-def test_an_edge_along_the_pixel_rows_gets_fine_grey_levels():
-    # A board square to the image: a regular 4x4 grid gives its edges only 5 grey levels.
+@pytest.mark.parametrize('axis', [0, 1])
+def test_an_edge_along_the_pixel_grid_gets_fine_grey_levels(axis):
+    # A board square to the image, moved across two pixels in 64 steps: the pixel its middle
+    # edge sweeps over takes a regular 4x4 grid's 5 grey levels, the n-rooks arrangement's
+    # 17; for an edge along the columns (axis 0: moved in x) and along the rows alike.
     cam = Camera(160, 120, 200.0, 200.0, 80.0, 60.0)
-    pose = Pose((0.0, 0.0, 0.0), (-0.1237, -0.0771, 1.0))
-    levels = np.unique(render_board(cam, BIG_SQUARES, pose, supersample=4))
-    assert len(levels) > 10
+    edge = np.array([[0.1, 0.075, 0.0]]) if axis == 0 else np.array([[0.125, 0.1, 0.0]])
+    start = Pose((0.0, 0.0, 0.0), (-0.1251, -0.0751, 1.0))
+    u, v = np.rint(project(cam, start, edge)[0]).astype(int)
+    values = set()
+    for k in range(64):
+        t = [-0.1251, -0.0751, 1.0]
+        t[axis] += (k / 32 - 1) / cam.fx      # [m] at 1 m: -1 px to +1 px
+        img = render_board(cam, BIG_SQUARES, Pose((0.0, 0.0, 0.0), (t[0], t[1], t[2])))
+        values.add(int(img[v, u]))
+    assert len(values) >= 15
 
 
 def test_noise_is_seeded_and_blur_softens():
