@@ -285,7 +285,7 @@ def render_board(camera: Camera, board: Board, pose: Pose, *, supersample: int =
     if noise > 0:
         img = img + np.random.default_rng(seed).normal(0.0, noise, img.shape)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if color else out
+    return np.asarray(cv2.cvtColor(out, cv2.COLOR_GRAY2BGR)) if color else out
 
 
 def _look_at_pose(camera: Camera, board: Board, u: float, v: float, distance: float,

@@ -15,7 +15,7 @@ import pkgutil
 
 ALGORITHM_PACKAGES = ('enbarr_core.estimation', 'enbarr_core.control', 'enbarr_core.guidance',
                       'enbarr_core.allocation', 'enbarr_core.models', 'enbarr_core.world',
-                      'enbarr_core.perception')
+                      'enbarr_core.perception', 'enbarr_core.vision')
 
 
 def algorithm_modules() -> list[str]:
