@@ -89,12 +89,9 @@ class CircleTrack:
         self.misses = 0
         self.stamp_ns = stamp_ns
 
-    def predict(self, dt: float, q: float) -> None:
-        """Predict the state ``dt`` [s] ahead (module docstring)."""
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
-        self.kf.predict(F=f, Q=(g @ g.T) * (q * q))
+    def predict(self, f: Vector, q: Vector) -> None:
+        """Predict the state one step ahead with F = ``f`` and Q = ``q`` (:func:`motion`)."""
+        self.kf.predict(F=f, Q=q)
 
     def innovation(self, z: CircleFit) -> float:
         """Squared Mahalanobis distance of measurement ``z`` from the prediction."""
@@ -207,6 +204,14 @@ class SegmentTrack:
                         position_cov=(self.var, 0.0, self.var), stamp_ns=self.stamp_ns)
 
 
+def motion(dt: float, q: float) -> tuple[Vector, Vector]:
+    """Return F and Q of the constant-velocity model over ``dt`` [s] (module docstring)."""
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = dt
+    g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
+    return f, (g @ g.T) * (q * q)
+
+
 def front_of(z: SegmentFit, t: CircleTrack) -> CircleFit | None:
     """Segment ``z`` read as the visible front of circle track ``t``, or None when too long."""
     if z.length > 2.0 * t.radius + 3.0 * z.rms:
@@ -266,9 +271,10 @@ class Tracker:
             if dt < 0.0:
                 raise ValueError(f'scan stamped {stamp_ns} ns is older than the last one '
                                  f'({self._stamp_ns} ns)')
-            if dt > 0.0:
+            if dt > 0.0 and self.circles:
+                f, q = motion(dt, s.accel_noise)   # the same for every track
                 for t in self.circles:
-                    t.predict(dt, s.accel_noise)
+                    t.predict(f, q)
         self._stamp_ns = stamp_ns
         # only a segment no longer than a tracked circle may be that circle's front
         widest = 2.0 * max((t.radius for t in self.circles), default=0.0)
