@@ -84,6 +84,7 @@ class CircleTrack:
         self.kf.P = np.diag([z.cov[0], z.cov[2], speed_std ** 2, speed_std ** 2])
         self.kf.P[0, 1] = self.kf.P[1, 0] = z.cov[1]
         self.kf.H = _H
+        self.kf.inv = inverse_2x2   # S is 2x2: filterpy lets the inverse be chosen
         self.radius = z.radius
         self.hits = 1
         self.misses = 0
@@ -202,6 +203,16 @@ class SegmentTrack:
         """Return the track as an obstacle (no velocity: walls do not move)."""
         return Obstacle(self.id, SEGMENT, self.a[0], self.a[1], 0.0, self.b[0], self.b[1],
                         position_cov=(self.var, 0.0, self.var), stamp_ns=self.stamp_ns)
+
+
+def inverse_2x2(s: Vector) -> Vector:
+    """Return the inverse of the 2x2 matrix ``s`` written out (``numpy.linalg.inv``'s checks
+    cost more than the arithmetic); ``LinAlgError`` when it is singular, as numpy's."""
+    (a, b), (c, d) = s.tolist()
+    det = a * d - b * c
+    if not (abs(det) > 0.0 and math.isfinite(det)):
+        raise np.linalg.LinAlgError('Singular matrix')
+    return np.array([[d / det, -b / det], [-c / det, a / det]])
 
 
 def motion(dt: float, q: float) -> tuple[Vector, Vector]:
