@@ -1,5 +1,6 @@
-"""What the collision avoidance did for one estimate, as ``guidance/avoidance`` carries it
-(and ``control/avoidance``, the force-level filter's, in the same encoding).
+"""What the collision avoidance did for one estimate, as ``guidance/avoidance`` carries it.
+
+``control/avoidance`` (the force-level filter's, in the DP controller) has the same encoding.
 
 A ``std_msgs/Float64MultiArray`` (no custom message can be built in a pip install): one
 dimension, ``layout.dim[0].label`` = the field names of :data:`FIELDS` joined by commas (so

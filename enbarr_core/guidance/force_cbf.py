@@ -150,7 +150,7 @@ class ForceSafetyFilter:
                            float(h.min()), active=active)
 
     def _solve(self, t_xy: Vector, A: Vector, lower: Vector) -> tuple[Vector, int]:
-        """min |tau - t_xy|^2 s.t. A tau >= lower and the box; (tau_xy, daqp's exit flag)."""
+        """Solve min |tau - t_xy|^2 s.t. A tau >= lower and the box: (tau_xy, daqp exit flag)."""
         box = np.asarray(self.settings.tau_max[:2], dtype=float)
         bu = np.concatenate((box, np.full(len(lower), 1e30)))
         bl = np.concatenate((-box, lower))
