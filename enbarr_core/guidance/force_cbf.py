@@ -94,13 +94,23 @@ class ForceSafetyFilter:
     """tau_nom -> tau* keeping every obstacle's HOCBF condition (module docstring)."""
 
     def __init__(self, settings: ForceCbfSettings) -> None:
-        settings.validate()
         self.settings = settings
+        self.infeasible_count = 0
+        self.side = 0   # passing side of this engagement (world): +1 starboard, -1 port, 0 none
+
+    @property
+    def settings(self) -> ForceCbfSettings:
+        """The settings in use."""
+        return self._settings
+
+    @settings.setter
+    def settings(self, settings: ForceCbfSettings) -> None:
+        """Swap settings (validated first), the zones' geometry with them."""
+        settings.validate()
+        self._settings = settings
         self._geometry = CbfSettings(safety_radius=settings.safety_radius,
                                      vessel_radius=settings.vessel_radius, tracking_margin=0.0,
                                      gamma=1.0)
-        self.infeasible_count = 0
-        self.side = 0   # passing side of this engagement (world): +1 starboard, -1 port, 0 none
 
     def step(self, eta: Vector, nu: Vector, tau_nom: Vector, rows: Vector) -> ForceOutput:
         """Filter ``tau_nom`` at the state (eta, nu) against obstacle ``rows`` (world)."""

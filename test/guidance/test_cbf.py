@@ -495,6 +495,24 @@ def test_force_filter_passes_a_blocking_obstacle_instead_of_stopping():
     assert -hard.tau[0] / vp.M[0] - drift_x >= 2 * 0.2 - h - 1e-9
 
 
+def test_force_filter_settings_swapped_live_move_the_zones():
+    """A new safety radius (live, from the node's parameters) is the zone's at the next step;
+    a bad one is refused and the old settings stay."""
+    from dataclasses import replace
+    from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceSafetyFilter
+    vp = vessel_params()
+    base = ForceCbfSettings(vp.M, vp.D, vp.Dn, (2.0, 2.0, 0.3), 0.2, VESSEL_RADIUS)
+    buoy = rows(circle(2.0, 0.0, 0.05))
+    f = ForceSafetyFilter(base)
+    state = (np.zeros(3), np.zeros(3), np.zeros(3), buoy)
+    assert f.step(*state).min_barrier == pytest.approx(2.0 - 0.05 - VESSEL_RADIUS - 0.2)
+    f.settings = replace(base, safety_radius=0.5)
+    assert f.step(*state).min_barrier == pytest.approx(2.0 - 0.05 - VESSEL_RADIUS - 0.5)
+    with pytest.raises(ValueError, match='a1'):
+        f.settings = replace(base, a1=0.0)
+    assert f.settings.safety_radius == 0.5
+
+
 @pytest.mark.parametrize('change, match', [
     ({'M': (0.0, 9.51, 0.116)}, 'M: every element must be > 0'),
     ({'tau_max': (2.0, -1.0, 0.3)}, 'tau_max: every element must be > 0'),
