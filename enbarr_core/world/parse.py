@@ -123,14 +123,15 @@ def _obstacle(name: str, entry: dict[str, Any], key: str, refuse: Refuse) -> Obs
             if not isinstance(closed, bool):
                 raise refuse(f'expected true or false, got {closed!r}', f'{key}.closed')
             shape = Walls(points, closed)
-    height = None
+    look: dict[str, Any] = {}  # what is not given is the kind's (Obstacle's defaults)
     if 'height' in entry:
-        height = _number(entry['height'], refuse, f'{key}.height')
-        if not height > 0.0:
-            raise refuse(f'expected a height > 0 [m] above the water, got {height}',
+        look['height'] = _number(entry['height'], refuse, f'{key}.height')
+        if not look['height'] > 0.0:
+            raise refuse(f'expected a height > 0 [m] above the water, got {look["height"]}',
                          f'{key}.height')
-    colour = _colour(entry['colour'], refuse, f'{key}.colour') if 'colour' in entry else None
-    return Obstacle(name, shape, _motion(entry, shape, key, refuse), height, colour)
+    if 'colour' in entry:
+        look['colour'] = _colour(entry['colour'], refuse, f'{key}.colour')
+    return Obstacle(name, shape, _motion(entry, shape, key, refuse), **look)
 
 
 def _colour(v: Any, refuse: Refuse, key: str) -> Colour:

@@ -55,6 +55,8 @@ DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial')
 MAX_CANVAS_SCALE = 3.0
 #: Nearest forward depth drawn [m]: nearer surfaces are clipped (the lens's own housing).
 NEAR = 0.02
+#: The distortion map must land within this of every pixel through the forward model [px].
+MAP_TOLERANCE = 0.01
 #: A level camera's optical y axis is within this of straight down (cosine).
 LEVEL_TOLERANCE = 1e-6
 
@@ -180,21 +182,33 @@ class SimulatedCamera:
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
         xy = cv2.undistortPoints(pts, k, model.dist_coeffs, None, None, None,
                                  criteria).reshape(model.height, model.width, 2)
-        xn, yn = xy[..., 0], xy[..., 1]
-        # the canvas: pixel (i, j) is xn = (j + u0) / fx, yn = (i + v0) / fy
-        self.u0 = math.floor(float(xn.min()) * fx) - 2
-        self.v0 = math.floor(float(yn.min()) * fy) - 2
-        cw = math.ceil(float(xn.max()) * fx) + 3 - self.u0
-        ch = math.ceil(float(yn.max()) * fy) + 3 - self.v0
+        # the map must invert OpenCV's forward model over the whole image: a distortion that
+        # folds over (not monotonic, as a strong barrel towards the corners) has no inverse
+        back, _ = cv2.projectPoints(np.concatenate((xy.reshape(-1, 2), np.ones(
+            (xy.shape[0] * xy.shape[1], 1))), axis=1), np.zeros(3), np.zeros(3), k,
+            model.dist_coeffs)
+        miss = float(np.abs(back.reshape(-1, 2) - pts.reshape(-1, 2)).max())
+        if not miss < MAP_TOLERANCE:
+            raise ValueError(f'the distortion {model.d} cannot be inverted over the image '
+                             f'(off by {miss:.2g} px): not a lens this renderer draws')
+        cx, cy = k[0, 2], k[1, 2]
+        # the canvas is the ideal pinhole image of the same K, shifted so that it holds every
+        # pixel: canvas pixel (i, j) is the pinhole's (v, u) = (i + v0, j + u0), integers, so
+        # that without distortion the map is the identity
+        ui, vi = xy[..., 0] * fx + cx, xy[..., 1] * fy + cy
+        self.u0 = math.floor(float(ui.min())) - 2
+        self.v0 = math.floor(float(vi.min())) - 2
+        cw = math.ceil(float(ui.max())) + 3 - self.u0
+        ch = math.ceil(float(vi.max())) + 3 - self.v0
         if cw > MAX_CANVAS_SCALE * model.width or ch > MAX_CANVAS_SCALE * model.height:
             raise ValueError(f'the distortion {model.d} widens the view to {cw}x{ch} px, more '
                              f'than {MAX_CANVAS_SCALE:g} times the image: not a lens this '
                              'renderer draws')
-        self.map_x = (xn * fx - self.u0).astype(np.float32)
-        self.map_y = (yn * fy - self.v0).astype(np.float32)
-        self.xn = (np.arange(cw) + self.u0) / fx  # (W,) per canvas column
-        self.yn = (np.arange(ch) + self.v0) / fy  # (H,) per canvas row
-        self.fy, self.v0f = fy, float(self.v0)
+        self.map_x = (ui - self.u0).astype(np.float32)
+        self.map_y = (vi - self.v0).astype(np.float32)
+        self.xn = (np.arange(cw) + self.u0 - cx) / fx  # (W,) per canvas column
+        self.yn = (np.arange(ch) + self.v0 - cy) / fy  # (H,) per canvas row
+        self.fy, self.row0 = fy, cy - self.v0  # canvas row of the principal point
         self._texture = water_texture(look.seed)
         self._sky = self._sky_rows()
         self._haze = np.array(look.sky_horizon[::-1], dtype=float)  # far things' colour
@@ -259,11 +273,11 @@ class SimulatedCamera:
     def _rows(self, zz: FloatArray, dz: float) -> FloatArray:
         """Return the canvas row of ``dz`` below the lens at forward depth ``zz`` (yn = dz/Z)."""
         with np.errstate(divide='ignore', invalid='ignore'):
-            out: FloatArray = dz / zz * self.fy - self.v0f
+            out: FloatArray = dz / zz * self.fy + self.row0
         return out
 
     def _still(self, zc: float) -> _Still:
-        """What of the background depends on the lens's height only (kept for the last one)."""
+        """Return the background's parts that depend on the lens's height only (cached)."""
         if self._still_cache is not None and self._still_cache.zc == zc:
             return self._still_cache
         s = self.look
@@ -285,8 +299,10 @@ class SimulatedCamera:
 
     def _background(self, cam: FloatArray, zc: float, d: FloatArray
                     ) -> tuple[NDArray[np.uint8], NDArray[np.int16]]:
-        """The canvas (BGR) and its labels: the water below the horizon (textured, fading with
-        distance) and the sky above."""
+        """Return the canvas (BGR) and its labels: the water below the horizon, the sky above.
+
+        The water is textured and fades with distance to the horizon's colour.
+        """
         st = self._still(zc)
         canvas = st.sky.copy()
         label = np.full(canvas.shape[:2], SKY, dtype=np.int16)
@@ -308,8 +324,11 @@ class SimulatedCamera:
 
     def _faces(self, shape: object, cam: FloatArray, d: FloatArray, zc: float, height: float
                ) -> list[tuple[FloatArray, FloatArray, FloatArray | None]]:
-        """Each surface a column sees: (forward depth Z (W,) [m], inf: none; light (W,);
-        None, or for a top seen from above the depth of its far edge (W,))."""
+        """Return each surface a column sees: (Z, light, far), arrays over the columns.
+
+        Z: the forward depth [m] (inf: not seen); light: the shade (0..1); far: None, or for a
+        top seen from above the depth of its far edge.
+        """
         ox, oy = cam
         dx, dy = d[:, 0], d[:, 1]
         faces: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
@@ -361,8 +380,7 @@ class SimulatedCamera:
     def _draw(self, canvas: NDArray[np.uint8], label: NDArray[np.int16],
               depth: NDArray[np.float32], zz: FloatArray, lo: FloatArray, hi: FloatArray,
               index: int, bgr: NDArray[np.float32], shade: FloatArray) -> None:
-        """Paint rows lo..hi (pixel centres) of each column at depth ``zz`` where nothing
-        nearer is."""
+        """Paint rows lo..hi of each column at depth ``zz`` where nothing nearer is."""
         cols = np.nonzero(np.isfinite(zz))[0]
         if not len(cols):
             return
