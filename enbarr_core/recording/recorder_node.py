@@ -7,7 +7,8 @@ serializing (the generated CDR encoders of ``cdr``, ``serialize_message`` for ot
 and writing happen on a writer thread, off the control path. ``topics`` selects topics by
 name (empty: all, but see Images below). The bag is one MCAP file per run (split by
 ``split_size`` or ``split_seconds`` when asked), flushed every ``flush_seconds`` (a kill
-loses at most that), closed when the node is destroyed. ``segment_seconds`` is the old name of ``flush_seconds``.
+loses at most that), closed when the node is destroyed. ``segment_seconds`` is the old name
+of ``flush_seconds``.
 
 Images: with ``topics`` empty, a raw image topic (``sensor_msgs/msg/Image``) whose compressed
 sibling ``<name>/compressed`` (``sensor_msgs/msg/CompressedImage``, image_transport's naming)
