@@ -162,6 +162,12 @@ def test_the_vessel_pose_and_a_yawed_mount_move_the_view() -> None:
     left = Transform.from_rpy((0.0, 0.0, ZC), (-math.pi / 2, 0.0, 0.0))
     f = camera(mount=left).render(World([buoy('b', 0.0, 5.0, r=0.05)]), 0.0, 0.0, 0.0, 0.0)
     assert centroid(f.labels == 0)[0] == pytest.approx(319.5, abs=1.0)
+    # a camera 1 m behind the CO, the vessel at (1, 2) heading north: the lens at (1, 1); a
+    # buoy at (0.5, 7) is 6 m ahead and 0.5 m to the left (west): u = 319.5 - 500 * 0.5 / 6
+    behind = Transform.from_rpy((-1.0, 0.0, ZC), (-math.pi / 2, 0.0, -math.pi / 2))
+    f = camera(mount=behind).render(World([buoy('b', 0.5, 7.0, r=0.05)]), 1.0, 2.0,
+                                    math.pi / 2, 0.0)
+    assert centroid(f.labels == 0)[0] == pytest.approx(319.5 - 500.0 * 0.5 / 6.0, abs=1.0)
 
 
 def test_a_tilted_mount_is_refused() -> None:
