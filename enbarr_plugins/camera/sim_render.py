@@ -55,6 +55,8 @@ DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial')
 MAX_CANVAS_SCALE = 3.0
 #: Nearest forward depth drawn [m]: nearer surfaces are clipped (the lens's own housing).
 NEAR = 0.02
+#: Texture coordinates stay within this [texture px] (remap's fixed-point maps hold 32767).
+TEXTURE_REACH = 30000.0
 #: The distortion map must land within this of every pixel through the forward model [px].
 MAP_TOLERANCE = 0.01
 #: A level camera's optical y axis is within this of straight down (cosine).
@@ -290,11 +292,19 @@ class SimulatedCamera:
         dist = zw[:, None] * np.sqrt(1.0 + self.xn * self.xn)[None, :]
         far = (1.0 - np.exp(-dist / s.fog_distance))[..., None]
         base = (np.array(s.water[::-1], float) * (1.0 - far)
-                + np.array(s.sky_horizon[::-1], float) * far).astype(np.float32)
-        gain = (s.water_contrast * (1.0 - far)).astype(np.float32)
+                + np.array(s.sky_horizon[::-1], float) * far)
+        gain = s.water_contrast * (1.0 - far)
+        # texture coordinates stay within what remap's fixed-point maps hold (+-32767): far
+        # water, faded to the horizon's colour, takes the texture of a nearer ring
         scale = self._texture.shape[0] / s.texture_period
-        self._still_cache = _Still(zc, first, sky_u8, base, gain,
-                                   (zw * scale).astype(np.float32))
+        reach = (TEXTURE_REACH - self._texture.shape[0]) / float(
+            np.sqrt(1.0 + self.xn ** 2).max())
+        # the water is shaded on every other row and column, then scaled up: smooth ripples
+        # and fog lose nothing, and it is a quarter of the work
+        self._still_cache = _Still(
+            zc, first, sky_u8, base[::2, ::2].astype(np.float32),
+            gain[::2, ::2].astype(np.float32),
+            np.minimum(zw[::2] * scale, reach).astype(np.float32))
         return self._still_cache
 
     def _background(self, cam: FloatArray, zc: float, d: FloatArray
@@ -312,13 +322,19 @@ class SimulatedCamera:
         scale = n / self.look.texture_period
         # where each pixel's ray meets the water, in texture pixels (the tile repeats)
         ox, oy = np.float32(cam[0] * scale % n), np.float32(cam[1] * scale % n)
-        dx, dy = d[:, 0].astype(np.float32), d[:, 1].astype(np.float32)
-        tx = np.mod(ox + st.zw_scaled[:, None] * dx[None, :], np.float32(n))
-        ty = np.mod(oy + st.zw_scaled[:, None] * dy[None, :], np.float32(n))
+        dx, dy = d[::2, 0].astype(np.float32), d[::2, 1].astype(np.float32)
+        tx = st.zw_scaled[:, None] * dx[None, :]
+        tx += ox
+        ty = st.zw_scaled[:, None] * dy[None, :]
+        ty += oy
+        np.mod(tx, np.float32(n), out=tx)  # in the tile: remap's fast path
+        np.mod(ty, np.float32(n), out=ty)
         ripple = cv2.remap(self._texture, tx, ty, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         water = st.base + st.gain * ripple[..., None]
         np.clip(water, 0.0, 255.0, out=water)
-        canvas[st.first:] = water.astype(np.uint8)
+        canvas[st.first:] = cv2.resize(water.astype(np.uint8),
+                                       (canvas.shape[1], canvas.shape[0] - st.first),
+                                       interpolation=cv2.INTER_LINEAR)
         label[st.first:] = WATER
         return canvas, label
 
@@ -400,10 +416,9 @@ class SimulatedCamera:
         far = (1.0 - np.exp(-np.where(seen, z, 0.0) / self.look.fog_distance))[:, None]
         lit = (bgr[None, :] * shade[j0:j1, None]) * (1.0 - far) + self._haze[None, :] * far
         lit_u8 = np.clip(lit + 0.5, 0, 255).astype(np.uint8)
-        sub = canvas[i0:i1, j0:j1]
-        sub[mask] = np.broadcast_to(lit_u8[None, :, :], sub.shape)[mask]
-        depth[i0:i1, j0:j1][mask] = np.broadcast_to(z[None, :], mask.shape)[mask]
-        label[i0:i1, j0:j1][mask] = index
+        np.copyto(canvas[i0:i1, j0:j1], lit_u8[None, :, :], where=mask[..., None])
+        np.copyto(depth[i0:i1, j0:j1], z[None, :].astype(np.float32), where=mask)
+        np.copyto(label[i0:i1, j0:j1], np.int16(index), where=mask)
 
 
 class _Still(NamedTuple):
@@ -412,6 +427,6 @@ class _Still(NamedTuple):
     zc: float                        # [m]
     first: int                       # the first canvas row below the horizon
     sky: NDArray[np.uint8]           # (H, W, 3) BGR, the sky everywhere
-    base: NDArray[np.float32]        # (H - first, W, 3) water without ripples, fogged
-    gain: NDArray[np.float32]        # (H - first, W, 1) the ripples' amplitude there
-    zw_scaled: NDArray[np.float32]   # (H - first,) water depth of each row, texture px
+    base: NDArray[np.float32]        # water without ripples, fogged: every other row, column
+    gain: NDArray[np.float32]        # the ripples' amplitude there
+    zw_scaled: NDArray[np.float32]   # water depth of every other row [texture px]
