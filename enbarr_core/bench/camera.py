@@ -2,9 +2,10 @@
 
 The scene is a scenario's or a profile's (default the scenario ``ca_buoy``: the CS Saucer's
 frame tree, so the camera's mount of ``saucer_core.yaml``, and its world: the basin walls and
-the buoy ahead), seen by ``sim_camera``'s default camera (640 x 480, 500 px, the mild barrel) from the vessel turning
-slowly at the start of the path, one frame per 1/15 s of scene time. Each frame is timed by
-this thread's CPU clock (the executor and DDS are not in the figure), in three parts:
+the buoy ahead), seen by ``sim_camera``'s default camera (640 x 480, 500 px, the mild barrel)
+from the vessel turning slowly at the start of the path, one frame per 1/15 s of scene time.
+Each frame is timed by this thread's CPU clock (the executor and DDS are not in the figure),
+in three parts:
 
 - ``render_ms_p50/p90``: ``SimulatedCamera.render`` (what only the simulation pays);
 - ``jpeg_ms_p50/p90``: ``common.encode_jpeg`` at ``--quality`` (what the real camera pays on
