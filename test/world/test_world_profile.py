@@ -165,6 +165,20 @@ def test_an_error_names_the_file_that_set_the_key(tmp_path: Path) -> None:
      'world.boat.velocity', 'expected a finite number, got inf'),
     ('boat: {kind: circle, center: [0, 0], radius: 1, waypoints: [[1, 1]], speed: 1, '
      'loop: 2}', 'world.boat.loop', 'expected true or false, got 2'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, height: 0}', 'world.buoy.height',
+     'expected a height > 0 [m] above the water, got 0.0'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, height: tall}', 'world.buoy.height',
+     "expected a number, got 'tall'"),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: orang}', 'world.buoy.colour',
+     "unknown colour 'orang' (did you mean 'orange'?)"),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [255, 0]}', 'world.buoy.colour',
+     'expected a colour name (red, green'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [256, 0, 0]}',
+     'world.buoy.colour', 'integers 0..255, got [256, 0, 0]'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [1.5, 0, 0]}',
+     'world.buoy.colour', 'integers 0..255, got [1.5, 0, 0]'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, color: red}', 'world.buoy.color',
+     "unknown key (did you mean 'colour'?)"),
 ])
 def test_each_bad_world_is_refused_with_its_key(tmp_path: Path, world: str, key: str,
                                                 message: str) -> None:
