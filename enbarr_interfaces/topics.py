@@ -25,7 +25,8 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
-    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField, PointCloud2)
+    CameraInfo, CompressedImage, Image, Imu, JointState, Joy, LaserScan, MagneticField,
+    PointCloud2)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -222,6 +223,10 @@ OBSTACLE_MARKERS = TopicSpec(
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'Camera frames as captured (OpenCV, V4L2 or a video file).')
+CAMERA_COMPRESSED = TopicSpec(
+    'camera/image_raw/compressed', CompressedImage, SENSOR_QOS, 'JPEG', CAMERA_OPTICAL_FRAME,
+    "camera/image_raw as JPEG, as image_transport's compressed plugin publishes it (format "
+    "'bgr8; jpeg compressed bgr8'), same stamp; what the recorder keeps by default.")
 CAMERA_INFO = TopicSpec(
     'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
@@ -239,5 +244,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
-    VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
+    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS)
