@@ -11,6 +11,7 @@ ahead from a rod behind and above the lidar (section 1.5).
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 import math
 
 import cv2
@@ -69,6 +70,7 @@ class BoardPose:
     corners: np.ndarray       # (48, 2) observed pixels
     scans: list[np.ndarray]   # per revolution: (360, 2) ranges' points in laser, inf = none
     on_board: list[np.ndarray]   # per revolution: which rays hit the board
+    ranges: list[tuple[float, np.ndarray]]   # per revolution: (angle_min, ranges) [rad, m]
 
 
 def _rays(phase: float) -> np.ndarray:
@@ -76,8 +78,9 @@ def _rays(phase: float) -> np.ndarray:
 
 
 def scan_board(T: Transform, R_cb: np.ndarray, t_cb: np.ndarray, rng: np.random.Generator,
-               wall: float = 4.5) -> tuple[np.ndarray, np.ndarray]:
-    """One revolution: points (360, 2) in the laser frame and which hit the board.
+               wall: float = 4.5) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """One revolution: points (360, 2) in the laser frame, which hit the board, and the
+    revolution as a LaserScan has it (angle_min [rad], ranges [m]).
 
     Rays that miss the board hit a wall ``wall`` m ahead (x = wall) or are lost (inf).
     """
@@ -100,8 +103,9 @@ def scan_board(T: Transform, R_cb: np.ndarray, t_cb: np.ndarray, rng: np.random.
     r = np.where(hit, s, np.where(s_wall < 12.0, s_wall, np.inf))
     fin = np.isfinite(r)
     r[fin] += rng.normal(0.0, range_sigma(r[fin]))
-    pts = np.column_stack([r * np.cos(theta), r * np.sin(theta)])
-    return pts, hit
+    with np.errstate(invalid='ignore'):
+        pts = np.column_stack([r * np.cos(theta), r * np.sin(theta)])
+    return pts, hit, float(theta[0]), r
 
 
 def board_poses(T: Transform, n: int, rng: np.random.Generator, *, scans: int = 10,
@@ -138,9 +142,10 @@ def board_poses(T: Transform, n: int, rng: np.random.Generator, *, scans: int = 
             continue
         px = px + rng.normal(0.0, pixel_noise, px.shape)
         revs = [scan_board(T, R_cb, t_cb, rng) for _ in range(scans)]
-        if min(int(h.sum()) for _, h in revs) < 3:
+        if min(int(rev[1].sum()) for rev in revs) < 3:
             continue
-        out.append(BoardPose(R_cb, t_cb, px, [p for p, _ in revs], [h for _, h in revs]))
+        out.append(BoardPose(R_cb, t_cb, px, [rev[0] for rev in revs], [rev[1] for rev in revs],
+                             [(rev[2], rev[3]) for rev in revs]))
     return out
 
 
@@ -183,3 +188,42 @@ def rotation_error_deg(a: Transform, b: Transform) -> float:
 def translation_error(a: Transform, b: Transform) -> float:
     """The distance [m] between two transforms' translations."""
     return float(np.linalg.norm(np.subtract(a.translation, b.translation)))
+
+
+@functools.lru_cache(maxsize=2)
+def _pixel_rays(s: int) -> np.ndarray:
+    """The optical-frame ray (x, y, 1) of each of ``s`` x ``s`` points per pixel (row-major)."""
+    off = (np.arange(s) + 0.5) / s - 0.5
+    u = np.tile(np.repeat(np.arange(WIDTH), s) + np.tile(off, WIDTH), (HEIGHT * s, 1))
+    v = np.tile((np.repeat(np.arange(HEIGHT), s) + np.tile(off, HEIGHT))[:, None],
+                (1, WIDTH * s))
+    pix = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+    rays = cv2.undistortPoints(pix.reshape(-1, 1, 2), K, DIST, criteria=(
+        cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)).reshape(-1, 2)
+    return np.column_stack([rays, np.ones(len(rays))])
+
+
+def render_board(R_cb: np.ndarray | None, t_cb: np.ndarray | None,
+                 supersample: int = 2) -> np.ndarray:
+    """A BGR image of the board (9 x 7 squares on white A3) seen through the camera.
+
+    Every pixel's ray (undistorted with the camera's K and distortion) is cut with the board's
+    plane; its point on the board is black or white by the squares, white on the paper's
+    margin, grey beyond. ``supersample`` rays per pixel side smooth the edges. None: no board.
+    """
+    s = supersample
+    if R_cb is None or t_cb is None:
+        return np.full((HEIGHT, WIDTH, 3), 128, np.uint8)
+    rays = _pixel_rays(s)
+    n = R_cb[:, 2]
+    depth = (n @ t_cb) / (rays @ n)
+    b = (rays * depth[:, None] - t_cb) @ R_cb
+    i = np.floor(b[:, 0] / SQUARE).astype(int) + 1
+    j = np.floor(b[:, 1] / SQUARE).astype(int) + 1
+    in_squares = (i >= 0) & (i <= BOARD_COLS) & (j >= 0) & (j <= BOARD_ROWS)
+    on_paper = ((b[:, 0] >= EXTENT[0]) & (b[:, 0] <= EXTENT[1]) & (b[:, 1] >= EXTENT[2])
+                & (b[:, 1] <= EXTENT[3]) & (depth > 0))
+    gray = np.where(on_paper, 255.0, 128.0)
+    gray = np.where(on_paper & in_squares & ((i + j) % 2 == 0), 0.0, gray)
+    img = gray.reshape(HEIGHT, s, WIDTH, s).mean(axis=(1, 3))
+    return np.repeat(img.round().astype(np.uint8)[:, :, None], 3, axis=2)
