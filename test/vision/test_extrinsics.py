@@ -191,6 +191,22 @@ def test_the_scan_points_on_a_board_are_found_from_a_rough_guess():
     assert found > 100
 
 
+@pytest.mark.unit
+def test_a_board_across_the_scans_first_ray_is_one_run():
+    T = S.true_transform()
+    pose = S.board_poses(T, 1, np.random.default_rng(14), scans=1)[0]
+    plane = E.board_plane(pose.corners, OBJ, CAMERA)
+    scan, hit = pose.scans[0], pose.on_board[0]
+    fin = np.all(np.isfinite(scan), axis=1)
+    scan, hit = scan[fin], hit[fin]
+    board = np.flatnonzero(hit)
+    assert len(board) >= 6
+    # start the ring in the middle of the board's rays
+    k = int(board[len(board) // 2])
+    mask = E.select_board_points(np.roll(scan, -k, axis=0), plane, T, S.EXTENT)
+    assert np.array_equal(mask, np.roll(hit, -k))
+
+
 # -- (a) the manual's marks --------------------------------------------------------------------
 @pytest.mark.unit
 def test_pnp_recovers_the_transform_from_exact_marks():
