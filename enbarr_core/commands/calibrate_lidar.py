@@ -151,7 +151,7 @@ def _camera(path: str) -> CameraModel:
 
 def read_pairs(path: str) -> tuple[np.ndarray, np.ndarray]:
     """Read ``x,y,u,v`` lines (a header and ``#`` comments skipped); error names the line."""
-    rows = []
+    rows: list[list[float]] = []
     try:
         with open(path, newline='') as f:
             for n, line in enumerate(csv.reader(f), start=1):
@@ -265,7 +265,7 @@ def run_reproject(args: argparse.Namespace) -> int:
         count += 1
         if video:
             if writer is None:
-                fourcc = cv2.VideoWriter_fourcc(*('mp4v' if out.suffix == '.mp4' else 'MJPG'))
+                fourcc = cv2.VideoWriter.fourcc(*('mp4v' if out.suffix == '.mp4' else 'MJPG'))
                 writer = cv2.VideoWriter(str(out), fourcc, args.fps,
                                          (img.shape[1], img.shape[0]))
                 if not writer.isOpened():
@@ -301,7 +301,8 @@ def draw_scan(image: np.ndarray, laser_xy: np.ndarray, transform: Transform,
     hue = np.clip((r - 0.5) / 5.5, 0.0, 1.0) * 120
     for (u, v), h, good in zip(px, hue, ok):
         if good:
-            bgr = cv2.cvtColor(np.uint8([[[h, 255, 255]]]), cv2.COLOR_HSV2BGR)[0, 0]
+            bgr = cv2.cvtColor(np.array([[[h, 255, 255]]], dtype=np.uint8),
+                               cv2.COLOR_HSV2BGR)[0, 0]
             cv2.circle(image, (int(round(u)), int(round(v))), 2,
                        tuple(int(c) for c in bgr), -1)
     return int(ok.sum())

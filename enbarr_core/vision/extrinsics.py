@@ -36,6 +36,8 @@ import math
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+# mypy 2.4 takes scipy 1.17's least_squares for the submodule of the same name (its calls carry
+# an ignore); the function is scipy's public API.
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
@@ -215,7 +217,7 @@ def solve_pnp(laser_xy: ArrayLike, pixels: ArrayLike, camera: CameraModel, *,
     _, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     r_used = (cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)[0].reshape(-1, 2)
               - uv[used]).ravel()
-    sig_r, sig_t = _sigmas(np.asarray(jac)[:, :6], r_used)
+    sig_r, sig_t = _sigmas(np.asarray(jac, dtype=np.float64)[:, :6], r_used)
     return ExtrinsicsResult(
         _transform(rvec, tvec), 'pnp', float(np.sqrt(np.mean(res[used] ** 2))), 'px',
         res, used, sig_r, sig_t)
@@ -232,11 +234,13 @@ def _pnp_once(xy: Array, uv: Array, camera: CameraModel) -> tuple[Array, Array]:
     if not ok or not len(rvecs):
         raise CalibrationError('PnP found no pose for these pairs')
     best: tuple[float, Array, Array] | None = None
-    for rv, tv in zip(rvecs, tvecs):
-        rv, tv = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rv.copy(), tv.copy())
+    for rv0, tv0 in zip(rvecs, tvecs):
+        refined = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rv0.copy(), tv0.copy())
+        rv: Array = np.asarray(refined[0], dtype=np.float64)
+        tv: Array = np.asarray(refined[1], dtype=np.float64)
         err = float(np.sum(_pixel_errors(xy, uv, rv, tv, camera) ** 2))
         if best is None or err < best[0]:
-            best = (err, np.asarray(rv, dtype=float), np.asarray(tv, dtype=float))
+            best = (err, rv, tv)
     assert best is not None
     return best[1], best[2]
 
@@ -292,7 +296,7 @@ def board_plane(corners_px: ArrayLike, object_points: ArrayLike,
     if not ok:
         raise CalibrationError("PnP found no pose for the board's corners")
     rvec, tvec = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rvec, tvec)
-    R = cv2.Rodrigues(rvec)[0]
+    R: Array = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
     t = np.asarray(tvec, dtype=float).ravel()
     n = R[:, 2].copy()
     d = float(n @ t)
@@ -300,7 +304,7 @@ def board_plane(corners_px: ArrayLike, object_points: ArrayLike,
         n, d = -n, -d
     px, _ = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
     rms = float(np.sqrt(np.mean(np.sum((np.asarray(px).reshape(-1, 2) - uv) ** 2, axis=1))))
-    return BoardPlane(np.asarray(R, dtype=float), t, n, d, rms, uv, obj)
+    return BoardPlane(R, t, n, d, rms, uv, obj)
 
 
 def select_board_points(laser_xy: ArrayLike, plane: BoardPlane, guess: Transform,
@@ -401,7 +405,7 @@ def solve_planes(planes: Sequence[BoardPlane], laser_points: Sequence[ArrayLike]
         return out
 
     x0 = np.concatenate([_rvec(initial), initial.translation])
-    sol = least_squares(residuals, x0, method='lm', x_scale='jac')
+    sol = least_squares(residuals, x0, method='lm', x_scale='jac')  # type: ignore[operator]
     x = np.asarray(sol.x, dtype=float)
     res = residuals(x)
     sig_r, sig_t = _sigmas(np.asarray(sol.jac), res)
@@ -455,7 +459,7 @@ def _joint(x0: Array, planes: Sequence[BoardPlane], pts: Sequence[Array], camera
         return np.concatenate(out)
 
     rows = sum(2 * len(c) + len(a) for c, a in zip(corners, pts))
-    sparsity = lil_matrix((rows, 6 + 6 * B), dtype=int)
+    sparsity = lil_matrix((rows, 6 + 6 * B), dtype=int)  # type: ignore[no-untyped-call]
     row = 0
     for i in range(B):
         sparsity[row:row + 2 * len(corners[i]), 6 + 6 * i:12 + 6 * i] = 1
@@ -463,7 +467,8 @@ def _joint(x0: Array, planes: Sequence[BoardPlane], pts: Sequence[Array], camera
         sparsity[row:row + len(pts[i]), :6] = 1
         sparsity[row:row + len(pts[i]), 6 + 6 * i:12 + 6 * i] = 1
         row += len(pts[i])
-    sol = least_squares(f, x_start, jac_sparsity=sparsity, method='trf', x_scale='jac')
+    sol = least_squares(  # type: ignore[operator]
+        f, x_start, jac_sparsity=sparsity, method='trf', x_scale='jac')
     res = f(sol.x)
     jac = sol.jac.toarray() if hasattr(sol.jac, 'toarray') else np.asarray(sol.jac)
     dof = max(len(res) - len(sol.x), 1)

@@ -76,7 +76,7 @@ def bag_topics(path: str | os.PathLike[str], scan: str = '', image: str = '') ->
     """Resolve the scan and image topics of a bag (given, or the only one of each type)."""
     from rosbags.rosbag2 import Reader
     try:
-        with Reader(path) as reader:
+        with Reader(str(path)) as reader:
             types = {c.topic: c.msgtype for c in reader.connections}
     except Exception as err:  # noqa: BLE001 - rosbags raises its own kinds for a bad bag
         raise CalibrationError(f'{path}: not a readable rosbag2 bag: {err}') from err
@@ -107,7 +107,7 @@ def messages(path: str | os.PathLike[str], topics: Topics) -> Iterator[tuple[str
     from rosbags.typesys import get_typestore, Stores
     store = get_typestore(Stores.ROS2_JAZZY)
     kind = {topics.scan: 'scan', topics.image: 'image'}
-    with Reader(path) as reader:
+    with Reader(str(path)) as reader:
         conns = [c for c in reader.connections if c.topic in kind]
         for conn, _, raw in reader.messages(connections=conns):
             yield kind[conn.topic], store.deserialize_cdr(raw, conn.msgtype)

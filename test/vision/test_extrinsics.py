@@ -106,11 +106,15 @@ def test_planes_with_the_manuals_noise_and_the_joint_refinement():
 
 @pytest.mark.sim
 def test_planes_meet_the_bound_on_the_documented_data_set():
-    """25 poses of the manual's A3 board at 0.8 to 2 m, 10 revolutions each: 20 seeds."""
+    """40 poses of the manual's A3 board at 0.8 to 2 m, 10 revolutions each: 10 seeds.
+
+    docs/calibration_lidar.md gives the spread over 40 seeds for 20, 30 and 40 poses: 40 is
+    where every seed met the bound (30: 39 of 40).
+    """
     T = S.true_transform()
     worst = np.zeros(2)
-    for seed in range(20):
-        poses = S.board_poses(T, 25, np.random.default_rng(100 + seed), scans=10)
+    for seed in range(10):
+        poses = S.board_poses(T, 40, np.random.default_rng(100 + seed), scans=10)
         planes, pts = _planes_and_points(poses)
         result = E.solve_planes(planes, pts, camera=CAMERA, range_noise=A1_NOISE)
         worst = np.maximum(worst, _errors(result.transform, T))
@@ -229,7 +233,9 @@ def test_pnp_with_the_manuals_noise_and_20_pairs():
 
 @pytest.mark.sim
 def test_what_pnp_achieves_with_n_pairs():
-    """Pinned as measured over 20 seeds (docs/calibration_lidar.md): the worst case."""
+    """The worst of 20 seeds, pinned a little above what was measured (docs/calibration_lidar.md
+    gives the spread over 100 seeds): the rotation bound holds from 20 pairs, the translation
+    bound does not."""
     T = S.true_transform()
     worst = {}
     for n in (10, 20, 40):
