@@ -122,10 +122,11 @@ class ExtrinsicsResult:
     def summary(self) -> str:
         """Return a few lines: the transform, the fit and its uncertainty, for a terminal."""
         t = self.transform
-        rpy = np.degrees(t.rpy)
+        # as a quaternion: the laser's axes are about 90 deg from the optical frame's, where
+        # roll-pitch-yaw are near their singularity (the camera_link pose reads better)
         lines = [
             f'T_optical_laser ({self.method}): xyz [m] '
-            f'{_fmt(t.translation, 4)}, rpy [deg] {_fmt(rpy, 3)}',
+            f'{_fmt(t.translation, 4)}, quaternion [x, y, z, w] {_fmt(t.rotation, 5)}',
             f'  rms {self.rms:.4g} {self.unit} over {int(self.used.sum())} of '
             f'{len(self.used)} {"pairs" if self.method == "pnp" else "points"}',
             f'  1-sigma: rotation [deg] {_fmt(np.degrees(self.sigma_rotation), 3)}, '

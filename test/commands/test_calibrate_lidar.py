@@ -139,6 +139,25 @@ def test_lidar_without_write_leaves_the_profile(saucer: Path, capsys) -> None:
 
 
 @pytest.mark.unit
+def test_lidar_fragment_is_an_include_that_carries_the_result(saucer: Path, capsys) -> None:
+    T = S.true_transform()
+    picked, px, true = S.marks(T, 8, np.random.default_rng(24), click_px=0.0, quantize=False)
+    pairs = saucer / 'pairs.csv'
+    pairs.write_text(''.join(f'{a:.17g},{b:.17g},{u:.17g},{v:.17g}\n'
+                             for (a, b), (u, v) in zip(true, px)))
+    profile = saucer / 'saucer_sim.yaml'
+    before = (saucer / 'saucer_core.yaml').read_text()
+    frag = saucer / 'saucer_extrinsics.yaml'
+    assert main(['lidar', '--method', 'pnp', '--pairs', str(pairs), '--profile', str(profile),
+                 '--camera-info', str(saucer / 'camera.yaml'), '--fragment', str(frag)]) == 0
+    assert (saucer / 'saucer_core.yaml').read_text() == before
+    profile.write_text(profile.read_text().replace(
+        'include: [saucer_core.yaml]', 'include: [saucer_core.yaml, saucer_extrinsics.yaml]'))
+    found = _tree_transform(profile)
+    assert S.rotation_error_deg(found, T) < 1e-3 and S.translation_error(found, T) < 1e-4
+
+
+@pytest.mark.unit
 def test_a_users_mistake_is_one_line(saucer: Path, capsys) -> None:
     pairs = saucer / 'pairs.csv'
     pairs.write_text('1,0,300,240\n2,0.1,310,240\n3,-0.2,290,241\n')
