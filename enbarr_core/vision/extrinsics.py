@@ -297,13 +297,19 @@ def board_plane(corners_px: ArrayLike, object_points: ArrayLike,
     if not ok:
         raise CalibrationError("PnP found no pose for the board's corners")
     rvec, tvec = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rvec, tvec)
+    return _plane_of_pose(np.asarray(rvec, dtype=np.float64).ravel(),
+                          np.asarray(tvec, dtype=np.float64).ravel(), uv, obj, camera)
+
+
+def _plane_of_pose(rvec: Array, t: Array, uv: Array, obj: Array,
+                   camera: CameraModel) -> BoardPlane:
+    """Return the board's plane from its pose (rvec, t) and how well its corners fit."""
     R: Array = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
-    t = np.asarray(tvec, dtype=float).ravel()
     n = R[:, 2].copy()
     d = float(n @ t)
     if d < 0.0:
         n, d = -n, -d
-    px, _ = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
+    px, _ = cv2.projectPoints(obj, rvec, t, camera.K, camera.dist)
     rms = float(np.sqrt(np.mean(np.sum((np.asarray(px).reshape(-1, 2) - uv) ** 2, axis=1))))
     return BoardPlane(R, t, n, d, rms, uv, obj)
 
@@ -478,19 +484,9 @@ def _joint(x0: Array, planes: Sequence[BoardPlane], pts: Sequence[Array], camera
         sd = np.sqrt(np.clip(np.diag(cov)[:6], 0.0, None))
     except np.linalg.LinAlgError:
         sd = np.full(6, np.inf)
-    refined = []
-    for i, p in enumerate(planes):
-        R_b = Rotation.from_rotvec(sol.x[6 + 6 * i:9 + 6 * i]).as_matrix()
-        t_b = sol.x[9 + 6 * i:12 + 6 * i].copy()
-        n = R_b[:, 2].copy()
-        d = float(n @ t_b)
-        if d < 0.0:
-            n, d = -n, -d
-        px, _ = cv2.projectPoints(objs[i], sol.x[6 + 6 * i:9 + 6 * i], t_b, camera.K,
-                                  camera.dist)
-        rms = float(np.sqrt(np.mean(np.sum((np.asarray(px).reshape(-1, 2) - corners[i]) ** 2,
-                                           axis=1))))
-        refined.append(BoardPlane(R_b, t_b, n, d, rms, corners[i], objs[i]))
+    refined = [_plane_of_pose(np.asarray(sol.x[6 + 6 * i:9 + 6 * i], dtype=np.float64),
+                              np.asarray(sol.x[9 + 6 * i:12 + 6 * i], dtype=np.float64),
+                              corners[i], objs[i], camera) for i in range(B)]
     return np.asarray(sol.x[:6]), refined, sd[:3], sd[3:]
 
 
