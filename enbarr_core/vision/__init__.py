@@ -1,0 +1,1 @@
+"""Vision: camera models, calibration boards and camera calibration (pure; no ROS)."""
