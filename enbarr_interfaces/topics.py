@@ -25,7 +25,8 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
-    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField, PointCloud2)
+    CameraInfo, CompressedImage, Image, Imu, JointState, Joy, LaserScan, MagneticField,
+    PointCloud2)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -177,6 +178,12 @@ GUIDANCE_AVOIDANCE = TopicSpec(
     'binding constraints, infeasible, min barrier, engaged, blind. layout.dim[0].label = the '
     'comma-joined field names; encoding enbarr_interfaces.avoidance, docs/interfaces.md.',
     fast=True)
+CONTROL_AVOIDANCE = TopicSpec(
+    'control/avoidance', Float64MultiArray, SENSOR_QOS, 's; N', '',
+    'What the force-level collision avoidance (avoidance.level force) did to each force the '
+    'DP controller sent outside manual: the fields of guidance/avoidance (encoding '
+    'enbarr_interfaces.avoidance), min_barrier being the hull clearance less the safety '
+    'radius and blind meaning obstacles older than avoidance.staleness.', fast=True)
 GUIDANCE_PATH_AVAILABLE = TopicSpec(
     'guidance/path_available', Bool, LATCHED_QOS, '', '',
     'Whether the guidance node has a path or waypoint to follow (the controller refuses '
@@ -216,6 +223,10 @@ OBSTACLE_MARKERS = TopicSpec(
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'Camera frames as captured (OpenCV, V4L2 or a video file).')
+CAMERA_COMPRESSED = TopicSpec(
+    'camera/image_raw/compressed', CompressedImage, SENSOR_QOS, 'JPEG', CAMERA_OPTICAL_FRAME,
+    "camera/image_raw as JPEG, as image_transport's compressed plugin publishes it (format "
+    "'bgr8; jpeg compressed bgr8'), same stamp; what the recorder keeps by default.")
 CAMERA_INFO = TopicSpec(
     'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
@@ -234,7 +245,8 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
     MODE,
-    GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS,
+    GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
+    AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
-    VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
+    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS)

@@ -40,6 +40,11 @@ each chain (--messages per type, --repeat runs; the median is kept).
 scans of a synthetic basin with walls and buoys; per-scan CPU, share of a core at 5.5 Hz
 and its Raspberry Pi 4 estimate).
 
+--camera: the CPU one simulated camera frame costs, rendered (sim_camera) and encoded as
+JPEG (what the real camera pays for camera/image_raw/compressed), on --frames frames of the
+ca_buoy scene (--scene NAME for another profile's world and frames) at --quality; the share of
+a core at 15 fps and its Raspberry Pi 4 estimate; --png PATH writes the first frame.
+
 --avoidance: what the collision avoidance's safety filter costs per step with --obstacles
 obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
 solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
@@ -53,7 +58,7 @@ class BenchCommand(Command):
     help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
     description = ('Measure one of: a control chain in one process (--chain, the default), '
                    'a whole profile as processes (--profile), the recorder (--recording), '
-                   'the lidar perception (--perception). '
+                   'the lidar perception (--perception), the camera (--camera). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -70,6 +75,8 @@ class BenchCommand(Command):
                           help='the recorder alone: CPU per recorded message')
         what.add_argument('--perception', action='store_true',
                           help='the lidar perception alone: CPU per scan')
+        what.add_argument('--camera', action='store_true',
+                          help='the simulated camera alone: CPU per frame, render and JPEG')
         what.add_argument('--avoidance', action='store_true',
                           help='the collision avoidance safety filter alone: time per step')
         parser.add_argument('--obstacles', type=int, default=None, metavar='N',
@@ -103,9 +110,26 @@ class BenchCommand(Command):
         parser.add_argument('--scans', type=int, default=None, metavar='N',
                             help=f'--perception: scans measured (default {PERCEPTION_SCANS})')
 
+        parser.add_argument('--frames', type=int, default=None, metavar='N',
+                            help='--camera: frames measured (default 150)')
+        parser.add_argument('--quality', type=int, default=None, metavar='Q',
+                            help='--camera: JPEG quality 1..100 (default 80)')
+        parser.add_argument('--scene', default=None, metavar='PROFILE',
+                            help='--camera: the profile whose world and frames are drawn '
+                            '(default ca_buoy)')
+        parser.add_argument('--png', default=None, metavar='PATH',
+                            help='--camera: write the first frame as a PNG')
+
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
-        if args.avoidance:
+        camera_only = {'--frames': args.frames is not None,
+                       '--quality': args.quality is not None,
+                       '--scene': args.scene is not None, '--png': args.png is not None}
+        if not args.camera and any(camera_only.values()):
+            raise EnbarrError(f'{next(k for k, v in camera_only.items() if v)} is for --camera')
+        if args.camera:
+            result = _camera(args)
+        elif args.avoidance:
             result = _avoidance(args)
         elif args.recording:
             result = _recording(args)
@@ -130,6 +154,19 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
+
+
+def _camera(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import camera
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--scans', '--obstacles'),
+            'is not for --camera (it takes --frames, --quality, --scene, --png)')
+    frames = camera.DEFAULT_FRAMES if args.frames is None else args.frames
+    quality = camera.DEFAULT_QUALITY if args.quality is None else args.quality
+    if frames < 10 or not 1 <= quality <= 100:
+        raise EnbarrError(f'--frames must be >= 10 and --quality 1..100, got {frames} and '
+                          f'{quality}')
+    return camera.measure(frames, quality, args.scene or camera.DEFAULT_PROFILE, args.png)
 
 
 def _avoidance(args: argparse.Namespace) -> dict:

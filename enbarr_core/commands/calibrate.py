@@ -2,7 +2,9 @@
 
 Each action is a ``CalibrationAction`` listed in ``ACTIONS`` (name -> ``'module:Class'``),
 imported only when ``enbarr calibrate`` builds its parser; a new procedure is a module with
-one class and a line here. See docs/calibration.md.
+one class and a line here. ``camera`` (manual 4.1) is ``calibrate_camera``; ``lidar`` and
+``reproject`` (manual 4.2) are ``calibrate_lidar``'s functions, hung here by two small
+classes. See docs/calibration.md and docs/calibration_lidar.md.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from enbarr_core.commands.arguments import wrap
 #: name -> 'module:Class' of the calibration actions, in the order ``--help`` lists them.
 ACTIONS: dict[str, str] = {
     'camera': 'enbarr_core.commands.calibrate_camera:CameraCalibration',
+    'lidar': 'enbarr_core.commands.calibrate:LidarCalibration',
+    'reproject': 'enbarr_core.commands.calibrate:ReprojectCalibration',
 }
 
 
@@ -34,6 +38,40 @@ class CalibrationAction:
         raise NotImplementedError
 
 
+class LidarCalibration(CalibrationAction):
+    """``enbarr calibrate lidar``: ``calibrate_lidar.add_lidar_arguments`` / ``run_lidar``."""
+
+    def __init__(self) -> None:
+        from enbarr_core.commands import calibrate_lidar
+        self._module = calibrate_lidar
+        self.help = calibrate_lidar.LIDAR_HELP
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Declare ``calibrate lidar``'s options."""
+        self._module.add_lidar_arguments(parser)
+
+    def run(self, args: argparse.Namespace) -> int:
+        """Solve the lidar's pose in the camera frame."""
+        return self._module.run_lidar(args)
+
+
+class ReprojectCalibration(CalibrationAction):
+    """``enbarr calibrate reproject``: ``calibrate_lidar``'s reprojection."""
+
+    def __init__(self) -> None:
+        from enbarr_core.commands import calibrate_lidar
+        self._module = calibrate_lidar
+        self.help = calibrate_lidar.REPROJECT_HELP
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Declare ``calibrate reproject``'s options."""
+        self._module.add_reproject_arguments(parser)
+
+    def run(self, args: argparse.Namespace) -> int:
+        """Draw the scans onto the images."""
+        return self._module.run_reproject(args)
+
+
 def load_action(name: str) -> CalibrationAction:
     """Import and instantiate the action ``name`` of ``ACTIONS``."""
     module_name, _, attr = ACTIONS[name].partition(':')
@@ -46,7 +84,7 @@ def load_action(name: str) -> CalibrationAction:
 class CalibrateCommand(Command):
     """``enbarr calibrate ACTION``."""
 
-    help = 'calibrate a sensor (camera intrinsics)'
+    help = 'calibrate a sensor: camera intrinsics, the lidar in the camera frame'
     description = ('Calibration procedures of the CS Saucer manual, chapter 4; '
                    'docs/calibration.md maps them to these commands.')
 

@@ -244,7 +244,7 @@ def commit(cal: Calibration, service: str, timeout: float) -> str:
     from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.srv import SetCameraInfo
 
-    from enbarr_plugins.camera.opencv_camera import camera_info
+    from enbarr_plugins.camera.common import camera_info
 
     ctx = Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)

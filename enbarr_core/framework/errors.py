@@ -55,4 +55,7 @@ class FrameError(EnbarrError):
 
 
 class CalibrationError(EnbarrError):
-    """A calibration cannot be made from what was given (no board seen, unreadable input)."""
+    """Calibration data give no answer: the message says what to change.
+
+    No board seen, too few views, a degenerate set, input that cannot be read.
+    """

@@ -1,1 +1,1 @@
-"""Camera geometry without ROS: a checkerboard renderer and intrinsic calibration."""
+"""Vision: camera models, calibration boards and camera calibration (pure; no ROS)."""

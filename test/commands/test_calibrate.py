@@ -237,5 +237,5 @@ def test_image_encodings(encoding, data, bigendian, want):
 
 
 def test_calibrate_has_a_table_of_actions():
-    assert list(ACTIONS) == ['camera']
-    assert isinstance(load_action('camera'), CalibrationAction)
+    assert list(ACTIONS) == ['camera', 'lidar', 'reproject']
+    assert all(isinstance(load_action(name), CalibrationAction) for name in ACTIONS)
