@@ -349,31 +349,53 @@ def test_set_camera_info_refuses_when_the_file_cannot_be_written(context, execut
     assert response.status_message.startswith(f'{tmp_path / "gone" / "cam.yaml"}: cannot write')
 
 
-def test_enbarr_calibrate_camera_commit_calls_the_service(context, executor, tmp_path, capsys):
+def board_views(folder) -> str:
+    """Rendered views of a 6x4 board at 320x240 (the emulator's size) in ``folder``."""
     from enbarr_core.vision.board import Board, calibration_poses, Camera, render_board
     cam = Camera(320, 240, 260.0, 262.0, 161.5, 118.5, (-0.2, 0.05, 0.0, 0.0, 0.0))
     board = Board(6, 4, 0.05)
-    folder = tmp_path / 'shots'
     folder.mkdir()
     for i, pose in enumerate(calibration_poses(cam, board, 8, seed=5)):
         if i % 4 != 3:   # at 320x240 the small corner views are too small to detect
             cv2.imwrite(str(folder / f'{i}.png'), render_board(cam, board, pose, seed=i))
-    path = tmp_path / 'cam.yaml'
-    rig = Rig(context, executor, calibration_file=str(path))
-    assert rig.frames_flow()
+    return str(folder)
+
+
+def commit_from_a_thread(rig: Rig, folder: str) -> int:
+    """Run ``enbarr calibrate camera FOLDER --commit`` while the driver's executor spins."""
     done: list[int] = []
     worker = threading.Thread(target=lambda: done.append(cli.main([
-        'calibrate', 'camera', str(folder), '--size', '6x4', '--square', '0.05', '--commit',
+        'calibrate', 'camera', folder, '--size', '6x4', '--square', '0.05', '--commit',
         '--timeout', '20'])))
     worker.start()
     assert rig.spin_until(lambda: bool(done), timeout=60.0)
     worker.join()
+    return done[0]
+
+
+def test_enbarr_calibrate_camera_commit_calls_the_service(context, executor, tmp_path, capsys):
+    folder = board_views(tmp_path / 'shots')
+    path = tmp_path / 'cam.yaml'
+    rig = Rig(context, executor, calibration_file=str(path))
+    assert rig.frames_flow()
+    rc = commit_from_a_thread(rig, folder)
     out, err = capsys.readouterr()
-    assert done == [0], err
+    assert rc == 0, err
     assert f'committed to camera/set_camera_info: stored in {path}' in out
     cal = load_calibration(str(path))
     assert cal.k[0] == pytest.approx(260.0, rel=0.02) and (cal.width, cal.height) == (320, 240)
     assert rig.spin_until(lambda: rig.infos[-1].k[0] == cal.k[0])
+
+
+def test_a_commit_the_driver_refuses_is_one_error_line(context, executor, tmp_path, capsys):
+    folder = board_views(tmp_path / 'shots')
+    rig = Rig(context, executor)                       # no calibration_file
+    assert rig.frames_flow()
+    assert commit_from_a_thread(rig, folder) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ('enbarr calibrate: error: camera/set_camera_info refused: no '
+                       'calibration_file is configured: nowhere to store it')
+    assert 'Traceback' not in '\n'.join(err)
 
 
 def test_commit_without_a_driver_is_an_error(tmp_path, context):
