@@ -206,8 +206,11 @@ class SegmentTrack:
 
 
 def inverse_2x2(s: Vector) -> Vector:
-    """Return the inverse of the 2x2 matrix ``s`` written out (``numpy.linalg.inv``'s checks
-    cost more than the arithmetic); ``LinAlgError`` when it is singular, as numpy's."""
+    """Return the inverse of the 2x2 matrix ``s``, written out.
+
+    ``numpy.linalg.inv``'s checks cost more than the arithmetic; ``LinAlgError`` when it is
+    singular, as numpy's.
+    """
     (a, b), (c, d) = s.tolist()
     det = a * d - b * c
     if not (abs(det) > 0.0 and math.isfinite(det)):
