@@ -173,7 +173,7 @@ def _get(tool: ParamTool, args: argparse.Namespace, out: Any, err: Any) -> int:
 
 
 def format_value(pvalue: Any) -> tuple[str, Any]:
-    """The label and the value ``ros2 param get`` prints for a ``ParameterValue``."""
+    """Return the label and the value ``ros2 param get`` prints for a ``ParameterValue``."""
     fields = {1: 'bool_value', 2: 'integer_value', 3: 'double_value', 4: 'string_value',
               5: 'byte_array_value', 6: 'bool_array_value', 7: 'integer_array_value',
               8: 'double_array_value', 9: 'string_array_value'}
@@ -373,12 +373,12 @@ class ParamTool:
         return True
 
     def node_names(self, hidden: bool = False, settle: float = DEFAULT_SPIN_TIME_S) -> list[str]:
-        """The full names of the nodes seen on the graph within ``settle`` seconds."""
+        """Return the full names of the nodes seen on the graph within ``settle`` s."""
         self._spin_until(lambda: False, settle)
         return self._visible(hidden)
 
     def find_node(self, name: str, hidden: bool = False) -> str:
-        """The full name of node ``name`` (leading slash optional), once it is on the graph.
+        """Return the full name of node ``name`` (leading slash optional) once it is seen.
 
         Raises ``EnbarrError`` naming the nodes there are (and the closest) when it does not
         appear within the timeout.
@@ -421,17 +421,17 @@ class ParamTool:
         return future.result()
 
     def list_names(self, node: str, prefixes: Sequence[str]) -> list[str]:
-        """The names of the parameters ``node`` declares (with one of ``prefixes``, if any)."""
+        """Return the parameters ``node`` declares (with one of ``prefixes``, if any)."""
         future = self._client(node).list_parameters(prefixes=list(prefixes) or None)
         return list(self._call(node, 'list_parameters', future).result.names)
 
     def get(self, node: str, names: Sequence[str]) -> list[Any]:
-        """The ``ParameterValue``s of ``names``; empty when one of them is not declared."""
+        """Return the ``ParameterValue``s of ``names``; empty when one is not declared."""
         future = self._client(node).get_parameters(list(names))
         return list(self._call(node, 'get_parameters', future).values)
 
     def describe(self, node: str, names: Sequence[str]) -> list[Any]:
-        """The ``ParameterDescriptor``s of ``names``; empty when one is not declared."""
+        """Return the ``ParameterDescriptor``s of ``names``; empty when one is undeclared."""
         future = self._client(node).describe_parameters(list(names))
         return list(self._call(node, 'describe_parameters', future).descriptors)
 
@@ -445,7 +445,7 @@ class ParamTool:
         return results
 
     def not_declared(self, node: str, name: str) -> EnbarrError:
-        """The error for parameter ``name`` that ``node`` does not declare (closest named)."""
+        """Return the error for a parameter ``node`` does not declare (closest one named)."""
         close = difflib.get_close_matches(name, self.list_names(node, []), n=1)
         mean = f'; did you mean {close[0]}?' if close else ''
         return EnbarrError(f'{node} declares no parameter {name}{mean} '
