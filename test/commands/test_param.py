@@ -121,6 +121,18 @@ def test_list_without_a_node_heads_each_node(h):
     assert (rc, out) == (0, '/guidance:\n  avoidance.gamma\n')
 
 
+def test_hidden_nodes_only_when_asked(h, context, executor):
+    from rclpy.node import Node
+    hidden = Node('_hidden', context=context)
+    hidden.declare_parameter('secret', 1.5)
+    executor.add_node(hidden)
+    rc, out, _ = h('list', '--spin-time', '0.5', '--param-prefixes', 'secret')
+    assert (rc, out) == (0, '')
+    rc, out, _ = h('list', '--spin-time', '0.5', '--param-prefixes', 'secret',
+                   '--include-hidden-nodes')
+    assert (rc, out) == (0, '/_hidden:\n  secret\n')
+
+
 def test_describe_prints_type_description_and_range(h):
     rc, out, err = h('describe', '/guidance', 'avoidance.gamma', 'avoidance.level')
     assert (rc, err) == (0, '')
