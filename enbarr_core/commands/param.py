@@ -143,7 +143,15 @@ def _list(tool: ParamTool, args: argparse.Namespace, out: Any, err: Any) -> int:
     regex = re.compile(args.filter[0]) if args.filter else None
     # ros2param sorts ros2node's NodeName tuples: by base name, then namespace.
     for full in sorted(nodes, key=_sort_key):
-        names = sorted(tool.list_names(full, args.param_prefixes))
+        try:
+            names = sorted(tool.list_names(full, args.param_prefixes))
+        except ServicesNotFound:
+            if args.node_name:
+                raise
+            # As ros2param: one node without parameter services does not stop the listing.
+            print('Wait for service timed out waiting for parameter services for node '
+                  f'{full}', file=err)
+            continue
         if regex is not None:
             names = [n for n in names if regex.match(n)]
         if not args.node_name and names:
@@ -306,6 +314,10 @@ def _sort_key(full_name: str) -> tuple[str, str, str]:
     return name, namespace or '/', full_name
 
 
+class ServicesNotFound(EnbarrError):
+    """A node on the graph whose parameter services did not appear within the timeout."""
+
+
 class ParamTool:
     """A hidden, short-lived node that calls other nodes' parameter services.
 
@@ -405,7 +417,7 @@ class ParamTool:
         if node not in self._clients:
             client = AsyncParameterClient(self.node, node)
             if not self._spin_until(client.services_are_ready, self.timeout):
-                raise EnbarrError(f'{node} has no parameter services (none answered within '
+                raise ServicesNotFound(f'{node} has no parameter services (none answered within '
                                   f'{self.timeout:g} s)')
             self._clients[node] = client
         return self._clients[node]

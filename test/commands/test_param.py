@@ -133,6 +133,19 @@ def test_hidden_nodes_only_when_asked(h, context, executor):
     assert (rc, out) == (0, '/_hidden:\n  secret\n')
 
 
+def test_list_goes_on_past_a_node_without_parameter_services(h, context, executor):
+    from rclpy.node import Node
+    executor.add_node(Node('_mute', context=context, start_parameter_services=False))
+    h.tool.timeout = 0.5
+    rc, out, err = h('list', '--spin-time', '0.5', '--param-prefixes', 'avoidance',
+                     '--filter', 'avoidance.gam', '--include-hidden-nodes')
+    assert (rc, out) == (0, '/guidance:\n  avoidance.gamma\n')
+    assert err == ('Wait for service timed out waiting for parameter services for node '
+                   '/_mute\n')
+    message = error(h, 'list', '/_mute')
+    assert message == '/_mute has no parameter services (none answered within 0.5 s)'
+
+
 def test_describe_prints_type_description_and_range(h):
     rc, out, err = h('describe', '/guidance', 'avoidance.gamma', 'avoidance.level')
     assert (rc, err) == (0, '')
