@@ -65,6 +65,34 @@ def test_get_prints_ros2params_labels(h):
     assert h('get', '/guidance', 'avoidance.gamma', '--hide-type') == (0, '0.5\n', '')
 
 
+def test_get_every_type(h, context, executor):
+    from rclpy.node import Node
+    from enbarr_core.framework.params import ParamSpec, SettingsBinding
+    node = Node('types', context=context)
+    SettingsBinding(node, [
+        ParamSpec('count', 3, 'How many', '', 0, 10),
+        ParamSpec('counts', [1, 2], 'How many each'),
+        ParamSpec('flags', [True, False], 'Flags'),
+        ParamSpec('names', ['a', 'b'], 'Names'),
+    ], dict, lambda settings: None)
+    executor.add_node(node)
+    assert h('get', 'types', 'count') == (0, 'Integer value is: 3\n', '')
+    assert h('get', 'types', 'counts') == (0, 'Integer values are: [1, 2]\n', '')
+    assert h('get', 'types', 'flags') == (0, 'Boolean values are: [True, False]\n', '')
+    assert h('get', 'types', 'names') == (0, "String values are: ['a', 'b']\n", '')
+    assert h('describe', 'types', 'count') == (0, 'Parameter name: count\n'
+                                                  '  Type: integer\n'
+                                                  '  Description: How many\n'
+                                                  '  Constraints:\n'
+                                                  '    Min value: 0\n'
+                                                  '    Max value: 10\n'
+                                                  '    Step: 1\n', '')
+    assert h('set', 'types', 'counts', '[4, 5, 6]')[0:2] == (0, 'Set parameter successful\n')
+    assert h('get', 'types', 'counts', '--hide-type') == (0, '[4, 5, 6]\n', '')
+    assert error(h, 'set', 'types', 'counts', '[4.0]') == (
+        "/types counts is an integer array; '[4.0]' is a double array")
+
+
 def test_set_double_is_applied_to_the_settings(h):
     assert h('set', '/guidance', 'avoidance.gamma', '0.3') == (0, 'Set parameter successful\n',
                                                                '')
