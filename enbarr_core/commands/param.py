@@ -287,7 +287,9 @@ def _load(tool: ParamTool, args: argparse.Namespace, out: Any, err: Any) -> int:
     try:
         # ros2param's load sends every parameter of the file, whichever node it is under.
         params = list(parameter_dict_from_yaml_file(args.parameter_file, wildcard).values())
-    except (yaml.YAMLError, RuntimeError, TypeError) as error:
+    # rclpy's reader does not check the file's shape first: a list at the top is an
+    # AttributeError, a section of no parameters a RuntimeError.
+    except (yaml.YAMLError, RuntimeError, TypeError, AttributeError, ValueError) as error:
         raise EnbarrError(f'{args.parameter_file}: {" ".join(str(error).split())}') from error
     results = tool.set(node, params)  # rcl_interfaces Parameter messages
     failed = 0

@@ -234,6 +234,22 @@ def test_load_reports_a_refused_parameter(h, tmp_path):
     assert h.node.get_parameter('path.speed').value == 0.3
 
 
+def test_load_wildcard_section_unless_told_not_to(h, tmp_path):
+    path = tmp_path / 'all.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    path:\n      speed: 0.4\n')
+    assert error(h, 'load', 'guidance', str(path), '--no-use-wildcard') == (
+        f'{path}: Param file does not contain selected parameters')
+    assert h.node.get_parameter('path.speed').value == 0.2
+    assert h('load', 'guidance', str(path)) == (0, 'Set parameter path.speed successful\n', '')
+    assert h.node.get_parameter('path.speed').value == 0.4
+
+
+def test_load_of_a_file_that_is_no_parameter_file(h, tmp_path):
+    path = tmp_path / 'list.yaml'
+    path.write_text('- 1\n- 2\n')
+    assert error(h, 'load', 'guidance', str(path)).startswith(f'{path}: ')
+
+
 def test_node_in_a_namespace(context, executor):
     harness = Harness(context, executor, namespace='/vessel')
     try:
