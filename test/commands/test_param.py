@@ -315,9 +315,10 @@ def test_value_that_is_not_yaml(h):
 def test_no_answer_within_the_timeout(context, executor):
     """A node whose executor never spins: found on the graph, but it never answers."""
     from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
     import rclpy
     other = Context()
-    rclpy.init(context=other)
+    rclpy.init(context=other, signal_handler_options=SignalHandlerOptions.NO)
     try:
         silent = GuidanceNode(node_name='silent', context=other, parameter_overrides=overrides())
         tool = ParamTool(timeout=1.0, context=context, executor=executor)
