@@ -36,6 +36,7 @@ BUILTIN: dict[str, str] = {
     'check-device': 'enbarr_core.commands.check_device:CheckDeviceCommand',
     'bag': 'enbarr_core.commands.bag:BagCommand',
     'calibrate': 'enbarr_core.commands.calibrate:CalibrateCommand',
+    'param': 'enbarr_core.commands.param:ParamCommand',
 }
 
 

@@ -24,6 +24,7 @@ What each test proves, in this order:
    - ``list``, and ``check-device`` against an emulator: as written.
    - ``calibrate``: parsed only (it needs a camera or pictures of a board; its own tests run
      it on rendered ones).
+   - ``param`` talks to a running node: parsed only (skipped; its own tests run it).
    - ``python -m MODULE``: with the options of ``MODULE_RUNS`` (``--help``: it imports and
      has its command line).
 3. Skipped, each by its command line with the reason: what needs hardware or a toolchain
@@ -243,9 +244,15 @@ def run_calibrate(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
                 'or bag the reader has); parsed only (test/commands/test_calibrate*.py run it)')
 
 
+def run_param(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
+    pytest.skip('needs a running node (test/commands/test_param.py and '
+                'test/e2e/test_param_cli.py run every verb against one); parsed only')
+
+
 RUNS: dict[str, Callable[[list[str], argparse.Namespace, Path], str]] = {
     'bringup': run_bringup, 'scenario': run_scenario, 'bench': run_bench, 'chaos': run_chaos,
     'list': run_as_written, 'check-device': run_check_device, 'calibrate': run_calibrate,
+    'param': run_param,
 }
 
 #: Commands that are not run here, by their first words, with the reason.
