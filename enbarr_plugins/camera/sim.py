@@ -175,6 +175,15 @@ class SimCameraNode(SensorDriver):
         self.output = ImageOutput(self, s.publish_raw)
         self.frames = 0
         self.create_service(SetCameraInfo, topics.CAMERA_SET_INFO, self._set_camera_info)
+        self.skipped = 0
+        self.truths = 0
+        self._t0_ns: int | None = None  # the first truth's stamp: frame 0
+        self._k = 0  # the next frame's number
+        self._rendering = False
+        self._due: tuple[Any, float, float, float, float, float] | None = None
+        self._lock = threading.Lock()
+        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
+        self.health = InputHealth()
         if s.board is not None:
             self._init_board(s.board)
             return
@@ -188,15 +197,6 @@ class SimCameraNode(SensorDriver):
             self.camera = SimulatedCamera(s.model, mount, Look(seed=s.seed))
         except ValueError as err:
             raise ConfigurationError(f'node {self.get_name()!r}: {err}') from err
-        self.skipped = 0
-        self.truths = 0
-        self._t0_ns: int | None = None  # the first truth's stamp: frame 0
-        self._k = 0  # the next frame's number
-        self._rendering = False
-        self._due: tuple[Any, float, float, float, float, float] | None = None
-        self._lock = threading.Lock()
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         self._loop = self.create_rate_loop(s.frame_rate * POLLS_PER_FRAME, self._render_due)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
@@ -210,9 +210,6 @@ class SimCameraNode(SensorDriver):
                                      parameter='scene') from err
         self._last_ns: int | None = None
         self._prepared = False
-        self.skipped, self.truths = 0, 0
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         self._loop = self.create_rate_loop(s.frame_rate, self._render_board)
 
     def _render_board(self) -> None:
