@@ -25,7 +25,8 @@ from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
-    CameraInfo, Image, Imu, JointState, Joy, LaserScan, MagneticField, PointCloud2)
+    CameraInfo, CompressedImage, Image, Imu, JointState, Joy, LaserScan, MagneticField,
+    PointCloud2)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -219,6 +220,18 @@ CAMERA_IMAGE = TopicSpec(
 CAMERA_INFO = TopicSpec(
     'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
+CAMERA_IMAGE_COMPRESSED = TopicSpec(
+    'camera/image_raw/compressed', CompressedImage, SENSOR_QOS, 'pixels (JPEG)',
+    CAMERA_OPTICAL_FRAME,
+    "camera/image_raw compressed (image_transport's compressed name), same stamp.")
+DETECTIONS = TopicSpec(
+    'detections', PointCloud2, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
+    'Objects found in a camera image, one point per box (class_id, score, x_min, y_min, '
+    "x_max, y_max in the image's pixels); header = the image's header, also when nothing "
+    'was found. Encoding: enbarr_interfaces.detections, docs/interfaces.md "Detections".')
+DETECTION_IMAGE = TopicSpec(
+    'detections/image', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
+    'The image with its detections drawn, for a viewer (built only while one subscribes).')
 VESSEL_CLAIMS = TopicSpec(
     '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
     'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
@@ -233,4 +246,4 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
-    VESSEL_CLAIMS)
+    CAMERA_IMAGE_COMPRESSED, DETECTIONS, DETECTION_IMAGE, VESSEL_CLAIMS)

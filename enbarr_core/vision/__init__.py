@@ -1,0 +1,1 @@
+"""Vision: what the camera sees, as pure modules (OpenCV and numpy) beside their nodes."""
