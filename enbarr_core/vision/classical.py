@@ -45,15 +45,18 @@ class ColourClass:
     hsv_high: tuple[int, int, int]
 
     def validate(self) -> None:
-        """Raise ``ValueError`` for a box outside OpenCV's HSV ranges or empty in S or V."""
+        """Raise ``ValueError`` for a box outside OpenCV's HSV ranges, or empty in S or V.
+
+        The message starts with the parameter at fault, ``hsv_lower`` or ``hsv_upper``.
+        """
         for i, top in enumerate((179, 255, 255)):
-            for v in (self.hsv_low[i], self.hsv_high[i]):
+            for bound, v in (('hsv_lower', self.hsv_low[i]), ('hsv_upper', self.hsv_high[i])):
                 if not 0 <= v <= top:
-                    raise ValueError(f'hsv: class {self.name!r}: channel {"HSV"[i]} value {v} '
-                                     f'is outside 0..{top}')
+                    raise ValueError(f'{bound}: class {self.name!r}: {"HSV"[i]} value {v} is '
+                                     f'outside 0..{top}')
         for i in (1, 2):
             if self.hsv_low[i] > self.hsv_high[i]:
-                raise ValueError(f'hsv: class {self.name!r}: {"HSV"[i]} low '
+                raise ValueError(f'hsv_lower: class {self.name!r}: {"HSV"[i]} low '
                                  f'{self.hsv_low[i]} > high {self.hsv_high[i]}')
 
 

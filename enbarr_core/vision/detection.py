@@ -152,10 +152,11 @@ def check_output(output: NDArray[np.float32], layout: str, classes: int) -> str 
 
 def decode(output: NDArray[np.float32], layout: str, classes: int,
            score_threshold: float) -> Candidates:
-    """Return the candidates of a model output whose best class scores ``>= threshold``.
+    """Return the candidates of a model output whose best class scores above the threshold.
 
-    Each candidate keeps its best class only (as Ultralytics' own post-processing); the box
-    goes from centre and size to corners. Raises ``ValueError`` for an output of another shape.
+    Strictly above, as OpenCV's suppression and Ultralytics' ``conf`` filter. Each candidate
+    keeps its best class only (as Ultralytics' own post-processing); the box goes from centre
+    and size to corners. Raises ``ValueError`` for an output of another shape.
     """
     problem = check_output(output, layout, classes)
     if problem:
@@ -171,7 +172,7 @@ def decode(output: NDArray[np.float32], layout: str, classes: int,
         return Candidates(empty, np.zeros(0), np.zeros(0, dtype=np.int64))
     class_ids = np.argmax(class_scores, axis=1)
     scores = class_scores[np.arange(len(class_ids)), class_ids]
-    keep = scores >= score_threshold
+    keep = scores > score_threshold
     cx, cy, w, h = (rows[keep, i] for i in range(4))
     boxes = np.column_stack((cx - 0.5 * w, cy - 0.5 * h, cx + 0.5 * w, cy + 0.5 * h))
     return Candidates(boxes, scores[keep], class_ids[keep].astype(np.int64))
@@ -181,10 +182,11 @@ def suppress(candidates: Candidates, score_threshold: float, iou_threshold: floa
              max_detections: int) -> list[int]:
     """Class-wise non-maximum suppression: the indices kept, best score first.
 
-    OpenCV's ``cv2.dnn.NMSBoxesBatched``: within one class, a box is dropped when its
-    intersection over union with a better-scoring kept box is above ``iou_threshold`` (equal
-    is kept); boxes of different classes never suppress each other (a buoy in front of a
-    boat is both). At most ``max_detections`` are kept.
+    OpenCV's ``cv2.dnn.NMSBoxesBatched`` (it is class-wise already, so nothing is written
+    here): within one class, a box is dropped when its intersection over union with a
+    better-scoring kept box is above ``iou_threshold`` (equal is kept), and a score not above
+    ``score_threshold`` is dropped; boxes of different classes never suppress each other (a
+    buoy in front of a boat is both). At most ``max_detections`` are kept.
     """
     n = len(candidates.scores)
     if n == 0:

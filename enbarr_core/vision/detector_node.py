@@ -131,10 +131,7 @@ def _classical(v: Mapping[str, Any], names: Sequence[str]) -> ClassicalDetector:
     for i, name in enumerate(names):
         c = ColourClass(name, tuple(low[3 * i:3 * i + 3]),  # type: ignore[arg-type]
                         tuple(high[3 * i:3 * i + 3]))      # type: ignore[arg-type]
-        try:
-            c.validate()
-        except ValueError as err:
-            raise ValueError(f'hsv_lower: {err}') from err
+        c.validate()
         classes.append(c)
     shape = ShapeLimits(min_area=v['min_area'], min_aspect=v['min_aspect'],
                         max_aspect=v['max_aspect'], min_solidity=v['min_solidity'],

@@ -40,7 +40,8 @@ def water(width: int, height: int, rng: np.random.Generator) -> NDArray[np.uint8
         k, phase = rng.uniform(0.03, 0.15), rng.uniform(0.0, 2.0 * math.pi)
         theta = rng.uniform(-0.4, 0.4)
         swell += np.sin(k * (x * math.sin(theta) + y * math.cos(theta)) + phase)
-    shade = 0.75 + 0.25 * (y / height) + 0.05 * swell + rng.normal(0.0, 0.03, swell.shape)
+    shade = (0.75 + 0.25 * (y / height) + 0.05 * swell
+             + 0.03 * rng.standard_normal(swell.shape, dtype=np.float32))
     base = np.array((125, 95, 45), np.float32)   # BGR: blue-green water
     img: NDArray[np.uint8] = np.clip(shade[..., None] * base, 0, 255).astype(np.uint8)
     for _ in range(int(rng.integers(10, 40))):  # sun glitter: small, unsaturated, bright
@@ -125,7 +126,7 @@ def scene(rng: np.random.Generator, width: int = 640, height: int = 480,
                 cylinder(img, x0, y0, w, h, bgr, light)
             truth.append(box)
             break
-    noise = rng.normal(0.0, 3.0, img.shape)
+    noise = 3.0 * rng.standard_normal(img.shape, dtype=np.float32)
     return np.clip(img.astype(np.float32) + noise, 0, 255).astype(np.uint8), truth
 
 
