@@ -66,6 +66,7 @@ def test_yolov5_layout_multiplies_objectness_into_the_class_scores() -> None:
     # Ultralytics' rule: strictly above).
     rows = np.array([(*r[:4], 0.5, *r[4:]) for r in TABLE], np.float32)
     c = decode(rows[None], 'yolov5', 3, 0.25)
+    assert len(c.scores) == 4                 # A, B (0.4), C, D: F's 0.25 is not above
     got = as_tuples(detections(c, suppress(c, 0.25, 0.45, 100)))
     assert got == [(0, 0.45, 10, 10, 30, 30), (1, 0.35, 10, 10, 30, 30),
                    (0, 0.3, 20, 10, 40, 30)]
