@@ -56,6 +56,18 @@ def _first_line(err: Exception) -> str:
     return lines[-1] if lines else type(err).__name__
 
 
+def preprocess(image: NDArray[np.uint8], input_size: tuple[int, int]
+               ) -> tuple[NDArray[np.float32], Letterbox]:
+    """Return the model's input for a BGR image and the letterbox that maps boxes back.
+
+    [1, 3, height, width] float32, RGB, 0..1: what Ultralytics' exports were trained on.
+    """
+    h, w = image.shape[:2]
+    letterbox = Letterbox.fit((w, h), input_size)
+    blob = cv2.dnn.blobFromImage(letterbox.apply(image, input_size), 1.0 / 255.0, swapRB=True)
+    return np.asarray(blob, dtype=np.float32), letterbox
+
+
 class OnnxDetector:
     """A YOLO-style ONNX model; ``detect(bgr)`` gives the objects of one frame."""
 
@@ -92,9 +104,7 @@ class OnnxDetector:
         """Return the objects of a BGR image, best score first (boxes in its pixels, clipped)."""
         s = self.settings
         h, w = image.shape[:2]
-        letterbox = Letterbox.fit((w, h), s.input_size)
-        blob = np.asarray(cv2.dnn.blobFromImage(letterbox.apply(image, s.input_size),
-                                                1.0 / 255.0, swapRB=True), dtype=np.float32)
+        blob, letterbox = preprocess(image, s.input_size)
         out = self._forward(blob)
         candidates = decode(out, s.layout, s.classes, s.score_threshold)
         kept = suppress(candidates, s.score_threshold, s.iou_threshold, s.max_detections)

@@ -5,14 +5,13 @@ onnx.helper and run by OpenCV's dnn), against boxes computed by hand below.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 from support.onnx_graphs import yolo_graph
 
 from enbarr_core.vision.detection import (
     Candidates, decode, Detection, detections, iou, Letterbox, suppress)
-from enbarr_core.vision.onnx_model import OnnxDetector, OnnxSettings
+from enbarr_core.vision.onnx_model import OnnxDetector, OnnxSettings, preprocess
 
 pytestmark = pytest.mark.unit
 
@@ -166,27 +165,12 @@ def test_an_unknown_layout_is_refused(v8_model) -> None:
         OnnxDetector(settings(v8_model, layout='yolov3'))
 
 
-def test_the_model_is_fed_rgb_scaled_to_one(tmp_path) -> None:
-    """The blob: RGB order, 0..1, letterboxed: a graph that outputs its input's mean per
-    channel shows it (a 1 x 1 convolution of stride 1 with weights 1 on one channel each)."""
-    from onnx import helper, numpy_helper, TensorProto
-    import onnx
-    w = np.zeros((3, 3, 1, 1), np.float32)
-    for i in range(3):
-        w[i, i] = 1.0
-    graph = helper.make_graph(
-        [helper.make_node('Conv', ['images', 'w'], ['c'], kernel_shape=[1, 1]),
-         helper.make_node('GlobalAveragePool', ['c'], ['m'])],
-        'mean', [helper.make_tensor_value_info('images', TensorProto.FLOAT, [1, 3, 8, 8])],
-        [helper.make_tensor_value_info('m', TensorProto.FLOAT, [1, 3, 1, 1])],
-        [numpy_helper.from_array(w, 'w')])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid('', 13)])
-    model.ir_version = 8
-    onnx.save(model, str(tmp_path / 'mean.onnx'))
-    det = OnnxDetector.__new__(OnnxDetector)   # the forward pass alone, no layout check
-    det.net = cv2.dnn.readNetFromONNX(str(tmp_path / 'mean.onnx'))
-    img = np.zeros((8, 8, 3), np.uint8)
+def test_the_model_is_fed_rgb_scaled_to_one_letterboxed() -> None:
+    # a 4 x 2 BGR image into a 4 x 4 input: one row of padding above and below
+    img = np.zeros((2, 4, 3), np.uint8)
     img[..., 0], img[..., 1], img[..., 2] = 51, 102, 255     # B, G, R
-    blob = cv2.dnn.blobFromImage(Letterbox.fit((8, 8), (8, 8)).apply(img, (8, 8)),
-                                 1.0 / 255.0, swapRB=True)
-    assert np.allclose(det._forward(blob).reshape(3), [1.0, 0.4, 0.2], atol=1e-6)
+    blob, lb = preprocess(img, (4, 4))
+    assert blob.shape == (1, 3, 4, 4) and blob.dtype == np.float32
+    assert (lb.scale, lb.pad_x, lb.pad_y) == (1.0, 0, 1)
+    assert np.allclose(blob[0, :, 1:3], np.array([1.0, 0.4, 0.2])[:, None, None])   # R, G, B
+    assert np.allclose(blob[0, :, 0], 114 / 255) and np.allclose(blob[0, :, 3], 114 / 255)
