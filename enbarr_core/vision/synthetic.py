@@ -51,10 +51,11 @@ def water(width: int, height: int, rng: np.random.Generator) -> NDArray[np.uint8
     return img
 
 
-def distractors(img: NDArray[np.uint8], rng: np.random.Generator) -> None:
+def distractors(img: NDArray[np.uint8], rng: np.random.Generator) -> TrueBox:
     """Draw a grey basin wall along the top with a red stripe, a white boat with a red boot top.
 
     The red parts are buoy-coloured but flat: only a shape test tells them from a buoy.
+    Returns the boat's box (class -1), which ``scene`` keeps its buoys clear of.
     """
     h, w = img.shape[:2]
     top = int(rng.integers(h // 8, h // 4))
@@ -66,6 +67,7 @@ def distractors(img: NDArray[np.uint8], rng: np.random.Generator) -> None:
                     np.int32)
     cv2.fillPoly(img, [hull], (235, 235, 230))
     cv2.rectangle(img, (bx + 13, by + 19), (bx + 112, by + 25), COLOURS['red'], -1)
+    return TrueBox(-1, bx, by - 20, bx + 131, by + 26)
     cv2.rectangle(img, (bx + 40, by - 20), (bx + 80, by), (70, 70, 70), -1)
 
 
@@ -103,9 +105,13 @@ def sphere(img: NDArray[np.uint8], x0: int, y0: int, d: int, bgr: tuple[int, int
 
 def scene(rng: np.random.Generator, width: int = 640, height: int = 480,
           buoys: int | None = None) -> tuple[NDArray[np.uint8], list[TrueBox]]:
-    """One frame and the true box of each buoy in it (1 to 4 buoys, none overlapping)."""
+    """Return a frame and the true box of each buoy in it (1 to 4, apart and clear of the boat).
+
+    Apart: a buoy drawn against another or against the boat's red stripe is one blob with it,
+    whose true box would be a matter of opinion.
+    """
     img = water(width, height, rng)
-    distractors(img, rng)
+    boat = distractors(img, rng)
     truth: list[TrueBox] = []
     light = float(rng.uniform(-0.8, 0.8))
     for _ in range(int(rng.integers(1, 5)) if buoys is None else buoys):
@@ -118,7 +124,7 @@ def scene(rng: np.random.Generator, width: int = 640, height: int = 480,
             x0 = int(rng.integers(0, width - w))
             y0 = int(rng.integers(height // 4, height - h))
             box = TrueBox(class_id, x0, y0, x0 + w, y0 + h)
-            if any(_overlap(box, t) for t in truth):
+            if any(_overlap(box, t) for t in (*truth, boat)):
                 continue
             if round_buoy:
                 sphere(img, x0, y0, w, bgr, light)

@@ -49,6 +49,31 @@ def test_a_shaded_red_cylinder_is_found_with_its_box() -> None:
     assert 0.95 <= d.score <= 1.0
 
 
+def test_specks_of_buoy_colour_beside_a_buoy_neither_grow_nor_hide_it() -> None:
+    # 3 x 3 px red specks 4 px off both sides (spray, a reflection broken by ripples): the
+    # opening removes them before the closing could join them to the buoy
+    img = blank()
+    x0, y0, w, h = 200, 220, 40, 90
+    img[y0:y0 + h, x0:x0 + w] = (35, 35, 205)
+    for y in range(y0 + 5, y0 + h - 5, 12):
+        img[y:y + 3, x0 + w + 4:x0 + w + 7] = (35, 35, 205)
+        img[y:y + 3, x0 - 7:x0 - 4] = (35, 35, 205)
+    found = default_detector().detect(img)
+    assert [(d.class_id, d.x_min, d.y_min, d.x_max, d.y_max) for d in found] == [
+        (0, x0, y0, x0 + w, y0 + h)]
+
+
+def test_a_noisy_camera_still_finds_every_buoy() -> None:
+    # sensor noise of 20 grey levels (one standard deviation) speckles the hue of a buoy's
+    # shaded side; the blur before thresholding keeps it whole
+    rng = np.random.default_rng(11)
+    detector = default_detector()
+    for _ in range(4):
+        img, truth = scene(rng, buoys=3)
+        noisy = np.clip(img + 20.0 * rng.standard_normal(img.shape), 0, 255).astype(np.uint8)
+        assert match(detector.detect(noisy), truth) == (len(truth), 0, 0)
+
+
 def test_red_is_found_on_both_sides_of_hue_zero() -> None:
     # OpenCV hue 175 (magenta-red) and 3 (orange-red): one class, a range that wraps
     hsv = np.zeros((1, 3, 3), np.uint8)
@@ -100,8 +125,6 @@ def match(found: list[Detection], truth) -> tuple[int, int, int]:
 
 @pytest.mark.sim     # sixty frames drawn and searched: long for the unit tier
 def test_precision_and_recall_on_generated_scenes() -> None:
-    # On this seed: 164 buoys found, none invented, 4 missed: drawn touching the boat's red
-    # boot top or another red buoy touching it, they merge into one blob of no buoy's shape.
     rng = np.random.default_rng(20261126)
     detector = default_detector()
     tp = fp = fn = 0
@@ -111,8 +134,9 @@ def test_precision_and_recall_on_generated_scenes() -> None:
         tp, fp, fn = tp + a, fp + b, fn + c
     assert tp + fn >= 120                  # the set has enough buoys to mean something
     precision, recall = tp / (tp + fp), tp / (tp + fn)
-    assert precision >= 0.97, (tp, fp, fn)
-    assert recall >= 0.95, (tp, fp, fn)
+    # on this seed all 143 buoys are found and nothing else: a margin of two either way
+    assert precision >= 0.985, (tp, fp, fn)
+    assert recall >= 0.985, (tp, fp, fn)
 
 
 def test_hsv_and_class_parameters_are_checked_naming_the_parameter() -> None:
