@@ -19,6 +19,7 @@ IDLE_SECONDS = 10.0
 #: The chain rate a run takes [Hz] (the simulator and sensors refuse far less).
 MAX_RATE = 10_000.0
 PERCEPTION_SCANS = 500
+VISION_FRAMES = 200
 
 EPILOG = """\
 --chain (default rov): drive the sensor -> filter -> control -> allocation -> actuator
@@ -44,6 +45,11 @@ and its Raspberry Pi 4 estimate).
 obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
 solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
 
+--vision: the CPU one 640 x 480 camera frame costs the detector: the classical back end
+(colour and shape) on --frames synthetic frames and, with --model PATH, an ONNX model in the
+YOLOv8 layout (640 x 640 input, 80 classes; docs/vision.md); per-frame CPU, the share of a
+core at 15 Hz and its Raspberry Pi 4 estimate.
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -53,7 +59,7 @@ class BenchCommand(Command):
     help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
     description = ('Measure one of: a control chain in one process (--chain, the default), '
                    'a whole profile as processes (--profile), the recorder (--recording), '
-                   'the lidar perception (--perception). '
+                   'the lidar perception (--perception), the camera detector (--vision). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -70,6 +76,8 @@ class BenchCommand(Command):
                           help='the recorder alone: CPU per recorded message')
         what.add_argument('--perception', action='store_true',
                           help='the lidar perception alone: CPU per scan')
+        what.add_argument('--vision', action='store_true',
+                          help='the camera detector alone: CPU per frame')
         what.add_argument('--avoidance', action='store_true',
                           help='the collision avoidance safety filter alone: time per step')
         parser.add_argument('--obstacles', type=int, default=None, metavar='N',
@@ -102,6 +110,11 @@ class BenchCommand(Command):
                             f'(default {recording.DEFAULT_REPEAT})')
         parser.add_argument('--scans', type=int, default=None, metavar='N',
                             help=f'--perception: scans measured (default {PERCEPTION_SCANS})')
+        parser.add_argument('--frames', type=int, default=None, metavar='N',
+                            help=f'--vision: frames measured (default {VISION_FRAMES})')
+        parser.add_argument('--model', default=None, metavar='PATH',
+                            help='--vision: an ONNX model (YOLOv8 layout, 640 x 640, 80 '
+                            'classes) measured besides the classical back end')
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
@@ -111,6 +124,8 @@ class BenchCommand(Command):
             result = _recording(args)
         elif args.perception:
             result = _perception(args)
+        elif args.vision:
+            result = _vision(args)
         elif args.profile is not None:
             result = _idle(args) if args.idle else _profile(args)
         else:
@@ -126,7 +141,8 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
              '--set': bool(args.set), '--idle': args.idle,
              '--messages': args.messages is not None, '--repeat': args.repeat is not None,
              '--scans': args.scans is not None,
-             '--obstacles': args.obstacles is not None}
+             '--obstacles': args.obstacles is not None,
+             '--frames': args.frames is not None, '--model': args.model is not None}
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
@@ -135,7 +151,7 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
 def _avoidance(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import avoidance
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--messages', '--scans'), 'is not for --avoidance')
+                   '--messages', '--scans', '--frames', '--model'), 'is not for --avoidance')
     obstacles = avoidance.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
     repeat = avoidance.DEFAULT_REPEAT if args.repeat is None else args.repeat
     if not (0 <= obstacles <= 1000) or repeat < 1:
@@ -149,6 +165,7 @@ def _chain(args: argparse.Namespace) -> dict:
             'is for --profile; --chain runs the chain alone')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     rate = CHAIN_RATE if args.rate is None else args.rate
     seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
@@ -163,6 +180,7 @@ def _idle(args: argparse.Namespace) -> dict:
             'flows there')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = IDLE_SECONDS if args.seconds is None else args.seconds
     check_seconds('--seconds', seconds)
@@ -176,6 +194,7 @@ def _profile(args: argparse.Namespace) -> dict:
                           '(change them with --set NODE.rate=HZ)')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
+    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
@@ -187,7 +206,7 @@ def _profile(args: argparse.Namespace) -> dict:
 def _recording(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import recording
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--scans', '--obstacles'),
+                   '--scans', '--obstacles', '--frames', '--model'),
             'is not for --recording (it takes --messages and --repeat)')
     return recording.measure(
         recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
@@ -197,10 +216,25 @@ def _recording(args: argparse.Namespace) -> dict:
 def _perception(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import perception
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--messages', '--repeat', '--obstacles'),
+                   '--messages', '--repeat', '--obstacles', '--frames', '--model'),
             'is not for --perception (it takes --scans)')
     scans = PERCEPTION_SCANS if args.scans is None else args.scans
     if scans < 50:
         raise EnbarrError(f'--scans must be >= 50 (the first 20 confirm the tracks), '
                           f'got {scans}')
     return perception.measure(scans)
+
+
+def _vision(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import vision
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--obstacles', '--scans'),
+            'is not for --vision (it takes --frames and --model)')
+    frames = VISION_FRAMES if args.frames is None else args.frames
+    if frames < 10:
+        raise EnbarrError(f'--frames must be >= 10, got {frames}')
+    try:
+        return vision.measure(frames, args.model)
+    except ValueError as err:       # a model that cannot be read, or of another shape
+        # the message names the detector's parameter first ('model_path: ...'): here --model
+        raise EnbarrError(f'--model: {str(err).partition(": ")[2]}') from err

@@ -161,21 +161,23 @@ def decode(output: NDArray[np.float32], layout: str, classes: int,
     problem = check_output(output, layout, classes)
     if problem:
         raise ValueError(problem)
-    rows = np.asarray(output[0], dtype=np.float64)
+    # In the output's own float32 and order: a stock export has 8400 x 84 values, and only
+    # the few candidates above the threshold are worth a copy.
+    out = np.asarray(output[0])
     if layout == 'yolov8':
-        rows = rows.T                                   # [N, 4 + nc]
-        class_scores = rows[:, 4:]
+        box_rows, class_scores = out[:4], out[4:]               # [4, N], [nc, N]
     else:
-        class_scores = rows[:, 5:] * rows[:, 4:5]       # objectness x class score
-    if class_scores.shape[0] == 0:
-        empty = np.zeros((0, 4))
-        return Candidates(empty, np.zeros(0), np.zeros(0, dtype=np.int64))
-    class_ids = np.argmax(class_scores, axis=1)
-    scores = class_scores[np.arange(len(class_ids)), class_ids]
-    keep = scores > score_threshold
-    cx, cy, w, h = (rows[keep, i] for i in range(4))
+        box_rows = out[:, :4].T                                 # [4, N]
+        class_scores = (out[:, 5:] * out[:, 4:5]).T             # objectness x class score
+    n = class_scores.shape[1]
+    if n == 0:
+        return Candidates(np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64))
+    class_ids = np.argmax(class_scores, axis=0)
+    scores = class_scores[class_ids, np.arange(n)]
+    keep = np.flatnonzero(scores > score_threshold)
+    cx, cy, w, h = box_rows[:, keep].astype(np.float64)
     boxes = np.column_stack((cx - 0.5 * w, cy - 0.5 * h, cx + 0.5 * w, cy + 0.5 * h))
-    return Candidates(boxes, scores[keep], class_ids[keep].astype(np.int64))
+    return Candidates(boxes, scores[keep].astype(np.float64), class_ids[keep].astype(np.int64))
 
 
 def suppress(candidates: Candidates, score_threshold: float, iou_threshold: float,

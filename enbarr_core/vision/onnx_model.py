@@ -87,7 +87,7 @@ class OnnxDetector:
                              f'{_first_line(err)}') from err
         w, h = s.input_size
         try:
-            out = self._forward(np.zeros((1, 3, h, w), np.float32))
+            out = self.forward(np.zeros((1, 3, h, w), np.float32))
         except cv2.error as err:
             raise ValueError(f'input_width: {path} fails on a {w} x {h} input (is that the '
                              f"model's input size?): {_first_line(err)}") from err
@@ -96,7 +96,8 @@ class OnnxDetector:
             raise ValueError(f'model_path: {path} gives an {problem} (class_names has '
                              f'{s.classes})')
 
-    def _forward(self, blob: NDArray[np.float32]) -> NDArray[np.float32]:
+    def forward(self, blob: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Return the model's (first) output for a blob of ``preprocess``."""
         self.net.setInput(blob)
         return np.asarray(self.net.forward())
 
@@ -105,7 +106,7 @@ class OnnxDetector:
         s = self.settings
         h, w = image.shape[:2]
         blob, letterbox = preprocess(image, s.input_size)
-        out = self._forward(blob)
+        out = self.forward(blob)
         candidates = decode(out, s.layout, s.classes, s.score_threshold)
         kept = suppress(candidates, s.score_threshold, s.iou_threshold, s.max_detections)
         return detections(candidates, kept, letterbox, (w, h))

@@ -54,19 +54,29 @@ def yolo_graph(path: Path | str, table: np.ndarray, input_size: tuple[int, int],
     return path
 
 
-def bench_graph(path: Path | str, classes: int = 3) -> Path:
-    """YOLOv8n's output size at 640 x 640 (8400 candidates) with a few scattered boxes."""
+def bench_graph(path: Path | str, classes: int = 80) -> Path:
+    """A stand-in for a stock YOLOv8 export at 640 x 640: [1, 4 + 80, 6400].
+
+    YOLOv8 has 8400 candidates from three strides; one 1 x 1 convolution of stride 8 gives
+    80 x 80 = 6400, the same order. As a trained model does on a scene with ten objects, about
+    a hundred candidates score above 0.25, ten around each object (for the suppression to
+    merge), the rest below 0.1.
+    """
     rng = np.random.default_rng(0)
-    # 80 x 80 + 40 x 40 + 20 x 20 = 8400 anchors in YOLOv8; one 1 x 1 grid of the same count
-    # (a stride that gives 8400 does not exist, so the grid is 84 x 100 on a 672 x 800 input).
-    n = 8400
+    n = 80 * 80
     table = np.zeros((4 + classes, n), np.float32)
-    table[0] = rng.uniform(20, 620, n)
-    table[1] = rng.uniform(20, 620, n)
+    table[0:2] = rng.uniform(20, 620, (2, n))
     table[2] = rng.uniform(10, 60, n)
     table[3] = rng.uniform(20, 120, n)
-    table[4:] = rng.uniform(0.0, 0.3, (classes, n))    # about 1 in 6 above 0.25
-    return yolo_graph(path, table, (800, 672), 8)
+    table[4:] = rng.uniform(0.0, 0.1, (classes, n))
+    picks = rng.choice(n, 100, replace=False)
+    for k, i in enumerate(picks):
+        obj = k % 10
+        cx, cy = 60 + 55 * obj, 100 + 40 * obj
+        table[0:4, i] = (cx + rng.normal(0, 3), cy + rng.normal(0, 3), 40 + rng.normal(0, 2),
+                         90 + rng.normal(0, 4))
+        table[4 + obj % classes, i] = rng.uniform(0.3, 0.95)
+    return yolo_graph(path, table, (640, 640), 8)
 
 
 if __name__ == '__main__':
