@@ -8,14 +8,16 @@ Layouts of a model's output (``LAYOUTS``), for ``nc`` classes and ``N`` candidat
 box ``cx, cy, w, h`` in pixels of the model's input (after letterboxing):
 
 - ``yolov8``: shape ``[1, 4 + nc, N]``; row ``0..3`` the box, rows ``4..`` the class scores
-  (already through a sigmoid, no objectness): Ultralytics' ONNX export of YOLOv8 and YOLO11
-  (``yolo export format=onnx``), also the ``[1, 4 + nc, N]`` of YOLOv9 and YOLOv10's
-  ``end2end=False`` exports.
+  (already through a sigmoid, no objectness): Ultralytics' ONNX export of its YOLOv8, YOLOv9
+  and YOLO11 detection models (``yolo export format=onnx``).
 - ``yolov5``: shape ``[1, N, 5 + nc]``; per candidate the box, an objectness and the class
-  scores; a class's score is objectness x class score (YOLOv5 and YOLOv7's exports).
+  scores; a class's score is objectness x class score (YOLOv5's ``export.py --include onnx``,
+  YOLOv7's with ``--grid``).
 
 The layout is a parameter, never guessed from the shape: a ``[1, 84, 84]`` output reads both
-ways. Exports with NMS inside the graph (``nms=True``, ``end2end``) are not read.
+ways. Exports with the suppression inside the graph (``nms=True``, end-to-end heads whose
+output is ``[1, max_det, 6]``) and models with several outputs (segmentation, pose) are not
+read: the first output is taken, and its shape does not fit.
 """
 
 from __future__ import annotations
