@@ -217,13 +217,19 @@ OBSTACLE_MARKERS = TopicSpec(
 CAMERA_IMAGE = TopicSpec(
     'camera/image_raw', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'Camera frames as captured (OpenCV, V4L2 or a video file).')
+CAMERA_COMPRESSED = TopicSpec(
+    'camera/image_raw/compressed', CompressedImage, SENSOR_QOS, 'JPEG', CAMERA_OPTICAL_FRAME,
+    "camera/image_raw as JPEG, as image_transport's compressed plugin publishes it (format "
+    "'bgr8; jpeg compressed bgr8'), same stamp; what the recorder keeps by default.")
 CAMERA_INFO = TopicSpec(
     'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
-CAMERA_IMAGE_COMPRESSED = TopicSpec(
-    'camera/image_raw/compressed', CompressedImage, SENSOR_QOS, 'pixels (JPEG)',
-    CAMERA_OPTICAL_FRAME,
-    "camera/image_raw compressed (image_transport's compressed name), same stamp.")
+VESSEL_CLAIMS = TopicSpec(
+    '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
+    'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
+    'second run with the same node names refuses at start or, when they missed each other, '
+    'the later one stops (docs/architecture.md, Safety).')
+# -- vision --
 DETECTIONS = TopicSpec(
     'detections', PointCloud2, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Objects found in a camera image, one point per box (class_id, score, x_min, y_min, '
@@ -232,11 +238,6 @@ DETECTIONS = TopicSpec(
 DETECTION_IMAGE = TopicSpec(
     'detections/image', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'The image with its detections drawn, for a viewer (built only while one subscribes).')
-VESSEL_CLAIMS = TopicSpec(
-    '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
-    'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
-    'second run with the same node names refuses at start or, when they missed each other, '
-    'the later one stops (docs/architecture.md, Safety).')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
@@ -245,5 +246,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     MODE,
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE, CAMERA_INFO,
-    CAMERA_IMAGE_COMPRESSED, DETECTIONS, DETECTION_IMAGE, VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
+    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)

@@ -11,7 +11,8 @@ Back ends (``backend``), pure modules beside this node:
 - ``classical`` (``enbarr_core.vision.classical``): HSV colour boxes, one per class
   (``hsv_lower``/``hsv_upper``, three values per class in ``class_names`` order), then shape
   tests on each blob (``min_area``, ``min_aspect``/``max_aspect``, ``min_solidity``,
-  ``min_extent``). Works out of the box on the simulated camera's red, green and yellow buoys.
+  ``min_extent``). Its defaults find red, green, yellow and orange buoys (the simulated
+  world's default is orange).
 - ``onnx`` (``enbarr_core.vision.onnx_model``): one's own YOLO-style model, ``model_path``, in
   ``layout`` (``yolov8`` or ``yolov5``), with ``input_width`` x ``input_height``,
   ``score_threshold``, ``iou_threshold``, ``max_detections``; ``class_names`` has one name per
@@ -58,14 +59,18 @@ SPECS = [
               'model, model_path)'),
     ParamSpec('input', 'raw', 'raw: camera/image_raw; compressed: camera/image_raw/compressed',
               read_only=True),
-    ParamSpec('class_names', ['red_buoy', 'green_buoy', 'yellow_buoy'], 'Class names in '
-              "class_id order: one per HSV box (classical), the model's classes (onnx)"),
+    ParamSpec('class_names', ['red_buoy', 'green_buoy', 'yellow_buoy', 'orange_buoy'],
+              "Class names in class_id order: one per HSV box (classical), the model's "
+              'classes (onnx)'),
     # OpenCV's HSV: H 0..179 (degrees / 2), S and V 0..255. Red straddles hue 0: a low hue
-    # above the high one wraps. V starts low for the shaded side of a buoy.
-    ParamSpec('hsv_lower', [170, 100, 50, 45, 100, 50, 20, 100, 50], 'classical: lower H, S, '
-              'V of each class, three per class in class_names order', '', 0, 255),
-    ParamSpec('hsv_upper', [8, 255, 255, 85, 255, 255, 35, 255, 255], 'classical: upper H, S, '
-              'V of each class (a hue below its lower one wraps through 0)', '', 0, 255),
+    # above the high one wraps. V starts low for the shaded side of a buoy. Orange (the
+    # simulated world's default buoy) lies between red and yellow.
+    ParamSpec('hsv_lower', [170, 100, 50, 45, 100, 50, 19, 100, 50, 8, 100, 50],
+              'classical: lower H, S, V of each class, three per class in class_names order',
+              '', 0, 255),
+    ParamSpec('hsv_upper', [7, 255, 255, 85, 255, 255, 35, 255, 255, 18, 255, 255],
+              'classical: upper H, S, V of each class (a hue below its lower one wraps '
+              'through 0)', '', 0, 255),
     ParamSpec('min_area', 150.0, 'classical: smallest blob (contour area)', 'px^2', 1.0, 1e8),
     ParamSpec('min_aspect', 0.6, 'classical: least box height / width of a blob (buoys '
               'float upright)', '', 0.0, 100.0),
@@ -184,7 +189,7 @@ class DetectorNode(EnbarrNode):
         if self.settings.input == 'raw':
             self.create_topic_subscription(topics.CAMERA_IMAGE, self._on_image)
         else:
-            self.create_topic_subscription(topics.CAMERA_IMAGE_COMPRESSED, self._on_compressed)
+            self.create_topic_subscription(topics.CAMERA_COMPRESSED, self._on_compressed)
         self.create_periodic(1.0, self._report)
 
     def _apply(self, settings: DetectorSettings) -> None:

@@ -4,7 +4,7 @@ Drawn with OpenCV from a seeded generator: textured water (swell as sums of sinu
 sensor noise, sun glitter), a far wall and a white boat as distractors, and buoys as upright
 cylinders (a body shaded across its width as a lit cylinder is, Lambert's cosine, an
 elliptical top) or as spheres (an ellipse shaded radially). Colours are BGR picked by eye for
-red, green and yellow buoys, independent of any detector's thresholds.
+red, green, yellow and orange buoys, independent of any detector's thresholds.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 #: BGR of a fully lit buoy of each colour, and their class order.
-COLOURS = {'red': (35, 35, 205), 'green': (50, 165, 45), 'yellow': (30, 205, 230)}
+COLOURS = {'red': (35, 35, 205), 'green': (50, 165, 45), 'yellow': (30, 205, 230),
+           'orange': (10, 105, 245)}
 CLASSES = tuple(COLOURS)
 
 

@@ -29,9 +29,9 @@ def blank(rng_seed: int = 3) -> np.ndarray:
 
 
 def test_the_default_classes_are_the_scenes_colours_in_order() -> None:
-    # the generated scenes number their classes red, green, yellow: so do the defaults
-    assert CLASSES == ('red', 'green', 'yellow')
-    assert DEFAULTS['class_names'] == ['red_buoy', 'green_buoy', 'yellow_buoy']
+    # the generated scenes number their classes red, green, yellow, orange: so do the defaults
+    assert CLASSES == ('red', 'green', 'yellow', 'orange')
+    assert DEFAULTS['class_names'] == ['red_buoy', 'green_buoy', 'yellow_buoy', 'orange_buoy']
 
 
 def test_a_shaded_red_cylinder_is_found_with_its_box() -> None:
@@ -78,7 +78,7 @@ def test_red_is_found_on_both_sides_of_hue_zero() -> None:
     # OpenCV hue 175 (magenta-red) and 3 (orange-red): one class, a range that wraps
     hsv = np.zeros((1, 3, 3), np.uint8)
     hsv[0, 0], hsv[0, 1], hsv[0, 2] = (175, 200, 200), (3, 200, 200), (90, 200, 200)
-    red = ColourClass('red', (170, 100, 50), (8, 255, 255))
+    red = ColourClass('red', (170, 100, 50), (7, 255, 255))
     assert mask(hsv, red)[0].tolist() == [255, 255, 0]
 
 
@@ -140,15 +140,15 @@ def test_precision_and_recall_on_generated_scenes() -> None:
 
 
 def test_hsv_and_class_parameters_are_checked_naming_the_parameter() -> None:
-    with pytest.raises(ValueError, match=r'^hsv_lower: 6 values; class_names has 3 classes'):
+    with pytest.raises(ValueError, match=r'^hsv_lower: 6 values; class_names has 4 classes'):
         DetectorSettings.from_params({**DEFAULTS, 'hsv_lower': [0, 0, 0, 0, 0, 0]})
     with pytest.raises(ValueError, match=r"^hsv_upper: class 'green_buoy': H value 200 is "
                        r'outside 0..179'):
-        DetectorSettings.from_params({**DEFAULTS, 'hsv_upper': [8, 255, 255, 200, 255, 255,
-                                                                 35, 255, 255]})
+        DetectorSettings.from_params({**DEFAULTS, 'hsv_upper': [7, 255, 255, 200, 255, 255,
+                                                                 35, 255, 255, 18, 255, 255]})
     with pytest.raises(ValueError, match=r"^hsv_lower: class 'red_buoy': S low 100 > high 50"):
-        DetectorSettings.from_params({**DEFAULTS, 'hsv_upper': [8, 50, 255, 85, 255, 255,
-                                                                 35, 255, 255]})
+        DetectorSettings.from_params({**DEFAULTS, 'hsv_upper': [7, 50, 255, 85, 255, 255,
+                                                                 35, 255, 255, 18, 255, 255]})
     with pytest.raises(ValueError, match=r'^min_aspect: 5.0 > max_aspect 4.0'):
         DetectorSettings.from_params({**DEFAULTS, 'min_aspect': 5.0})
     with pytest.raises(ValueError, match=r"^backend: 'yolo' is not one of classical, onnx"):

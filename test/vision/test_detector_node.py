@@ -44,8 +44,8 @@ class Harness:
         p = probe(context, executor)
         self.raw_pub = p.create_publisher(Image, topics.CAMERA_IMAGE.name,
                                           topics.CAMERA_IMAGE.qos)
-        self.jpeg_pub = p.create_publisher(CompressedImage, topics.CAMERA_IMAGE_COMPRESSED.name,
-                                           topics.CAMERA_IMAGE_COMPRESSED.qos)
+        self.jpeg_pub = p.create_publisher(CompressedImage, topics.CAMERA_COMPRESSED.name,
+                                           topics.CAMERA_COMPRESSED.qos)
         self.clouds, self.images, self.diagnostics = [], [], []
         p.create_subscription(topics.DETECTIONS.msg_type, topics.DETECTIONS.name,
                               self.clouds.append, topics.DETECTIONS.qos)
@@ -164,7 +164,7 @@ def test_a_missing_model_refuses_the_node_naming_the_parameter(context, tmp_path
 def test_a_model_of_the_wrong_shape_refuses_the_node(context, tmp_path):
     path = yolo_graph(tmp_path / 'two.onnx', np.zeros((6, 64), np.float32), (64, 64), 8)
     with pytest.raises(ConfigurationError, match=r'gives an output of shape \[1, 6, 64\], the '
-                       r'yolov8 layout with 3 classes is \[1, 7, N\]') as err:
+                       r'yolov8 layout with 4 classes is \[1, 8, N\]') as err:
         DetectorNode(context=context, parameter_overrides=[
             Parameter('backend', value='onnx'), Parameter('model_path', value=str(path)),
             Parameter('input_width', value=64), Parameter('input_height', value=64)])
