@@ -1,5 +1,7 @@
 """What the collision avoidance did for one estimate, as ``guidance/avoidance`` carries it.
 
+``control/avoidance`` (the force-level filter's, in the DP controller) has the same encoding.
+
 A ``std_msgs/Float64MultiArray`` (no custom message can be built in a pip install): one
 dimension, ``layout.dim[0].label`` = the field names of :data:`FIELDS` joined by commas (so
 a reader can check the order), size = stride = their number, ``data`` the values in that

@@ -56,6 +56,11 @@ FIELDS: tuple[tuple[str, str, int, str], ...] = (
 )
 DTYPE = np.dtype([(name, np_type) for name, np_type, _, _ in FIELDS])
 _OFFSETS = {name: int(DTYPE.fields[name][1]) for name, *_ in FIELDS}  # type: ignore[index]
+#: The fields of every message, built once: a message's constructor checks each value, which
+#: cost more than the rest of the encoding. The list is copied per message; its PointFields
+#: are shared and must not be changed by a receiver.
+_POINT_FIELDS = tuple(PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
+                      for name, _, datatype, _ in FIELDS)
 _NUMPY_OF = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4',
              PointField.INT32: '<i4', PointField.UINT8: 'u1', PointField.INT8: 'i1',
              PointField.UINT16: '<u2', PointField.INT16: '<i2'}
@@ -123,8 +128,7 @@ def to_cloud(obstacles: Sequence[Obstacle], stamp_ns: int, frame_id: str,
     ns_to_stamp(stamp_ns, msg.header.stamp)
     msg.header.frame_id = frame_id
     msg.height, msg.width = 1, len(rows)
-    msg.fields = [PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
-                  for name, _, datatype, _ in FIELDS]
+    msg.fields = list(_POINT_FIELDS)
     msg.is_bigendian = False
     msg.point_step = DTYPE.itemsize
     msg.row_step = DTYPE.itemsize * len(rows)

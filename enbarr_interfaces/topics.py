@@ -178,6 +178,12 @@ GUIDANCE_AVOIDANCE = TopicSpec(
     'binding constraints, infeasible, min barrier, engaged, blind. layout.dim[0].label = the '
     'comma-joined field names; encoding enbarr_interfaces.avoidance, docs/interfaces.md.',
     fast=True)
+CONTROL_AVOIDANCE = TopicSpec(
+    'control/avoidance', Float64MultiArray, SENSOR_QOS, 's; N', '',
+    'What the force-level collision avoidance (avoidance.level force) did to each force the '
+    'DP controller sent outside manual: the fields of guidance/avoidance (encoding '
+    'enbarr_interfaces.avoidance), min_barrier being the hull clearance less the safety '
+    'radius and blind meaning obstacles older than avoidance.staleness.', fast=True)
 GUIDANCE_PATH_AVAILABLE = TopicSpec(
     'guidance/path_available', Bool, LATCHED_QOS, '', '',
     'Whether the guidance node has a path or waypoint to follow (the controller refuses '
@@ -244,7 +250,8 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
     MODE,
-    GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, GUIDANCE_PATH_AVAILABLE, AZIMUTH_COMMANDS,
+    GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
+    AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
     CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)

@@ -61,7 +61,8 @@ def add_recorder(profile: Profile) -> Profile:
     r: RecordSpec = profile.record
     params: dict[str, Any] = {'path': os.path.abspath(r.path),
                               'flush_seconds': r.flush_seconds, 'split_size': r.split_size,
-                              'split_seconds': r.split_seconds}
+                              'split_seconds': r.split_seconds,
+                              'skip_raw_images': r.skip_raw_images}
     if r.topics:
         params['topics'] = list(r.topics)
     group = RECORDER_GROUP if len(profile.group_names()) > 1 else profile.nodes[0].group

@@ -55,7 +55,8 @@ TOP_KEYS = ('profile', 'description', 'fragment', 'include', 'environment', 'par
             'nodes', 'groups', 'record', 'scenario', 'frames', 'world')
 NODE_KEYS = ('plugin', 'namespace', 'remappings', 'parameters', 'group', 'enabled')
 GROUP_KEYS = ('restart_limit', 'restart_delay')
-RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds')
+RECORD_KEYS = ('path', 'topics', 'flush_seconds', 'split_size', 'split_seconds',
+               'skip_raw_images')
 DEFAULT_GROUP = 'main'
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 _NAMESPACE = re.compile(r'^(/?[A-Za-z][A-Za-z0-9_]*)*/?$')
@@ -109,6 +110,7 @@ class RecordSpec:
     flush_seconds: float = 1.0  # [s] a kill loses at most this much
     split_size: float = 0.0     # [MB] a new file of the bag past this size; 0: one file
     split_seconds: float = 0.0  # [s] a new file past this much message time; 0: one file
+    skip_raw_images: bool = True  # all topics: a raw image with a compressed sibling left out
 
 
 @dataclass(frozen=True)
@@ -501,6 +503,9 @@ def _check_structure(raw: dict[str, Any], where: str) -> None:
                        positive=True)
         _expect_number(record, 'split_size', where, 'record', high=MAX_SPLIT_SIZE_MB)
         _expect_number(record, 'split_seconds', where, 'record', high=MAX_SPLIT_S)
+        if not isinstance(record.get('skip_raw_images', True), bool):
+            raise ProfileError(f'expected true or false, got {record["skip_raw_images"]!r}',
+                               path=where, key='record.skip_raw_images')
 
 
 def _unknown_key(key: Any, allowed: Sequence[str], where: str, path: str) -> None:
@@ -800,7 +805,8 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
         record = RecordSpec(path=r['path'], topics=tuple(r.get('topics', ())),
                             flush_seconds=float(r.get('flush_seconds', 1.0)),
                             split_size=float(r.get('split_size', 0.0)),
-                            split_seconds=float(r.get('split_seconds', 0.0)))
+                            split_seconds=float(r.get('split_seconds', 0.0)),
+                            skip_raw_images=r.get('skip_raw_images', True))
     return Profile(
         name=merged.get('profile') or Path(path).stem, path=path,
         description=merged.get('description', ''),

@@ -41,6 +41,11 @@ each chain (--messages per type, --repeat runs; the median is kept).
 scans of a synthetic basin with walls and buoys; per-scan CPU, share of a core at 5.5 Hz
 and its Raspberry Pi 4 estimate).
 
+--camera: the CPU one simulated camera frame costs, rendered (sim_camera) and encoded as
+JPEG (what the real camera pays for camera/image_raw/compressed), on --frames frames of the
+ca_buoy scene (--scene NAME for another profile's world and frames) at --quality; the share of
+a core at 15 fps and its Raspberry Pi 4 estimate; --png PATH writes the first frame.
+
 --avoidance: what the collision avoidance's safety filter costs per step with --obstacles
 obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
 solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
@@ -59,7 +64,8 @@ class BenchCommand(Command):
     help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
     description = ('Measure one of: a control chain in one process (--chain, the default), '
                    'a whole profile as processes (--profile), the recorder (--recording), '
-                   'the lidar perception (--perception), the camera detector (--vision). '
+                   'the lidar perception (--perception), the camera (--camera), the camera '
+                   'detector (--vision). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -76,6 +82,8 @@ class BenchCommand(Command):
                           help='the recorder alone: CPU per recorded message')
         what.add_argument('--perception', action='store_true',
                           help='the lidar perception alone: CPU per scan')
+        what.add_argument('--camera', action='store_true',
+                          help='the simulated camera alone: CPU per frame, render and JPEG')
         what.add_argument('--vision', action='store_true',
                           help='the camera detector alone: CPU per frame')
         what.add_argument('--avoidance', action='store_true',
@@ -111,14 +119,32 @@ class BenchCommand(Command):
         parser.add_argument('--scans', type=int, default=None, metavar='N',
                             help=f'--perception: scans measured (default {PERCEPTION_SCANS})')
         parser.add_argument('--frames', type=int, default=None, metavar='N',
-                            help=f'--vision: frames measured (default {VISION_FRAMES})')
+                            help='--camera, --vision: frames measured (default 150 for '
+                            f'--camera, {VISION_FRAMES} for --vision)')
         parser.add_argument('--model', default=None, metavar='PATH',
                             help='--vision: an ONNX model (YOLOv8 layout, 640 x 640, 80 '
                             'classes) measured besides the classical back end')
+        parser.add_argument('--quality', type=int, default=None, metavar='Q',
+                            help='--camera: JPEG quality 1..100 (default 80)')
+        parser.add_argument('--scene', default=None, metavar='PROFILE',
+                            help='--camera: the profile whose world and frames are drawn '
+                            '(default ca_buoy)')
+        parser.add_argument('--png', default=None, metavar='PATH',
+                            help='--camera: write the first frame as a PNG')
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
-        if args.avoidance:
+        camera_only = {'--quality': args.quality is not None,
+                       '--scene': args.scene is not None, '--png': args.png is not None}
+        if not args.camera and any(camera_only.values()):
+            raise EnbarrError(f'{next(k for k, v in camera_only.items() if v)} is for --camera')
+        if args.frames is not None and not (args.camera or args.vision):
+            raise EnbarrError('--frames is for --camera and --vision')
+        if args.model is not None and not args.vision:
+            raise EnbarrError('--model is for --vision')
+        if args.camera:
+            result = _camera(args)
+        elif args.avoidance:
             result = _avoidance(args)
         elif args.recording:
             result = _recording(args)
@@ -141,17 +167,29 @@ def _refuse(args: argparse.Namespace, options: Sequence[str], why: str) -> None:
              '--set': bool(args.set), '--idle': args.idle,
              '--messages': args.messages is not None, '--repeat': args.repeat is not None,
              '--scans': args.scans is not None,
-             '--obstacles': args.obstacles is not None,
-             '--frames': args.frames is not None, '--model': args.model is not None}
+             '--obstacles': args.obstacles is not None}
     for option in options:
         if given[option]:
             raise EnbarrError(f'{option} {why}')
 
 
+def _camera(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import camera
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--scans', '--obstacles'),
+            'is not for --camera (it takes --frames, --quality, --scene, --png)')
+    frames = camera.DEFAULT_FRAMES if args.frames is None else args.frames
+    quality = camera.DEFAULT_QUALITY if args.quality is None else args.quality
+    if frames < 10 or not 1 <= quality <= 100:
+        raise EnbarrError(f'--frames must be >= 10 and --quality 1..100, got {frames} and '
+                          f'{quality}')
+    return camera.measure(frames, quality, args.scene or camera.DEFAULT_PROFILE, args.png)
+
+
 def _avoidance(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import avoidance
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--messages', '--scans', '--frames', '--model'), 'is not for --avoidance')
+                   '--messages', '--scans'), 'is not for --avoidance')
     obstacles = avoidance.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
     repeat = avoidance.DEFAULT_REPEAT if args.repeat is None else args.repeat
     if not (0 <= obstacles <= 1000) or repeat < 1:
@@ -165,7 +203,6 @@ def _chain(args: argparse.Namespace) -> dict:
             'is for --profile; --chain runs the chain alone')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
-    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     rate = CHAIN_RATE if args.rate is None else args.rate
     seconds = CHAIN_SECONDS if args.seconds is None else args.seconds
@@ -180,7 +217,6 @@ def _idle(args: argparse.Namespace) -> dict:
             'flows there')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
-    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = IDLE_SECONDS if args.seconds is None else args.seconds
     check_seconds('--seconds', seconds)
@@ -194,7 +230,6 @@ def _profile(args: argparse.Namespace) -> dict:
                           '(change them with --set NODE.rate=HZ)')
     _refuse(args, ('--messages', '--repeat'), 'is for --recording')
     _refuse(args, ('--scans',), 'is for --perception')
-    _refuse(args, ('--frames', '--model'), 'is for --vision')
     _refuse(args, ('--obstacles',), 'is for --avoidance')
     seconds = profile_run.DEFAULT_SECONDS if args.seconds is None else args.seconds
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
@@ -206,7 +241,7 @@ def _profile(args: argparse.Namespace) -> dict:
 def _recording(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import recording
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--scans', '--obstacles', '--frames', '--model'),
+                   '--scans', '--obstacles'),
             'is not for --recording (it takes --messages and --repeat)')
     return recording.measure(
         recording.DEFAULT_MESSAGES if args.messages is None else args.messages,
@@ -216,7 +251,7 @@ def _recording(args: argparse.Namespace) -> dict:
 def _perception(args: argparse.Namespace) -> dict:
     from enbarr_core.bench import perception
     _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
-                   '--messages', '--repeat', '--obstacles', '--frames', '--model'),
+                   '--messages', '--repeat', '--obstacles'),
             'is not for --perception (it takes --scans)')
     scans = PERCEPTION_SCANS if args.scans is None else args.scans
     if scans < 50:

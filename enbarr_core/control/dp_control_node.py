@@ -39,6 +39,18 @@ whichever of the two arrives first), with dt from the estimate before it; tau is
 it. A malformed reference (not one point of ``base_link``) is counted in ``bad_references``
 and dropped.
 
+Collision avoidance at the force level (``avoidance.enabled`` and ``avoidance.level`` force;
+the guidance node then leaves its reference unfiltered but still holds while blind): outside
+manual, every force the controller computes goes through the high-order control barrier
+function filter of ``guidance.force_cbf`` with the latest ``obstacles`` (carried along their
+velocities to the estimate's stamp), the controller's vessel model and the thrust box
+``avoidance.force_max``. What it did goes out on ``control/avoidance`` (the encoding of
+``guidance/avoidance``). When no force in the box keeps every obstacle's condition, the
+filter's brake is sent, counted, and the reason is on ``/diagnostics``. Obstacles older than
+``avoidance.staleness`` keep being filtered against (carried along their velocities), and
+``/diagnostics`` says so: stopping is the guidance node's blind hold, which sees the same
+staleness. The manual force is never filtered: the operator always has the vessel.
+
 Gains (3-element diagonals and scalars) and the vessel model come from the profile (they have
 no default: a node started without them refuses, naming the parameter), are validated
 together and applied live over ``gain_ramp_time``, so the force never jumps.
@@ -66,17 +78,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 import threading
+import time
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from sensor_msgs.msg import Joy
+from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import Bool, Float64, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from enbarr_interfaces.fastmsg import new
-from enbarr_interfaces import convert, topics
+from enbarr_interfaces import avoidance, convert, topics
+from enbarr_interfaces.obstacles import cloud_stamp_ns, from_cloud, ObstacleEncodingError
 
 from enbarr_core.control.dp_control import DpControlSettings, DpController
 from enbarr_core.control.modes import JoyMapping, ModeManager, Transition
@@ -89,7 +103,9 @@ from enbarr_core.framework.node import EnbarrNode, WATCHDOG_PERIOD
 from enbarr_core.framework.params import ParamSpec, validate_as_parameters
 from enbarr_core.framework.sources import SourceGuard
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
-from enbarr_core.guidance.guidance_node import msg_to_reference
+from enbarr_core.guidance.cbf import moved, obstacle_rows
+from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceOutput, ForceSafetyFilter
+from enbarr_core.guidance.guidance_node import AVOIDANCE_LEVELS, msg_to_reference
 from enbarr_core.models.vessel3dof_params import (
     vector3, VESSEL_PARAMETERS, VESSEL_SPECS, vessel_from_params)
 
@@ -130,12 +146,78 @@ SPECS = [
     *(ParamSpec(f'joy.{name}', -1, f'Joy index of {name} without joy.layout (-1: unset)', '',
                 -1, 64) for name in INDEX_PARAMETERS),
     ParamSpec('joy.deadzone', 0.05, 'Stick dead zone', '', 0.0, 0.99),
+    # Collision avoidance at the force level (guidance.force_cbf). enabled, level,
+    # safety_radius, vessel_radius and staleness are the guidance node's too: a profile gives
+    # them once, in its common parameters.
+    ParamSpec('avoidance.enabled', False, 'Collision avoidance on (with avoidance.level force '
+              'this node filters its force outside manual)'),
+    ParamSpec('avoidance.level', 'guidance', 'Where the barrier functions act: guidance (the '
+              'desired position, in the guidance node) or force (the force, here)',
+              read_only=True),
+    ParamSpec('avoidance.safety_radius', 0.2, 'Clearance that must hold between the hull and '
+              'every obstacle', 'm', 0.0, 10.0),
+    ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 with '
+              'the force level on)', 'm', 0.0, 50.0),
+    ParamSpec('avoidance.staleness', 0.5, 'Obstacles older than this against the estimate are '
+              'reported stale on /diagnostics', 's', 0.02, 10.0),
+    ParamSpec('avoidance.force_max', [2.0, 2.0], 'Force box (surge, sway) the force-level '
+              'filter keeps within: what the thrusters give in every direction, at most '
+              'tau_max', 'N', 1e-3, 1e4),
+    ParamSpec('avoidance.a1', 1.0, 'Force-level barrier: class-K rate of h (psi_1 = '
+              'h_dot + a1 h)', '1/s', 0.01, 10.0),
+    ParamSpec('avoidance.a2', 1.0, 'Force-level barrier: class-K rate of psi_1 '
+              '(psi_1_dot >= -a2 psi_1)', '1/s', 0.01, 10.0),
+    ParamSpec('avoidance.pass_gain', 1.0, 'Force-level barrier: tangential force along a '
+              'blocking obstacle per unit of force lost to it (0: stop in front of it)', '',
+              0.0, 10.0),
 ]
 _PARAMETER = {'Kp': 'kp', 'Ki': 'ki', 'Kd': 'kd', **VESSEL_PARAMETERS}
 
 
 #: How far back a force's stamp may be and still be stamped after the last one sent [ns].
 _REORDER_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class ForceAvoidanceSettings:
+    """The force-level collision avoidance of ``DpControlNode`` (``avoidance.*``)."""
+
+    filter: ForceCbfSettings | None   # None: this node does not filter (off, or level guidance)
+    staleness: float                  # obstacles older than this: reported stale [s]
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any], control: DpControlSettings
+                    ) -> ForceAvoidanceSettings:
+        """Build from the declared parameters' values (ValueError naming the parameter)."""
+        level = v['avoidance.level']
+        if level not in AVOIDANCE_LEVELS:
+            raise ValueError(f'avoidance.level: expected one of {", ".join(AVOIDANCE_LEVELS)}, '
+                             f'got {level!r}')
+        staleness = float(v['avoidance.staleness'])
+        if not (v['avoidance.enabled'] and level == 'force'):
+            return cls(None, staleness)
+        box = [float(x) for x in v['avoidance.force_max']]
+        if len(box) != 2:
+            raise ValueError(f'avoidance.force_max: expected [surge, sway], got {box}')
+        for j, (b, limit) in enumerate(zip(box, control.tau_max[:2])):
+            if b > limit:
+                raise ValueError(f'avoidance.force_max[{j}]: {b} N is more than tau_max[{j}] '
+                                 f'{limit} N (the controller never sends it)')
+        if v['avoidance.vessel_radius'] <= 0.0:
+            raise ValueError('avoidance.vessel_radius: give the hull radius (> 0) to enable '
+                             'the force-level avoidance')
+        settings = ForceCbfSettings(
+            M=tuple(control.M), D=tuple(control.D), Dn=tuple(control.Dn),  # type: ignore
+            tau_max=(box[0], box[1], float(control.tau_max[2])),
+            safety_radius=float(v['avoidance.safety_radius']),
+            vessel_radius=float(v['avoidance.vessel_radius']),
+            a1=float(v['avoidance.a1']), a2=float(v['avoidance.a2']),
+            pass_gain=float(v['avoidance.pass_gain']))
+        try:
+            settings.validate()
+        except ValueError as err:
+            raise ValueError(f'avoidance.{err}') from err
+        return cls(settings, staleness)
 
 
 @dataclass(frozen=True)
@@ -149,6 +231,7 @@ class DpControlNodeSettings:
     estimate_max_age: float                 # [s]
     joy_timeout: float                      # [s]
     max_future: float                       # [s]
+    avoidance: ForceAvoidanceSettings = ForceAvoidanceSettings(None, 0.5)
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> DpControlNodeSettings:
@@ -162,7 +245,8 @@ class DpControlNodeSettings:
         validate_as_parameters(control, _PARAMETER)
         mapping, loss_rule = mapping_from_params(v, v['joy.deadzone'])
         return cls(control, mapping, loss_rule, vector3(v, 'manual_tau_max'),
-                   v['estimate_max_age'], v['joy_timeout'], v['max_future'])
+                   v['estimate_max_age'], v['joy_timeout'], v['max_future'],
+                   ForceAvoidanceSettings.from_params(v, control))
 
     def rate_problem(self, estimate_period: float | None,
                      joy_period: float | None) -> str | None:
@@ -198,6 +282,15 @@ class DpControlNode(EnbarrNode):
         self.joy_period = IntervalMeter()       # of the joystick samples taken
         self._gates = {name: StampGate() for name in (
             'observer/odometry', 'observer/bias', 'guidance/reference', 'joy')}
+        # Force-level avoidance: the filter (None: off), the latest obstacles (rows at their
+        # stamp and that stamp, one object swapped whole: they arrive on another thread than
+        # the estimates), what the last step did and what the diagnostics window saw.
+        self.force_filter: ForceSafetyFilter | None = None
+        self._obstacles: tuple[np.ndarray, int | None] = (obstacle_rows(()), None)
+        self.force_output: ForceOutput | None = None
+        self.force_counts = {'engaged': 0, 'infeasible': 0, 'stale': 0,
+                             'obstacles_refused': 0}
+        self._force_problem: str | None = None
         self.bind_settings(SPECS, self._build, self._apply)
         self.tau = np.zeros(3)
         self.reference = None
@@ -216,6 +309,8 @@ class DpControlNode(EnbarrNode):
         self._tau_ns: int | None = None    # stamp of the last force sent
         self._tau_pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self._mode_pub = self.create_topic_publisher(topics.MODE)
+        self._avoid_pub = self.create_topic_publisher(topics.CONTROL_AVOIDANCE)
+        self.create_topic_subscription(topics.OBSTACLES, self._on_obstacles)
         self.create_topic_subscription(topics.OBSERVER_AGE, self._on_age)
         self.create_topic_subscription(topics.OBSERVER_BIAS, self._on_bias)
         self.create_topic_subscription(topics.OBSERVER_ODOMETRY, self._on_estimate)
@@ -257,6 +352,13 @@ class DpControlNode(EnbarrNode):
             self.manager.mapping = s.mapping
             self.manager.tau_max = np.asarray(s.manual_tau_max, dtype=float)
             self.manager.joy_timeout = s.joy_timeout
+        f = s.avoidance.filter
+        if f is None:
+            self.force_filter = None
+        elif self.force_filter is None:
+            self.force_filter = ForceSafetyFilter(f)
+        else:   # live: the passing side of an engagement is kept
+            self.force_filter.settings = f
         self.settings = s
 
     @property
@@ -421,9 +523,59 @@ class DpControlNode(EnbarrNode):
             return
         self.reference = ref
         self._reference_ns = self.now_ns()
-        self.tau = self.controller.step(estimate.eta, estimate.nu, self._bias, ref,
-                                        (t - estimate.last_ns) * 1e-9).tau
-        self._publish_tau(self.tau, estimate.stamp)
+        tau = self.controller.step(estimate.eta, estimate.nu, self._bias, ref,
+                                   (t - estimate.last_ns) * 1e-9).tau
+        if self.force_filter is not None:
+            tau = self._filter_force(estimate, tau)
+        self._publish_tau(tau, estimate.stamp)
+
+    def _filter_force(self, estimate: _Estimate, tau: np.ndarray) -> np.ndarray:
+        """Pass the controller's force through the force-level barrier filter."""
+        assert self.force_filter is not None
+        rows, obstacles_ns = self._obstacles
+        if obstacles_ns is None:  # nothing seen yet: the guidance node holds, blind
+            self._force_problem = 'force-level avoidance: no obstacles message yet'
+            self._publish_force(estimate.t_ns, 0.0, None, 0, None, stale=True)
+            return tau
+        age = (estimate.t_ns - obstacles_ns) * 1e-9
+        stale = age > self.settings.avoidance.staleness
+        if stale:
+            self.force_counts['stale'] += 1
+            self._force_problem = (f'force-level avoidance: obstacles {age:.2f} s old (limit '
+                                   f'{self.settings.avoidance.staleness:g} s)')
+        rows = moved(rows, age)
+        start = time.perf_counter()
+        out = self.force_filter.step(estimate.eta, estimate.nu, tau, rows)
+        elapsed = time.perf_counter() - start
+        self.force_output = out
+        self.force_counts['engaged'] += out.engaged
+        if out.infeasible:
+            self.force_counts['infeasible'] += 1
+            self._force_problem = f'force-level avoidance {out.reason}'
+            self.get_logger().warn(f'force-level avoidance: {out.reason}',
+                                   throttle_duration_sec=1.0)
+        self._publish_force(estimate.t_ns, elapsed, out, len(rows), obstacles_ns, stale=stale)
+        return out.tau
+
+    def _publish_force(self, t: int, elapsed: float, out: ForceOutput | None, count: int,
+                       obstacles_ns: int | None, *, stale: bool) -> None:
+        values = {'solve_time': elapsed, 'active': out.active if out else 0,
+                  'infeasible': float(bool(out and out.infeasible)),
+                  'min_barrier': out.min_barrier if out else math.nan,
+                  'engaged': float(bool(out and out.engaged)), 'blind': float(stale),
+                  'obstacles': count}
+        self._avoid_pub.publish(avoidance.to_msg(values, t, obstacles_ns))
+
+    def _on_obstacles(self, msg: PointCloud2) -> None:
+        if self.force_filter is None:
+            return
+        try:
+            obstacles = from_cloud(msg)
+        except ObstacleEncodingError as err:   # kept stale: the guidance node then holds
+            self.force_counts['obstacles_refused'] += 1
+            self.get_logger().warn(str(err), throttle_duration_sec=1.0)
+            return
+        self._obstacles = (obstacle_rows(obstacles), cloud_stamp_ns(msg))
 
     def _publish_tau(self, tau: np.ndarray, stamp: Any) -> None:
         with self._tau_lock:  # the chain thread and the executor both send forces
@@ -450,8 +602,16 @@ class DpControlNode(EnbarrNode):
         if problem:
             rates = (DEGRADED, problem)
             self.report_problem(f'parameter {problem}')
-        level, message = worst((level, message), rates, self.joy_guard.status())
+        force = (OK, 'ok')
+        if self._force_problem is not None:   # anything the window saw, then cleared
+            force, self._force_problem = (DEGRADED, self._force_problem), None
+        level, message = worst((level, message), rates, self.joy_guard.status(), force)
+        out = self.force_output
         return level, (self.manager.mode.value if level == OK else message), {
+            'force_avoidance': 'on' if self.force_filter is not None else 'off',
+            'force_avoidance_engaged': bool(out and out.engaged),
+            'force_avoidance_min_barrier': 'none' if out is None else out.min_barrier,
+            **{f'force_avoidance_{k}': v for k, v in self.force_counts.items()},
             'mode': self.manager.mode.value, 'refusals': self.refusals,
             'joy_rejected': self.manager.rejected_samples,
             'joy_loss_rule': self.manager.loss_rule, 'joy_connected': self.manager.connected,

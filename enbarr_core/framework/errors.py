@@ -52,3 +52,7 @@ class RecorderError(EnbarrError):
 
 class FrameError(EnbarrError):
     """A frame tree is inconsistent, or a frame asked for is not in it."""
+
+
+class CalibrationError(EnbarrError):
+    """Calibration data give no answer (too few, degenerate): the message says what to change."""

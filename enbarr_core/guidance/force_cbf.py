@@ -22,6 +22,13 @@ f(nu) = -C(nu) nu - (D + D_n(nu)) nu: linear in tau. Per step
 tau* = argmin |tau - tau_nom|^2 s.t. those rows and |tau_j| <= tau_max_j (the thrust limits
 as the controller's output box), solved by daqp; infeasible: a brake, tau_xy = -k M nu_xy
 clipped to the box (yaw as nominal), with a reason.
+
+Passing (``pass_gain``; 0 turns it off), as the guidance-level filter does it: the QP alone
+stops the vessel in front of an obstacle that lies across tau_nom (the CBF's local minimum),
+so the force lost to a binding barrier, |tau_nom,xy| - |tau*_xy|, times ``pass_gain``, is
+added along that barrier's tangent (the side chosen once per engagement: starboard unless
+tau_nom leans clearly to port) and the QP solved again from there: every constraint and the
+box still hold. Stateful for that side only: :meth:`ForceSafetyFilter.step` once per force.
 """
 
 from __future__ import annotations
@@ -51,6 +58,24 @@ class ForceCbfSettings:
     vessel_radius: float = 0.0           # hull radius [m]
     a1: float = 1.0                      # class-K rates [1/s]
     a2: float = 1.0
+    pass_gain: float = 0.0               # tangential force / force lost at a blocking obstacle
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad field."""
+        for name in ('M', 'D', 'Dn', 'tau_max'):
+            value = getattr(self, name)
+            if len(value) != 3 or not all(math.isfinite(x) for x in value):
+                raise ValueError(f'{name}: expected three finite numbers, got {value!r}')
+        for name in ('M', 'tau_max'):
+            if min(getattr(self, name)) <= 0.0:
+                raise ValueError(f'{name}: every element must be > 0, got '
+                                 f'{getattr(self, name)!r}')
+        for name in ('safety_radius', 'vessel_radius', 'a1', 'a2', 'pass_gain'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name}: must be a finite number >= 0, got {value!r}')
+        if self.a1 <= 0.0 or self.a2 <= 0.0:
+            raise ValueError(f'a1, a2: must be > 0, got {self.a1!r}, {self.a2!r}')
 
 
 @dataclass(frozen=True)
@@ -62,6 +87,7 @@ class ForceOutput:
     infeasible: bool
     min_barrier: float
     reason: str = ''
+    active: int = 0         # obstacle constraints binding at tau
 
 
 class ForceSafetyFilter:
@@ -69,10 +95,22 @@ class ForceSafetyFilter:
 
     def __init__(self, settings: ForceCbfSettings) -> None:
         self.settings = settings
+        self.infeasible_count = 0
+        self.side = 0   # passing side of this engagement (world): +1 starboard, -1 port, 0 none
+
+    @property
+    def settings(self) -> ForceCbfSettings:
+        """The settings in use."""
+        return self._settings
+
+    @settings.setter
+    def settings(self, settings: ForceCbfSettings) -> None:
+        """Swap settings (validated first), the zones' geometry with them."""
+        settings.validate()
+        self._settings = settings
         self._geometry = CbfSettings(safety_radius=settings.safety_radius,
                                      vessel_radius=settings.vessel_radius, tracking_margin=0.0,
                                      gamma=1.0)
-        self.infeasible_count = 0
 
     def step(self, eta: Vector, nu: Vector, tau_nom: Vector, rows: Vector) -> ForceOutput:
         """Filter ``tau_nom`` at the state (eta, nu) against obstacle ``rows`` (world)."""
@@ -89,22 +127,43 @@ class ForceSafetyFilter:
         p, p_dot = np.asarray(eta[:2], dtype=float), R @ np.array((u, v))
         n, _, h = constraints(p, rows, self._geometry)
         if not len(h):
+            self.side = 0
             return ForceOutput(np.asarray(tau_nom, dtype=float), False, False, math.inf)
         h_dot = n @ p_dot - np.einsum('ij,ij->i', n, rows[:, 5:7])
         A = n @ gain                                                # (k, 2)
         lower = -(n @ drift) - (s.a1 + s.a2) * h_dot - s.a1 * s.a2 * h
         t_xy = np.asarray(tau_nom[:2], dtype=float)
         if np.all(A @ t_xy >= lower) and np.all(np.abs(t_xy) <= s.tau_max[:2]):
+            self.side = 0
             return ForceOutput(np.asarray(tau_nom, dtype=float), False, False, float(h.min()))
-        bu = np.concatenate((s.tau_max[:2], np.full(len(h), 1e30)))
-        bl = np.concatenate((-np.asarray(s.tau_max[:2]), lower))
-        x, _, flag, _ = daqp.solve(np.eye(2), -t_xy, A, bu, bl,
-                                   np.zeros(len(bu), dtype=np.int32))
+        x, flag = self._solve(t_xy, A, lower)
+        if flag == 1 and s.pass_gain > 0.0:
+            binding = A @ x - lower <= 1e-7
+            lost = float(np.hypot(*t_xy)) - float(np.hypot(*x))
+            if binding.any() and lost > 0.0:
+                i = int(np.argmin(np.where(binding, h, np.inf)))
+                t = R.T @ np.array((-n[i, 1], n[i, 0]))   # the tangent, body frame
+                if self.side == 0:
+                    lean = float(t @ t_xy) >= -0.2 * float(np.hypot(*t_xy))
+                    self.side = 1 if lean else -1
+                again, ok = self._solve(x + s.pass_gain * lost * self.side * t, A, lower)
+                if ok == 1:
+                    x = again
         if flag != 1:
             self.infeasible_count += 1
             brake = np.clip(-_BRAKE_RATE * np.array((m1 * u, m2 * v)),
                             -np.asarray(s.tau_max[:2]), np.asarray(s.tau_max[:2]))
             return ForceOutput(np.array((brake[0], brake[1], float(tau_nom[2]))), True, True,
                                float(h.min()), 'infeasible: braking')
+        active = int(np.count_nonzero(A @ x - lower <= 1e-7))
         return ForceOutput(np.array((x[0], x[1], float(tau_nom[2]))), True, False,
-                           float(h.min()))
+                           float(h.min()), active=active)
+
+    def _solve(self, t_xy: Vector, A: Vector, lower: Vector) -> tuple[Vector, int]:
+        """Solve min |tau - t_xy|^2 s.t. A tau >= lower and the box: (tau_xy, daqp exit flag)."""
+        box = np.asarray(self.settings.tau_max[:2], dtype=float)
+        bu = np.concatenate((box, np.full(len(lower), 1e30)))
+        bl = np.concatenate((-box, lower))
+        x, _, flag, _ = daqp.solve(np.eye(2), -t_xy, A, bu, bl,
+                                   np.zeros(len(bu), dtype=np.int32))
+        return np.asarray(x, dtype=float), int(flag)

@@ -18,7 +18,10 @@ stamp older than ``avoidance.staleness`` against the estimate's, or
 ``observer/measurement_age`` above it: lidar unplugged or stalled, pose lost) the node holds
 the pose of the estimate it was at, with the reason in the log and on ``/diagnostics``, and
 the law's clock stops; fresh again, the law resumes and the filter starts from the hold. In
-manual nothing is published, avoidance or not: the operator always has the vessel.
+manual nothing is published, avoidance or not: the operator always has the vessel. With
+``avoidance.level`` force the barrier functions act on the DP controller's force instead
+(``control.dp_control_node``): this node then passes the law's reference through unfiltered
+but keeps every other safeguard (the blind hold and its reasons, ``guidance/avoidance``).
 
 Another guidance law replaces this node with one ``plugin:`` line of the profile, as long as
 it speaks the same three topics.
@@ -57,6 +60,10 @@ from enbarr_core.guidance.cbf import (
     blind_reason, CbfOutput, CbfSettings, moved, obstacle_rows, SafetyFilter)
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
+#: Where the barrier functions act (``avoidance.level``): on the desired position here, or on
+#: the DP controller's force.
+AVOIDANCE_LEVELS = ('guidance', 'force')
+
 SPECS = [
     ParamSpec('path.waypoints', [0.0], 'Guidance: x, y of one waypoint to go to, or x0, y0, '
               'x1, y1, ... of a path to follow (odom); [0.0]: none', 'm', -1e6, 1e6),
@@ -72,6 +79,9 @@ SPECS = [
     # Collision avoidance (guidance.cbf): off unless the profile turns it on.
     ParamSpec('avoidance.enabled', False, 'Filter the reference through the control barrier '
               'functions of the obstacles (automatic and guidance modes)'),
+    ParamSpec('avoidance.level', 'guidance', 'Where the barrier functions act: guidance (the '
+              "desired position, here) or force (the DP controller's force; here only the "
+              'blind hold)', read_only=True),
     ParamSpec('avoidance.safety_radius', 0.2, 'Clearance that must hold between the hull and '
               'every obstacle', 'm', 0.0, 10.0),
     ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 when '
@@ -149,6 +159,12 @@ class AvoidanceSettings:
     enabled: bool
     staleness: float            # obstacles or pose older than this: blind [s]
     cbf: CbfSettings
+    level: str = 'guidance'     # AVOIDANCE_LEVELS: 'force' filters nothing here
+
+    @property
+    def filters(self) -> bool:
+        """Whether this node's safety filter changes the reference."""
+        return self.enabled and self.level == 'guidance'
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any], path_speed: float) -> AvoidanceSettings:
@@ -164,14 +180,18 @@ class AvoidanceSettings:
         except ValueError as err:
             raise ValueError(f'avoidance.{err}') from err
         enabled = bool(v['avoidance.enabled'])
+        level = v['avoidance.level']
+        if level not in AVOIDANCE_LEVELS:
+            raise ValueError(f'avoidance.level: expected one of {", ".join(AVOIDANCE_LEVELS)}, '
+                             f'got {level!r}')
         if enabled and cbf.vessel_radius <= 0.0:
             raise ValueError('avoidance.vessel_radius: give the hull radius (> 0) to enable '
                              'avoidance')
-        if enabled and path_speed > cbf.identity_speed:
+        if enabled and level == 'guidance' and path_speed > cbf.identity_speed:
             raise ValueError(f'avoidance.max_speed: {cbf.max_speed} m/s would slow the path '
                              f'speed {path_speed} m/s everywhere (need path.speed <= '
                              f'max_speed cos(pi/16))')
-        return cls(enabled, float(v['avoidance.staleness']), cbf)
+        return cls(enabled, float(v['avoidance.staleness']), cbf, level)
 
 
 @dataclass(frozen=True)
@@ -360,6 +380,10 @@ class GuidanceNode(EnbarrNode):
             self.blind = self.blind_reason = None
         nominal = self.law.reference(eta, dt)
         assert obstacles_ns is not None   # else blind
+        if not av.filters:   # the force level: the DP controller filters its force
+            self.avoidance_output = None
+            self._publish_avoidance(t, 0.0, None, len(rows), obstacles_ns, blind=False)
+            return nominal
         rows = moved(rows, (t - obstacles_ns) * 1e-9)  # to the estimate's time
         start = time.perf_counter()
         out = self.filter.step(eta, nominal, rows, dt)
@@ -418,6 +442,7 @@ class GuidanceNode(EnbarrNode):
             'finished': ref is not None and ref.finished,
             'cross_track': 'none' if cross_track is None else cross_track,
             'avoidance': 'on' if self.settings.avoidance.enabled else 'off',
+            'avoidance_level': self.settings.avoidance.level,
             'avoidance_blind': self.blind_reason or 'no',
             'avoidance_engaged': bool(out and out.engaged),
             'avoidance_min_barrier': 'none' if out is None else out.min_barrier,

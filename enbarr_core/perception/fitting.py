@@ -1,6 +1,6 @@
 """Shapes fitted to a cluster of lidar points: circles (buoys, boats) and segments (walls).
 
-Pure numpy, no ROS; points (N, 2) [m] in the world, in ring order.
+No ROS; points (N, 2) [m] in the world, in ring order.
 
 Circle: the algebraic fit of Kasa (1976) (x^2 + y^2 + D x + E y + F = 0 in least squares,
 closed form) starts a geometric refinement, Levenberg-Marquardt on the distances
@@ -88,18 +88,12 @@ class FitSettings:
 
 
 # -- circles -------------------------------------------------------------------------------
-def solve_small(a: Vector, b: Vector) -> Vector | None:
-    """Solve a x = b for a 2x2 or 3x3 ``a`` by Cramer's rule; None when singular.
+def _solve(m: list[list[float]], v: list[float]) -> list[float] | None:
+    """Solve m x = v for a 2x2 or 3x3 ``m`` (lists) by Cramer's rule; None when singular.
 
     Written out because ``numpy.linalg.solve`` costs more in its checks than the arithmetic
     of a 3x3 system, and a scan solves dozens (``docs/benchmarks.md``, perception).
     """
-    x = _solve(a.tolist(), b.tolist())
-    return None if x is None else np.array(x)
-
-
-def _solve(m: list[list[float]], v: list[float]) -> list[float] | None:
-    """:func:`solve_small` on lists (the normal equations of the circle fit are built so)."""
     if len(v) == 2:
         det = m[0][0] * m[1][1] - m[0][1] * m[1][0]
         if abs(det) < 1e-300 or not math.isfinite(det):
@@ -116,21 +110,36 @@ def _solve(m: list[list[float]], v: list[float]) -> list[float] | None:
 
 
 def kasa(points: Vector) -> tuple[float, float, float] | None:
-    """Algebraic circle fit (Kasa): (cx, cy, R) [m], or None for collinear points."""
-    if len(points) < 3:
+    """Algebraic circle fit (Kasa): (cx, cy, R) [m], or None for collinear points.
+
+    The normal equations are summed over Python floats: a buoy's cluster has a few dozen
+    points, where numpy's cost per call is most of the cost (``docs/benchmarks.md``).
+    """
+    n = len(points)
+    if n < 3:
         return None
-    m = points.sum(axis=0) / len(points)
-    p = points - m   # centred: better conditioned
-    a = np.column_stack((p, np.ones(len(p))))
-    b = -(p * p).sum(axis=1)
-    sol = solve_small(a.T @ a, a.T @ b)
+    xs, ys = points[:, 0].tolist(), points[:, 1].tolist()
+    mx, my = math.fsum(xs) / n, math.fsum(ys) / n   # centred: better conditioned
+    sxx = sxy = syy = sxz = syz = sz = 0.0
+    for x, y in zip(xs, ys):
+        x -= mx
+        y -= my
+        z = x * x + y * y
+        sxx += x * x
+        sxy += x * y
+        syy += y * y
+        sxz += x * z
+        syz += y * z
+        sz += z
+    # [x y 1] [D E F]^T = -(x^2 + y^2) in least squares; the centred sums of x and y are 0
+    sol = _solve([[sxx, sxy, 0.0], [sxy, syy, 0.0], [0.0, 0.0, float(n)]], [-sxz, -syz, -sz])
     if sol is None:
         return None
     cx, cy = -0.5 * sol[0], -0.5 * sol[1]
     r2 = cx * cx + cy * cy - sol[2]
     if not r2 > 0.0 or not math.isfinite(r2):
         return None
-    return float(cx + m[0]), float(cy + m[1]), math.sqrt(r2)
+    return cx + mx, cy + my, math.sqrt(r2)
 
 
 def refine_circle(points: Vector, cx: float, cy: float, radius: float,
@@ -142,26 +151,36 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
     (for the covariance), or None when a point sits on the centre. With ``fixed_radius`` only
     the centre moves. The residual e_i = |p_i - c| - R has the Jacobian row -[u_i, 1], u_i
     the unit vector from c to p_i: with U the rows [u_x; u_y; 1], J^T J = U U^T and
-    J^T e = -U e.
+    J^T e = -U e, summed over Python floats like :func:`kasa`.
     """
     k = 2 if fixed_radius else 3
-    px, py = points[:, 0], points[:, 1]
-    u = np.empty((3, len(px)))
-    u[2] = 1.0
-    uk = u[:k]
+    xs, ys = points[:, 0].tolist(), points[:, 1].tolist()
+    count = float(len(xs))
+    sqrt = math.sqrt
     mu = 1e-6
 
     def normal(cx: float, cy: float, r: float
                ) -> tuple[float, list[list[float]], list[float]] | None:
         """Cost, J^T J and J^T e at the circle (cx, cy, r)."""
-        dx, dy = px - cx, py - cy
-        dist = np.sqrt(dx * dx + dy * dy)
-        if not dist.min() > 1e-12:
-            return None
-        np.divide(dx, dist, out=u[0])
-        np.divide(dy, dist, out=u[1])
-        e = dist - r
-        return float(e @ e), (uk @ uk.T).tolist(), (-(uk @ e)).tolist()
+        cost = a00 = a01 = a02 = a11 = a12 = g0 = g1 = g2 = 0.0
+        for x, y in zip(xs, ys):
+            dx, dy = x - cx, y - cy
+            d = sqrt(dx * dx + dy * dy)
+            if not d > 1e-12:
+                return None
+            ux, uy, e = dx / d, dy / d, d - r
+            cost += e * e
+            a00 += ux * ux
+            a01 += ux * uy
+            a11 += uy * uy
+            a02 += ux
+            a12 += uy
+            g0 -= ux * e
+            g1 -= uy * e
+            g2 -= e
+        if k == 2:
+            return cost, [[a00, a01], [a01, a11]], [g0, g1]
+        return cost, [[a00, a01, a02], [a01, a11, a12], [a02, a12, count]], [g0, g1, g2]
 
     x = [cx, cy, radius]
     now = normal(cx, cy, radius)

@@ -84,17 +84,15 @@ class CircleTrack:
         self.kf.P = np.diag([z.cov[0], z.cov[2], speed_std ** 2, speed_std ** 2])
         self.kf.P[0, 1] = self.kf.P[1, 0] = z.cov[1]
         self.kf.H = _H
+        self.kf.inv = inverse_2x2   # S is 2x2: filterpy lets the inverse be chosen
         self.radius = z.radius
         self.hits = 1
         self.misses = 0
         self.stamp_ns = stamp_ns
 
-    def predict(self, dt: float, q: float) -> None:
-        """Predict the state ``dt`` [s] ahead (module docstring)."""
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
-        self.kf.predict(F=f, Q=(g @ g.T) * (q * q))
+    def predict(self, f: Vector, q: Vector) -> None:
+        """Predict the state one step ahead with F = ``f`` and Q = ``q`` (:func:`motion`)."""
+        self.kf.predict(F=f, Q=q)
 
     def innovation(self, z: CircleFit) -> float:
         """Squared Mahalanobis distance of measurement ``z`` from the prediction."""
@@ -207,6 +205,27 @@ class SegmentTrack:
                         position_cov=(self.var, 0.0, self.var), stamp_ns=self.stamp_ns)
 
 
+def inverse_2x2(s: Vector) -> Vector:
+    """Return the inverse of the 2x2 matrix ``s``, written out.
+
+    ``numpy.linalg.inv``'s checks cost more than the arithmetic; ``LinAlgError`` when it is
+    singular, as numpy's.
+    """
+    (a, b), (c, d) = s.tolist()
+    det = a * d - b * c
+    if not (abs(det) > 0.0 and math.isfinite(det)):
+        raise np.linalg.LinAlgError('Singular matrix')
+    return np.array([[d / det, -b / det], [-c / det, a / det]])
+
+
+def motion(dt: float, q: float) -> tuple[Vector, Vector]:
+    """Return F and Q of the constant-velocity model over ``dt`` [s] (module docstring)."""
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = dt
+    g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
+    return f, (g @ g.T) * (q * q)
+
+
 def front_of(z: SegmentFit, t: CircleTrack) -> CircleFit | None:
     """Segment ``z`` read as the visible front of circle track ``t``, or None when too long."""
     if z.length > 2.0 * t.radius + 3.0 * z.rms:
@@ -266,9 +285,10 @@ class Tracker:
             if dt < 0.0:
                 raise ValueError(f'scan stamped {stamp_ns} ns is older than the last one '
                                  f'({self._stamp_ns} ns)')
-            if dt > 0.0:
+            if dt > 0.0 and self.circles:
+                f, q = motion(dt, s.accel_noise)   # the same for every track
                 for t in self.circles:
-                    t.predict(dt, s.accel_noise)
+                    t.predict(f, q)
         self._stamp_ns = stamp_ns
         # only a segment no longer than a tracked circle may be that circle's front
         widest = 2.0 * max((t.radius for t in self.circles), default=0.0)

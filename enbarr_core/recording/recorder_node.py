@@ -5,9 +5,17 @@ themselves); every other topic seen in the ROS graph is subscribed raw (already 
 rediscovered every second. The publisher's thread only stamps the message and queues it;
 serializing (the generated CDR encoders of ``cdr``, ``serialize_message`` for other types)
 and writing happen on a writer thread, off the control path. ``topics`` selects topics by
-name (empty: all). The bag is one MCAP file per run (split by ``split_size`` or
-``split_seconds`` when asked), flushed every ``flush_seconds`` (a kill loses at most that),
-closed when the node is destroyed. ``segment_seconds`` is the old name of ``flush_seconds``.
+name (empty: all, but see Images below). The bag is one MCAP file per run (split by
+``split_size`` or ``split_seconds`` when asked), flushed every ``flush_seconds`` (a kill
+loses at most that), closed when the node is destroyed. ``segment_seconds`` is the old name
+of ``flush_seconds``.
+
+Images: with ``topics`` empty, a raw image topic (``sensor_msgs/msg/Image``) whose compressed
+sibling ``<name>/compressed`` (``sensor_msgs/msg/CompressedImage``, image_transport's naming)
+is in the graph is left out (``skip_raw_images``, default true): the camera's JPEG is recorded
+instead, as a raw 640x480 stream at 15 fps (about 14 MB/s) is more than a Raspberry Pi's SD
+card keeps up with. A raw image subscribed before its sibling appeared is dropped from then on
+(the bag keeps what came before). A ``topics`` selection records what it names, raw or not.
 
 Topics from the ROS graph are subscribed as ``ros2 bag record`` does (``recording.qos``): with
 the reliability and durability every publisher offers, so that a latched topic (``mode``,
@@ -72,6 +80,9 @@ SPECS = [
               read_only=True),
     ParamSpec('topics', [''], 'Topics to record (resolved names); empty: all', read_only=True,
               element=str),
+    ParamSpec('skip_raw_images', True, 'With topics empty: leave out each sensor_msgs/Image '
+              'topic whose <name>/compressed (sensor_msgs/CompressedImage) is in the graph, '
+              'recording the JPEG only; false: record both', read_only=True),
     ParamSpec('flush_seconds', 1.0, 'Flush period: a kill loses at most this much', 's',
               0.01, 3600.0, read_only=True),
     ParamSpec('segment_seconds', 0.0, 'Deprecated: the old name of flush_seconds (0: unset); '
@@ -102,6 +113,7 @@ class RecorderSettings:
     split_size: float = 0.0     # [MB], 0: no split
     split_seconds: float = 0.0  # [s], 0: no split
     segment_seconds: float = 0.0  # [s] deprecated alias of flush_seconds, 0: unset
+    skip_raw_images: bool = True  # with topics empty: a raw image with a compressed sibling
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> RecorderSettings:
@@ -110,8 +122,12 @@ class RecorderSettings:
                    flush_seconds=v['segment_seconds'] or v['flush_seconds'],
                    min_free_space=v['min_free_space'], max_queued=v['max_queued'],
                    split_size=v['split_size'], split_seconds=v['split_seconds'],
-                   segment_seconds=v['segment_seconds'])
+                   segment_seconds=v['segment_seconds'],
+                   skip_raw_images=v['skip_raw_images'])
 
+
+#: The types of a raw image and of its compressed sibling (``<name>/compressed``).
+IMAGE_TYPE, COMPRESSED_TYPE = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage'
 
 #: Messages a graph subscription keeps waiting for the executor (as the old fixed profile).
 RAW_DEPTH = 100
@@ -184,6 +200,8 @@ class RecorderNode(EnbarrNode, Recorder):
         self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._subscribed: set[str] = set()
+        self._raw_images: dict[str, Any] = {}  # raw image topic -> its subscription
+        self.skipped_raw: set[str] = set()  # raw images left out for their compressed sibling
         self._mixed_warned: set[str] = set()
         self._missing_warned = False
         self._started_at: float | None = None
@@ -324,15 +342,36 @@ class RecorderNode(EnbarrNode, Recorder):
             self.create_topic_subscription(
                 source.spec, lambda msg, e=entry: put((e, self._stamp(), msg)))
 
+    def _skips_raw(self, name: str, types: list[str], graph: dict[str, list[str]]) -> bool:
+        """Whether ``name`` is a raw image left out for its compressed sibling."""
+        return (self.settings.skip_raw_images and not self.settings.topics
+                and types == [IMAGE_TYPE] and graph.get(f'{name}/compressed') == [COMPRESSED_TYPE])
+
+    def _drop_raw_images(self, graph: dict[str, list[str]]) -> None:
+        """Unsubscribe the raw images whose compressed sibling appeared after them."""
+        for name in [n for n in self._raw_images if self._skips_raw(n, [IMAGE_TYPE], graph)]:
+            self.destroy_subscription(self._raw_images.pop(name))
+            self.skipped_raw.add(name)
+            self.get_logger().info(f'{name}: its compressed sibling appeared; recording '
+                                   f'{name}/compressed from now on, not the raw image')
+
     def _discover(self) -> None:
         if self.writer is None or not self.recording:
             return
         local = self.link_bus.local_topics()
-        for name, types in self.get_topic_names_and_types():
+        graph = dict(self.get_topic_names_and_types())
+        self._drop_raw_images(graph)
+        for name, types in graph.items():
             with self._lock:
                 if name in local or not self._wanted(name) or len(types) != 1:
                     continue
                 if types[0] not in self._typestore.types:
+                    continue
+                if self._skips_raw(name, types, graph):
+                    if name not in self.skipped_raw:
+                        self.skipped_raw.add(name)
+                        self.get_logger().info(f'{name}: recording {name}/compressed, not '
+                                               'the raw image (skip_raw_images)')
                     continue
                 self._subscribed.add(name)
             try:
@@ -352,8 +391,10 @@ class RecorderNode(EnbarrNode, Recorder):
             self._offer(name, types[0], offers)
             put = self._put
             entry = (name, types[0], None)  # raw: the bytes as DDS carried them, exact
-            self.create_subscription(cls, name, lambda data, e=entry: put(
+            sub = self.create_subscription(cls, name, lambda data, e=entry: put(
                 (e, self._stamp(), data)), request_profile(offers), raw=True)
+            if types[0] == IMAGE_TYPE:
+                self._raw_images[name] = sub
         self._warn_missing()
 
     def missing_topics(self) -> list[str]:

@@ -3,7 +3,9 @@
 The ground truth is the simulator's pose (``sim/odometry``) and the profile's ``world``
 (:mod:`enbarr_core.world`), evaluated at the world time of each sample: a scenario's world
 starts at the run's first instant (``scenario.T0_NS``). What the vessel did is read from
-``guidance/avoidance`` (:mod:`enbarr_interfaces.avoidance`), what it saw from ``obstacles``
+``guidance/avoidance`` (:mod:`enbarr_interfaces.avoidance`) and, with the barrier functions at
+the force level (``avoidance.level`` force), ``control/avoidance`` for what the force filter
+did (the guidance then only holds while blind), what it saw from ``obstacles``
 (:mod:`enbarr_interfaces.obstacles`). Definitions (every figure is ``None`` when the run has
 nothing to compute it from):
 
@@ -13,9 +15,10 @@ nothing to compute it from):
   The hard bound is the ``avoidance.safety_radius``, less a margin for what the vessel cannot
   know: the lidar's range noise and the pose estimate's error (a scenario states its target).
 - ``clearance_margin_m``: ``min_clearance_m`` minus the safety radius (< 0: inside it).
-- ``avoidance_s``: the time the safety filter changed the reference (``engaged``);
+- ``avoidance_s``: the time the safety filter changed the reference (``engaged``; at the
+  force level: the time the force filter changed the force);
   ``blind_s``: the time it held because obstacles or the pose were stale; ``infeasible_steps``:
-  the steps whose QP had no solution (the filter stopped).
+  the steps whose QP had no solution (the filter stopped, or at the force level braked).
 - ``blind_travel_m``: how far the vessel moved while holding blind, leaving out the first
   ``BLIND_STOP_S`` of each blind interval (it has to stop first): a vessel that holds moves
   only by what its controller lets the current push it.
@@ -25,7 +28,7 @@ nothing to compute it from):
 - ``time_lost_s``: ``path_time_s`` (the path figures) less the time the path takes at the
   guidance speed (its length over ``path.speed``).
 - ``qp_solve_p50_ms``, ``qp_solve_p99_ms``: the safety filter's step time (wall clock) over
-  the steps it had obstacles to consider.
+  the steps it had obstacles to consider (at the force level: the force filter's).
 - ``latency_p50_ms``, ``latency_p99_ms``: from the stamp of the scan the obstacles came from to
   the estimate the constrained reference answers (simulated time): the age of what the filter
   knew when it acted.
@@ -51,7 +54,7 @@ from enbarr_core.framework.errors import FrameError
 from enbarr_core.world.model import Circle, Polygon, Walls, World
 
 #: What the avoidance figures and picture read besides the path figures' topics.
-AVOIDANCE_TOPICS = ('/guidance/avoidance', '/obstacles', '/scan')
+AVOIDANCE_TOPICS = ('/guidance/avoidance', '/control/avoidance', '/obstacles', '/scan')
 RECOVERY_S = 5.0      # after an avoidance, the vessel returns to the path for this long [s]
 MATCH_RADIUS = 1.0    # a reported circle is that true circle when its centre is this close [m]
 FALSE_GATE = 0.5      # a reported obstacle with no true surface this close is false [m]
@@ -75,6 +78,11 @@ def guidance_avoidance(profile: Any) -> dict[str, Any]:
             return {k.split('.', 1)[1]: v for k, v in merged.items()
                     if k.startswith('avoidance.')}
     return {}
+
+
+def force_level(profile: Any) -> bool:
+    """Whether the profile's barrier functions act on the force (``avoidance.level``)."""
+    return guidance_avoidance(profile).get('level', 'guidance') == 'force'
 
 
 def avoids(profile: Any) -> bool:
@@ -139,11 +147,19 @@ def avoidance_figures(msgs: Messages, profile: Any, t: np.ndarray, eta: np.ndarr
         out['clearance_by_obstacle'] = {n: round(float(v), 4)
                                         for n, v in zip(world.names, least)}
     status = [avoidance_msg.from_msg(m) for _, m in msgs.get('/guidance/avoidance', [])]
+    # The filter that acts: the guidance's, or at the force level the controller's (the
+    # guidance's status then only says when it held blind).
+    acting = status
+    if force_level(profile):
+        acting = [avoidance_msg.from_msg(m) for _, m in msgs.get('/control/avoidance', [])]
     if status:
         st = np.array([s['estimate_stamp_ns'] * 1e-9 for s in status])
-        engaged = np.array([s['engaged'] > 0.5 for s in status])
         blind = np.array([s['blind'] > 0.5 for s in status])
         dt = float(np.median(np.diff(st))) if len(st) > 1 else 0.0
+        at = np.array([s['estimate_stamp_ns'] * 1e-9 for s in acting])
+        engaged_at = np.array([s['engaged'] > 0.5 for s in acting], dtype=bool)
+        # engaged on the guidance's samples (the same estimates at either level)
+        engaged = np.isin(st, at[engaged_at]) if len(at) else np.zeros(len(st), dtype=bool)
         out['avoidance_s'] = round(float(engaged.sum()) * dt, 2)
         out['blind_s'] = round(float(blind.sum()) * dt, 2)
         if blind.any():
@@ -153,8 +169,8 @@ def avoidance_figures(msgs: Messages, profile: Any, t: np.ndarray, eta: np.ndarr
                 if sel.sum() > 1:
                     travel += float(np.sum(np.hypot(*np.diff(eta[sel, :2], axis=0).T)))
             out['blind_travel_m'] = round(travel, 4)
-        out['infeasible_steps'] = int(sum(s['infeasible'] > 0.5 for s in status))
-        solve = [s['solve_time'] for s in status if s['obstacles'] > 0]
+        out['infeasible_steps'] = int(sum(s['infeasible'] > 0.5 for s in acting))
+        solve = [s['solve_time'] for s in acting if s['obstacles'] > 0]
         out['qp_solve_p50_ms'] = _percentile_ms(solve, 50)
         out['qp_solve_p99_ms'] = _percentile_ms(solve, 99)
         ages = [(s['estimate_stamp_ns'] - s['obstacles_stamp_ns']) * 1e-9 for s in status

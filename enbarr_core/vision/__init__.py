@@ -1,1 +1,1 @@
-"""Vision: what the camera sees, as pure modules (OpenCV and numpy) beside their nodes."""
+"""Vision without ROS: camera models and calibration, and objects in camera images."""

@@ -14,6 +14,11 @@ Shapes, each given at its pose at ``t = 0``:
 - ``Walls``: a chain of segments, open or closed (basin walls, a quay, a single segment):
   lines without an inside; a vessel inside a closed chain of walls is in free water.
 
+How it looks (the simulated camera): each obstacle stands on the water (z = 0) up to its
+``height`` [m], in its ``colour`` (r, g, b, 0..255); without them, the defaults of its kind
+(``DEFAULT_HEIGHT``, ``DEFAULT_COLOUR``: an orange buoy, a white hull, grey basin walls). The
+lidar and the distances ignore both: they are 2D.
+
 Motions, a translation of the whole shape (no rotation):
 
 - ``Static``;
@@ -118,6 +123,13 @@ class Walls:
 
 
 Shape = Union[Circle, Polygon, Walls]
+Colour = tuple[int, int, int]  # r, g, b, 0..255
+
+#: The height [m] above the water and the colour (r, g, b) of an obstacle that gives none, by
+#: kind: a buoy, a hull or a pier, the basin's walls (what the simulated camera draws).
+DEFAULT_HEIGHT: dict[type, float] = {Circle: 0.5, Polygon: 0.4, Walls: 1.0}
+DEFAULT_COLOUR: dict[type, Colour] = {Circle: (255, 110, 0), Polygon: (225, 225, 220),
+                                      Walls: (150, 150, 145)}
 
 
 # -- motions -------------------------------------------------------------------------------
@@ -221,11 +233,25 @@ Motion = Union[Static, ConstantVelocity, Waypoints]
 
 @dataclass(frozen=True)
 class Obstacle:
-    """One named obstacle: its shape at t = 0 and how it moves."""
+    """One named obstacle: its shape at t = 0, how it moves, and how it looks.
+
+    ``height`` [m] above the water and ``colour`` (r, g, b): None takes its kind's default
+    (``DEFAULT_HEIGHT``, ``DEFAULT_COLOUR``), so both are always set once built.
+    """
 
     name: str
     shape: Shape
     motion: Motion = Static()
+    height: float = None  # type: ignore[assignment]  # None: the kind's, set below
+    colour: Colour = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.height is None:
+            object.__setattr__(self, 'height', DEFAULT_HEIGHT[type(self.shape)])
+        if self.colour is None:
+            object.__setattr__(self, 'colour', DEFAULT_COLOUR[type(self.shape)])
+        if not self.height > 0.0:
+            raise ValueError(f'obstacle {self.name}: height must be > 0 m, got {self.height}')
 
     @property
     def moving(self) -> bool:

@@ -5,12 +5,16 @@ The section maps obstacle names to their description (``docs/profiles.md``)::
     world:
       basin:   {kind: walls, points: [[-20, -3.225], [20, -3.225], [20, 3.225], [-20, 3.225]],
                 closed: true}
-      buoy:    {kind: circle, center: [3.0, 1.0], radius: 0.3}
+      buoy:    {kind: circle, center: [3.0, 1.0], radius: 0.3, height: 0.6, colour: red}
       pier:    {kind: polygon, points: [[5, 3.225], [6, 3.225], [6, 2.0], [5, 2.0]]}
       drifter: {kind: circle, center: [8, -1], radius: 0.4, velocity: [-0.1, 0.0]}
       ferry:   {kind: circle, center: [-5, 0], radius: 0.5, waypoints: [[5, 0], [5, 2]],
                 speed: 0.3, loop: true}
       old:     {enabled: false}        # drops an obstacle an included profile declared
+
+``height`` [m] above the water and ``colour`` (a name of ``COLOURS`` or [r, g, b], 0..255)
+are how the simulated camera draws the obstacle; without them, its kind's defaults
+(``model.DEFAULT_HEIGHT``, ``model.DEFAULT_COLOUR``).
 
 Profiles merge key by key (``include``), so a scenario can move or resize an obstacle of the
 profile it includes. Every refusal is a ``ProfileError`` naming the file that set the key and
@@ -26,17 +30,24 @@ from typing import Any
 
 from enbarr_core.framework.errors import ProfileError
 from enbarr_core.framework.registry import did_you_mean
-from enbarr_core.world.model import (Circle, ConstantVelocity, EMPTY_WORLD, Motion, Obstacle,
-                                     Point, Polygon, Shape, Static, Walls, Waypoints, World)
+from enbarr_core.world.model import (Circle, Colour, ConstantVelocity, EMPTY_WORLD, Motion,
+                                     Obstacle, Point, Polygon, Shape, Static, Walls, Waypoints,
+                                     World)
 
 KINDS = ('circle', 'polygon', 'walls')
 #: Keys every obstacle may have, then the keys of each kind.
-COMMON_KEYS = ('kind', 'enabled', 'velocity', 'waypoints', 'speed', 'loop')
+COMMON_KEYS = ('kind', 'enabled', 'velocity', 'waypoints', 'speed', 'loop', 'height',
+               'colour')
 KIND_KEYS = {'circle': ('center', 'radius'), 'polygon': ('points',),
              'walls': ('points', 'closed')}
 ALL_KEYS = COMMON_KEYS + ('center', 'radius', 'points', 'closed')
 #: Fewest points of a shape.
 MIN_POINTS = {'polygon': 3, 'walls': 2}
+#: Colours by name (r, g, b): buoys' and hulls' usual ones.
+COLOURS: dict[str, Colour] = {
+    'red': (220, 30, 30), 'green': (30, 160, 60), 'yellow': (250, 210, 20),
+    'orange': (255, 110, 0), 'white': (235, 235, 230), 'black': (25, 25, 25),
+    'grey': (150, 150, 145), 'blue': (30, 70, 200)}
 _NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 
 Refuse = Callable[[str, str], ProfileError]
@@ -112,7 +123,28 @@ def _obstacle(name: str, entry: dict[str, Any], key: str, refuse: Refuse) -> Obs
             if not isinstance(closed, bool):
                 raise refuse(f'expected true or false, got {closed!r}', f'{key}.closed')
             shape = Walls(points, closed)
-    return Obstacle(name, shape, _motion(entry, shape, key, refuse))
+    look: dict[str, Any] = {}  # what is not given is the kind's (Obstacle's defaults)
+    if 'height' in entry:
+        look['height'] = _number(entry['height'], refuse, f'{key}.height')
+        if not look['height'] > 0.0:
+            raise refuse(f'expected a height > 0 [m] above the water, got {look["height"]}',
+                         f'{key}.height')
+    if 'colour' in entry:
+        look['colour'] = _colour(entry['colour'], refuse, f'{key}.colour')
+    return Obstacle(name, shape, _motion(entry, shape, key, refuse), **look)
+
+
+def _colour(v: Any, refuse: Refuse, key: str) -> Colour:
+    if isinstance(v, str):
+        if v not in COLOURS:
+            raise refuse(f'unknown colour {v!r}{did_you_mean(v, tuple(COLOURS))}; a name ('
+                         f'{", ".join(COLOURS)}) or [r, g, b] 0..255', key)
+        return COLOURS[v]
+    if (not isinstance(v, (list, tuple)) or len(v) != 3 or any(
+            isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255 for c in v)):
+        raise refuse(f'expected a colour name ({", ".join(COLOURS)}) or [r, g, b], integers '
+                     f'0..255, got {v!r}', key)
+    return int(v[0]), int(v[1]), int(v[2])
 
 
 def _motion(entry: dict[str, Any], shape: Shape, key: str, refuse: Refuse) -> Motion:

@@ -1,4 +1,4 @@
-"""Camera through OpenCV: ``camera/image_raw`` (bgr8) + ``camera/camera_info``.
+"""Camera through OpenCV: ``camera/image_raw`` (bgr8), its JPEG and ``camera/camera_info``.
 
 The ``device`` parameter names the source (``capture``): a V4L2 index or device, a video
 file, or ``'emulated[:NAME]'`` (the video file a ``camera_emulator`` node of this process
@@ -6,7 +6,9 @@ wrote; from there the driver reads it exactly like a file). ``frame_rate``,
 ``width``/``height`` are asked of a V4L2 device (the driver publishes what the device gives
 and warns when it differs); a file is read at ``frame_rate`` and starts over at its end
 (``loop``) or stops there. ``calibration_file`` is a ROS camera_info YAML file
-(``calibration``); without one CameraInfo carries only the image size (uncalibrated).
+(``calibration``); without one CameraInfo carries only the image size (uncalibrated). What is
+published, and the JPEG on ``camera/image_raw/compressed`` (``jpeg_quality``, ``publish_raw``),
+is every camera's (``common.ImageOutput``).
 
 Capture runs on the node's own loop thread (``cv2.VideoCapture.read`` blocks until a frame);
 opening the device too, once the node is started. Faults: a source that cannot be opened is
@@ -26,14 +28,12 @@ import threading
 import time
 from typing import Any
 
-from sensor_msgs.msg import CameraInfo, Image
-
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import topics
 from enbarr_plugins.camera.calibration import Calibration, load_calibration
 from enbarr_plugins.camera.capture import describe, open_capture, parse_device, Source
+from enbarr_plugins.camera.common import camera_info, ImageOutput, OUTPUT_SPECS
 
 SPECS = [
     ParamSpec('device', '0', "Source: V4L2 index ('0'), device ('/dev/video0'), a video file, "
@@ -50,9 +50,8 @@ SPECS = [
               'there)', read_only=True),
     ParamSpec('stall_timeout', 2.0, 'No frame for this long is a stalled device (fault)', 's',
               0.1, 60.0),
+    *OUTPUT_SPECS,
 ]
-
-
 
 @dataclass(frozen=True)
 class CameraSettings:
@@ -67,6 +66,8 @@ class CameraSettings:
     calibration: Calibration | None
     loop: bool
     stall_timeout: float           # [s]
+    jpeg_quality: int = 80
+    publish_raw: bool = True
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> CameraSettings:
@@ -80,8 +81,8 @@ class CameraSettings:
         return cls(device=v['device'], source=parse_device(v['device']),
                    frame_rate=v['frame_rate'], width=v['width'], height=v['height'],
                    calibration_file=v['calibration_file'], calibration=calibration,
-                   loop=v['loop'], stall_timeout=v['stall_timeout'])
-
+                   loop=v['loop'], stall_timeout=v['stall_timeout'],
+                   jpeg_quality=int(v['jpeg_quality']), publish_raw=v['publish_raw'])
 
 
 class CameraNode(SensorDriver):
@@ -93,8 +94,7 @@ class CameraNode(SensorDriver):
         self.bind_settings(SPECS, CameraSettings.from_params, self._apply)
         s = self.settings
         self.device = f'camera {s.device}'
-        self._image_pub = self.create_topic_publisher(topics.CAMERA_IMAGE)
-        self._info_pub = self.create_topic_publisher(topics.CAMERA_INFO)
+        self.output = ImageOutput(self, s.publish_raw)
         self._cap: Any = None
         self._cap_lock = threading.Lock()
         self._reading = False
@@ -198,18 +198,7 @@ class CameraNode(SensorDriver):
             self._size_warned = True
             self.get_logger().warn(f'{self.device}: gives {w}x{h}, not the {s.width}x'
                                    f'{s.height} asked')
-        img = Image()
-        img.header.stamp = stamp
-        img.header.frame_id = topics.CAMERA_IMAGE.frame
-        img.height, img.width = h, w
-        img.encoding = 'bgr8'
-        img.is_bigendian = 0
-        img.step = w * 3
-        img.data = frame.tobytes()
-        info = camera_info(s.calibration, w, h)
-        info.header = img.header
-        self._image_pub.publish(img)
-        self._info_pub.publish(info)
+        self.output.publish(frame, stamp, camera_info(s.calibration, w, h), s.jpeg_quality)
         self.sample_received()
 
     def status_values(self) -> dict[str, Any]:
@@ -226,15 +215,3 @@ class CameraNode(SensorDriver):
         self.close_device()
         super().destroy_node()
 
-
-def camera_info(cal: Calibration | None, width: int, height: int) -> CameraInfo:
-    """Return the CameraInfo of a frame (the calibration's when it has this size)."""
-    info = CameraInfo()
-    info.width, info.height = width, height
-    if cal is not None and (cal.width, cal.height) == (width, height):
-        info.distortion_model = cal.distortion_model
-        info.d = list(cal.d)
-        info.k = list(cal.k)
-        info.r = list(cal.r)
-        info.p = list(cal.p)
-    return info

@@ -14,12 +14,17 @@ from enbarr_core.bench import avoidance
 def test_measure_reports_each_case() -> None:
     figures = avoidance.measure(obstacles=3, repeat=1)
     assert figures['obstacles'] == 3
-    assert set(figures['us_per_step']) == {'far', 'engaged', 'daqp_solve'}
+    assert set(figures['us_per_step']) == {'far', 'engaged', 'daqp_solve', 'force_far',
+                                           'force_engaged'}
     assert all(v > 0.0 for v in figures['us_per_step'].values())
     worst = max(figures['us_per_step']['far'], figures['us_per_step']['engaged'])
     assert figures['core_percent_at_50hz'] == pytest.approx(worst * 50e-6 * 100, rel=0.01)
     assert figures['pi4_estimate_core_percent_at_50hz'] == pytest.approx(
         6 * figures['core_percent_at_50hz'], rel=0.01)
+    force = max(figures['us_per_step']['force_far'], figures['us_per_step']['force_engaged'])
+    assert figures['force_core_percent_at_50hz'] == pytest.approx(force * 50e-6 * 100, rel=0.01)
+    assert figures['force_pi4_estimate_core_percent_at_50hz'] == pytest.approx(
+        6 * figures['force_core_percent_at_50hz'], rel=0.01)
 
 
 @pytest.mark.e2e

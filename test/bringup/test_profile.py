@@ -569,6 +569,33 @@ def test_record_section(tmp_path: Path) -> None:
                               r.split_seconds) == ('bags/run', ('/imu/data',), 0.5, 100.0, 60.0)
 
 
+def test_record_keeps_raw_images_only_when_asked(tmp_path: Path) -> None:
+    """record.skip_raw_images (default true) reaches the recorder bringup adds."""
+    from enbarr_core.bringup.compose import add_recorder
+    for text, skip in (('{path: bags/run}', True), ('{path: bags/run, skip_raw_images: false}',
+                                                    False)):
+        path = write(tmp_path / 'p.yaml', f"""
+            nodes:
+              imu: {{plugin: sim_imu}}
+            record: {text}
+            """)
+        profile = add_recorder(load_profile(path))
+        assert profile.record is not None and profile.record.skip_raw_images is skip
+        [recorder] = [n for n in profile.nodes if n.name == 'recorder']
+        assert recorder.parameters['skip_raw_images'] is skip
+    # --output on a profile without a record section: the default too
+    path = write(tmp_path / 'p.yaml', 'nodes: {imu: {plugin: sim_imu}}\n')
+    record = profiles.with_record(load_profile(path), str(tmp_path / 'bag')).record
+    assert record is not None and record.skip_raw_images is True
+    bad = write(tmp_path / 'q.yaml', """
+        nodes:
+          imu: {plugin: sim_imu}
+        record: {path: bags/run, skip_raw_images: 'no'}
+        """)
+    assert str(load_error(bad)) == (
+        f"{bad}: record.skip_raw_images: expected true or false, got 'no'")
+
+
 def test_record_flush_seconds_must_be_positive(tmp_path: Path) -> None:
     bad = write(tmp_path / 'q.yaml', """
         nodes:

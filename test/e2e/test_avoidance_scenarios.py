@@ -9,11 +9,15 @@ again here on what makes it that scenario.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 import subprocess
 from typing import Any
 
+from support.bags import read_bag
 from support.cli import ENBARR
+
+from enbarr_interfaces import avoidance
 
 SAFETY_RADIUS = 0.2   # params/saucer_ca_core.yaml: hull to obstacle [m]
 MARGIN = 0.04         # the range noise and pose error the targets allow (their comments) [m]
@@ -40,6 +44,24 @@ def test_buoy_on_the_box_path_is_gone_round(tmp_path: Path) -> None:
     assert r['avoidance_s'] > 5.0           # the filter steered, and let go again:
     assert r['cross_track_outside_avoidance_rms_m'] < 0.09
     assert r['infeasible_steps'] == 0 and r['blind_s'] == 0.0
+
+
+def test_the_force_level_alone_keeps_the_buoy_clear(tmp_path: Path) -> None:
+    """ca_buoy with avoidance.level force: the guidance leaves its reference through the buoy
+    and the DP controller's force filter goes round it. The clearance is checked again here
+    from the simulator's pose in the bag and the buoy of the scenario (ca_buoy.yaml: centre
+    (1, 0), radius 0.15 m; the hull 0.15 m, saucer_ca_core.yaml)."""
+    r = scenario('ca_buoy_force', tmp_path / 'out')
+    msgs = read_bag(r['bag'])
+    truth = [m.pose.pose.position for _, m in msgs['/sim/odometry']]
+    clearance = min(math.hypot(p.x - 1.0, p.y - 0.0) - 0.15 - 0.15 for p in truth)
+    assert clearance >= SAFETY_RADIUS - MARGIN
+    assert clearance >= r['min_clearance_m'] - 1e-3 and r['nearest_obstacle'] == 'buoy'
+    guidance = [avoidance.from_msg(m) for _, m in msgs['/guidance/avoidance']]
+    force = [avoidance.from_msg(m) for _, m in msgs['/control/avoidance']]
+    assert guidance and not any(s['engaged'] for s in guidance)   # the guidance filters nothing
+    assert sum(s['engaged'] > 0.5 for s in force) > 100            # the force filter does
+    assert r['avoidance_s'] > 2.0 and r['infeasible_steps'] == 0
 
 
 def test_a_boat_head_on_is_given_way_to(tmp_path: Path) -> None:

@@ -206,7 +206,7 @@ def run_scenario(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
 
 
 def run_bench(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
-    if ns.perception:
+    if ns.perception or ns.camera:
         return run_as_written(args, ns, tmp)   # seconds: one process, no ROS graph
     if ns.profile is not None:
         load_profile(ns.profile)

@@ -27,7 +27,8 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
              'enbarr_plugins.lidar.sim_scan',
              'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
-             'enbarr_plugins.camera.capture', 'enbarr_plugins.transport.reader')
+             'enbarr_plugins.camera.capture', 'enbarr_plugins.camera.sim_render',
+             'enbarr_plugins.transport.reader')
 
 pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess
 
@@ -54,7 +55,9 @@ DRIVERS_AND_EMULATORS = {
     'enbarr_plugins.lidar.rplidar': ('enbarr_plugins.lidar.rplidar_emulator',),
     'enbarr_plugins.mocap.qualisys': ('enbarr_plugins.mocap.qtm_emulator',),
     'enbarr_plugins.camera.opencv_camera': ('enbarr_plugins.camera.emulator',
-                                            'enbarr_plugins.camera.pattern_video'),
+                                            'enbarr_plugins.camera.pattern_video',
+                                            'enbarr_plugins.camera.sim',
+                                            'enbarr_plugins.camera.sim_render'),
 }
 
 

@@ -21,7 +21,7 @@ SHIPPED = sorted(p.stem for d in search_dirs()[-1:] for p in d.glob('*.yaml'))
 ADD_ONS = {'saucer_ca_core': ('saucer_ca', 'saucer_ca_sim')}
 #: Which node kind publishes each pose topic a tree may name.
 POSE_PUBLISHERS = {'observer/odometry': {'dp_observer'}, 'imu/data': {'attitude_filter'}}
-LIDARS, CAMERAS = {'rplidar', 'sim_lidar'}, {'camera'}
+LIDARS, CAMERAS = {'rplidar', 'sim_lidar'}, {'camera', 'sim_camera'}
 IMUS = {'sim_imu', 'lsm9ds1_imu', 'fxos8700_imu'}
 
 

@@ -464,3 +464,66 @@ def test_los_finishing_into_a_hold_inside_a_zone_does_not_step_the_reference():
         worst = min(worst, clearance(eta, buoy))
     assert finished and out.engaged and out.min_barrier >= -1e-3
     assert worst >= SETTINGS.safety_radius
+
+
+def test_force_filter_passes_a_blocking_obstacle_instead_of_stopping():
+    """Straight at a buoy: without passing the filtered force has no sway (the CBF's local
+    minimum: the vessel stops in front of it); with pass_gain 1 the force lost goes along the
+    tangent, to starboard, and the HOCBF condition and the box still hold."""
+    from dataclasses import replace
+    from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceSafetyFilter
+    vp = vessel_params()
+    base = ForceCbfSettings(vp.M, vp.D, vp.Dn, (2.0, 2.0, 0.3), 0.2, VESSEL_RADIUS)
+    buoy = rows(circle(0.6, 0.0, 0.05))
+    eta, nu, tau_nom = np.zeros(3), np.array([0.2, 0.0, 0.0]), np.array([2.0, 0.0, 0.1])
+    # h = 0.6 - 0.05 - r_vessel - 0.2, h_dot = -0.2, n = (-1, 0), a1 = a2 = 1: the condition
+    # n^T (M^-1 tau + drift) >= -(a1 + a2) h_dot - a1 a2 h, written out for this state.
+    h = 0.6 - 0.05 - VESSEL_RADIUS - 0.2
+    drift_x = -(vp.D[0] + vp.Dn[0] * 0.2) * 0.2 / vp.M[0]
+    stop = ForceSafetyFilter(base).step(eta, nu, tau_nom, buoy)
+    assert stop.engaged and stop.tau[1] == pytest.approx(0.0, abs=1e-9)
+    assert -stop.tau[0] / vp.M[0] - drift_x >= 2 * 0.2 - h - 1e-9
+    f = ForceSafetyFilter(replace(base, pass_gain=1.0))
+    out = f.step(eta, nu, tau_nom, buoy)
+    assert out.engaged and out.active == 1
+    assert out.tau[1] < -0.5 and f.side == 1                 # starboard (FLU: -y)
+    assert -out.tau[0] / vp.M[0] - drift_x >= 2 * 0.2 - h - 1e-9
+    assert np.all(np.abs(out.tau[:2]) <= 2.0 + 1e-9) and out.tau[2] == 0.1
+    # A push along the tangent beyond the box is solved back into it.
+    hard = ForceSafetyFilter(replace(base, pass_gain=3.0)).step(eta, nu, tau_nom, buoy)
+    assert hard.tau[1] == pytest.approx(-2.0, abs=1e-9)
+    assert -hard.tau[0] / vp.M[0] - drift_x >= 2 * 0.2 - h - 1e-9
+
+
+def test_force_filter_settings_swapped_live_move_the_zones():
+    """A new safety radius (live, from the node's parameters) is the zone's at the next step;
+    a bad one is refused and the old settings stay."""
+    from dataclasses import replace
+    from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceSafetyFilter
+    vp = vessel_params()
+    base = ForceCbfSettings(vp.M, vp.D, vp.Dn, (2.0, 2.0, 0.3), 0.2, VESSEL_RADIUS)
+    buoy = rows(circle(2.0, 0.0, 0.05))
+    f = ForceSafetyFilter(base)
+    state = (np.zeros(3), np.zeros(3), np.zeros(3), buoy)
+    assert f.step(*state).min_barrier == pytest.approx(2.0 - 0.05 - VESSEL_RADIUS - 0.2)
+    f.settings = replace(base, safety_radius=0.5)
+    assert f.step(*state).min_barrier == pytest.approx(2.0 - 0.05 - VESSEL_RADIUS - 0.5)
+    with pytest.raises(ValueError, match='a1'):
+        f.settings = replace(base, a1=0.0)
+    assert f.settings.safety_radius == 0.5
+
+
+@pytest.mark.parametrize('change, match', [
+    ({'M': (0.0, 9.51, 0.116)}, 'M: every element must be > 0'),
+    ({'tau_max': (2.0, -1.0, 0.3)}, 'tau_max: every element must be > 0'),
+    ({'a1': 0.0}, 'a1, a2: must be > 0'),
+    ({'pass_gain': -1.0}, 'pass_gain: must be a finite number >= 0'),
+    ({'D': (1.0, math.nan, 1.0)}, 'D: expected three finite numbers'),
+])
+def test_force_filter_settings_are_checked(change, match):
+    from dataclasses import replace
+    from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceSafetyFilter
+    vp = vessel_params()
+    base = ForceCbfSettings(vp.M, vp.D, vp.Dn, (2.0, 2.0, 0.3), 0.2, VESSEL_RADIUS)
+    with pytest.raises(ValueError, match=match):
+        ForceSafetyFilter(replace(base, **change))

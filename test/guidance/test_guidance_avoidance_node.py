@@ -204,6 +204,26 @@ def test_enabling_without_a_hull_radius_is_refused(context, executor, spin):
             {'avoidance.enabled': True}))
 
 
+def test_an_unknown_level_is_refused_and_the_force_level_skips_the_speed_check(context):
+    """avoidance.level names where the barrier functions act; at the force level the
+    guidance's speed limit filters nothing, so a path speed above it is no error."""
+    from enbarr_core.framework.errors import ConfigurationError
+    from enbarr_core.guidance.guidance_node import GuidanceNode
+    from support.saucer import overrides
+    with pytest.raises(ConfigurationError, match='avoidance.level: expected one of guidance, '
+                                                 "force, got 'thrust'"):
+        GuidanceNode(node_name='guidance', context=context, parameter_overrides=overrides(
+            {**ON, 'avoidance.level': 'thrust'}))
+    fast = {**ON, 'path.speed': 0.5}
+    with pytest.raises(ConfigurationError, match='avoidance.max_speed'):
+        GuidanceNode(node_name='guidance', context=context,
+                     parameter_overrides=overrides(fast))
+    node = GuidanceNode(node_name='guidance', context=context, parameter_overrides=overrides(
+        {**fast, 'avoidance.level': 'force'}))
+    assert node.settings.avoidance.level == 'force' and not node.settings.avoidance.filters
+    node.destroy_node()
+
+
 def test_manual_stays_manual_with_avoidance_on(context, executor, spin):
     h = AvoidHarness(context, executor, spin, **ON)
     h.estimate([0.0, 0.0, 0.0])

@@ -48,6 +48,22 @@ def test_a_noisy_half_arc_gives_centre_and_radius_within_5_cm(seed):
     assert abs(fit.y - 1.0) < 4.0 * math.sqrt(fit.cov[2])
 
 
+@pytest.mark.parametrize('seed', range(4))
+def test_kasa_is_the_algebraic_least_squares_circle(seed):
+    # Kasa (1976): x^2 + y^2 + D x + E y + F = 0 in least squares, solved here by numpy's
+    # lstsq on the uncentred system: the same circle, however the fit sums it
+    rng = np.random.default_rng(seed)
+    pts = half_arc(*rng.uniform(-6.0, 6.0, 2), rng.uniform(0.1, 1.0), 15, 0.03, seed)
+    a = np.column_stack((pts, np.ones(len(pts))))
+    (d, e, f), *_ = np.linalg.lstsq(a, -(pts * pts).sum(axis=1), rcond=None)
+    cx, cy = -0.5 * d, -0.5 * e
+    ours = kasa(pts)
+    assert ours == pytest.approx((cx, cy, math.sqrt(cx * cx + cy * cy - f)), abs=1e-9)
+    # and exact points give their circle back exactly
+    exact = half_arc(1.5, -2.5, 0.35, 7, 0.0, seed)
+    assert kasa(exact) == pytest.approx((1.5, -2.5, 0.35), abs=1e-12)
+
+
 @pytest.mark.parametrize('seed', range(5))
 def test_the_geometric_fit_is_scipys_least_squares(seed):
     pts = half_arc(-2.0, 4.0, 0.4, 9, 0.04, seed)

@@ -16,7 +16,8 @@ from enbarr_core.perception.fitting import CircleFit, FitSettings
 from enbarr_core.perception.pipeline import LidarMount, PerceptionSettings, ScanObstacles
 from enbarr_core.perception.scan_geometry import PoseHistory, RangeNoise
 from enbarr_core.perception.segmentation import BreakpointSettings
-from enbarr_core.perception.tracking import assign, Tracker, TrackerSettings
+from enbarr_core.perception.tracking import (
+    assign, CircleTrack, inverse_2x2, motion, Tracker, TrackerSettings)
 
 N, M = 3, 5
 TRACKER = TrackerSettings(confirm_hits=N, drop_misses=M, gate=9.21, accel_noise=0.2,
@@ -166,3 +167,36 @@ def test_a_short_segment_at_a_tracked_buoy_is_its_front_not_a_wall():
     # a long segment there is a wall in front of it, not the buoy
     tracker.update([], [SegmentFit(2.6, -2.0, 2.6, 2.0, 0.03, 40)], (N + 1) * PERIOD_NS)
     assert len(tracker.segments) == 1 and track.misses == 1
+
+
+def test_the_constant_velocity_model_is_bar_shaloms():
+    # Bar-Shalom, Li and Kirubarajan 2001, sec. 6.3.2, per axis: F = [[1, T], [0, 1]],
+    # Q = q^2 [[T^4/4, T^3/2], [T^3/2, T^2]]; the state here is [px, py, vx, vy]
+    f, q = motion(0.5, 0.2)
+    assert f.tolist() == [[1, 0, 0.5, 0], [0, 1, 0, 0.5], [0, 0, 1, 0], [0, 0, 0, 1]]
+    per_axis = 0.04 * np.array([[0.015625, 0.0625], [0.0625, 0.25]])
+    assert q[np.ix_([0, 2], [0, 2])] == pytest.approx(per_axis, abs=1e-15)
+    assert q[np.ix_([1, 3], [1, 3])] == pytest.approx(per_axis, abs=1e-15)
+    assert q[np.ix_([0, 2], [1, 3])] == pytest.approx(np.zeros((2, 2)), abs=0.0)
+
+
+def test_the_written_out_inverse_is_numpys_and_refuses_a_singular_matrix():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        s = rng.normal(size=(2, 2))
+        assert inverse_2x2(s) == pytest.approx(np.linalg.inv(s), rel=1e-12, abs=1e-12)
+    with pytest.raises(np.linalg.LinAlgError):
+        inverse_2x2(np.array([[1.0, 2.0], [2.0, 4.0]]))
+
+
+def test_a_track_filters_as_filterpy_does_with_numpys_inverse():
+    z = CircleFit(2.0, -1.0, 0.3, (4e-4, 1e-4, 9e-4), 0.01)
+    ours, ref = CircleTrack(1, z, 0, 1.0), CircleTrack(2, z, 0, 1.0)
+    ref.kf.inv = np.linalg.inv
+    f, q = motion(0.18, 0.2)
+    for k in range(1, 6):
+        for t in (ours, ref):
+            t.predict(f, q)
+            t.update(dataclasses.replace(z, x=2.0 + 0.03 * k, y=-1.0 - 0.01 * k), k, 0.3)
+    assert ours.kf.x == pytest.approx(ref.kf.x, abs=1e-12)
+    assert ours.kf.P == pytest.approx(ref.kf.P, abs=1e-12)

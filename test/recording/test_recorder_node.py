@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import math
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 from rosbags.rosbag2 import Reader
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import String
 import yaml
 
@@ -126,7 +128,8 @@ def test_empty_topic_names_mean_all() -> None:
     settings = RecorderSettings.from_params({'path': 'bag', 'topics': [''],
                                              'flush_seconds': 1.0, 'segment_seconds': 0.0,
                                              'split_size': 0.0, 'split_seconds': 0.0,
-                                             'min_free_space': 64.0, 'max_queued': 20000})
+                                             'min_free_space': 64.0, 'max_queued': 20000,
+                                             'skip_raw_images': True})
     assert settings.topics == frozenset()
 
 
@@ -134,7 +137,8 @@ def test_segment_seconds_is_the_old_name_of_flush_seconds() -> None:
     settings = RecorderSettings.from_params({'path': 'bag', 'topics': [],
                                              'flush_seconds': 1.0, 'segment_seconds': 0.25,
                                              'split_size': 0.0, 'split_seconds': 0.0,
-                                             'min_free_space': 64.0, 'max_queued': 20000})
+                                             'min_free_space': 64.0, 'max_queued': 20000,
+                                             'skip_raw_images': True})
     assert settings.flush_seconds == 0.25
 
 
@@ -155,6 +159,75 @@ def test_stamps_follow_the_node_clock_under_sim_time(context, executor, spin, tm
         stamps = [t for _, t, _ in reader.messages()]
     assert stamps[:3] == [0, 0, 0]
     assert stamps[-1] > 1_600_000_000 * 10 ** 9
+
+
+# -- images: the JPEG by default, not the raw stream ---------------------------------------------
+
+RAW = TopicSpec('cam/image_raw', Image, topics.SENSOR_QOS, '', '', '')
+JPEG = TopicSpec('cam/image_raw/compressed', CompressedImage, topics.SENSOR_QOS, '', '', '')
+LONE_RAW = TopicSpec('other/image_raw', Image, topics.SENSOR_QOS, '', '', '')
+
+
+def record_images(context, executor, spin, rec, specs, until) -> dict[str, list[Any]]:
+    source = probe(context, executor, 'source')
+    pubs = [source.create_topic_publisher(s) for s in specs]
+    rec.start()
+
+    def publish() -> bool:
+        for pub in pubs:
+            pub.publish(pub.msg_type(format='bgr8; jpeg compressed bgr8', data=b'\xff\xd8')
+                        if pub.msg_type is CompressedImage else
+                        Image(height=1, width=1, encoding='bgr8', step=3, data=b'abc'))
+        return until(rec)
+    assert spin(executor, publish, TIMEOUT), f'{rec.written} written'
+    return close(executor, rec)
+
+
+def test_all_topics_leave_out_a_raw_image_that_has_a_compressed_sibling(
+        context, executor, spin, tmp_path) -> None:
+    """topics empty: /cam/image_raw/compressed and the lone /other/image_raw are recorded,
+    not /cam/image_raw; skip_raw_images false, or a selection naming it, records it."""
+    rec = recorder(context, executor, tmp_path / 'bag')
+    msgs = record_images(context, executor, spin, rec, (RAW, JPEG, LONE_RAW),
+                         lambda r: r.written >= 10 and r.skipped_raw)
+    assert {'/cam/image_raw/compressed', '/other/image_raw'} <= set(msgs)
+    assert '/cam/image_raw' not in msgs
+    assert rec.skipped_raw == {'/cam/image_raw'}
+
+    rec = add(executor, RecorderNode(context=context, parameter_overrides=[
+        Parameter('path', value=str(tmp_path / 'both')),
+        Parameter('skip_raw_images', value=False)]))
+    msgs = record_images(context, executor, spin, rec, (RAW, JPEG),
+                         lambda r: {'/cam/image_raw', '/cam/image_raw/compressed'}
+                         <= r._subscribed and r.written >= 10)
+    assert {'/cam/image_raw', '/cam/image_raw/compressed'} <= set(msgs)
+
+    rec = recorder(context, executor, tmp_path / 'named', '/cam/image_raw')
+    msgs = record_images(context, executor, spin, rec, (RAW, JPEG), lambda r: r.written >= 3)
+    assert set(msgs) == {'/cam/image_raw'}
+
+
+def test_a_raw_image_is_dropped_once_its_compressed_sibling_appears(
+        context, executor, spin, tmp_path) -> None:
+    rec = recorder(context, executor, tmp_path / 'bag')
+    source = probe(context, executor, 'source')
+    raw = source.create_topic_publisher(RAW)
+    rec.start()
+    image = Image(height=1, width=1, encoding='bgr8', step=3, data=b'abc')
+    assert spin(executor, lambda: raw.publish(image) or rec.written >= 3, TIMEOUT)
+    jpeg = source.create_topic_publisher(JPEG)
+    assert spin(executor, lambda: raw.publish(image) or jpeg.publish(CompressedImage(
+        format='bgr8; jpeg compressed bgr8', data=b'\xff\xd8')) or bool(rec.skipped_raw),
+        TIMEOUT)
+    dropped_at, before = time.time_ns(), rec.written  # the recorder's stamps: system time
+    assert spin(executor, lambda: raw.publish(image) or jpeg.publish(CompressedImage(
+        format='bgr8; jpeg compressed bgr8', data=b'\xff\xd8')) or rec.written >= before + 20,
+        TIMEOUT)
+    msgs = close(executor, rec)
+    assert len(msgs['/cam/image_raw']) >= 3
+    assert len([t for t, _ in msgs['/cam/image_raw/compressed'] if t > dropped_at]) >= 15
+    # nothing of the raw image after the drop (one in flight at most)
+    assert len([t for t, _ in msgs['/cam/image_raw'] if t > dropped_at]) <= 1
 
 
 # -- opens nothing until started ---------------------------------------------------------------

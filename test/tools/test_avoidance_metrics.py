@@ -97,6 +97,33 @@ def test_the_avoidance_status_gives_times_solves_and_latency() -> None:
     assert out['latency_p99_ms'] == pytest.approx(300.0)
 
 
+def test_at_the_force_level_the_force_filter_is_what_acted() -> None:
+    """avoidance.level force: the guidance's status says only when it held blind (6-9 s;
+    its 'solve' is 0, it solves nothing); the controller's says when the force was changed
+    (3-5 s, and 12-14 s, whose cross-track of 0.5 m and its 5 s after are left out), its two
+    infeasible steps and its solve times (0.1 ms, 20 of 2 ms)."""
+    t, eta = straight_run(30.0, speed=0.0)
+    rel = t - EPOCH
+    guidance = [status(ti, blind=6.0 <= r < 9.0, solve=0.0,
+                       obstacles_age=2.0 if 6.0 <= r < 9.0 else 0.1)
+                for ti, r in zip(t, rel)]
+    force = [status(ti, engaged=3.0 <= r < 5.0 or 12.0 <= r < 14.0, infeasible=i in (10, 11),
+                    solve=2e-3 if i < 20 else 1e-4) for i, (ti, r) in enumerate(zip(t, rel))]
+    ct = np.where((rel >= 12.0) & (rel < 19.0), 0.5, 0.01)
+    msgs = {'/guidance/avoidance': guidance, '/control/avoidance': force}
+    out = avoidance_figures(msgs, profile(World(), level='force'), t, eta, EPOCH,
+                            cross_track=(t, ct))
+    assert out['avoidance_s'] == pytest.approx(4.0, abs=2 * DT)
+    assert out['blind_s'] == pytest.approx(3.0, abs=DT)
+    assert out['infeasible_steps'] == 2
+    assert out['qp_solve_p50_ms'] == pytest.approx(0.1)
+    assert out['qp_solve_p99_ms'] == pytest.approx(2.0)
+    assert out['cross_track_outside_avoidance_rms_m'] == pytest.approx(0.01)
+    # The same run at the guidance level reads the guidance's status alone.
+    out = avoidance_figures(msgs, profile(World()), t, eta, EPOCH)
+    assert out['avoidance_s'] == 0.0 and out['infeasible_steps'] == 0
+
+
 def test_blind_travel_leaves_out_the_stop_and_counts_the_drift() -> None:
     """Blind from 10 to 16 s while the vessel still drifts at 0.05 m/s: after the first 2 s
     (stopping), 4 s x 0.05 = 0.2 m."""

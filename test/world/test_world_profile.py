@@ -54,6 +54,22 @@ def test_a_world_section_builds_every_kind_and_motion(tmp_path: Path) -> None:
     assert ferry.motion == Waypoints(((-5.0, 0.0), (5.0, 0.0), (5.0, 2.0)), 0.3, loop=True)
 
 
+def test_height_and_colour_are_given_or_the_kinds() -> None:
+    """A buoy, a hull and walls without a look get their kind's; given ones are kept (a
+    colour by name or as [r, g, b])."""
+    world = parse_world({
+        'basin': {'kind': 'walls', 'points': [[0, 0], [1, 0]]},
+        'buoy': {'kind': 'circle', 'center': [0, 0], 'radius': 0.2},
+        'hull': {'kind': 'polygon', 'points': [[0, 0], [1, 0], [1, 1]]},
+        'red_buoy': {'kind': 'circle', 'center': [0, 0], 'radius': 0.2, 'height': 1.2,
+                     'colour': 'red'},
+        'boat': {'kind': 'circle', 'center': [0, 0], 'radius': 0.2, 'colour': [1, 2, 3]}})
+    looks = {o.name: (o.height, o.colour) for o in world.obstacles}
+    assert looks == {'basin': (1.0, (150, 150, 145)), 'buoy': (0.5, (255, 110, 0)),
+                     'hull': (0.4, (225, 225, 220)), 'red_buoy': (1.2, (220, 30, 30)),
+                     'boat': (0.5, (1, 2, 3))}
+
+
 def test_no_world_is_an_empty_world(tmp_path: Path) -> None:
     assert not load_profile(write(tmp_path / 'p.yaml', HEAD)).world
     assert not parse_world(None) and not parse_world({})
@@ -149,6 +165,20 @@ def test_an_error_names_the_file_that_set_the_key(tmp_path: Path) -> None:
      'world.boat.velocity', 'expected a finite number, got inf'),
     ('boat: {kind: circle, center: [0, 0], radius: 1, waypoints: [[1, 1]], speed: 1, '
      'loop: 2}', 'world.boat.loop', 'expected true or false, got 2'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, height: 0}', 'world.buoy.height',
+     'expected a height > 0 [m] above the water, got 0.0'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, height: tall}', 'world.buoy.height',
+     "expected a number, got 'tall'"),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: orang}', 'world.buoy.colour',
+     "unknown colour 'orang' (did you mean 'orange'?)"),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [255, 0]}', 'world.buoy.colour',
+     'expected a colour name (red, green'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [256, 0, 0]}',
+     'world.buoy.colour', 'integers 0..255, got [256, 0, 0]'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, colour: [1.5, 0, 0]}',
+     'world.buoy.colour', 'integers 0..255, got [1.5, 0, 0]'),
+    ('buoy: {kind: circle, center: [0, 0], radius: 1, color: red}', 'world.buoy.color',
+     "unknown key (did you mean 'colour'?)"),
 ])
 def test_each_bad_world_is_refused_with_its_key(tmp_path: Path, world: str, key: str,
                                                 message: str) -> None:

@@ -83,9 +83,12 @@ class Rig:
     def __init__(self, context, executor, *, emulator: bool = True, **params) -> None:
         self.context, self.executor = context, executor
         self.name = f'cam-{next(_names)}'
-        self.images, self.infos = [], []
+        self.images, self.infos, self.jpegs = [], [], []
         probe = EnbarrNode('probe', context=context)
         executor.add_node(probe)
+        probe.create_subscription(topics.CAMERA_COMPRESSED.msg_type,
+                                  topics.CAMERA_COMPRESSED.name, self.jpegs.append,
+                                  topics.CAMERA_COMPRESSED.qos)
         probe.create_subscription(topics.CAMERA_IMAGE.msg_type, topics.CAMERA_IMAGE.name,
                                   self.images.append, topics.CAMERA_IMAGE.qos)
         probe.create_subscription(topics.CAMERA_INFO.msg_type, topics.CAMERA_INFO.name,
@@ -133,6 +136,31 @@ def test_frames_and_calibration_are_published_with_one_stamp(context, executor, 
     assert any((i.header.stamp.sec, i.header.stamp.nanosec) in stamps for i in rig.infos)
     info = rig.infos[-1]
     assert info.k[0] == 300.0 and info.distortion_model == 'plumb_bob'
+
+
+def test_each_frame_goes_out_as_jpeg_too_as_image_transport_sends_it(context, executor):
+    """camera/image_raw/compressed: format 'bgr8; jpeg compressed bgr8' (image_transport's
+    compressed_publisher.cpp: the encoding, '; jpeg compressed ', bgr8 for colour), the raw
+    frame's header, and it decodes to the raw frame; without publish_raw, only the JPEG."""
+    rig = Rig(context, executor)
+    assert rig.spin_until(lambda: len(rig.jpegs) >= 5 and len(rig.images) >= 5)
+    raw = {(m.header.stamp.sec, m.header.stamp.nanosec): m for m in rig.images}
+    both = [j for j in rig.jpegs if (j.header.stamp.sec, j.header.stamp.nanosec) in raw]
+    assert both
+    jpeg = both[-1]
+    image = raw[(jpeg.header.stamp.sec, jpeg.header.stamp.nanosec)]
+    assert jpeg.format == 'bgr8; jpeg compressed bgr8'
+    assert jpeg.header.frame_id == 'camera_optical_frame'
+    decoded = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
+    frame = np.frombuffer(bytes(image.data), np.uint8).reshape(240, 320, 3)
+    assert decoded.shape == frame.shape
+    assert np.abs(decoded.astype(int) - frame).mean() < 4.0
+
+
+def test_without_raw_only_the_jpeg_goes_out(context, executor):
+    rig = Rig(context, executor, publish_raw=False)
+    assert rig.spin_until(lambda: len(rig.jpegs) >= 3 and len(rig.infos) >= 3)
+    assert rig.driver.count_publishers(topics.CAMERA_IMAGE.name) == 0 and not rig.images
 
 
 def test_absent_source_is_an_error_then_found(context, executor):
