@@ -10,12 +10,9 @@ import math
 
 import cv2
 import numpy as np
-import pytest
 
 from enbarr_core.vision.detector_node import DetectorSettings, SPECS
-
-sim_render = pytest.importorskip(
-    'enbarr_plugins.camera.sim_render', reason='the simulated camera is not in this tree yet')
+from enbarr_plugins.camera import sim_render
 
 
 def frames():
