@@ -61,7 +61,7 @@ def test_images_are_read_in_their_encoding_and_row_step() -> None:
     bgr = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
     msg = bgr_to_image(bgr)
     assert (msg.encoding, msg.step) == ('bgr8', 9)
-    assert np.array_equal(image_to_bgr(msg), bgr)
+    assert np.array_equal(image_to_bgr(msg), bgr) and image_to_bgr(msg).flags.writeable
     rgb = Image(height=2, width=3, encoding='rgb8', step=12,   # 3 bytes of row padding
                 data=np.pad(bgr[..., ::-1].reshape(2, 9), ((0, 0), (0, 3))).tobytes())
     assert np.array_equal(image_to_bgr(rgb), bgr)
@@ -69,7 +69,7 @@ def test_images_are_read_in_their_encoding_and_row_step() -> None:
     assert image_to_bgr(mono).tolist() == [[[7, 7, 7], [9, 9, 9]]]
     with pytest.raises(ImageEncodingError, match="encoding '32FC1' is not read"):
         image_to_bgr(Image(height=1, width=1, encoding='32FC1', step=4, data=bytes(4)))
-    with pytest.raises(ImageEncodingError, match='3 x 2 bgr8 with step 9 has 10 bytes'):
+    with pytest.raises(ImageEncodingError, match='3 x 2 bgr8: step 9, 10 bytes do not hold'):
         image_to_bgr(Image(height=2, width=3, encoding='bgr8', step=9, data=bytes(10)))
 
 
