@@ -23,7 +23,10 @@ class ImageEncodingError(ValueError):
 
 
 def image_to_bgr(msg: Image) -> NDArray[np.uint8]:
-    """Return the pixels of an ``Image`` as BGR (a copy of the message's data)."""
+    """Return the pixels of an ``Image`` as BGR: a writeable copy (callers draw on it).
+
+    Any object with ``Image``'s fields will do (a message as ``rosbags`` reads it).
+    """
     enc = _ENCODINGS.get(msg.encoding)
     if enc is None:
         raise ImageEncodingError(f'image encoding {msg.encoding!r} is not read (one of '
@@ -32,12 +35,12 @@ def image_to_bgr(msg: Image) -> NDArray[np.uint8]:
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     if w < 1 or h < 1 or step < w * channels or len(data) < h * step:
-        raise ImageEncodingError(f'image {w} x {h} {msg.encoding} with step {step} has '
-                                 f'{len(data)} bytes')
+        raise ImageEncodingError(f'image {w} x {h} {msg.encoding}: step {step}, {len(data)} '
+                                 'bytes do not hold it')
     rows = data[:h * step].reshape(h, step)[:, :w * channels]
     pixels = rows.reshape(h, w, channels) if channels > 1 else rows.reshape(h, w)
     if code is None:
-        return np.ascontiguousarray(pixels)
+        return pixels.copy()    # the message's buffer is read-only
     return np.asarray(cv2.cvtColor(pixels, code), dtype=np.uint8)
 
 
@@ -54,7 +57,10 @@ def bgr_to_image(pixels: NDArray[np.uint8], out: Image | None = None) -> Image:
 
 
 def compressed_to_bgr(msg: CompressedImage) -> NDArray[np.uint8]:
-    """Return the pixels of a ``CompressedImage`` (JPEG, PNG) as BGR."""
+    """Return the pixels of a ``CompressedImage`` (JPEG, PNG) as BGR.
+
+    Any object with its ``format`` and ``data`` will do.
+    """
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     pixels = cv2.imdecode(data, cv2.IMREAD_COLOR) if len(data) else None
     if pixels is None:
