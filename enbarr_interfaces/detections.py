@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sensor_msgs.msg import PointCloud2, PointField
 
+from enbarr_interfaces.clouds import read_fields
 from enbarr_interfaces.convert import ns_to_stamp
 
 #: (name, numpy type, PointField datatype, meaning) of each field, in wire order.
@@ -35,9 +36,10 @@ FIELDS: tuple[tuple[str, str, int, str], ...] = (
 )
 DTYPE = np.dtype([(name, np_type) for name, np_type, _, _ in FIELDS])
 _OFFSETS = {name: int(DTYPE.fields[name][1]) for name, *_ in FIELDS}  # type: ignore[index]
-_NUMPY_OF = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4',
-             PointField.INT32: '<i4', PointField.UINT8: 'u1', PointField.INT8: 'i1',
-             PointField.UINT16: '<u2', PointField.INT16: '<i2'}
+#: Built once, shared by every message (a PointField's constructor checks each value); a
+#: receiver must not change them.
+_POINT_FIELDS = tuple(PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
+                      for name, _, datatype, _ in FIELDS)
 
 
 class DetectionEncodingError(ValueError):
@@ -52,8 +54,7 @@ def to_cloud(rows: Sequence[tuple[int, float, float, float, float, float]], stam
     ns_to_stamp(stamp_ns, msg.header.stamp)
     msg.header.frame_id = frame_id
     msg.height, msg.width = 1, len(data)
-    msg.fields = [PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
-                  for name, _, datatype, _ in FIELDS]
+    msg.fields = list(_POINT_FIELDS)
     msg.is_bigendian = False
     msg.point_step = DTYPE.itemsize
     msg.row_step = DTYPE.itemsize * len(data)
@@ -68,31 +69,5 @@ def from_cloud(msg: PointCloud2) -> NDArray[Any]:
     Fields are found by name; any numeric type is read. Raises
     :class:`DetectionEncodingError` naming what is missing or malformed.
     """
-    if msg.is_bigendian:
-        raise DetectionEncodingError('detections: big-endian point clouds are not read')
-    have = {f.name: f for f in msg.fields}
-    missing = [name for name, *_ in FIELDS if name not in have]
-    if missing:
-        raise DetectionEncodingError(f'detections: missing field(s) {", ".join(missing)}')
-    n = int(msg.width) * int(msg.height)
-    step = int(msg.point_step)
-    data = bytes(msg.data)
-    if len(data) < n * step:
-        raise DetectionEncodingError(f'detections: {len(data)} bytes of data for {n} points '
-                                     f'of {step} bytes')
-    names, formats, offsets = [], [], []
-    for name, *_ in FIELDS:
-        f = have[name]
-        np_type = _NUMPY_OF.get(f.datatype)
-        if np_type is None or f.count != 1:
-            raise DetectionEncodingError(f'detections: field {name!r} has datatype '
-                                         f'{f.datatype} x {f.count}')
-        if f.offset + np.dtype(np_type).itemsize > step:
-            raise DetectionEncodingError(f'detections: field {name!r} at offset {f.offset} '
-                                         f'does not fit a point of {step} bytes')
-        names.append(name)
-        formats.append(np_type)
-        offsets.append(f.offset)
-    view = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
-                     'itemsize': step})
-    return np.frombuffer(data[:n * step], dtype=view).astype(DTYPE)
+    names = [name for name, *_ in FIELDS]
+    return read_fields(msg, names, 'detections', DetectionEncodingError).astype(DTYPE)

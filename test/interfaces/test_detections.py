@@ -47,7 +47,7 @@ def test_fields_are_found_by_name_whatever_their_order_and_type() -> None:
     with pytest.raises(DetectionEncodingError, match='missing field.*score'):
         from_cloud(msg)
     msg = to_cloud(ROWS, 0, 'cam')
-    msg.fields[1].datatype = 99
+    msg.fields[1] = PointField(name='score', offset=4, datatype=99, count=1)   # not shared
     with pytest.raises(DetectionEncodingError, match="field 'score' has datatype 99"):
         from_cloud(msg)
     msg = to_cloud(ROWS, 0, 'cam')
