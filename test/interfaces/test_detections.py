@@ -51,6 +51,11 @@ def test_fields_are_found_by_name_whatever_their_order_and_type() -> None:
     with pytest.raises(DetectionEncodingError, match="field 'score' has datatype 99"):
         from_cloud(msg)
     msg = to_cloud(ROWS, 0, 'cam')
+    msg.fields[5] = PointField(name='y_max', offset=22, datatype=7, count=1)   # 22 + 4 > 24
+    with pytest.raises(DetectionEncodingError,
+                       match="field 'y_max' at offset 22 does not fit a point of 24 bytes"):
+        from_cloud(msg)
+    msg = to_cloud(ROWS, 0, 'cam')
     msg.data = bytes(msg.data)[:30]
     with pytest.raises(DetectionEncodingError, match='30 bytes of data for 2 points of 24'):
         from_cloud(msg)
