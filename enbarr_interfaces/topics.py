@@ -230,6 +230,10 @@ CAMERA_COMPRESSED = TopicSpec(
 CAMERA_INFO = TopicSpec(
     'camera/camera_info', CameraInfo, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
     'Calibration of camera/image_raw, same stamp (ROS camera_info YAML).')
+#: The camera driver's sensor_msgs/srv/SetCameraInfo: stores a calibration in its
+#: calibration_file and publishes it from then on (camera_info_manager's name, which ROS's
+#: cameracalibrator "commit" calls).
+CAMERA_SET_INFO = 'camera/set_camera_info'
 VESSEL_CLAIMS = TopicSpec(
     '/enbarr/claims', String, LATCHED_QOS, 'JSON', '',
     'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '

@@ -35,6 +35,7 @@ BUILTIN: dict[str, str] = {
     'bench': 'enbarr_core.commands.bench:BenchCommand',
     'check-device': 'enbarr_core.commands.check_device:CheckDeviceCommand',
     'bag': 'enbarr_core.commands.bag:BagCommand',
+    'calibrate': 'enbarr_core.commands.calibrate:CalibrateCommand',
 }
 
 

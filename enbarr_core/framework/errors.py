@@ -55,4 +55,7 @@ class FrameError(EnbarrError):
 
 
 class CalibrationError(EnbarrError):
-    """Calibration data give no answer (too few, degenerate): the message says what to change."""
+    """Calibration data give no answer: the message says what to change.
+
+    No board seen, too few views, a degenerate set, input that cannot be read.
+    """

@@ -12,14 +12,18 @@ camera_calibration_parsers/src/parse_yml.cpp) and the ``cameracalibrator`` saves
     rectification_matrix: {rows: 3, cols: 3, data: [...]}
     projection_matrix: {rows: 3, cols: 4, data: [...]}
 
-A malformed file is a ``ValueError`` naming the file and the key.
+A malformed file is a ``ValueError`` naming the file and the key. ``save_calibration`` writes
+the same layout (``enbarr calibrate camera``, and the driver's ``set_camera_info``), replacing
+the file in one step so a reader never sees half of it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import os
 from pathlib import Path
+import tempfile
 from typing import Any
 
 import yaml
@@ -89,3 +93,61 @@ def load_calibration(path: str) -> Calibration:
         d=_matrix(path, doc, 'distortion_coefficients', 1, None),
         r=_matrix(path, doc, 'rectification_matrix', 3, 3),
         p=_matrix(path, doc, 'projection_matrix', 3, 4))
+
+
+def check_calibration(cal: Calibration) -> None:
+    """Raise ``ValueError`` naming the field when ``cal`` is not a usable calibration."""
+    if cal.width <= 0 or cal.height <= 0:
+        raise ValueError(f'image size must be positive, got {cal.width}x{cal.height}')
+    for name, values, n in (('K', cal.k, 9), ('R', cal.r, 9), ('P', cal.p, 12)):
+        if len(values) != n:
+            raise ValueError(f'{name}: expected {n} numbers, got {len(values)}')
+    for name, values in (('K', cal.k), ('D', cal.d), ('R', cal.r), ('P', cal.p)):
+        if not all(math.isfinite(x) for x in values):
+            raise ValueError(f'{name}: not finite: {list(values)}')
+    if not cal.distortion_model:
+        raise ValueError('distortion_model: empty')
+    if not (cal.k[0] > 0 and cal.k[4] > 0 and cal.k[8] == 1.0):
+        raise ValueError(f'K: not a camera matrix (fx, fy > 0, K[2][2] = 1): {list(cal.k)}')
+
+
+def _row(values: tuple[float, ...]) -> str:
+    return '[' + ', '.join(repr(float(x)) for x in values) + ']'
+
+
+def format_calibration(cal: Calibration) -> str:
+    """Return ``cal`` as camera_info YAML (the layout in the module docstring)."""
+    check_calibration(cal)
+    name = cal.camera_name or 'camera'
+    return '\n'.join([
+        f'image_width: {cal.width}',
+        f'image_height: {cal.height}',
+        f'camera_name: {yaml.safe_dump(name, default_style=None).splitlines()[0]}',
+        'camera_matrix:', '  rows: 3', '  cols: 3', f'  data: {_row(cal.k)}',
+        f'distortion_model: {cal.distortion_model}',
+        'distortion_coefficients:', '  rows: 1', f'  cols: {len(cal.d)}',
+        f'  data: {_row(cal.d)}',
+        'rectification_matrix:', '  rows: 3', '  cols: 3', f'  data: {_row(cal.r)}',
+        'projection_matrix:', '  rows: 3', '  cols: 4', f'  data: {_row(cal.p)}',
+        ''])
+
+
+def save_calibration(cal: Calibration, path: str) -> None:
+    """Write ``cal`` to ``path`` atomically (a temporary file beside it, then a rename).
+
+    ``ValueError`` for a malformed calibration; ``OSError`` when the file cannot be written.
+    """
+    text = format_calibration(cal)
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f'.{target.name}.', suffix='.tmp',
+                               dir=target.parent if str(target.parent) else '.')
+    try:
+        os.chmod(tmp, 0o644)   # mkstemp's 0600 would hide it from a driver run as another user
+        with os.fdopen(fd, 'w') as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -10,6 +10,14 @@ and warns when it differs); a file is read at ``frame_rate`` and starts over at 
 published, and the JPEG on ``camera/image_raw/compressed`` (``jpeg_quality``, ``publish_raw``),
 is every camera's (``common.ImageOutput``).
 
+``camera/set_camera_info`` (sensor_msgs/srv/SetCameraInfo, camera_info_manager's name) stores
+a calibration in ``calibration_file`` (replaced atomically) and publishes it from then on: the
+"commit" of ROS's cameracalibrator and of ``enbarr calibrate camera --commit``. It refuses
+(success false, a status message saying why) when no ``calibration_file`` is set, when the
+message is malformed (image size other than the frames', a distortion of the wrong length, a
+K that is no camera matrix) or when the file cannot be written. A ``calibration_file`` not
+there yet is no calibration yet (the first commit writes it).
+
 Capture runs on the node's own loop thread (``cv2.VideoCapture.read`` blocks until a frame);
 opening the device too, once the node is started. Faults: a source that cannot be opened is
 a ``DeviceError`` (absent: retried with backoff); a read that fails (unplugged, a file that
@@ -23,15 +31,21 @@ Reference: OpenCV 4 videoio (``cv::VideoCapture``, ``CAP_PROP_*``), REP-104 (Cam
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+import os
 import threading
 import time
 from typing import Any
 
+from sensor_msgs.msg import CameraInfo
+from sensor_msgs.srv import SetCameraInfo
+
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_plugins.camera.calibration import Calibration, load_calibration
+from enbarr_interfaces import topics
+from enbarr_plugins.camera.calibration import (
+    Calibration, check_calibration, load_calibration, save_calibration)
 from enbarr_plugins.camera.capture import describe, open_capture, parse_device, Source
 from enbarr_plugins.camera.common import camera_info, ImageOutput, OUTPUT_SPECS
 
@@ -44,8 +58,8 @@ SPECS = [
               8192, read_only=True),
     ParamSpec('height', 480, 'Image height asked of a V4L2 device (0: its default)', 'px', 0,
               8192, read_only=True),
-    ParamSpec('calibration_file', '', 'ROS camera_info YAML file (empty: uncalibrated)',
-              read_only=True),
+    ParamSpec('calibration_file', '', 'ROS camera_info YAML file (empty: uncalibrated; not '
+              'there yet: uncalibrated until set_camera_info writes it)', read_only=True),
     ParamSpec('loop', True, 'A video file starts over at its end (false: publishing stops '
               'there)', read_only=True),
     ParamSpec('stall_timeout', 2.0, 'No frame for this long is a stalled device (fault)', 's',
@@ -73,7 +87,9 @@ class CameraSettings:
     def from_params(cls, v: Mapping[str, Any]) -> CameraSettings:
         """Build from the parameters; a malformed calibration file names file and key."""
         calibration = None
-        if v['calibration_file']:
+        # A file not there yet is no calibration yet (camera_info_manager's rule): the first
+        # set_camera_info creates it. One that is there must be right.
+        if v['calibration_file'] and os.path.exists(v['calibration_file']):
             try:
                 calibration = load_calibration(v['calibration_file'])
             except ValueError as err:
@@ -104,7 +120,12 @@ class CameraNode(SensorDriver):
         self.read_failures = 0
         self.stalls = 0
         self.description = ''
+        self._frame_size: tuple[int, int] | None = None   # (width, height) of the last frame
+        self.create_service(SetCameraInfo, topics.CAMERA_SET_INFO, self._set_camera_info)
         self._loop = self.create_rate_loop(s.frame_rate, self._tick)
+        if s.calibration_file and s.calibration is None:
+            self.get_logger().warn(f'{self.device}: no calibration file {s.calibration_file} '
+                                   'yet: uncalibrated until set_camera_info stores one')
         self.open_on(self._loop)  # opening a source may block: never on the executor
 
     def _apply(self, settings: CameraSettings) -> None:
@@ -192,6 +213,7 @@ class CameraNode(SensorDriver):
         stamp = self.get_clock().now().to_msg()
         self._last_frame_ns = time.monotonic_ns()
         h, w = frame.shape[:2]
+        self._frame_size = (w, h)
         s = self.settings
         if not self._size_warned and not s.source.is_file and s.width and s.height and (
                 (w, h) != (s.width, s.height)):
@@ -200,6 +222,32 @@ class CameraNode(SensorDriver):
                                    f'{s.height} asked')
         self.output.publish(frame, stamp, camera_info(s.calibration, w, h), s.jpeg_quality)
         self.sample_received()
+
+    def _set_camera_info(self, request: SetCameraInfo.Request,
+                         response: SetCameraInfo.Response) -> SetCameraInfo.Response:
+        """Store and publish a calibration (see the module docstring); refuse with a reason."""
+        path = self.settings.calibration_file
+        try:
+            if not path:
+                raise ValueError('no calibration_file is configured: nowhere to store it')
+            old = self.settings.calibration
+            cal = calibration_of(request.camera_info,
+                                 old.camera_name if old is not None else 'camera')
+            if self._frame_size is not None and (cal.width, cal.height) != self._frame_size:
+                w, h = self._frame_size
+                raise ValueError(f'calibration for {cal.width}x{cal.height} images, but the '
+                                 f'camera gives {w}x{h}')
+            save_calibration(cal, path)
+        except (ValueError, OSError) as err:
+            reason = (f'{path}: cannot write: {err.strerror or err}'
+                      if isinstance(err, OSError) else str(err))
+            self.get_logger().warn(f'{self.device}: set_camera_info refused: {reason}')
+            response.success, response.status_message = False, reason
+            return response
+        self._apply(replace(self.settings, calibration=cal))
+        self.get_logger().info(f'{self.device}: calibration stored in {path}')
+        response.success, response.status_message = True, f'stored in {path}'
+        return response
 
     def status_values(self) -> dict[str, Any]:
         """Return frame counts, stalls and what the source gives."""
@@ -215,3 +263,27 @@ class CameraNode(SensorDriver):
         self.close_device()
         super().destroy_node()
 
+
+#: Coefficients of each distortion model (REP-104, sensor_msgs/distortion_models.hpp).
+DISTORTION_LENGTHS = {'plumb_bob': 5, 'rational_polynomial': 8, 'equidistant': 4}
+
+
+def calibration_of(info: CameraInfo, camera_name: str) -> Calibration:
+    """Return the ``Calibration`` a CameraInfo carries; ``ValueError`` says what is wrong."""
+    if info.width <= 0 or info.height <= 0:
+        raise ValueError(f'image size {info.width}x{info.height}: not positive')
+    want = DISTORTION_LENGTHS.get(info.distortion_model)
+    if want is None:
+        raise ValueError(f'distortion_model {info.distortion_model!r}: not one of '
+                         f'{", ".join(DISTORTION_LENGTHS)}')
+    if len(info.d) != want:
+        raise ValueError(f'{info.distortion_model} has {want} coefficients, D has {len(info.d)}')
+    cal = Calibration(width=int(info.width), height=int(info.height), camera_name=camera_name,
+                      k=tuple(float(x) for x in info.k),
+                      distortion_model=str(info.distortion_model),
+                      d=tuple(float(x) for x in info.d), r=tuple(float(x) for x in info.r),
+                      p=tuple(float(x) for x in info.p))
+    check_calibration(cal)
+    if cal.p[0] <= 0 or cal.p[5] <= 0:
+        raise ValueError(f'P: not a projection matrix (fx, fy > 0): {list(cal.p)}')
+    return cal

@@ -22,6 +22,8 @@ What each test proves, in this order:
    - ``bench`` and ``chaos`` run for tens of seconds to minutes whatever their options: parsed
      only, and a ``--profile``/``PROFILE`` they name is loaded (it exists and validates).
    - ``list``, and ``check-device`` against an emulator: as written.
+   - ``calibrate``: parsed only (it needs a camera or pictures of a board; its own tests run
+     it on rendered ones).
    - ``python -m MODULE``: with the options of ``MODULE_RUNS`` (``--help``: it imports and
      has its command line).
 3. Skipped, each by its command line with the reason: what needs hardware or a toolchain
@@ -236,9 +238,14 @@ def run_check_device(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
     return run_as_written(args, ns, tmp)
 
 
+def run_calibrate(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
+    pytest.skip('needs a camera or its pictures of a board (the live topic, or a folder, video '
+                'or bag the reader has); parsed only (test/commands/test_calibrate*.py run it)')
+
+
 RUNS: dict[str, Callable[[list[str], argparse.Namespace, Path], str]] = {
     'bringup': run_bringup, 'scenario': run_scenario, 'bench': run_bench, 'chaos': run_chaos,
-    'list': run_as_written, 'check-device': run_check_device,
+    'list': run_as_written, 'check-device': run_check_device, 'calibrate': run_calibrate,
 }
 
 #: Commands that are not run here, by their first words, with the reason.

@@ -27,7 +27,8 @@ ALSO_PURE = ('enbarr_core.framework.kinematics', 'enbarr_core.framework.checks',
              'enbarr_plugins.lidar.rplidar_protocol', 'enbarr_plugins.lidar.scan',
              'enbarr_plugins.lidar.sim_scan',
              'enbarr_plugins.mocap.qtm_protocol', 'enbarr_plugins.mocap.qtm_frame',
-             'enbarr_plugins.camera.capture', 'enbarr_plugins.camera.sim_render',
+             'enbarr_plugins.camera.capture', 'enbarr_plugins.camera.calibration',
+             'enbarr_plugins.camera.sim_render',
              'enbarr_plugins.transport.reader')
 
 pytestmark = pytest.mark.e2e  # imports in a fresh interpreter, a subprocess

@@ -380,6 +380,21 @@ def test_head_on_boat_on_the_path_in_closed_loop():
 
 
 @pytest.mark.sim
+@pytest.mark.parametrize('scale', [0.7, 1.3])
+def test_a_gap_narrower_than_the_zones_is_never_squeezed_through(scale):
+    # Two buoys 0.24 m apart across the path, walls on from them to either side: each
+    # buoy's zone alone leaves the path a way past its neighbour, together they close it.
+    # The vessel stops short of the gap (and may slide along the walls), always clear.
+    gap = [circle(2.5, 0.32, 0.2), circle(2.5, -0.32, 0.2),
+           [2.5, 0.32, 2.5, 1.5, 0.05, 0.0, 0.0], [2.5, -0.32, 2.5, -1.5, 0.05, 0.0, 0.0]]
+    law = LosPath(STRAIGHT, 0.2, 0.5, 0.1, heading='course')
+    worst, eta, f = closed_loop(law, gap, 40.0, (0.0, 0.0, 0.0), scale=scale)
+    assert worst >= SETTINGS.safety_radius
+    assert eta[0] < 2.5 - 0.2 - VESSEL_RADIUS - SETTINGS.safety_radius
+    assert f.infeasible_count == 0
+
+
+@pytest.mark.sim
 def test_go_to_waypoint_behind_an_obstacle_in_closed_loop():
     law = GoToWaypoint((0.0, 0.0, 0.0), (3.0, 0.0), 0.2, 0.05)
     worst, eta, _ = closed_loop(law, [circle(1.5, 0.0, 0.3)], 50.0, (0.0, 0.0, 0.0),

@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo
+from sensor_msgs.srv import SetCameraInfo
 
 from enbarr_core.commands import main as cli
 from enbarr_core.framework.driver import ERROR
@@ -255,3 +257,152 @@ def test_bad_parameters_name_the_parameter(context, tmp_path):
             Parameter('calibration_file', value=str(path))])
     with pytest.raises(ConfigurationError, match='device: empty'):
         CameraNode(context=context, parameter_overrides=[Parameter('device', value=' ')])
+
+
+# -- set_camera_info: the manual's "commit" ----------------------------------------------------
+
+def call_set_camera_info(rig: Rig, info: CameraInfo) -> SetCameraInfo.Response:
+    """Call the driver's service through the ROS graph; its response."""
+    client_node = EnbarrNode(f'committer_{next(_names)}', context=rig.context)
+    rig.executor.add_node(client_node)
+    client = client_node.create_client(SetCameraInfo, topics.CAMERA_SET_INFO)
+    assert rig.spin_until(client.service_is_ready)
+    request = SetCameraInfo.Request()
+    request.camera_info = info
+    future = client.call_async(request)
+    assert rig.spin_until(future.done)
+    return future.result()
+
+
+def info_of(text: str) -> CameraInfo:
+    """The CameraInfo of a camera_info YAML text (as the driver would publish it)."""
+    import yaml
+    doc = yaml.safe_load(text)
+    info = CameraInfo()
+    info.width, info.height = doc['image_width'], doc['image_height']
+    info.distortion_model = doc['distortion_model']
+    info.k = [float(x) for x in doc['camera_matrix']['data']]
+    info.d = [float(x) for x in doc['distortion_coefficients']['data']]
+    info.r = [float(x) for x in doc['rectification_matrix']['data']]
+    info.p = [float(x) for x in doc['projection_matrix']['data']]
+    return info
+
+
+def test_set_camera_info_stores_the_file_and_publishes_it(context, executor, tmp_path):
+    path = tmp_path / 'calib' / 'cam.yaml'
+    path.parent.mkdir()
+    rig = Rig(context, executor, calibration_file=str(path))   # no file yet: uncalibrated
+    assert rig.frames_flow() and rig.infos[-1].k[0] == 0.0
+    info = info_of(CALIBRATION.replace('300.0, 0.0, 160.0', '310.5, 0.0, 161.0'))
+    response = call_set_camera_info(rig, info)
+    assert response.success and response.status_message == f'stored in {path}'
+    cal = load_calibration(str(path))
+    assert cal.k[:3] == (310.5, 0.0, 161.0) and cal.d == (-0.1, 0.01, 0.0, 0.0, 0.0)
+    assert cal.camera_name == 'camera' and cal.p[0] == 300.0
+    assert [p.name for p in path.parent.iterdir()] == ['cam.yaml']   # no temporary left
+    n = len(rig.infos)
+    assert rig.spin_until(lambda: len(rig.infos) > n + 2 and rig.infos[-1].k[0] == 310.5)
+    # A second commit replaces the first, keeping the camera's name.
+    path.write_text(CALIBRATION)
+    second = info_of(CALIBRATION.replace('300.0, 0.0, 160.0', '305.0, 0.0, 160.0'))
+    assert call_set_camera_info(rig, second).success
+    cal = load_calibration(str(path))
+    assert cal.k[0] == 305.0 and cal.camera_name == 'camera'
+
+
+@pytest.mark.parametrize('change, status', [
+    (lambda i: setattr(i, 'width', 640), 'calibration for 640x240 images, but the camera '
+     'gives 320x240'),
+    (lambda i: setattr(i, 'd', [-0.1, 0.01, 0.0, 0.0]), 'plumb_bob has 5 coefficients, D has 4'),
+    (lambda i: setattr(i, 'distortion_model', 'fisheye'), "distortion_model 'fisheye': not one "
+     'of plumb_bob, rational_polynomial, equidistant'),
+    (lambda i: setattr(i, 'k', [0.0] * 9), 'K: not a camera matrix'),
+    (lambda i: i.k.__setitem__(0, float('nan')), 'K: not finite'),
+])
+def test_set_camera_info_refuses_a_malformed_calibration(context, executor, tmp_path, change,
+                                                         status):
+    path = tmp_path / 'cam.yaml'
+    path.write_text(CALIBRATION)
+    rig = Rig(context, executor, calibration_file=str(path))
+    assert rig.frames_flow()
+    info = info_of(CALIBRATION.replace('300.0, 0.0, 160.0', '999.0, 0.0, 160.0'))
+    change(info)
+    response = call_set_camera_info(rig, info)
+    assert not response.success and status in response.status_message
+    assert path.read_text() == CALIBRATION                      # the file is untouched
+    assert rig.driver.settings.calibration.k[0] == 300.0
+
+
+def test_set_camera_info_refuses_without_a_calibration_file(context, executor):
+    rig = Rig(context, executor)
+    assert rig.frames_flow()
+    response = call_set_camera_info(rig, info_of(CALIBRATION))
+    assert not response.success
+    assert response.status_message == 'no calibration_file is configured: nowhere to store it'
+
+
+def test_set_camera_info_refuses_when_the_file_cannot_be_written(context, executor, tmp_path):
+    rig = Rig(context, executor, calibration_file=str(tmp_path / 'gone' / 'cam.yaml'))
+    assert rig.frames_flow()
+    response = call_set_camera_info(rig, info_of(CALIBRATION))
+    assert not response.success
+    assert response.status_message.startswith(f'{tmp_path / "gone" / "cam.yaml"}: cannot write')
+
+
+def board_views(folder) -> str:
+    """Rendered views of a 6x4 board at 320x240 (the emulator's size) in ``folder``."""
+    from enbarr_core.vision.board import Board, calibration_poses, Camera, render_board
+    cam = Camera(320, 240, 260.0, 262.0, 161.5, 118.5, (-0.2, 0.05, 0.0, 0.0, 0.0))
+    board = Board(6, 4, 0.05)
+    folder.mkdir()
+    for i, pose in enumerate(calibration_poses(cam, board, 8, seed=5)):
+        if i % 4 != 3:   # at 320x240 the small corner views are too small to detect
+            cv2.imwrite(str(folder / f'{i}.png'), render_board(cam, board, pose, seed=i))
+    return str(folder)
+
+
+def commit_from_a_thread(rig: Rig, folder: str) -> int:
+    """Run ``enbarr calibrate camera FOLDER --commit`` while the driver's executor spins."""
+    done: list[int] = []
+    worker = threading.Thread(target=lambda: done.append(cli.main([
+        'calibrate', 'camera', folder, '--size', '6x4', '--square', '0.05', '--commit',
+        '--timeout', '20'])))
+    worker.start()
+    assert rig.spin_until(lambda: bool(done), timeout=60.0)
+    worker.join()
+    return done[0]
+
+
+def test_enbarr_calibrate_camera_commit_calls_the_service(context, executor, tmp_path, capsys):
+    folder = board_views(tmp_path / 'shots')
+    path = tmp_path / 'cam.yaml'
+    rig = Rig(context, executor, calibration_file=str(path))
+    assert rig.frames_flow()
+    rc = commit_from_a_thread(rig, folder)
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    assert f'committed to camera/set_camera_info: stored in {path}' in out
+    cal = load_calibration(str(path))
+    assert cal.k[0] == pytest.approx(260.0, rel=0.02) and (cal.width, cal.height) == (320, 240)
+    assert rig.spin_until(lambda: rig.infos[-1].k[0] == cal.k[0])
+
+
+def test_a_commit_the_driver_refuses_is_one_error_line(context, executor, tmp_path, capsys):
+    folder = board_views(tmp_path / 'shots')
+    rig = Rig(context, executor)                       # no calibration_file
+    assert rig.frames_flow()
+    assert commit_from_a_thread(rig, folder) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ('enbarr calibrate: error: camera/set_camera_info refused: no '
+                       'calibration_file is configured: nowhere to store it')
+    assert 'Traceback' not in '\n'.join(err)
+
+
+def test_commit_without_a_driver_is_an_error(tmp_path, context):
+    from enbarr_core.commands.calibrate_camera import commit
+    from enbarr_core.framework.errors import CalibrationError
+    (tmp_path / 'c.yaml').write_text(CALIBRATION)
+    cal = load_calibration(str(tmp_path / 'c.yaml'))
+    with pytest.raises(CalibrationError, match='camera/set_camera_info: no such service in '
+                       r'0.5 s \(is the camera driver running, in this ROS_DOMAIN_ID\?\)'):
+        commit(cal, topics.CAMERA_SET_INFO, 0.5)
