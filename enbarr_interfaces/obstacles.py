@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sensor_msgs.msg import PointCloud2, PointField
 
+from enbarr_interfaces.clouds import read_fields
 from enbarr_interfaces.convert import NS_PER_S, ns_to_stamp, stamp_to_ns
 
 CIRCLE = 0
@@ -61,9 +62,6 @@ _OFFSETS = {name: int(DTYPE.fields[name][1]) for name, *_ in FIELDS}  # type: ig
 #: are shared and must not be changed by a receiver.
 _POINT_FIELDS = tuple(PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
                       for name, _, datatype, _ in FIELDS)
-_NUMPY_OF = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4',
-             PointField.INT32: '<i4', PointField.UINT8: 'u1', PointField.INT8: 'i1',
-             PointField.UINT16: '<u2', PointField.INT16: '<i2'}
 
 
 @dataclass(frozen=True)
@@ -146,32 +144,7 @@ def from_cloud(msg: PointCloud2) -> list[Obstacle]:
 
     Raises :class:`ObstacleEncodingError` naming what is missing or malformed.
     """
-    if msg.is_bigendian:
-        raise ObstacleEncodingError('obstacles: big-endian point clouds are not read')
-    have = {f.name: f for f in msg.fields}
-    missing = [name for name, *_ in FIELDS if name not in have]
-    if missing:
-        raise ObstacleEncodingError(f'obstacles: missing field(s) {", ".join(missing)}')
-    n = int(msg.width) * int(msg.height)
-    step = int(msg.point_step)
-    data = bytes(msg.data)
-    if len(data) < n * step:
-        raise ObstacleEncodingError(f'obstacles: {len(data)} bytes of data for {n} points '
-                                    f'of {step} bytes')
-    formats = {}
-    for name, *_ in FIELDS:
-        f = have[name]
-        np_type = _NUMPY_OF.get(f.datatype)
-        if np_type is None or f.count != 1:
-            raise ObstacleEncodingError(f'obstacles: field {name!r} has datatype '
-                                        f'{f.datatype} x {f.count}')
-        if f.offset + np.dtype(np_type).itemsize > step:
-            raise ObstacleEncodingError(f'obstacles: field {name!r} at offset {f.offset} '
-                                        f'does not fit a point of {step} bytes')
-        formats[name] = (np_type, f.offset)
-    view = np.dtype({'names': list(formats), 'formats': [t for t, _ in formats.values()],
-                     'offsets': [o for _, o in formats.values()], 'itemsize': step})
-    rows = np.frombuffer(data[:n * step], dtype=view)
+    rows = read_fields(msg, [name for name, *_ in FIELDS], 'obstacles', ObstacleEncodingError)
     out: list[Obstacle] = []
     for r in rows:
         kind = int(r['kind'])

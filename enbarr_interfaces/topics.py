@@ -239,6 +239,15 @@ VESSEL_CLAIMS = TopicSpec(
     'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
     'second run with the same node names refuses at start or, when they missed each other, '
     'the later one stops (docs/architecture.md, Safety).')
+# -- vision --
+DETECTIONS = TopicSpec(
+    'detections', PointCloud2, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
+    'Objects found in a camera image, one point per box (class_id, score, x_min, y_min, '
+    "x_max, y_max in the image's pixels); header = the image's header, also when nothing "
+    'was found. Encoding: enbarr_interfaces.detections, docs/interfaces.md "Detections".')
+DETECTION_IMAGE = TopicSpec(
+    'detections/image', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
+    'The image with its detections drawn, for a viewer (built only while one subscribes).')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
@@ -249,4 +258,4 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
-    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS)
+    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)

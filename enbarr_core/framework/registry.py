@@ -44,6 +44,7 @@ BUILTIN: dict[str, str] = {
     'azimuth_allocation': 'enbarr_core.allocation.azimuth_allocation_node:AzimuthAllocationNode',
     'pwm_mapper': 'enbarr_core.allocation.pwm_mapper_node:PwmMapperNode',
     'scan_obstacles': 'enbarr_core.perception.scan_obstacles_node:ScanObstaclesNode',
+    'detector': 'enbarr_core.vision.detector_node:DetectorNode',
     # plugins
     'sim_imu': 'enbarr_plugins.imu.sim:SimImuNode',
     'sim_thrusters': 'enbarr_plugins.thrusters.sim:SimThrustersNode',

@@ -20,15 +20,10 @@ from numpy.typing import NDArray
 
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.perception.scan_geometry import scan_points
+from enbarr_interfaces.image_msgs import compressed_to_bgr, image_to_bgr, ImageEncodingError
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
-#: sensor_msgs/Image encodings read here (what cameras and our driver publish), as
-#: (channels, OpenCV conversion to BGR or None).
-ENCODINGS: dict[str, tuple[int, int | None]] = {
-    'bgr8': (3, None), 'rgb8': (3, cv2.COLOR_RGB2BGR), 'mono8': (1, cv2.COLOR_GRAY2BGR),
-    'bgra8': (4, cv2.COLOR_BGRA2BGR), 'rgba8': (4, cv2.COLOR_RGBA2BGR),
-}
 
 
 def stamp_ns(msg: Any) -> int:
@@ -37,25 +32,13 @@ def stamp_ns(msg: Any) -> int:
 
 
 def image_array(msg: Any) -> NDArray[np.uint8]:
-    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message."""
-    if hasattr(msg, 'format'):   # CompressedImage
-        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
-            raise CalibrationError(f'a {msg.format!r} compressed image does not decode')
-        return np.asarray(img, dtype=np.uint8)
-    if msg.encoding not in ENCODINGS:
-        raise CalibrationError(f'image encoding {msg.encoding!r} is not read here; known: '
-                               f'{", ".join(ENCODINGS)}')
-    ch, conv = ENCODINGS[msg.encoding]
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    raw = np.frombuffer(bytes(msg.data), np.uint8)
-    if step < w * ch or len(raw) < h * step:
-        raise CalibrationError(f'image of {w}x{h} {msg.encoding}: step {step}, {len(raw)} '
-                               'bytes do not hold it')
-    img = raw[:h * step].reshape(h, step)[:, :w * ch].reshape(h, w, ch)
-    # a copy: the message's buffer is read-only, and callers draw on the image
-    out = img.copy() if conv is None else cv2.cvtColor(img, conv)
-    return np.asarray(out, dtype=np.uint8)
+    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message (a copy)."""
+    try:
+        if hasattr(msg, 'format'):   # CompressedImage
+            return compressed_to_bgr(msg)
+        return image_to_bgr(msg)
+    except ImageEncodingError as err:
+        raise CalibrationError(str(err)) from err
 
 
 def scan_xy(msg: Any) -> NDArray[np.float64]:
