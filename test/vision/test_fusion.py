@@ -30,9 +30,9 @@ def buoy(i: int, x: float, y: float, r: float = 0.2, **kw: float) -> Obstacle:
 def test_projection_matches_the_pinhole_by_hand() -> None:
     # Vessel at (10, 5) heading north (psi = pi/2, ENU): the buoy at (10, 9) is 4 m ahead.
     # Radius 0.2: tangent points at 4 - 0.2 * 0.05 = 3.99 m ahead, 0.2 * sqrt(1 - 0.05^2) =
-    # 0.19975 m aside: u = 320 -+ 500 * 0.19975 / 3.99 = 294.969 .. 345.031. The nearest rim
-    # point is 3.8 m ahead; the top (0.5 m) is 0.25 m above the camera, the waterline 0.25 m
-    # below: v = 240 -+ 500 * 0.25 / 3.8 = 207.105 .. 272.895.
+    # 0.199750 m aside: u = 320 -+ 500 * 0.199750 / 3.99 = 294.9687 .. 345.0313. The nearest
+    # rim point is 3.8 m ahead; the top (0.5 m) is 0.25 m above the camera, the waterline
+    # 0.25 m below: v = 240 -+ 500 * 0.25 / 3.8 = 207.1053 .. 272.8947.
     box = fu.project_obstacle(buoy(1, 10.0, 9.0), np.array([10.0, 5.0, math.pi / 2]),
                               CAMERA, SETTINGS)
     assert box is not None
@@ -40,8 +40,19 @@ def test_projection_matches_the_pinhole_by_hand() -> None:
     assert box.x_max == pytest.approx(345.031, abs=1.0)
     assert box.y_min == pytest.approx(207.105, abs=1.0)
     assert box.y_max == pytest.approx(272.895, abs=1.0)
-    # tighter than the 1 px asked: the tangents and the nearest point are exact
-    assert (box.x_min, box.y_min) == pytest.approx((294.969, 207.105), abs=0.02)
+    # tighter than the 1 px asked: the tangents and the nearest point are exact (the rim
+    # samples alone, every 5 degrees, miss the edges by about 0.02 px)
+    assert (box.x_min, box.x_max) == pytest.approx((294.9687, 345.0313), abs=0.005)
+    assert (box.y_min, box.y_max) == pytest.approx((207.1053, 272.8947), abs=0.005)
+
+
+def test_projection_turns_with_the_heading() -> None:
+    # Heading north, a buoy 0.5 m west of the bow line is on the left of the image:
+    # centre u about 320 - 500 * 0.5 / 4 = 257.5.
+    box = fu.project_obstacle(buoy(1, 9.5, 9.0), np.array([10.0, 5.0, math.pi / 2]),
+                              CAMERA, SETTINGS)
+    assert box is not None
+    assert 0.5 * (box.x_min + box.x_max) == pytest.approx(257.5, abs=1.0)
 
 
 def test_projection_moves_the_obstacle_to_the_image_stamp() -> None:
@@ -84,6 +95,14 @@ def test_assignment_beats_greedy_on_a_crossing() -> None:
     detected = [box(3.0, 13.0), box(7.0, 17.0)]
     assert fu.iou(projected[0], detected[0]) == pytest.approx(9 / 11)
     assert sorted(fu.associate(projected, detected, 0.2)) == [(0, 1), (1, 0)]
+
+
+def test_assignment_takes_the_larger_overlaps() -> None:
+    # All four pairs inside the gate: P0-D0 and P1-D1 overlap fully, the cross pairs 5/15.
+    projected = [box(0.0, 10.0), box(5.0, 15.0)]
+    detected = [box(0.0, 10.0), box(5.0, 15.0)]
+    assert fu.iou(projected[0], detected[1]) == pytest.approx(1 / 3)
+    assert sorted(fu.associate(projected, detected, 0.1)) == [(0, 0), (1, 1)]
 
 
 def test_gate_refuses_a_pair_below_min_iou() -> None:
