@@ -134,67 +134,103 @@ def iou(a: Box, b: Box) -> float:
     return inter / union if union > 0.0 else 0.0
 
 
-def _cylinder_points(cx: float, cy: float, r: float, height: float,
-                     eye: Vector) -> Vector:
-    """Silhouette points (N, 3) of an upright cylinder in ``base_link`` seen from ``eye``."""
-    a = np.linspace(0.0, 2.0 * math.pi, RIM_SAMPLES, endpoint=False)
-    ring = [np.column_stack((cx + r * np.cos(a), cy + r * np.sin(a)))]
-    # The tangent points from the eye (horizontally): c + r (cos(al) u +- sin(al) n), u the
-    # unit vector from the centre to the eye, al = acos(r / distance); they are the
-    # silhouette's left and right edges, which sampling alone would miss by a fraction.
-    dx, dy = float(eye[0]) - cx, float(eye[1]) - cy
-    dist = math.hypot(dx, dy)
-    if dist > r:
-        ux, uy = dx / dist, dy / dist
-        al = math.acos(r / dist)
-        ca, sa = math.cos(al), math.sin(al)
-        ring.append(np.array([[cx + r * (ca * ux - sa * uy), cy + r * (ca * uy + sa * ux)],
-                              [cx + r * (ca * ux + sa * uy), cy + r * (ca * uy - sa * ux)],
-                              [cx + r * ux, cy + r * uy]]))
-    xy = np.vstack(ring)
-    n = len(xy)
-    out = np.empty((2 * n, 3))
-    out[:n, :2] = xy
-    out[:n, 2] = 0.0
-    out[n:, :2] = xy
-    out[n:, 2] = height
+_ANGLES = np.linspace(0.0, 2.0 * math.pi, RIM_SAMPLES, endpoint=False)
+_COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
+
+
+def _silhouettes(cx: Vector, cy: Vector, r: Vector, height: float, eye: Vector) -> Vector:
+    """Silhouette points (n, P, 3) of n upright cylinders in ``base_link`` seen from ``eye``.
+
+    Both rims: ``RIM_SAMPLES`` points each, and the exact tangent points and the nearest point
+    of the circle seen from the eye (horizontally): c + r (cos(al) u +- sin(al) n), u the unit
+    vector from the centre to the eye, al = acos(r / distance). They are the silhouette's
+    left and right edges, which sampling alone would miss by a fraction of a pixel.
+    """
+    dx, dy = eye[0] - cx, eye[1] - cy
+    dist = np.maximum(np.hypot(dx, dy), 1e-12)
+    ux, uy = dx / dist, dy / dist
+    # An eye inside the circle has no tangent: al = 0 (its points lie behind the camera anyway)
+    al = np.arccos(np.clip(r / dist, -1.0, 1.0))
+    ca, sa = np.cos(al), np.sin(al)
+    x = np.concatenate((cx[:, None] + r[:, None] * _COS,
+                        (cx + r * (ca * ux - sa * uy))[:, None],
+                        (cx + r * (ca * ux + sa * uy))[:, None],
+                        (cx + r * ux)[:, None]), axis=1)
+    y = np.concatenate((cy[:, None] + r[:, None] * _SIN,
+                        (cy + r * (ca * uy + sa * ux))[:, None],
+                        (cy + r * (ca * uy - sa * ux))[:, None],
+                        (cy + r * uy)[:, None]), axis=1)
+    n, m = x.shape
+    out = np.empty((n, 2 * m, 3))
+    out[:, :m, 0], out[:, :m, 1], out[:, :m, 2] = x, y, 0.0
+    out[:, m:, 0], out[:, m:, 1], out[:, m:, 2] = x, y, height
     return out
 
 
-def project_obstacle(obstacle: Obstacle, eta: Vector, camera: Camera,
-                     settings: FusionSettings, dt: float = 0.0) -> Box | None:
-    """Return the image box of a circle obstacle, or None when not seen whole in front.
+def project_obstacles(obstacles: Sequence[Obstacle], eta: Vector, camera: Camera,
+                      settings: FusionSettings,
+                      dts: Sequence[float] | None = None) -> dict[int, Box]:
+    """Return the image boxes of the circle obstacles seen whole in front, by index.
 
-    ``eta`` = [x, y, psi] the vessel's pose (odom, ENU) at the image's stamp; ``dt`` [s] =
-    image stamp - obstacle stamp, over which the obstacle moves with its velocity.
-    None for a segment, a cylinder with a point nearer than ``settings.min_depth`` to the
-    camera plane, or one whose box misses the image.
+    ``eta`` = [x, y, psi] the vessel's pose (odom, ENU) at the image's stamp; ``dts`` [s] =
+    image stamp - each obstacle's stamp, over which it moves with its velocity (None: 0).
+    Left out: segments, cylinders with a point nearer than ``settings.min_depth`` to the
+    camera plane, and those whose box misses the image. All in one ``cv2.projectPoints``.
     """
-    if obstacle.kind != CIRCLE:
-        return None
-    ox, oy = obstacle.x + obstacle.vx * dt, obstacle.y + obstacle.vy * dt
+    index = [i for i, o in enumerate(obstacles) if o.kind == CIRCLE]
+    if not index:
+        return {}
+    dt = np.zeros(len(index)) if dts is None else np.asarray([dts[i] for i in index], float)
+    o = np.array([(obstacles[i].x, obstacles[i].y, obstacles[i].vx, obstacles[i].vy,
+                   obstacles[i].radius) for i in index])
+    ox, oy = o[:, 0] + o[:, 2] * dt, o[:, 1] + o[:, 3] * dt
     c, s = math.cos(float(eta[2])), math.sin(float(eta[2]))
     # odom -> base_link: R(psi)^T (p - [x, y])
     bx = c * (ox - float(eta[0])) + s * (oy - float(eta[1]))
     by = -s * (ox - float(eta[0])) + c * (oy - float(eta[1]))
     t = camera.optical_from_base
     eye = -t[:3, :3].T @ t[:3, 3]   # the camera's centre in base_link
-    pts = _cylinder_points(bx, by, obstacle.radius, settings.object_height, eye)
+    pts = _silhouettes(bx, by, o[:, 4], settings.object_height, eye)
     cam = pts @ t[:3, :3].T + t[:3, 3]
-    if float(cam[:, 2].min()) < settings.min_depth:
-        return None
-    rvec = np.zeros(3)
-    tvec = np.zeros(3)
+    front = cam[:, :, 2].min(axis=1) >= settings.min_depth
+    if not front.any():
+        return {}
+    seen = cam[front]
     d = np.asarray(camera.d, dtype=float)
-    uv, _ = cv2.projectPoints(cam.reshape(-1, 1, 3), rvec, tvec,
+    uv, _ = cv2.projectPoints(seen.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
                               np.asarray(camera.k, dtype=float), d if d.size else None)
-    uv = uv.reshape(-1, 2)
-    box = Box(max(0.0, float(uv[:, 0].min())), max(0.0, float(uv[:, 1].min())),
-              min(float(camera.width), float(uv[:, 0].max())),
-              min(float(camera.height), float(uv[:, 1].max())))
-    if box.x_max <= box.x_min or box.y_max <= box.y_min:
-        return None
-    return box
+    uv = uv.reshape(seen.shape[0], seen.shape[1], 2)
+    lo, hi = uv.min(axis=1), uv.max(axis=1)
+    lo = np.maximum(lo, 0.0)
+    hi = np.minimum(hi, (float(camera.width), float(camera.height)))
+    out: dict[int, Box] = {}
+    for k, i in enumerate(np.asarray(index)[front]):
+        if hi[k, 0] > lo[k, 0] and hi[k, 1] > lo[k, 1]:
+            out[int(i)] = Box(float(lo[k, 0]), float(lo[k, 1]), float(hi[k, 0]),
+                              float(hi[k, 1]))
+    return out
+
+
+def project_obstacle(obstacle: Obstacle, eta: Vector, camera: Camera,
+                     settings: FusionSettings, dt: float = 0.0) -> Box | None:
+    """Return the image box of one obstacle, or None (see :func:`project_obstacles`)."""
+    return project_obstacles([obstacle], eta, camera, settings, [dt]).get(0)
+
+
+def iou_matrix(a: Sequence[Box], b: Sequence[Box]) -> Vector:
+    """Intersection over union (len(a), len(b)) of every pair, as :func:`iou` computes it."""
+    p = np.array([(q.x_min, q.y_min, q.x_max, q.y_max) for q in a]).reshape(-1, 4)
+    d = np.array([(q.x_min, q.y_min, q.x_max, q.y_max) for q in b]).reshape(-1, 4)
+    w = np.clip(np.minimum(p[:, None, 2], d[None, :, 2]) - np.maximum(p[:, None, 0],
+                                                                      d[None, :, 0]), 0.0, None)
+    h = np.clip(np.minimum(p[:, None, 3], d[None, :, 3]) - np.maximum(p[:, None, 1],
+                                                                      d[None, :, 1]), 0.0, None)
+    area_p = np.clip(p[:, 2] - p[:, 0], 0.0, None) * np.clip(p[:, 3] - p[:, 1], 0.0, None)
+    area_d = np.clip(d[:, 2] - d[:, 0], 0.0, None) * np.clip(d[:, 3] - d[:, 1], 0.0, None)
+    inter = w * h
+    union = area_p[:, None] + area_d[None, :] - inter
+    out: Vector = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0.0)
+    return out
 
 
 def associate(projected: Sequence[Box], detected: Sequence[Box],
@@ -206,7 +242,7 @@ def associate(projected: Sequence[Box], detected: Sequence[Box],
     """
     if not projected or not detected:
         return []
-    overlap = np.array([[iou(p, q) for q in detected] for p in projected])
+    overlap = iou_matrix(projected, detected)
     # Pairs outside the gate cost more than any inside would save, so the solver takes one
     # only when nothing else is left; such a pair is dropped below.
     cost = np.where(overlap >= min_iou, 1.0 - overlap, 1e6)
@@ -253,12 +289,8 @@ def fuse(obstacles: Sequence[Obstacle], eta: Vector, image_stamp_ns: int, camera
     stamp with its velocity before projection. Without ``memory`` an obstacle's class is
     this frame's match alone; with one, the vote over its track (see :class:`ClassMemory`).
     """
-    projected: dict[int, Box] = {}
-    for i, o in enumerate(obstacles):
-        dt = (image_stamp_ns - o.stamp_ns) * 1e-9 if o.stamp_ns else 0.0
-        box = project_obstacle(o, eta, camera, settings, dt)
-        if box is not None:
-            projected[i] = box
+    dts = [(image_stamp_ns - o.stamp_ns) * 1e-9 if o.stamp_ns else 0.0 for o in obstacles]
+    projected = project_obstacles(obstacles, eta, camera, settings, dts)
     index = list(projected)
     pairs = associate([projected[i] for i in index], [d.box for d in detections],
                       settings.min_iou)

@@ -153,3 +153,26 @@ def test_settings_refuse_nonsense() -> None:
         fu.FusionSettings(min_iou=0.0)
     with pytest.raises(ValueError, match='object_height'):
         fu.FusionSettings(object_height=-1.0)
+
+
+def test_iou_matrix_agrees_with_the_pairwise_iou() -> None:
+    rng = np.random.default_rng(3)
+    corners = rng.uniform(0.0, 15.0, (9, 2))
+    boxes = [fu.Box(x, y, x + w, y + h)
+             for (x, y), (w, h) in zip(corners, rng.uniform(5.0, 20.0, (9, 2)))]
+    boxes.append(fu.Box(5.0, 5.0, 5.0, 9.0))      # empty
+    m = fu.iou_matrix(boxes[:4], boxes[4:])
+    pairwise = np.array([[fu.iou(a, b) for b in boxes[4:]] for a in boxes[:4]])
+    assert (pairwise[:, :-1] > 0.0).sum() >= 10 and np.all(pairwise[:, -1] == 0.0)
+    assert m == pytest.approx(pairwise)
+    # by hand: [0, 10] x [0, 10] and [5, 15] x [0, 10]: 50 / 150
+    assert fu.iou_matrix([box(0.0, 10.0)], [box(5.0, 15.0)])[0, 0] == pytest.approx(1 / 3)
+
+
+def test_a_box_half_out_of_the_image_is_clipped_to_it() -> None:
+    # 2.6 m right of the axis at 4 m: centre u = 320 + 500 * 2.6 / 4 = 645 > 640. The left
+    # tangent's bearing: atan2(2.6, 4) - asin(0.2 / hypot(2.6, 4)) = 0.576375 - 0.041935 =
+    # 0.534440 rad, u = 320 + 500 tan(0.534440) = 615.95; the box ends at the image's edge.
+    b = fu.project_obstacle(buoy(1, 4.0, -2.6), np.zeros(3), CAMERA, SETTINGS)
+    assert b is not None
+    assert b.x_max == 640.0 and b.x_min == pytest.approx(615.95, abs=0.05)
