@@ -5,6 +5,7 @@ camera_info and detections go in; obstacles/fused (with classes) and diagnostics
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
@@ -14,13 +15,15 @@ from sensor_msgs.msg import CameraInfo
 from support.nodes import add, param_client, probe, set_param, TIMEOUT
 from support.saucer import odometry_msg
 
+from enbarr_core.bringup.compose import build_nodes
+from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.frames import Frame, FrameTree, Transform
-from enbarr_core.framework.node import install_frame_tree
+from enbarr_core.framework.node import install_frame_tree, install_world
 from enbarr_core.vision.fusion_node import FusionNode
 from enbarr_interfaces import topics
 from enbarr_interfaces import detections as det
-from enbarr_interfaces.links import LinkBus
+from enbarr_interfaces.links import LinkBus, LinkPublisher, LinkSubscription
 from enbarr_interfaces.obstacles import CIRCLE, cloud_stamp_ns, from_cloud, NO_CLASS, Obstacle
 from enbarr_interfaces.obstacles import SEGMENT, to_cloud
 
@@ -168,3 +171,23 @@ def test_the_mount_comes_from_the_tree(context, executor, spin):
     t = h.node._optical_from_base('camera_optical_frame')
     assert t is not None
     assert t[:3, :3] @ np.array([4.0, 0.0, 0.25]) + t[:3, 3] == pytest.approx([0, 0, 4.0])
+
+
+def test_saucer_fusion_sim_wires_the_guidance_to_the_fused_obstacles(context):
+    # The profile's remapping, resolved by the guidance node as bringup builds it: it reads
+    # /obstacles/fused, which the fusion node publishes from /obstacles.
+    profile = load_profile(str(Path(__file__).parents[2] / 'params' / 'saucer_fusion_sim.yaml'))
+    install_frame_tree(context, profile.frames)
+    install_world(context, profile.world)
+    nodes = build_nodes(profile, context)
+    try:
+        def links(name: str, kind: type) -> set[str]:
+            node = next(n for n in nodes if n.get_name() == name)
+            return {link.name for link in node._links if isinstance(link, kind)}
+        assert '/obstacles/fused' in links('guidance', LinkSubscription)
+        assert '/obstacles' not in links('guidance', LinkSubscription)
+        assert links('fusion', LinkPublisher) == {'/obstacles/fused'}
+        assert '/obstacles' in links('fusion', LinkSubscription)
+    finally:
+        for n in reversed(nodes):
+            n.destroy_node()
