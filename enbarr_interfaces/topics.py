@@ -217,6 +217,12 @@ OBSTACLES = TopicSpec(
     'Tracked obstacles, one point per obstacle (a capsule: segment x,y-x2,y2 with radius), '
     'with velocity and covariance; header.stamp = stamp of the measurement it came from. '
     'Encoding: enbarr_interfaces.obstacles, docs/interfaces.md "Obstacles".', fast=True)
+OBSTACLES_FUSED = TopicSpec(
+    'obstacles/fused', PointCloud2, SENSOR_QOS, 'm, m/s, m^2', WORLD_FRAME,
+    'The obstacles of obstacles with the class of the camera detections they matched (the '
+    'fusion node): the same encoding with its class_id and class_score fields, the same '
+    'stamps; the collision avoidance reads it in place of obstacles (a remapping).',
+    fast=True)
 OBSTACLE_MARKERS = TopicSpec(
     'obstacles/markers', MarkerArray, SENSOR_QOS, 'm', WORLD_FRAME,
     'The obstacles drawn for a viewer (Foxglove, RViz): not for machines, read obstacles.')
@@ -257,5 +263,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
-    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLES_FUSED, OBSTACLE_MARKERS,
+    CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)

@@ -55,6 +55,11 @@ solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4
 YOLOv8 layout (640 x 640 input, 80 classes; docs/vision.md); per-frame CPU, the share of a
 core at 15 Hz and its Raspberry Pi 4 estimate.
 
+--fusion: the CPU one detections message costs the fusion node (projecting --obstacles
+obstacles, default 10, assigning the boxes, voting) over --frames messages, and republishing
+an obstacles message with the classes; the share of a core at 15 detections/s and 5.5 scans/s
+and its Raspberry Pi 4 estimate.
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -65,7 +70,7 @@ class BenchCommand(Command):
     description = ('Measure one of: a control chain in one process (--chain, the default), '
                    'a whole profile as processes (--profile), the recorder (--recording), '
                    'the lidar perception (--perception), the camera (--camera), the camera '
-                   'detector (--vision). '
+                   'detector (--vision), the camera-lidar fusion (--fusion). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -86,10 +91,13 @@ class BenchCommand(Command):
                           help='the simulated camera alone: CPU per frame, render and JPEG')
         what.add_argument('--vision', action='store_true',
                           help='the camera detector alone: CPU per frame')
+        what.add_argument('--fusion', action='store_true',
+                          help='the camera-lidar fusion alone: CPU per detections message')
         what.add_argument('--avoidance', action='store_true',
                           help='the collision avoidance safety filter alone: time per step')
         parser.add_argument('--obstacles', type=int, default=None, metavar='N',
-                            help='--avoidance: obstacles around the vessel (default 10)')
+                            help='--avoidance, --fusion: obstacles around the vessel '
+                            '(default 10)')
         parser.add_argument('--rate', type=float, default=None,
                             help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
         parser.add_argument('--seconds', type=float, default=None,
@@ -138,8 +146,8 @@ class BenchCommand(Command):
                        '--scene': args.scene is not None, '--png': args.png is not None}
         if not args.camera and any(camera_only.values()):
             raise EnbarrError(f'{next(k for k, v in camera_only.items() if v)} is for --camera')
-        if args.frames is not None and not (args.camera or args.vision):
-            raise EnbarrError('--frames is for --camera and --vision')
+        if args.frames is not None and not (args.camera or args.vision or args.fusion):
+            raise EnbarrError('--frames is for --camera, --vision and --fusion')
         if args.model is not None and not args.vision:
             raise EnbarrError('--model is for --vision')
         if args.camera:
@@ -152,6 +160,8 @@ class BenchCommand(Command):
             result = _perception(args)
         elif args.vision:
             result = _vision(args)
+        elif args.fusion:
+            result = _fusion(args)
         elif args.profile is not None:
             result = _idle(args) if args.idle else _profile(args)
         else:
@@ -258,6 +268,19 @@ def _perception(args: argparse.Namespace) -> dict:
         raise EnbarrError(f'--scans must be >= 50 (the first 20 confirm the tracks), '
                           f'got {scans}')
     return perception.measure(scans)
+
+
+def _fusion(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import fusion
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--scans'),
+            'is not for --fusion (it takes --obstacles and --frames)')
+    obstacles = fusion.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
+    frames = fusion.DEFAULT_MESSAGES if args.frames is None else args.frames
+    if not 0 <= obstacles <= 1000 or frames < 20:
+        raise EnbarrError(f'--obstacles must be 0..1000 and --frames >= 20, got {obstacles} '
+                          f'and {frames}')
+    return fusion.measure(obstacles, frames)
 
 
 def _vision(args: argparse.Namespace) -> dict:

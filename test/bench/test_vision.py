@@ -48,7 +48,7 @@ def test_a_model_of_another_shape_is_refused_naming_it(tmp_path, capsys):
 @pytest.mark.parametrize('args, says', [
     (['--vision', '--frames', '5'], '--frames must be >= 10'),
     (['--vision', '--scans', '100'], '--scans is not for --vision'),
-    (['--perception', '--frames', '100'], '--frames is for --camera and --vision'),
+    (['--perception', '--frames', '100'], '--frames is for --camera, --vision and --fusion'),
     (['--camera', '--model', 'x.onnx'], '--model is for --vision'),
     (['--chain', 'rov', '--model', 'x.onnx'], '--model is for --vision'),
 ])
