@@ -277,8 +277,50 @@ class LatencyLog:
         return self.samples[np.arange(self.count - n, self.count) % len(self.samples)]
 
 
+def _construct(init: Callable[..., None]) -> Callable[..., None]:
+    """Wrap a node class's ``__init__``: when the construction raises, destroy the node.
+
+    A node refused at construction (a parameter missing or out of range: the usual user
+    mistake) has already joined the ROS graph as an rcl node. Nothing else will destroy it:
+    the caller never gets the object, and the traceback of the error (kept by whoever handles
+    it, a test's ``pytest.raises`` among them) keeps it alive, so its name stayed on the graph
+    answering nothing, and a later run in the same domain met it. Only the outermost
+    ``__init__`` of the class chain cleans up, and with the base's ``destroy_node`` (the
+    subclass's own may need what its construction never made).
+    """
+    def guarded(self: EnbarrNode, *args: Any, **kwargs: Any) -> None:
+        outer = not self.__dict__.get('_constructing', False)
+        self.__dict__['_constructing'] = True
+        try:
+            init(self, *args, **kwargs)
+        except BaseException:
+            if outer and '_bus' in self.__dict__:   # EnbarrNode.__init__ made the rcl node
+                try:
+                    EnbarrNode.destroy_node(self)
+                except Exception:  # noqa: BLE001 - the construction's error is the one to see
+                    try:   # the base's own state half made: the rcl node at least
+                        Node.destroy_node(self)
+                    except Exception:  # noqa: BLE001 - as above
+                        pass
+            raise
+        finally:
+            if outer:
+                self.__dict__['_constructing'] = False
+
+    guarded.__wrapped__ = init  # type: ignore[attr-defined]
+    guarded.__name__, guarded.__qualname__, guarded.__doc__ = (
+        init.__name__, init.__qualname__, init.__doc__)
+    return guarded
+
+
 class EnbarrNode(Node):
     """Base of core and plugin nodes; see the module docstring."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Make a node whose construction fails leave the ROS graph (:meth:`_construct`)."""
+        super().__init_subclass__(**kwargs)
+        if '__init__' in cls.__dict__:
+            cls.__init__ = _construct(cls.__dict__['__init__'])  # type: ignore[method-assign]
 
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)

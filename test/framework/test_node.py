@@ -188,3 +188,40 @@ def test_a_source_timer_made_after_start_runs_at_once(context, executor):
     assert not timer.is_canceled()
     assert spin_until(executor, lambda: len(calls) >= 5)
     node.stop()
+
+
+class _Refused(EnbarrNode):
+    """A node refused after the rcl node exists (as a missing parameter refuses one)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('refused_at_construction', **kwargs)
+        raise ValueError('refused')
+
+
+class _RefusedDeeper(_Refused):
+    """The refusal two constructors down: only the outermost cleans up, once."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+
+
+@pytest.mark.parametrize('cls', [_Refused, _RefusedDeeper])
+def test_a_node_refused_at_construction_leaves_the_graph(context, cls):
+    # The error's traceback keeps the half-built node alive (as pytest.raises keeps it):
+    # without the clean-up its name stayed on the graph, answering nothing, and a later run
+    # in the same domain met it (a /pwm refused a vessel's start).
+    watcher = EnbarrNode('watcher', context=context)
+    with pytest.raises(ValueError, match='refused') as info:
+        cls(context=context)
+    assert info.value is not None
+    assert 'refused_at_construction' not in watcher.get_node_names()
+    watcher.destroy_node()
+
+
+def test_a_node_built_fine_stays_on_the_graph(context):
+    # the check above can fail: a node of the same context is on the graph at once
+    watcher = EnbarrNode('watcher', context=context)
+    node = EnbarrNode('built_fine', context=context)
+    assert 'built_fine' in watcher.get_node_names()
+    node.destroy_node()
+    watcher.destroy_node()
