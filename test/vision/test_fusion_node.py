@@ -191,3 +191,45 @@ def test_saucer_fusion_sim_wires_the_guidance_to_the_fused_obstacles(context):
     finally:
         for n in reversed(nodes):
             n.destroy_node()
+
+
+def test_saucer_fusion_split_sim_crosses_the_groups_by_dds(context):
+    # Each group in its own context (process), connected as bringup connects it: the links the
+    # split breaks (obstacles and odometry to the fusion, obstacles/fused to the guidance)
+    # must fall back to DDS subscriptions, and the operator's detector must read the JPEG,
+    # the only image the vessel's camera publishes.
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    profile = load_profile(
+        str(Path(__file__).parents[2] / 'params' / 'saucer_fusion_split_sim.yaml'))
+    operator = Context()
+    rclpy.init(context=operator, signal_handler_options=SignalHandlerOptions.NO)
+    built: list = []
+    try:
+        nodes = {}
+        for ctx, group in ((context, 'main'), (operator, 'operator')):
+            install_frame_tree(ctx, profile.frames)
+            install_world(ctx, profile.world)
+            group_nodes = build_nodes(profile, ctx, group)
+            built += group_nodes
+            LinkBus.of(ctx).connect()
+            nodes.update({n.get_name(): n for n in group_nodes})
+        assert {'detector', 'fusion'} <= nodes.keys() and 'camera' in nodes
+
+        def across(name: str) -> set[str]:
+            return {link.name for link in nodes[name]._links
+                    if isinstance(link, LinkSubscription) and not link.local}
+
+        def ros_topics(name: str, kind: str) -> set[str]:
+            return {e.topic_name for e in getattr(nodes[name], kind)}
+        assert {'/obstacles', '/observer/odometry'} <= across('fusion')
+        assert '/obstacles/fused' in across('guidance')
+        assert '/obstacles' not in {link.name for link in nodes['guidance']._links
+                                    if isinstance(link, LinkSubscription)}
+        assert '/camera/image_raw/compressed' in ros_topics('detector', 'subscriptions')
+        assert '/camera/image_raw' not in ros_topics('camera', 'publishers')
+    finally:
+        for n in reversed(built):
+            n.destroy_node()
+        rclpy.try_shutdown(context=operator)
