@@ -27,6 +27,8 @@ What each test proves, in this order:
    - ``param`` talks to a running node: parsed only (skipped; its own tests run it).
    - ``python -m MODULE``: with the options of ``MODULE_RUNS`` (``--help``: it imports and
      has its command line).
+   - ``python scripts/NAME.py``: ``--help`` (it imports and has its command line; it needs
+     a bag).
 3. Skipped, each by its command line with the reason: what needs hardware or a toolchain
    (``make`` in firmware/, ``apt-get``, ``ls`` of the serial devices plugged in,
    ``check-device`` with a real port, bus, host or device: parsed in step 1 all the same) and
@@ -279,6 +281,11 @@ def test_the_command_runs_as_written(command: Command, tmp_path: Path,
         module, options = command.argv[2], MODULE_RUNS.get(command.argv[2])
         assert options is not None, f'{command.where}: no rule for python -m {module}'
         run([sys.executable, '-m', module, *command.argv[3:], *options], tmp_path)
+        return
+    if command.argv[0] in ('python', 'python3', '.venv/bin/python') \
+            and command.argv[1:2] and command.argv[1].startswith('scripts/'):
+        # A script of the tree needs its inputs (a bag): it imports and has its command line.
+        run([sys.executable, str(ROOT / command.argv[1]), '--help'], tmp_path)
         return
     args = enbarr_argv(command.argv)
     assert args is not None, f'{", ".join(command.where)}: no rule for {command.text!r}'
