@@ -146,11 +146,14 @@ def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> 
     """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
     from enbarr_core.tools.avoidance_metrics import AVOIDANCE_TOPICS, avoids
     from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
+    from enbarr_core.tools.vision_metrics import sees, VISION_TOPICS
     if record_all:
         return ()
     listed = profile.record.topics if profile.record is not None else ()
     avoiding = AVOIDANCE_TOPICS if avoids(profile) else ()
-    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *listed}))
+    seeing = VISION_TOPICS if sees(profile) else ()
+    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *seeing,
+                         *listed}))
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
