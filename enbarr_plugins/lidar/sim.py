@@ -31,7 +31,7 @@ from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import ConfigurationError, FrameError
 from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.lidar.common import laser_scan
 from enbarr_plugins.lidar.sim_scan import A1Model, RANGE_MAX, RANGE_MIN, SimulatedA1
@@ -145,14 +145,9 @@ class SimLidarNode(SensorDriver):
         return worst(super().status(), (level, message))
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('sim/odometry', verdict.value)
-            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_stamp('sim/odometry', truth.header.stamp, self._gate, self.health)
+        if t is None:
             return
-        self.health.accepted('sim/odometry')
         if not self.started:  # a source: silent before start and after stop
             return
         s = self.settings

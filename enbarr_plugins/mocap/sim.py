@@ -27,7 +27,7 @@ from enbarr_core.framework.kinematics import ssa
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
@@ -102,14 +102,9 @@ class SimMocapNode(SensorDriver):
         self.settings = v
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('sim/odometry', verdict.value)
-            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_stamp('sim/odometry', truth.header.stamp, self._gate, self.health)
+        if t is None:
             return
-        self.health.accepted('sim/odometry')
         if self._next_ns is None:
             self._next_ns = self._start_ns = t
         if t < self._next_ns:
