@@ -134,12 +134,9 @@ class Pose:
 
 def distort(camera: Camera, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map normalized image coordinates to pixels through plumb_bob (OpenCV's model)."""
-    k1, k2, p1, p2, k3 = camera.d
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return camera.fx * xd + camera.cx, camera.fy * yd + camera.cy
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    uv = camera.project(np.stack([x.ravel(), y.ravel(), np.ones(x.size)], axis=1))
+    return uv[:, 0].reshape(x.shape), uv[:, 1].reshape(x.shape)
 
 
 def project(camera: Camera, pose: Pose, points: np.ndarray) -> np.ndarray:
@@ -154,22 +151,13 @@ def undistort(camera: Camera, u: np.ndarray, v: np.ndarray, iterations: int = 30
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels -> normalized coordinates, and where the inverse is exact.
 
-    The fixed-point iteration OpenCV's ``undistortPoints`` uses; a pixel whose result does
+    OpenCV's ``undistortPoints`` (``PinholeCamera.normalized``); a pixel whose result does
     not map back onto itself (past the fold of a strong barrel lens, where no ray reaches
     it) is marked invalid rather than drawn wrong.
     """
-    xd = (u - camera.cx) / camera.fx
-    yd = (v - camera.cy) / camera.fy
-    k1, k2, p1, p2, k3 = camera.d
-    x, y = xd.copy(), yd.copy()
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        with np.errstate(divide='ignore', invalid='ignore'):
-            x = (xd - dx) / radial
-            y = (yd - dy) / radial
+    u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+    xy = camera.normalized(np.stack([u.ravel(), v.ravel()], axis=1), iterations)
+    x, y = xy[:, 0].reshape(u.shape), xy[:, 1].reshape(u.shape)
     uu, vv = distort(camera, x, y)
     valid = np.isfinite(uu) & np.isfinite(vv) & (np.abs(uu - u) < 1e-3) & (
         np.abs(vv - v) < 1e-3)

@@ -30,7 +30,7 @@ Array = NDArray[np.float64]
 OPENCV_COEFFICIENT_COUNTS = (0, 4, 5, 8, 12, 14)
 #: ``cv2.undistortPoints``'s own default stops after 5 iterations, too few near the edge of a
 #: strongly distorted image; iterate to convergence instead.
-UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+UNDISTORT_ITERATIONS = 200
 
 
 @dataclass(frozen=True)
@@ -121,11 +121,17 @@ class PinholeCamera:
                                   np.asarray(tvec, dtype=float), self.matrix, self.dist_coeffs)
         return np.asarray(px, dtype=float).reshape(-1, 2)
 
-    def normalized(self, pixels: ArrayLike) -> Array:
-        """Undistorted normalized coordinates (N, 2) (x/z, y/z) of pixels (N, 2) [px]."""
+    def normalized(self, pixels: ArrayLike, iterations: int = UNDISTORT_ITERATIONS) -> Array:
+        """Undistorted normalized coordinates (N, 2) (x/z, y/z) of pixels (N, 2) [px].
+
+        OpenCV's fixed-point iteration, at most ``iterations`` steps (fewer once a step
+        moves less than 1e-12). Past the fold of a strong barrel lens no ray reaches a
+        pixel and the result is not its inverse: ``project`` it back to tell.
+        """
         uv = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
         if not len(uv):
             return np.zeros((0, 2))
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iterations, 1e-12)
         xy = cv2.undistortPoints(uv, self.matrix, self.dist_coeffs, None, None, None,
-                                 UNDISTORT_CRITERIA)
+                                 criteria)
         return np.asarray(xy, dtype=float).reshape(-1, 2)
