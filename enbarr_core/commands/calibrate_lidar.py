@@ -179,7 +179,8 @@ def _board_size(text: str) -> tuple[int, int]:
     except ValueError:
         raise CalibrationError(f'--board {text!r}: expected COLSxROWS inner corners, e.g. '
                                '8x6') from None
-    return cols, rows
+    # the detector (ROS's calibrator's) finds the longer side first: so do the board points
+    return max(cols, rows), min(cols, rows)
 
 
 def _solve_bag(args: argparse.Namespace, camera: CameraModel,

@@ -45,6 +45,7 @@ from scipy.spatial.transform import Rotation
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.framework.frames import FrameTree, Transform
 from enbarr_core.perception.scan_geometry import RangeNoise
+from enbarr_core.vision.board import Board
 from enbarr_core.vision.camera import PinholeCamera
 
 Array = NDArray[np.float64]
@@ -269,11 +270,13 @@ def board_object_points(cols: int, rows: int, square: float) -> Array:
     Row by row as ``cv2.findChessboardCorners`` orders them: x along a row, y down the rows,
     z = 0 on the board.
     """
-    if cols < 2 or rows < 2 or not square > 0:
+    try:
+        board = Board(cols, rows, float(square))
+    except ValueError as err:
         raise CalibrationError(f'board: {cols}x{rows} inner corners of {square} m: expected '
-                               'at least 2x2 and a positive square size')
-    g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * float(square)
-    return np.column_stack([g, np.zeros(len(g))])
+                               'at least 2x2 and a positive square size') from err
+    out: Array = board.object_points()
+    return out
 
 
 def board_plane(corners_px: ArrayLike, object_points: ArrayLike,

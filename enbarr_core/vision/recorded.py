@@ -20,42 +20,33 @@ from numpy.typing import NDArray
 
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.perception.scan_geometry import scan_points
+from enbarr_core.vision.board import Board
+from enbarr_core.vision.intrinsics import find_corners
+from enbarr_core.vision.sources import decode_compressed, decode_image
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
-#: sensor_msgs/Image encodings read here (what cameras and our driver publish), as
-#: (channels, OpenCV conversion to BGR or None).
-ENCODINGS: dict[str, tuple[int, int | None]] = {
-    'bgr8': (3, None), 'rgb8': (3, cv2.COLOR_RGB2BGR), 'mono8': (1, cv2.COLOR_GRAY2BGR),
-    'bgra8': (4, cv2.COLOR_BGRA2BGR), 'rgba8': (4, cv2.COLOR_RGBA2BGR),
-}
-
-
 def stamp_ns(msg: Any) -> int:
     """Return the message's header stamp [ns]."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def image_array(msg: Any) -> NDArray[np.uint8]:
-    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message."""
-    if hasattr(msg, 'format'):   # CompressedImage
-        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
-            raise CalibrationError(f'a {msg.format!r} compressed image does not decode')
-        return np.asarray(img, dtype=np.uint8)
-    if msg.encoding not in ENCODINGS:
-        raise CalibrationError(f'image encoding {msg.encoding!r} is not read here; known: '
-                               f'{", ".join(ENCODINGS)}')
-    ch, conv = ENCODINGS[msg.encoding]
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    raw = np.frombuffer(bytes(msg.data), np.uint8)
-    if step < w * ch or len(raw) < h * step:
-        raise CalibrationError(f'image of {w}x{h} {msg.encoding}: step {step}, {len(raw)} '
-                               'bytes do not hold it')
-    img = raw[:h * step].reshape(h, step)[:, :w * ch].reshape(h, w, ch)
-    # a copy: the message's buffer is read-only, and callers draw on the image
-    out = img.copy() if conv is None else cv2.cvtColor(img, conv)
-    return np.asarray(out, dtype=np.uint8)
+    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message.
+
+    ``sources.decode_image`` and ``decode_compressed`` read it (every encoding the intrinsic
+    calibration reads); grey and BGRA become BGR, and the result is a copy that callers may
+    draw on (the message's buffer is read-only).
+    """
+    where = f'image stamped {stamp_ns(msg)} ns'
+    img = decode_compressed(msg, where) if hasattr(msg, 'format') else decode_image(msg, where)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif not img.flags.writeable or not img.flags.c_contiguous:
+        img = img.copy()
+    return np.asarray(img, dtype=np.uint8)
 
 
 def scan_xy(msg: Any) -> NDArray[np.float64]:
@@ -124,22 +115,23 @@ class StillPose:
     scans: list[NDArray[np.float64]] = field(default_factory=list)   # each (N, 2) [m]
 
 
-def find_corners(image: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float64] | None:
-    """Find the board's inner corners (cols x rows) [px], refined to subpixels, or None."""
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    ok, corners = cv2.findChessboardCorners(
-        gray, (cols, rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-    if not ok:
-        return None
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.001)
-    corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria)
-    return np.asarray(corners, dtype=float).reshape(-1, 2)
+def board_corners(image: NDArray[np.uint8], cols: int, rows: int
+                  ) -> NDArray[np.float64] | None:
+    """Return the board's inner corners [px] as the intrinsic calibration finds them.
+
+    None when not found. ``intrinsics.find_corners`` (ROS's calibrator: its flags, edge
+    margin, corner order and subpixel window) on a ``cols`` x ``rows`` board, which detects
+    the (longer, shorter) pattern: give ``cols`` >= ``rows`` for the corners to come in the
+    order of ``extrinsics.board_object_points(cols, rows, square)``. The square's size does
+    not change what the detector sees. Without OpenCV's fast check, which misses far boards.
+    """
+    return find_corners(image, Board(cols, rows, 1.0), fast_check=False)
 
 
 def board_poses(stream: Iterator[tuple[str, Any]], cols: int, rows: int, *,
                 still_px: float = 1.0, min_still_s: float = 0.5, stride: int = 1,
                 corners_of: Callable[[NDArray[np.uint8], int, int],
-                                     NDArray[np.float64] | None] = find_corners,
+                                     NDArray[np.float64] | None] = board_corners,
                 ) -> list[StillPose]:
     """Split a stream of scans and images into the times the board was held still.
 
