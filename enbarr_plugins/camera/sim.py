@@ -31,18 +31,14 @@ from typing import Any
 
 from nav_msgs.msg import Odometry
 
-from enbarr_core.framework.driver import SensorDriver
-from enbarr_core.framework.errors import ConfigurationError, FrameError
-from enbarr_core.framework.health import InputHealth, worst
+from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.camera.calibration import Calibration, load_calibration
 from enbarr_plugins.camera.common import camera_info, ImageOutput, OUTPUT_SPECS
 from enbarr_plugins.camera.sim_render import Look, PinholeModel, SimulatedCamera
+from enbarr_plugins.sim_sensor import TruthSensor
 
-#: Truths stamped further ahead of the clock than this are refused [s] (as ``sim_lidar``).
-TRUTH_MAX_FUTURE = 0.01
 #: The render thread looks for a due frame this many times per frame period.
 POLLS_PER_FRAME = 4
 
@@ -107,7 +103,7 @@ class SimCameraSettings:
                    int(v['jpeg_quality']), v['publish_raw'])
 
 
-class SimCameraNode(SensorDriver):
+class SimCameraNode(TruthSensor):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'camera', **kwargs: Any) -> None:
@@ -115,12 +111,7 @@ class SimCameraNode(SensorDriver):
         self.settings: SimCameraSettings
         self.bind_settings(SPECS, SimCameraSettings.from_params, self._apply)
         s = self.settings
-        try:
-            mount = self.frame_tree.lookup(topics.BODY_FRAME, s.frame_id)
-        except FrameError as err:
-            raise ConfigurationError(f'node {self.get_name()!r}: frame_id: the frame tree '
-                                     f'cannot place the camera: {err}',
-                                     parameter='frame_id') from err
+        mount = self.mount(s.frame_id, 'camera')
         try:
             self.camera = SimulatedCamera(s.model, mount, Look(seed=s.seed))
         except ValueError as err:
@@ -134,8 +125,6 @@ class SimCameraNode(SensorDriver):
         self._rendering = False
         self._due: tuple[Any, float, float, float, float, float] | None = None
         self._lock = threading.Lock()
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         self._loop = self.create_rate_loop(s.frame_rate * POLLS_PER_FRAME, self._render_due)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
@@ -146,15 +135,10 @@ class SimCameraNode(SensorDriver):
         """Return the driver's status, with the frames published, skipped, truths refused."""
         return {**super().status_values(), 'frames': self.frames, 'skipped': self.skipped,
                 'encoded': self.output.encoded, 'obstacles': len(self.world),
-                'refused': self._gate.refused}
-
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, DEGRADED while truths are refused."""
-        level, message, _ = self.health.report(1.0)
-        return worst(super().status(), (level, message))
+                'refused': self.truth_gate.refused}
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = self.admit_stamp('sim/odometry', truth.header.stamp, self._gate, self.health)
+        t = self.admit_truth(truth)
         if t is None:
             return
         self.truths += 1
