@@ -14,6 +14,13 @@ one ``FLOAT64`` except ``id``, ``kind`` and the stamp's two fields (``UINT32``);
 that produced the message. A reader finds the fields by name (:func:`from_cloud`), so fields
 can be added later without breaking it. ``docs/interfaces.md`` ("Obstacles") documents the
 encoding for other tools.
+
+Two optional fields follow (:data:`CLASS_FIELDS`), written when an obstacle carries a class
+(the fusion of camera detections with the lidar's obstacles, ``enbarr_core.vision.fusion``):
+``class_id`` (``INT32``, an index into the detector's ``class_names``, -1 for none) and
+``class_score`` (``FLOAT64``, 0..1). A message without them decodes with no class
+(:data:`NO_CLASS`), and a reader that does not know them skips them: the lidar's messages and
+the fused ones share one encoding, and the collision avoidance reads either.
 """
 
 from __future__ import annotations
@@ -27,11 +34,14 @@ import numpy as np
 from numpy.typing import NDArray
 from sensor_msgs.msg import PointCloud2, PointField
 
+from enbarr_interfaces.clouds import read_fields
 from enbarr_interfaces.convert import NS_PER_S, ns_to_stamp, stamp_to_ns
 
 CIRCLE = 0
 SEGMENT = 1
 KINDS = {CIRCLE: 'circle', SEGMENT: 'segment'}
+#: ``class_id`` of an obstacle that no detection classified.
+NO_CLASS = -1
 
 #: (name, numpy type, PointField datatype, meaning) of each field, in wire order.
 FIELDS: tuple[tuple[str, str, int, str], ...] = (
@@ -54,16 +64,28 @@ FIELDS: tuple[tuple[str, str, int, str], ...] = (
     ('cov_vxvy', '<f8', PointField.FLOAT64, ''),
     ('cov_vyvy', '<f8', PointField.FLOAT64, ''),
 )
+#: The optional fields, after :data:`FIELDS` when written (see the module docstring).
+CLASS_FIELDS: tuple[tuple[str, str, int, str], ...] = (
+    ('class_id', '<i4', PointField.INT32, "index into the detector's class_names, -1 none"),
+    ('class_score', '<f8', PointField.FLOAT64, 'confidence of the class 0..1'),
+)
 DTYPE = np.dtype([(name, np_type) for name, np_type, _, _ in FIELDS])
-_OFFSETS = {name: int(DTYPE.fields[name][1]) for name, *_ in FIELDS}  # type: ignore[index]
+#: A point with the class fields.
+CLASS_DTYPE = np.dtype([(name, np_type) for name, np_type, _, _ in FIELDS + CLASS_FIELDS])
+
+
+def _point_fields(dtype: np.dtype[Any],
+                  fields: tuple[tuple[str, str, int, str], ...]) -> tuple[PointField, ...]:
+    offsets = {name: int(dtype.fields[name][1]) for name, *_ in fields}  # type: ignore[index]
+    return tuple(PointField(name=name, offset=offsets[name], datatype=datatype, count=1)
+                 for name, _, datatype, _ in fields)
+
+
 #: The fields of every message, built once: a message's constructor checks each value, which
 #: cost more than the rest of the encoding. The list is copied per message; its PointFields
 #: are shared and must not be changed by a receiver.
-_POINT_FIELDS = tuple(PointField(name=name, offset=_OFFSETS[name], datatype=datatype, count=1)
-                      for name, _, datatype, _ in FIELDS)
-_NUMPY_OF = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4',
-             PointField.INT32: '<i4', PointField.UINT8: 'u1', PointField.INT8: 'i1',
-             PointField.UINT16: '<u2', PointField.INT16: '<i2'}
+_POINT_FIELDS = _point_fields(DTYPE, FIELDS)
+_CLASS_POINT_FIELDS = _point_fields(CLASS_DTYPE, FIELDS + CLASS_FIELDS)
 
 
 @dataclass(frozen=True)
@@ -82,6 +104,8 @@ class Obstacle:
     position_cov: tuple[float, float, float] = (0.0, 0.0, 0.0)   # xx, xy, yy [m^2]
     velocity_cov: tuple[float, float, float] = (0.0, 0.0, 0.0)   # [m^2/s^2]
     stamp_ns: int = 0
+    class_id: int = NO_CLASS  # what a camera detection said it is (NO_CLASS: not known)
+    class_score: float = 0.0
 
     @property
     def end(self) -> tuple[float, float]:
@@ -109,29 +133,38 @@ def closest_on_segment(px: float, py: float, ax: float, ay: float, bx: float,
     return ax + s * dx, ay + s * dy
 
 
-def to_array(obstacles: Sequence[Obstacle]) -> NDArray[Any]:
-    """Return the obstacles as a structured array of :data:`DTYPE` (one row each)."""
-    out = np.zeros(len(obstacles), dtype=DTYPE)
+def to_array(obstacles: Sequence[Obstacle], classes: bool = False) -> NDArray[Any]:
+    """Return the obstacles as a structured array of :data:`DTYPE` (one row each).
+
+    ``classes``: of :data:`CLASS_DTYPE`, with the class fields.
+    """
+    out = np.zeros(len(obstacles), dtype=CLASS_DTYPE if classes else DTYPE)
     for i, o in enumerate(obstacles):
         x2, y2 = o.end
         sec, nanosec = divmod(int(o.stamp_ns), NS_PER_S)
-        out[i] = (o.id, o.kind, sec, nanosec, o.x, o.y, x2, y2, o.radius, o.vx, o.vy,
-                  *o.position_cov, *o.velocity_cov)
+        row = (o.id, o.kind, sec, nanosec, o.x, o.y, x2, y2, o.radius, o.vx, o.vy,
+               *o.position_cov, *o.velocity_cov)
+        out[i] = row + (o.class_id, o.class_score) if classes else row
     return out
 
 
 def to_cloud(obstacles: Sequence[Obstacle], stamp_ns: int, frame_id: str,
-             out: PointCloud2 | None = None) -> PointCloud2:
-    """Encode ``obstacles`` as a ``PointCloud2`` stamped ``stamp_ns`` in ``frame_id``."""
-    rows = to_array(obstacles)
+             out: PointCloud2 | None = None, classes: bool | None = None) -> PointCloud2:
+    """Encode ``obstacles`` as a ``PointCloud2`` stamped ``stamp_ns`` in ``frame_id``.
+
+    ``classes``: write the class fields (None: when any obstacle has a class).
+    """
+    if classes is None:
+        classes = any(o.class_id != NO_CLASS for o in obstacles)
+    rows = to_array(obstacles, classes)
     msg = out if out is not None else PointCloud2()
     ns_to_stamp(stamp_ns, msg.header.stamp)
     msg.header.frame_id = frame_id
     msg.height, msg.width = 1, len(rows)
-    msg.fields = list(_POINT_FIELDS)
+    msg.fields = list(_CLASS_POINT_FIELDS if classes else _POINT_FIELDS)
     msg.is_bigendian = False
-    msg.point_step = DTYPE.itemsize
-    msg.row_step = DTYPE.itemsize * len(rows)
+    msg.point_step = rows.dtype.itemsize
+    msg.row_step = rows.dtype.itemsize * len(rows)
     msg.data = rows.tobytes()
     msg.is_dense = True
     return msg
@@ -144,34 +177,14 @@ class ObstacleEncodingError(ValueError):
 def from_cloud(msg: PointCloud2) -> list[Obstacle]:
     """Decode an ``obstacles`` message; the fields are found by name and type.
 
-    Raises :class:`ObstacleEncodingError` naming what is missing or malformed.
+    The class fields are read when present (both of them), else every obstacle has
+    :data:`NO_CLASS`. Raises :class:`ObstacleEncodingError` naming what is missing or
+    malformed.
     """
-    if msg.is_bigendian:
-        raise ObstacleEncodingError('obstacles: big-endian point clouds are not read')
-    have = {f.name: f for f in msg.fields}
-    missing = [name for name, *_ in FIELDS if name not in have]
-    if missing:
-        raise ObstacleEncodingError(f'obstacles: missing field(s) {", ".join(missing)}')
-    n = int(msg.width) * int(msg.height)
-    step = int(msg.point_step)
-    data = bytes(msg.data)
-    if len(data) < n * step:
-        raise ObstacleEncodingError(f'obstacles: {len(data)} bytes of data for {n} points '
-                                    f'of {step} bytes')
-    formats = {}
-    for name, *_ in FIELDS:
-        f = have[name]
-        np_type = _NUMPY_OF.get(f.datatype)
-        if np_type is None or f.count != 1:
-            raise ObstacleEncodingError(f'obstacles: field {name!r} has datatype '
-                                        f'{f.datatype} x {f.count}')
-        if f.offset + np.dtype(np_type).itemsize > step:
-            raise ObstacleEncodingError(f'obstacles: field {name!r} at offset {f.offset} '
-                                        f'does not fit a point of {step} bytes')
-        formats[name] = (np_type, f.offset)
-    view = np.dtype({'names': list(formats), 'formats': [t for t, _ in formats.values()],
-                     'offsets': [o for _, o in formats.values()], 'itemsize': step})
-    rows = np.frombuffer(data[:n * step], dtype=view)
+    have = {f.name for f in msg.fields}
+    classes = all(name in have for name, *_ in CLASS_FIELDS)
+    names = [name for name, *_ in (FIELDS + CLASS_FIELDS if classes else FIELDS)]
+    rows = read_fields(msg, names, 'obstacles', ObstacleEncodingError)
     out: list[Obstacle] = []
     for r in rows:
         kind = int(r['kind'])
@@ -184,7 +197,9 @@ def from_cloud(msg: PointCloud2) -> list[Obstacle]:
             float(r['vx']), float(r['vy']),
             (float(r['cov_xx']), float(r['cov_xy']), float(r['cov_yy'])),
             (float(r['cov_vxvx']), float(r['cov_vxvy']), float(r['cov_vyvy'])),
-            int(r['stamp_sec']) * NS_PER_S + int(r['stamp_nanosec'])))
+            int(r['stamp_sec']) * NS_PER_S + int(r['stamp_nanosec']),
+            int(r['class_id']) if classes else NO_CLASS,
+            float(r['class_score']) if classes else 0.0))
     return out
 
 

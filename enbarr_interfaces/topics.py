@@ -217,6 +217,12 @@ OBSTACLES = TopicSpec(
     'Tracked obstacles, one point per obstacle (a capsule: segment x,y-x2,y2 with radius), '
     'with velocity and covariance; header.stamp = stamp of the measurement it came from. '
     'Encoding: enbarr_interfaces.obstacles, docs/interfaces.md "Obstacles".', fast=True)
+OBSTACLES_FUSED = TopicSpec(
+    'obstacles/fused', PointCloud2, SENSOR_QOS, 'm, m/s, m^2', WORLD_FRAME,
+    'The obstacles of obstacles with the class of the camera detections they matched (the '
+    'fusion node): the same encoding with its class_id and class_score fields, the same '
+    'stamps; the collision avoidance reads it in place of obstacles (a remapping).',
+    fast=True)
 OBSTACLE_MARKERS = TopicSpec(
     'obstacles/markers', MarkerArray, SENSOR_QOS, 'm', WORLD_FRAME,
     'The obstacles drawn for a viewer (Foxglove, RViz): not for machines, read obstacles.')
@@ -239,6 +245,15 @@ VESSEL_CLAIMS = TopicSpec(
     'Claim of a running bringup group (latched): {"nodes", "host", "pid", "started_ns"}; a '
     'second run with the same node names refuses at start or, when they missed each other, '
     'the later one stops (docs/architecture.md, Safety).')
+# -- vision --
+DETECTIONS = TopicSpec(
+    'detections', PointCloud2, SENSOR_QOS, 'pixels', CAMERA_OPTICAL_FRAME,
+    'Objects found in a camera image, one point per box (class_id, score, x_min, y_min, '
+    "x_max, y_max in the image's pixels); header = the image's header, also when nothing "
+    'was found. Encoding: enbarr_interfaces.detections, docs/interfaces.md "Detections".')
+DETECTION_IMAGE = TopicSpec(
+    'detections/image', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
+    'The image with its detections drawn, for a viewer (built only while one subscribes).')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
@@ -248,5 +263,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
-    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLE_MARKERS, CAMERA_IMAGE,
-    CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS)
+    PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLES_FUSED, OBSTACLE_MARKERS,
+    CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)

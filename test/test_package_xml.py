@@ -63,6 +63,7 @@ KEYS = {
     'qtm_rt': 'python3-qtm-rt-pip',
     'daqp': 'python3-daqp-pip',
     'quadprog': 'python3-quadprog-pip',
+    'onnx': 'python3-onnx-pip',
 }
 
 RUN_TAGS = ('depend', 'exec_depend')

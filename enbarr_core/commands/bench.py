@@ -19,6 +19,7 @@ IDLE_SECONDS = 10.0
 #: The chain rate a run takes [Hz] (the simulator and sensors refuse far less).
 MAX_RATE = 10_000.0
 PERCEPTION_SCANS = 500
+VISION_FRAMES = 200
 
 EPILOG = """\
 --chain (default rov): drive the sensor -> filter -> control -> allocation -> actuator
@@ -49,6 +50,16 @@ a core at 15 fps and its Raspberry Pi 4 estimate; --png PATH writes the first fr
 obstacles (default 10): no barrier binding, pressed against them (the QP), the bare QP
 solve; --repeat runs, the median kept; the share of a core at 50 Hz and the Pi 4 estimate.
 
+--vision: the CPU one 640 x 480 camera frame costs the detector: the classical back end
+(colour and shape) on --frames synthetic frames and, with --model PATH, an ONNX model in the
+YOLOv8 layout (640 x 640 input, 80 classes; docs/vision.md); per-frame CPU, the share of a
+core at 15 Hz and its Raspberry Pi 4 estimate.
+
+--fusion: the CPU one detections message costs the fusion node (projecting --obstacles
+obstacles, default 10, assigning the boxes, voting) over --frames messages, and republishing
+an obstacles message with the classes; the share of a core at 15 detections/s and 5.5 scans/s
+and its Raspberry Pi 4 estimate.
+
 docs/benchmarks.md has our figures and how they were taken."""
 
 
@@ -58,7 +69,8 @@ class BenchCommand(Command):
     help = 'measure a control chain, a whole profile or the recorder (prints JSON)'
     description = ('Measure one of: a control chain in one process (--chain, the default), '
                    'a whole profile as processes (--profile), the recorder (--recording), '
-                   'the lidar perception (--perception), the camera (--camera). '
+                   'the lidar perception (--perception), the camera (--camera), the camera '
+                   'detector (--vision), the camera-lidar fusion (--fusion). '
                    'Figures depend on the machine and its load: run it alone.')
     epilog = EPILOG
 
@@ -77,10 +89,15 @@ class BenchCommand(Command):
                           help='the lidar perception alone: CPU per scan')
         what.add_argument('--camera', action='store_true',
                           help='the simulated camera alone: CPU per frame, render and JPEG')
+        what.add_argument('--vision', action='store_true',
+                          help='the camera detector alone: CPU per frame')
+        what.add_argument('--fusion', action='store_true',
+                          help='the camera-lidar fusion alone: CPU per detections message')
         what.add_argument('--avoidance', action='store_true',
                           help='the collision avoidance safety filter alone: time per step')
         parser.add_argument('--obstacles', type=int, default=None, metavar='N',
-                            help='--avoidance: obstacles around the vessel (default 10)')
+                            help='--avoidance, --fusion: obstacles around the vessel '
+                            '(default 10)')
         parser.add_argument('--rate', type=float, default=None,
                             help=f'--chain: chain rate in Hz (default {CHAIN_RATE:g})')
         parser.add_argument('--seconds', type=float, default=None,
@@ -109,9 +126,12 @@ class BenchCommand(Command):
                             f'(default {recording.DEFAULT_REPEAT})')
         parser.add_argument('--scans', type=int, default=None, metavar='N',
                             help=f'--perception: scans measured (default {PERCEPTION_SCANS})')
-
         parser.add_argument('--frames', type=int, default=None, metavar='N',
-                            help='--camera: frames measured (default 150)')
+                            help='--camera, --vision: frames measured (default 150 for '
+                            f'--camera, {VISION_FRAMES} for --vision)')
+        parser.add_argument('--model', default=None, metavar='PATH',
+                            help='--vision: an ONNX model (YOLOv8 layout, 640 x 640, 80 '
+                            'classes) measured besides the classical back end')
         parser.add_argument('--quality', type=int, default=None, metavar='Q',
                             help='--camera: JPEG quality 1..100 (default 80)')
         parser.add_argument('--scene', default=None, metavar='PROFILE',
@@ -122,11 +142,14 @@ class BenchCommand(Command):
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
         """Measure what was asked and print one JSON line."""
-        camera_only = {'--frames': args.frames is not None,
-                       '--quality': args.quality is not None,
+        camera_only = {'--quality': args.quality is not None,
                        '--scene': args.scene is not None, '--png': args.png is not None}
         if not args.camera and any(camera_only.values()):
             raise EnbarrError(f'{next(k for k, v in camera_only.items() if v)} is for --camera')
+        if args.frames is not None and not (args.camera or args.vision or args.fusion):
+            raise EnbarrError('--frames is for --camera, --vision and --fusion')
+        if args.model is not None and not args.vision:
+            raise EnbarrError('--model is for --vision')
         if args.camera:
             result = _camera(args)
         elif args.avoidance:
@@ -135,6 +158,10 @@ class BenchCommand(Command):
             result = _recording(args)
         elif args.perception:
             result = _perception(args)
+        elif args.vision:
+            result = _vision(args)
+        elif args.fusion:
+            result = _fusion(args)
         elif args.profile is not None:
             result = _idle(args) if args.idle else _profile(args)
         else:
@@ -241,3 +268,31 @@ def _perception(args: argparse.Namespace) -> dict:
         raise EnbarrError(f'--scans must be >= 50 (the first 20 confirm the tracks), '
                           f'got {scans}')
     return perception.measure(scans)
+
+
+def _fusion(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import fusion
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--scans'),
+            'is not for --fusion (it takes --obstacles and --frames)')
+    obstacles = fusion.DEFAULT_OBSTACLES if args.obstacles is None else args.obstacles
+    frames = fusion.DEFAULT_MESSAGES if args.frames is None else args.frames
+    if not 0 <= obstacles <= 1000 or frames < 20:
+        raise EnbarrError(f'--obstacles must be 0..1000 and --frames >= 20, got {obstacles} '
+                          f'and {frames}')
+    return fusion.measure(obstacles, frames)
+
+
+def _vision(args: argparse.Namespace) -> dict:
+    from enbarr_core.bench import vision
+    _refuse(args, ('--rate', '--seconds', '--warmup', '--record', '--set', '--idle',
+                   '--messages', '--repeat', '--obstacles', '--scans'),
+            'is not for --vision (it takes --frames and --model)')
+    frames = VISION_FRAMES if args.frames is None else args.frames
+    if frames < 10:
+        raise EnbarrError(f'--frames must be >= 10, got {frames}')
+    try:
+        return vision.measure(frames, args.model)
+    except ValueError as err:       # a model that cannot be read, or of another shape
+        # the message names the detector's parameter first ('model_path: ...'): here --model
+        raise EnbarrError(f'--model: {str(err).partition(": ")[2]}') from err

@@ -44,6 +44,8 @@ BUILTIN: dict[str, str] = {
     'azimuth_allocation': 'enbarr_core.allocation.azimuth_allocation_node:AzimuthAllocationNode',
     'pwm_mapper': 'enbarr_core.allocation.pwm_mapper_node:PwmMapperNode',
     'scan_obstacles': 'enbarr_core.perception.scan_obstacles_node:ScanObstaclesNode',
+    'detector': 'enbarr_core.vision.detector_node:DetectorNode',
+    'fusion': 'enbarr_core.vision.fusion_node:FusionNode',
     # plugins
     'sim_imu': 'enbarr_plugins.imu.sim:SimImuNode',
     'sim_thrusters': 'enbarr_plugins.thrusters.sim:SimThrustersNode',

@@ -1,1 +1,1 @@
-"""Vision: camera models, calibration boards and camera calibration (pure; no ROS)."""
+"""Vision without ROS: camera models and calibration, and objects in camera images."""

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 import os
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -22,31 +21,25 @@ from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.perception.scan_geometry import scan_points
 from enbarr_core.vision.board import Board
 from enbarr_core.vision.intrinsics import find_corners
-from enbarr_core.vision.sources import decode_compressed, decode_image
+from enbarr_interfaces.image_msgs import compressed_to_bgr, image_to_bgr, ImageEncodingError
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
+
+
 def stamp_ns(msg: Any) -> int:
     """Return the message's header stamp [ns]."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def image_array(msg: Any) -> NDArray[np.uint8]:
-    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message.
-
-    ``sources.decode_image`` and ``decode_compressed`` read it (every encoding the intrinsic
-    calibration reads); grey and BGRA become BGR, and the result is a copy that callers may
-    draw on (the message's buffer is read-only).
-    """
-    where = f'image stamped {stamp_ns(msg)} ns'
-    img = decode_compressed(msg, where) if hasattr(msg, 'format') else decode_image(msg, where)
-    if img.ndim == 2:
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    elif img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    elif not img.flags.writeable or not img.flags.c_contiguous:
-        img = img.copy()
-    return np.asarray(img, dtype=np.uint8)
+    """Decode a BGR image (H, W, 3) from an Image or CompressedImage message (a copy)."""
+    try:
+        if hasattr(msg, 'format'):   # CompressedImage
+            return compressed_to_bgr(msg)
+        return image_to_bgr(msg)
+    except ImageEncodingError as err:
+        raise CalibrationError(str(err)) from err
 
 
 def scan_xy(msg: Any) -> NDArray[np.float64]:

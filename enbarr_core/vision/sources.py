@@ -140,8 +140,7 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         raise CalibrationError(f'{where}: image encoding {msg.encoding!r} is not one of mono8, '
                                'mono16, bgr8, rgb8, bgra8, rgba8')
     if h <= 0 or w <= 0 or step < w * channels or len(data) < step * h:
-        raise CalibrationError(f'{where}: {w}x{h} {msg.encoding} image: step {step}, '
-                               f'{len(data)} bytes do not hold it')
+        raise CalibrationError(f'{where}: {w}x{h} image with step {step} and {len(data)} bytes')
     rows = data[:step * h].reshape(h, step)[:, :w * channels]
     if channels == 2:   # 16-bit grey: keep the high byte, as camera_calibration's mkgray does
         big = bool(msg.is_bigendian)

@@ -151,3 +151,28 @@ def save_calibration(cal: Calibration, path: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+#: Coefficients of each distortion model (REP-104, sensor_msgs/distortion_models.hpp).
+DISTORTION_LENGTHS = {'plumb_bob': 5, 'rational_polynomial': 8, 'equidistant': 4}
+
+
+def calibration_of(info: Any, camera_name: str) -> Calibration:
+    """Return the ``Calibration`` a sensor_msgs/CameraInfo carries; ``ValueError`` says what."""
+    if info.width <= 0 or info.height <= 0:
+        raise ValueError(f'image size {info.width}x{info.height}: not positive')
+    want = DISTORTION_LENGTHS.get(info.distortion_model)
+    if want is None:
+        raise ValueError(f'distortion_model {info.distortion_model!r}: not one of '
+                         f'{", ".join(DISTORTION_LENGTHS)}')
+    if len(info.d) != want:
+        raise ValueError(f'{info.distortion_model} has {want} coefficients, D has {len(info.d)}')
+    cal = Calibration(width=int(info.width), height=int(info.height), camera_name=camera_name,
+                      k=tuple(float(x) for x in info.k),
+                      distortion_model=str(info.distortion_model),
+                      d=tuple(float(x) for x in info.d), r=tuple(float(x) for x in info.r),
+                      p=tuple(float(x) for x in info.p))
+    check_calibration(cal)
+    if cal.p[0] <= 0 or cal.p[5] <= 0:
+        raise ValueError(f'P: not a projection matrix (fx, fy > 0): {list(cal.p)}')
+    return cal

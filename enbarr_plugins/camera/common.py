@@ -9,6 +9,9 @@
   compressed_image_transport/src/compressed_publisher.cpp), so ``image_transport``'s
   republisher, Foxglove and ``rqt_image_view`` decode it;
 - ``camera/camera_info``, with the same header.
+``store_camera_info`` is every camera's ``camera/set_camera_info`` (camera_info_manager's
+service, the calibration "commit"): check the CameraInfo, write it to the ``calibration_file``
+and answer, the real driver and the simulated camera alike.
 Like image_transport, a topic nobody subscribes to costs nothing: the image is converted and
 the JPEG encoded only while the topic has a subscriber (the recorder is one). A raw 640x480
 stream is about 14 MB/s, more than a Raspberry Pi's SD card keeps up with; its JPEG is a
@@ -17,7 +20,7 @@ tenth of that or less (docs/benchmarks.md, "The camera").
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -27,7 +30,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import topics
-from enbarr_plugins.camera.calibration import Calibration
+from enbarr_plugins.camera.calibration import Calibration, calibration_of, save_calibration
 
 #: The ``format`` of a colour JPEG in image_transport's compressed transport.
 JPEG_FORMAT = 'bgr8; jpeg compressed bgr8'
@@ -53,6 +56,46 @@ def camera_info(cal: Calibration | None, width: int, height: int) -> CameraInfo:
         info.r = list(cal.r)
         info.p = list(cal.p)
     return info
+
+
+class _Request(Protocol):
+    camera_info: CameraInfo
+
+
+class _Response(Protocol):
+    success: bool
+    status_message: str
+
+
+def store_camera_info(node: EnbarrNode, device: str, path: str, old: Calibration | None,
+                      frame_size: tuple[int, int] | None, request: _Request,
+                      response: _Response) -> Calibration | None:
+    """Serve one ``set_camera_info``: store ``request.camera_info`` in ``path``, answer.
+
+    Returns the calibration stored (the caller publishes it from then on), or ``None`` with
+    ``response.success`` false and the reason in ``response.status_message``: no ``path``,
+    a malformed CameraInfo, an image size other than ``frame_size`` (the frames'; ``None``:
+    not known yet), or a file that cannot be written. ``old`` names the camera in the file.
+    """
+    try:
+        if not path:
+            raise ValueError('no calibration_file is configured: nowhere to store it')
+        cal = calibration_of(request.camera_info,
+                             old.camera_name if old is not None else 'camera')
+        if frame_size is not None and (cal.width, cal.height) != frame_size:
+            w, h = frame_size
+            raise ValueError(f'calibration for {cal.width}x{cal.height} images, but the '
+                             f'camera gives {w}x{h}')
+        save_calibration(cal, path)
+    except (ValueError, OSError) as err:
+        reason = (f'{path}: cannot write: {err.strerror or err}'
+                  if isinstance(err, OSError) else str(err))
+        node.get_logger().warn(f'{device}: set_camera_info refused: {reason}')
+        response.success, response.status_message = False, reason
+        return None
+    node.get_logger().info(f'{device}: calibration stored in {path}')
+    response.success, response.status_message = True, f'stored in {path}'
+    return cal
 
 
 def encode_jpeg(frame: NDArray[np.uint8], quality: int) -> bytes:

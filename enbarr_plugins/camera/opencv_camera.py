@@ -37,17 +37,16 @@ import threading
 import time
 from typing import Any
 
-from sensor_msgs.msg import CameraInfo
 from sensor_msgs.srv import SetCameraInfo
 
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import topics
-from enbarr_plugins.camera.calibration import (
-    Calibration, check_calibration, load_calibration, save_calibration)
+from enbarr_plugins.camera.calibration import Calibration, load_calibration
 from enbarr_plugins.camera.capture import describe, open_capture, parse_device, Source
-from enbarr_plugins.camera.common import camera_info, ImageOutput, OUTPUT_SPECS
+from enbarr_plugins.camera.common import (
+    camera_info, ImageOutput, OUTPUT_SPECS, store_camera_info)
 
 SPECS = [
     ParamSpec('device', '0', "Source: V4L2 index ('0'), device ('/dev/video0'), a video file, "
@@ -226,27 +225,10 @@ class CameraNode(SensorDriver):
     def _set_camera_info(self, request: SetCameraInfo.Request,
                          response: SetCameraInfo.Response) -> SetCameraInfo.Response:
         """Store and publish a calibration (see the module docstring); refuse with a reason."""
-        path = self.settings.calibration_file
-        try:
-            if not path:
-                raise ValueError('no calibration_file is configured: nowhere to store it')
-            old = self.settings.calibration
-            cal = calibration_of(request.camera_info,
-                                 old.camera_name if old is not None else 'camera')
-            if self._frame_size is not None and (cal.width, cal.height) != self._frame_size:
-                w, h = self._frame_size
-                raise ValueError(f'calibration for {cal.width}x{cal.height} images, but the '
-                                 f'camera gives {w}x{h}')
-            save_calibration(cal, path)
-        except (ValueError, OSError) as err:
-            reason = (f'{path}: cannot write: {err.strerror or err}'
-                      if isinstance(err, OSError) else str(err))
-            self.get_logger().warn(f'{self.device}: set_camera_info refused: {reason}')
-            response.success, response.status_message = False, reason
-            return response
-        self._apply(replace(self.settings, calibration=cal))
-        self.get_logger().info(f'{self.device}: calibration stored in {path}')
-        response.success, response.status_message = True, f'stored in {path}'
+        cal = store_camera_info(self, self.device, self.settings.calibration_file,
+                                self.settings.calibration, self._frame_size, request, response)
+        if cal is not None:
+            self._apply(replace(self.settings, calibration=cal))
         return response
 
     def status_values(self) -> dict[str, Any]:
@@ -263,27 +245,3 @@ class CameraNode(SensorDriver):
         self.close_device()
         super().destroy_node()
 
-
-#: Coefficients of each distortion model (REP-104, sensor_msgs/distortion_models.hpp).
-DISTORTION_LENGTHS = {'plumb_bob': 5, 'rational_polynomial': 8, 'equidistant': 4}
-
-
-def calibration_of(info: CameraInfo, camera_name: str) -> Calibration:
-    """Return the ``Calibration`` a CameraInfo carries; ``ValueError`` says what is wrong."""
-    if info.width <= 0 or info.height <= 0:
-        raise ValueError(f'image size {info.width}x{info.height}: not positive')
-    want = DISTORTION_LENGTHS.get(info.distortion_model)
-    if want is None:
-        raise ValueError(f'distortion_model {info.distortion_model!r}: not one of '
-                         f'{", ".join(DISTORTION_LENGTHS)}')
-    if len(info.d) != want:
-        raise ValueError(f'{info.distortion_model} has {want} coefficients, D has {len(info.d)}')
-    cal = Calibration(width=int(info.width), height=int(info.height), camera_name=camera_name,
-                      k=tuple(float(x) for x in info.k),
-                      distortion_model=str(info.distortion_model),
-                      d=tuple(float(x) for x in info.d), r=tuple(float(x) for x in info.r),
-                      p=tuple(float(x) for x in info.p))
-    check_calibration(cal)
-    if cal.p[0] <= 0 or cal.p[5] <= 0:
-        raise ValueError(f'P: not a projection matrix (fx, fy > 0): {list(cal.p)}')
-    return cal

@@ -264,7 +264,7 @@ def test_list_scenarios_names_every_shipped_scenario(listed: dict[str, str]) -> 
 def test_list_commands_names_every_command(listed: dict[str, str]) -> None:
     commands = rows(listed['commands'])
     assert list(commands) == ['bringup', 'list', 'scenario', 'chaos', 'bench', 'check-device',
-                              'bag']
+                              'bag', 'calibrate', 'param']
     assert commands['bringup'] == 'run a vessel profile  (builtin)'
 
 

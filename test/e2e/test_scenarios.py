@@ -138,7 +138,7 @@ def test_unknown_scenario_lists_known(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr
     assert ("no scenario 'nope'; scenarios: box_path, ca_buoy, ca_buoy_force, "
-            'ca_buoy_force_heavy, ca_buoy_heavy, ca_corridor') in proc.stderr
+            'ca_buoy_force_heavy, ca_buoy_fusion, ca_buoy_heavy, ca_corridor') in proc.stderr
 
 
 def test_real_saucer_profile_validates() -> None:

@@ -97,3 +97,46 @@ def test_distance_to_a_circle_and_to_a_segment() -> None:
 
 def test_cloud_type_is_sensor_msgs_point_cloud2() -> None:
     assert isinstance(ob.to_cloud([], 0, 'odom'), PointCloud2)
+
+
+# sensor_msgs/msg/PointField.msg: INT32 = 5 (typed from the message definition).
+INT32 = 5
+CLASSED = ob.Obstacle(3, ob.CIRCLE, 2.0, 1.0, 0.15, vx=0.1, stamp_ns=9, class_id=2,
+                      class_score=0.75)
+
+
+def test_class_fields_round_trip_and_are_named_and_typed() -> None:
+    msg = ob.to_cloud([CLASSED, WALL], 0, 'odom')
+    assert ob.from_cloud(msg) == [CLASSED, WALL]
+    fields = {f.name: f for f in msg.fields}
+    assert fields['class_id'].datatype == INT32 and fields['class_score'].datatype == FLOAT64
+    raw = bytes(msg.data)
+    second = msg.point_step
+    assert struct.unpack_from('<i', raw, fields['class_id'].offset)[0] == 2
+    assert struct.unpack_from('<i', raw, second + fields['class_id'].offset)[0] == -1
+    assert struct.unpack_from('<d', raw, fields['class_score'].offset)[0] == 0.75
+
+
+def test_without_any_class_the_message_is_the_old_layout() -> None:
+    msg = ob.to_cloud([BUOY, WALL], 0, 'odom')
+    assert [f.name for f in msg.fields] == [name for name, *_ in ob.FIELDS]
+    assert 'class_id' not in {f.name for f in msg.fields}
+    # asked for, the fields are written also when nothing has a class
+    forced = ob.to_cloud([BUOY], 0, 'odom', classes=True)
+    assert ob.from_cloud(forced)[0].class_id == ob.NO_CLASS
+
+
+def test_an_old_message_without_class_fields_decodes_unclassified() -> None:
+    # A message as a writer that predates the class fields builds it: FIELDS only.
+    msg = ob.to_cloud([BUOY], 0, 'odom')
+    msg.fields = [f for f in msg.fields if f.name not in ('class_id', 'class_score')]
+    (got,) = ob.from_cloud(msg)
+    assert got == BUOY and got.class_id == -1 and got.class_score == 0.0
+
+
+def test_an_old_reader_reads_a_classed_message() -> None:
+    # A reader that knows only FIELDS (by name) finds them all in a message with classes.
+    msg = ob.to_cloud([CLASSED], 0, 'odom')
+    rows = ob.read_fields(msg, [name for name, *_ in ob.FIELDS], 'obstacles',
+                          ob.ObstacleEncodingError)
+    assert (rows['id'][0], rows['x'][0], rows['radius'][0]) == (3, 2.0, 0.15)

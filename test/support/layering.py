@@ -1,5 +1,5 @@
 """Which modules are pure algorithms: every module of the algorithm packages (estimation,
-control, guidance, allocation, models, world, perception) except the nodes (``*_node``) and
+control, guidance, allocation, models, world, perception, vision) except the nodes (``*_node``) and
 their parameter declarations (``*_params``). The layering rule
 (``test/framework/test_layering.py``: they import without rclpy) and the strict type check
 (``mypy.ini``, ``test/test_typecheck.py``) both stand on this one definition. ``imports_in``:

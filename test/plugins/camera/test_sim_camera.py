@@ -195,6 +195,6 @@ def test_a_missing_frame_a_tilted_mount_and_bad_parameters_are_named(context):
     with pytest.raises(ConfigurationError, match='distortion: expected k1, k2, p1, p2, k3'):
         SimCameraNode(context=context, parameter_overrides=[
             Parameter('frame_id', value='cam'), Parameter('distortion', value=[0.1, 0.0])])
-    with pytest.raises(ConfigurationError, match='calibration_file: .*nothing.yaml'):
+    with pytest.raises(ConfigurationError, match='lens_file: .*nothing.yaml'):
         SimCameraNode(context=context, parameter_overrides=[
-            Parameter('calibration_file', value='/nonexistent/nothing.yaml')])
+            Parameter('lens_file', value='/nonexistent/nothing.yaml')])

@@ -1,0 +1,42 @@
+"""``enbarr scenario ca_buoy_fusion`` as a user runs it (a real process): ca_buoy with the
+guidance reading the fusion node's ``obstacles/fused``. The avoidance passes ca_buoy's own
+targets, and the buoy's reports carry the detector's class for an orange buoy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+import subprocess
+
+import pytest
+from support.bags import read_bag
+from support.cli import ENBARR
+
+from enbarr_interfaces.obstacles import CIRCLE, from_cloud, NO_CLASS
+
+pytestmark = pytest.mark.e2e
+
+BUOY = (1.0, 0.0)          # params/scenarios/ca_buoy.yaml
+#: orange_buoy in the detector's default class_names (red, green, yellow, orange).
+ORANGE = 3
+
+
+def test_the_avoidance_passes_on_fused_obstacles_and_the_buoy_is_orange(tmp_path: Path):
+    out = tmp_path / 'out'
+    proc = subprocess.run([*ENBARR, 'scenario', 'ca_buoy_fusion', '--output', str(out),
+                           '--no-plot'], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert r['verdict'] == 'pass' and r['failed'] == []
+    # never blind: obstacles/fused kept coming (that the guidance reads it and not obstacles
+    # is test_fusion_node's wiring test)
+    assert r['blind_s'] == 0.0 and r['avoidance_s'] > 5.0
+    fused = read_bag(out / 'bag')['/obstacles/fused']
+    reports = [o for _, m in fused for o in from_cloud(m)
+               if o.kind == CIRCLE and math.dist((o.x, o.y), BUOY) < 0.3]
+    assert len(reports) > 100
+    classes = [o.class_id for o in reports]
+    assert classes.count(ORANGE) >= 0.9 * len(reports)
+    assert set(classes) <= {ORANGE, NO_CLASS}
