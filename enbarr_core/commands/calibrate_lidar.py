@@ -146,7 +146,7 @@ def _camera(path: str) -> CameraModel:
     if cal.distortion_model not in ('plumb_bob', 'rational_polynomial'):
         raise CalibrationError(f"{path}: distortion_model {cal.distortion_model!r}: OpenCV's "
                                'pinhole model reads plumb_bob and rational_polynomial')
-    return CameraModel.of(cal.k, cal.d, cal.width, cal.height)
+    return CameraModel.of(cal.k, cal.d, cal.width, cal.height, cal.distortion_model)
 
 
 def read_pairs(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -179,7 +179,8 @@ def _board_size(text: str) -> tuple[int, int]:
     except ValueError:
         raise CalibrationError(f'--board {text!r}: expected COLSxROWS inner corners, e.g. '
                                '8x6') from None
-    return cols, rows
+    # the detector (ROS's calibrator's) finds the longer side first: so do the board points
+    return max(cols, rows), min(cols, rows)
 
 
 def _solve_bag(args: argparse.Namespace, camera: CameraModel,

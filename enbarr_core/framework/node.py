@@ -32,6 +32,7 @@ import threading
 import time
 from typing import Any, TypeVar
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks
@@ -40,13 +41,15 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 
-from enbarr_interfaces import topics
+from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import (Callback, LinkBus, LinkPublisher, LinkSubscription,
                                       PerContext)
 from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.framework.frames import DEFAULT_TREE, FrameTree
+from enbarr_core.framework.health import InputHealth
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
+from enbarr_core.framework.stamps import StampGate, StampVerdict
 from enbarr_core.world.model import EMPTY_WORLD, World
 
 S = TypeVar('S')
@@ -343,6 +346,25 @@ class EnbarrNode(Node):
         clock), so it is read without the handle's guard.
         """
         return self._clock_handle.get_now().nanoseconds
+
+    def admit_stamp(self, name: str, stamp: Time, gate: StampGate,
+                    health: InputHealth) -> int | None:
+        """Pass one sample of input ``name`` through its ``gate`` (``framework.stamps``).
+
+        Return the stamp [ns] when the gate accepts it, counted in ``health`` as accepted;
+        else None, counted in ``health`` under the verdict and warned in the log. The warning
+        is throttled to one a second per node (rclpy throttles per call site), so a node
+        that admits several inputs here shares that one warning a second between them.
+        """
+        t = convert.stamp_to_ns(stamp)
+        verdict = gate.offer(t, self.now_ns())
+        if verdict is not StampVerdict.ACCEPTED:
+            health.refused(name, verdict.value)
+            self.get_logger().warn(f'{name} refused ({verdict.value})',
+                                   throttle_duration_sec=1.0)
+            return None
+        health.accepted(name)
+        return t
 
     # -- topics -----------------------------------------------------------------------------
     def create_topic_publisher(self, spec: TopicSpec) -> LinkPublisher | Publisher:

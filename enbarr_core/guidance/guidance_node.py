@@ -55,7 +55,7 @@ from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, worst)
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
+from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_core.guidance.cbf import (
     blind_reason, CbfOutput, CbfSettings, moved, obstacle_rows, SafetyFilter)
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
@@ -337,14 +337,9 @@ class GuidanceNode(EnbarrNode):
             self.get_logger().error(f'{mode.value}: {err}')
 
     def _on_estimate(self, msg: Odometry) -> None:
-        t = convert.stamp_to_ns(msg.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('observer/odometry', verdict.value)
-            self.get_logger().warn(f'observer/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_stamp('observer/odometry', msg.header.stamp, self._gate, self.health)
+        if t is None:
             return
-        self.health.accepted('observer/odometry')
         self.estimate_period.add(t)
         last, self._last_ns = self._last_ns, t
         self._eta = eta = convert.pose_to_eta(msg.pose.pose)

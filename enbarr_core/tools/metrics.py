@@ -54,6 +54,10 @@ and ``thrust_saturation_s``,
 the time the allocation delivered less than the controller asked. A run that never reached
 the mode it is judged in gets an ``error`` and no figures.
 
+A profile that avoids obstacles adds the figures of ``avoidance_metrics``; one with a
+simulated camera and a detector those of ``vision_metrics`` (detection precision and recall
+against the rendered ground truth, fusion position error and latency).
+
 The picture draws the hull outline from the profile's geometry (``hull_radius``). Its axes
 follow the chart, not the code's ENU: north up, east right (the same numbers: ENU x is east,
 y north), headings as on a compass (0 = north, clockwise, degrees; ``framework.frames``),
@@ -77,6 +81,7 @@ from enbarr_core.recording.bag import read_bag
 from enbarr_core.tools.scenario import T0_NS
 from enbarr_core.tools.avoidance_metrics import (AVOIDANCE_FIGURES, avoidance_figures,
                                                  avoids, draw_world)
+from enbarr_core.tools.vision_metrics import sees, VISION_FIGURES, vision_figures
 
 #: The topics ``compute_metrics`` reads (``enbarr scenario`` records these by default).
 METRIC_TOPICS = ('/sim/odometry', '/mode', '/force_command', '/allocation/delivered',
@@ -108,6 +113,7 @@ FIGURES: dict[str, Figure] = {
         'cross_track_rms_m', 'cross_track_max_m', 'path_time_s', 'final_position_error_m')},
     'all_waypoints_visited': Figure(_PATH, boolean=True),
     **{name: Figure() for name in AVOIDANCE_FIGURES},
+    **{name: Figure() for name in VISION_FIGURES},
 }
 
 
@@ -291,6 +297,8 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
         out.update(avoidance_figures(msgs, profile, t, eta, WORLD_EPOCH_S,
                                      path=out if spec.kind == 'path' else None,
                                      cross_track=_guidance_cross_track(t, eta, modes, profile)))
+    if sees(profile):
+        out.update(vision_figures(msgs, profile, t, eta, WORLD_EPOCH_S))
     return out
 
 

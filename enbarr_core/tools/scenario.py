@@ -19,10 +19,12 @@ and callbacks became due. Nothing waits for the wall clock, so a scenario runs a
 machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
 
 The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
-plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``), plus the topics the scenario
-lists in its ``record`` section (its ``path`` is replaced by the output directory), or every
-topic with ``--record-all`` (several times slower: the recorder serializes each message of
-every 100 Hz topic). The metrics are computed from that bag (their definitions:
+plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``; with the collision avoidance
+``avoidance_metrics.AVOIDANCE_TOPICS``, with a simulated camera and a detector
+``vision_metrics.VISION_TOPICS``), plus the topics the scenario lists in its ``record``
+section (its ``path`` is replaced by the output directory), or every topic with
+``--record-all`` (several times slower: the recorder serializes each message of every 100 Hz
+topic). The metrics are computed from that bag (their definitions:
 :mod:`enbarr_core.tools.metrics`), judged against the scenario's targets
 (:mod:`enbarr_core.tools.targets`) and printed as one JSON line: ``scenario``, ``verdict``
 (``pass`` or ``fail``), ``failed``, the figures, ``targets`` (each with its bound, value and
@@ -146,11 +148,14 @@ def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> 
     """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
     from enbarr_core.tools.avoidance_metrics import AVOIDANCE_TOPICS, avoids
     from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
+    from enbarr_core.tools.vision_metrics import sees, VISION_TOPICS
     if record_all:
         return ()
     listed = profile.record.topics if profile.record is not None else ()
     avoiding = AVOIDANCE_TOPICS if avoids(profile) else ()
-    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *listed}))
+    seeing = VISION_TOPICS if sees(profile) else ()
+    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *seeing,
+                         *listed}))
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),

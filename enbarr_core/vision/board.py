@@ -26,6 +26,8 @@ import math
 import cv2
 import numpy as np
 
+from enbarr_core.vision.camera import PinholeCamera
+
 #: Grey levels of the print: black ink on white paper, as a camera with sensible exposure
 #: sees them (never 0 or 255, so noise is not clipped on one side only).
 BLACK = 30
@@ -34,38 +36,26 @@ WHITE = 225
 BACKGROUND = 128
 
 
-@dataclass(frozen=True)
-class Camera:
+class Camera(PinholeCamera):
     """A pinhole camera with plumb_bob distortion (sensor_msgs/CameraInfo ``K`` and ``D``).
 
-    ``fx``, ``fy``, ``cx``, ``cy`` in pixels; ``d`` = (k1, k2, p1, p2, k3), OpenCV's order.
+    Built from ``fx``, ``fy``, ``cx``, ``cy`` in pixels and ``d`` = (k1, k2, p1, p2, k3),
+    OpenCV's order: the shared ``PinholeCamera`` as the board renderer needs it (a known
+    size, the five coefficients its own ray tracing reads).
     """
 
-    width: int     # [px]
-    height: int    # [px]
-    fx: float      # [px]
-    fy: float      # [px]
-    cx: float      # [px]
-    cy: float      # [px]
-    d: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f'image size must be positive, got {self.width}x{self.height}')
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f'focal lengths must be positive, got {self.fx}, {self.fy}')
-        if len(self.d) != 5:
-            raise ValueError(f'plumb_bob has 5 coefficients, got {len(self.d)}')
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """The camera matrix ``K`` (3x3)."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """(width, height) [px], OpenCV's order."""
-        return self.width, self.height
+    def __init__(self, width: int, height: int, fx: float, fy: float, cx: float, cy: float,
+                 d: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+                 ) -> None:
+        if width <= 0 or height <= 0:
+            raise ValueError(f'image size must be positive, got {width}x{height}')
+        if fx <= 0 or fy <= 0:
+            raise ValueError(f'focal lengths must be positive, got {fx}, {fy}')
+        if len(d) != 5:
+            raise ValueError(f'plumb_bob has 5 coefficients, got {len(d)}')
+        super().__init__(width, height,
+                         (float(fx), 0.0, float(cx), 0.0, float(fy), float(cy), 0.0, 0.0, 1.0),
+                         tuple(float(x) for x in d), 'plumb_bob')
 
 
 @dataclass(frozen=True)
@@ -144,12 +134,9 @@ class Pose:
 
 def distort(camera: Camera, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map normalized image coordinates to pixels through plumb_bob (OpenCV's model)."""
-    k1, k2, p1, p2, k3 = camera.d
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return camera.fx * xd + camera.cx, camera.fy * yd + camera.cy
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    uv = camera.project(np.stack([x.ravel(), y.ravel(), np.ones(x.size)], axis=1))
+    return uv[:, 0].reshape(x.shape), uv[:, 1].reshape(x.shape)
 
 
 def project(camera: Camera, pose: Pose, points: np.ndarray) -> np.ndarray:
@@ -164,22 +151,13 @@ def undistort(camera: Camera, u: np.ndarray, v: np.ndarray, iterations: int = 30
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels -> normalized coordinates, and where the inverse is exact.
 
-    The fixed-point iteration OpenCV's ``undistortPoints`` uses; a pixel whose result does
+    OpenCV's ``undistortPoints`` (``PinholeCamera.normalized``); a pixel whose result does
     not map back onto itself (past the fold of a strong barrel lens, where no ray reaches
     it) is marked invalid rather than drawn wrong.
     """
-    xd = (u - camera.cx) / camera.fx
-    yd = (v - camera.cy) / camera.fy
-    k1, k2, p1, p2, k3 = camera.d
-    x, y = xd.copy(), yd.copy()
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        with np.errstate(divide='ignore', invalid='ignore'):
-            x = (xd - dx) / radial
-            y = (yd - dy) / radial
+    u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+    xy = camera.normalized(np.stack([u.ravel(), v.ravel()], axis=1), iterations)
+    x, y = xy[:, 0].reshape(u.shape), xy[:, 1].reshape(u.shape)
     uu, vv = distort(camera, x, y)
     valid = np.isfinite(uu) & np.isfinite(vv) & (np.abs(uu - u) < 1e-3) & (
         np.abs(vv - v) < 1e-3)

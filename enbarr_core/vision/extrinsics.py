@@ -45,6 +45,8 @@ from scipy.spatial.transform import Rotation
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.framework.frames import FrameTree, Transform
 from enbarr_core.perception.scan_geometry import RangeNoise
+from enbarr_core.vision.board import Board
+from enbarr_core.vision.camera import PinholeCamera
 
 Array = NDArray[np.float64]
 
@@ -66,18 +68,15 @@ COLLINEAR_RATIO = 0.02
 MIN_NORMAL_SPREAD = 1.5e-3
 
 
-@dataclass(frozen=True, eq=False)
-class CameraModel:
-    """Pinhole intrinsics with OpenCV's distortion (camera_info's K and D, plumb_bob)."""
+class CameraModel(PinholeCamera):
+    """The camera of a lidar calibration: a ``PinholeCamera`` built with ``of``.
 
-    K: Array          # 3x3 [px]
-    dist: Array       # (k1, k2, p1, p2[, k3[, ...]])
-    width: int = 0    # [px]; 0: unknown (no in-image test)
-    height: int = 0
+    ``of`` takes K and D as arrays and refuses what it cannot use with a ``CalibrationError``.
+    """
 
     @classmethod
-    def of(cls, K: ArrayLike, dist: ArrayLike = (), width: int = 0,
-           height: int = 0) -> CameraModel:
+    def of(cls, K: ArrayLike, dist: ArrayLike = (), width: int = 0, height: int = 0,
+           distortion_model: str = 'plumb_bob') -> CameraModel:
         """Build from a 3x3 (or 9 numbers) ``K`` and distortion ``dist``; checks shapes."""
         k = np.asarray(K, dtype=float).reshape(3, 3)
         d = np.asarray(dist, dtype=float).ravel()
@@ -87,15 +86,8 @@ class CameraModel:
         if d.size not in (0, 4, 5, 8, 12, 14):
             raise CalibrationError(f'distortion: expected 4, 5, 8, 12 or 14 coefficients '
                                    f'(plumb_bob: 5), got {d.size}')
-        return cls(k, d if d.size else np.zeros(5), int(width), int(height))
-
-    def project(self, points: ArrayLike) -> Array:
-        """Pixels (N, 2) of points (N, 3) given in the optical frame [m] (any depth sign)."""
-        p = np.asarray(points, dtype=float).reshape(-1, 3)
-        if not len(p):
-            return np.zeros((0, 2))
-        px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.K, self.dist)
-        return np.asarray(px, dtype=float).reshape(-1, 2)
+        return cls(int(width), int(height), tuple(float(x) for x in k.ravel()),
+                   tuple(float(x) for x in d) if d.size else (0.0,) * 5, distortion_model)
 
 
 @dataclass(frozen=True, eq=False)
@@ -215,9 +207,8 @@ def solve_pnp(laser_xy: ArrayLike, pixels: ArrayLike, camera: CameraModel, *,
     if np.any(depth <= 0.0):
         raise CalibrationError('the solution puts marks behind the camera: check that each '
                                'pixel belongs to its lidar point (the order of the pairs)')
-    _, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
-    r_used = (cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)[0].reshape(-1, 2)
-              - uv[used]).ravel()
+    px, jac = cv2.projectPoints(obj, rvec, tvec, camera.matrix, camera.dist_coeffs)
+    r_used = (px.reshape(-1, 2) - uv[used]).ravel()
     sig_r, sig_t = _sigmas(np.asarray(jac, dtype=np.float64)[:, :6], r_used)
     return ExtrinsicsResult(
         _transform(rvec, tvec), 'pnp', float(np.sqrt(np.mean(res[used] ** 2))), 'px',
@@ -230,13 +221,14 @@ def _laser3(xy: Array) -> Array:
 
 def _pnp_once(xy: Array, uv: Array, camera: CameraModel) -> tuple[Array, Array]:
     obj = _laser3(xy)
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, uv, camera.K, camera.dist,
+    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, uv, camera.matrix, camera.dist_coeffs,
                                               flags=cv2.SOLVEPNP_IPPE)
     if not ok or not len(rvecs):
         raise CalibrationError('PnP found no pose for these pairs')
     best: tuple[float, Array, Array] | None = None
     for rv0, tv0 in zip(rvecs, tvecs):
-        refined = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rv0.copy(), tv0.copy())
+        refined = cv2.solvePnPRefineLM(obj, uv, camera.matrix, camera.dist_coeffs, rv0.copy(),
+                                       tv0.copy())
         rv: Array = np.asarray(refined[0], dtype=np.float64)
         tv: Array = np.asarray(refined[1], dtype=np.float64)
         err = float(np.sum(_pixel_errors(xy, uv, rv, tv, camera) ** 2))
@@ -248,7 +240,7 @@ def _pnp_once(xy: Array, uv: Array, camera: CameraModel) -> tuple[Array, Array]:
 
 def _pixel_errors(xy: Array, uv: Array, rvec: Array, tvec: Array,
                   camera: CameraModel) -> Array:
-    px, _ = cv2.projectPoints(_laser3(xy), rvec, tvec, camera.K, camera.dist)
+    px, _ = cv2.projectPoints(_laser3(xy), rvec, tvec, camera.matrix, camera.dist_coeffs)
     out: Array = np.linalg.norm(np.asarray(px).reshape(-1, 2) - uv, axis=1)
     return out
 
@@ -278,11 +270,13 @@ def board_object_points(cols: int, rows: int, square: float) -> Array:
     Row by row as ``cv2.findChessboardCorners`` orders them: x along a row, y down the rows,
     z = 0 on the board.
     """
-    if cols < 2 or rows < 2 or not square > 0:
+    try:
+        board = Board(cols, rows, float(square))
+    except ValueError as err:
         raise CalibrationError(f'board: {cols}x{rows} inner corners of {square} m: expected '
-                               'at least 2x2 and a positive square size')
-    g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * float(square)
-    return np.column_stack([g, np.zeros(len(g))])
+                               'at least 2x2 and a positive square size') from err
+    out: Array = board.object_points()
+    return out
 
 
 def board_plane(corners_px: ArrayLike, object_points: ArrayLike,
@@ -293,10 +287,11 @@ def board_plane(corners_px: ArrayLike, object_points: ArrayLike,
     if len(uv) != len(obj) or len(uv) < MIN_PNP_PAIRS:
         raise CalibrationError(f'{len(uv)} corners for {len(obj)} board points: expected as '
                                f'many, and at least {MIN_PNP_PAIRS}')
-    ok, rvec, tvec = cv2.solvePnP(obj, uv, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    ok, rvec, tvec = cv2.solvePnP(obj, uv, camera.matrix, camera.dist_coeffs,
+                                  flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise CalibrationError("PnP found no pose for the board's corners")
-    rvec, tvec = cv2.solvePnPRefineLM(obj, uv, camera.K, camera.dist, rvec, tvec)
+    rvec, tvec = cv2.solvePnPRefineLM(obj, uv, camera.matrix, camera.dist_coeffs, rvec, tvec)
     return _plane_of_pose(np.asarray(rvec, dtype=np.float64).ravel(),
                           np.asarray(tvec, dtype=np.float64).ravel(), uv, obj, camera)
 
@@ -309,7 +304,7 @@ def _plane_of_pose(rvec: Array, t: Array, uv: Array, obj: Array,
     d = float(n @ t)
     if d < 0.0:
         n, d = -n, -d
-    px, _ = cv2.projectPoints(obj, rvec, t, camera.K, camera.dist)
+    px, _ = cv2.projectPoints(obj, rvec, t, camera.matrix, camera.dist_coeffs)
     rms = float(np.sqrt(np.mean(np.sum((np.asarray(px).reshape(-1, 2) - uv) ** 2, axis=1))))
     return BoardPlane(R, t, n, d, rms, uv, obj)
 
@@ -457,7 +452,7 @@ def _joint(x0: Array, planes: Sequence[BoardPlane], pts: Sequence[Array], camera
         out = []
         for i in range(B):
             rv, tv = x[6 + 6 * i:9 + 6 * i], x[9 + 6 * i:12 + 6 * i]
-            px, _ = cv2.projectPoints(objs[i], rv, tv, camera.K, camera.dist)
+            px, _ = cv2.projectPoints(objs[i], rv, tv, camera.matrix, camera.dist_coeffs)
             out.append(((np.asarray(px).reshape(-1, 2) - corners[i]) / sig_px).ravel())
             n = Rotation.from_rotvec(rv).as_matrix()[:, 2]
             # the range along each ray to the board's plane: n . (t + s R u) = n . t_board

@@ -81,13 +81,20 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
-    """Find the board's inner corners in ``image`` (N, 2) [px], refined; ``None``: not found."""
+def find_corners(image: np.ndarray, board: Board, *, fast_check: bool = True
+                 ) -> np.ndarray | None:
+    """Find the board's inner corners in ``image`` (N, 2) [px], refined; ``None``: not found.
+
+    ``fast_check``: OpenCV's quick rejection of images without a board, as the calibrator
+    uses it; it also rejects a small board (squares some ten pixels wide), which the lidar
+    calibration needs (a board far enough for the scan to cross it), so that turns it off.
+    """
     gray = to_gray(image)
     h, w = gray.shape[:2]
     cols, rows = pattern_size(board)
-    flags = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-             | cv2.CALIB_CB_FAST_CHECK)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    if fast_check:
+        flags |= cv2.CALIB_CB_FAST_CHECK
     ok, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=flags)
     if not ok or corners is None:
         return None

@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 import os
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.perception.scan_geometry import scan_points
+from enbarr_core.vision.board import Board
+from enbarr_core.vision.intrinsics import find_corners
 from enbarr_interfaces.image_msgs import compressed_to_bgr, image_to_bgr, ImageEncodingError
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
@@ -107,22 +108,23 @@ class StillPose:
     scans: list[NDArray[np.float64]] = field(default_factory=list)   # each (N, 2) [m]
 
 
-def find_corners(image: NDArray[np.uint8], cols: int, rows: int) -> NDArray[np.float64] | None:
-    """Find the board's inner corners (cols x rows) [px], refined to subpixels, or None."""
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    ok, corners = cv2.findChessboardCorners(
-        gray, (cols, rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-    if not ok:
-        return None
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.001)
-    corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria)
-    return np.asarray(corners, dtype=float).reshape(-1, 2)
+def board_corners(image: NDArray[np.uint8], cols: int, rows: int
+                  ) -> NDArray[np.float64] | None:
+    """Return the board's inner corners [px] as the intrinsic calibration finds them.
+
+    None when not found. ``intrinsics.find_corners`` (ROS's calibrator: its flags, edge
+    margin, corner order and subpixel window) on a ``cols`` x ``rows`` board, which detects
+    the (longer, shorter) pattern: give ``cols`` >= ``rows`` for the corners to come in the
+    order of ``extrinsics.board_object_points(cols, rows, square)``. The square's size does
+    not change what the detector sees. Without OpenCV's fast check, which misses far boards.
+    """
+    return find_corners(image, Board(cols, rows, 1.0), fast_check=False)
 
 
 def board_poses(stream: Iterator[tuple[str, Any]], cols: int, rows: int, *,
                 still_px: float = 1.0, min_still_s: float = 0.5, stride: int = 1,
                 corners_of: Callable[[NDArray[np.uint8], int, int],
-                                     NDArray[np.float64] | None] = find_corners,
+                                     NDArray[np.float64] | None] = board_corners,
                 ) -> list[StillPose]:
     """Split a stream of scans and images into the times the board was held still.
 

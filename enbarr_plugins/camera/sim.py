@@ -44,11 +44,8 @@ from typing import Any
 from nav_msgs.msg import Odometry
 from sensor_msgs.srv import SetCameraInfo
 
-from enbarr_core.framework.driver import SensorDriver
-from enbarr_core.framework.errors import ConfigurationError, FrameError
-from enbarr_core.framework.health import InputHealth, worst
+from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.vision.board import Board
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.camera.calibration import Calibration, load_calibration
@@ -56,9 +53,8 @@ from enbarr_plugins.camera.common import (
     camera_info, ImageOutput, OUTPUT_SPECS, store_camera_info)
 from enbarr_plugins.camera.sim_board import board_run, BoardScene, SCENES
 from enbarr_plugins.camera.sim_render import Look, PinholeModel, SimulatedCamera
+from enbarr_plugins.sim_sensor import TruthSensor
 
-#: Truths stamped further ahead of the clock than this are refused [s] (as ``sim_lidar``).
-TRUTH_MAX_FUTURE = 0.01
 #: The render thread looks for a due frame this many times per frame period.
 POLLS_PER_FRAME = 4
 
@@ -164,7 +160,7 @@ class SimCameraSettings:
                    board, int(v['board_poses']), float(v['board_hold']))
 
 
-class SimCameraNode(SensorDriver):
+class SimCameraNode(TruthSensor):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'camera', **kwargs: Any) -> None:
@@ -182,17 +178,10 @@ class SimCameraNode(SensorDriver):
         self._rendering = False
         self._due: tuple[Any, float, float, float, float, float] | None = None
         self._lock = threading.Lock()
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         if s.board is not None:
             self._init_board(s.board)
             return
-        try:
-            mount = self.frame_tree.lookup(topics.BODY_FRAME, s.frame_id)
-        except FrameError as err:
-            raise ConfigurationError(f'node {self.get_name()!r}: frame_id: the frame tree '
-                                     f'cannot place the camera: {err}',
-                                     parameter='frame_id') from err
+        mount = self.mount(s.frame_id, 'camera')
         try:
             self.camera = SimulatedCamera(s.model, mount, Look(seed=s.seed))
         except ValueError as err:
@@ -249,22 +238,12 @@ class SimCameraNode(SensorDriver):
         """Return the driver's status, with the frames published, skipped, truths refused."""
         return {**super().status_values(), 'frames': self.frames, 'skipped': self.skipped,
                 'encoded': self.output.encoded, 'obstacles': len(self.world),
-                'refused': self._gate.refused}
-
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, DEGRADED while truths are refused."""
-        level, message, _ = self.health.report(1.0)
-        return worst(super().status(), (level, message))
+                'refused': self.truth_gate.refused}
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('sim/odometry', verdict.value)
-            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_truth(truth)
+        if t is None:
             return
-        self.health.accepted('sim/odometry')
         self.truths += 1
         if not self.started:  # a source: silent before start and after stop
             return

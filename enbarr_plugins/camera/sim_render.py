@@ -34,7 +34,6 @@ Labels: each frame comes with a label image of what every pixel shows (the obsta
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 from typing import NamedTuple
@@ -44,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from enbarr_core.framework.frames import Transform
+from enbarr_core.vision.camera import PinholeCamera
 from enbarr_core.world.model import Circle, Polygon, Walls, World
 
 #: Labels of the pixels that show no obstacle.
@@ -65,15 +65,11 @@ LEVEL_TOLERANCE = 1e-6
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class PinholeModel:
-    """A camera's intrinsics: image size [px], K (3x3 row-major) and distortion D (OpenCV)."""
+class PinholeModel(PinholeCamera):
+    """The intrinsics the renderer draws: a ``PinholeCamera`` of known size.
 
-    width: int
-    height: int
-    k: tuple[float, ...]
-    d: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    distortion_model: str = 'plumb_bob'
+    Its distortion is one of ``DISTORTION_MODELS`` (plumb_bob or rational_polynomial).
+    """
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
@@ -85,31 +81,7 @@ class PinholeModel:
                              f'camera draws {", ".join(DISTORTION_MODELS)}')
         if len(self.d) not in (4, 5, 8):
             raise ValueError(f'D: expected 4, 5 or 8 coefficients, got {len(self.d)}')
-
-    @classmethod
-    def nominal(cls, width: int, height: int, focal: float,
-                d: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> PinholeModel:
-        """Return the model of focal length ``focal`` [px] (fx = fy), centred."""
-        cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-        model = 'rational_polynomial' if len(d) == 8 else 'plumb_bob'
-        return cls(width, height, (focal, 0.0, cx, 0.0, focal, cy, 0.0, 0.0, 1.0),
-                   tuple(float(x) for x in d), model)
-
-    @property
-    def camera_matrix(self) -> FloatArray:
-        """K as a 3x3 array."""
-        return np.array(self.k, dtype=float).reshape(3, 3)
-
-    @property
-    def dist_coeffs(self) -> FloatArray:
-        """D as OpenCV's distCoeffs."""
-        return np.array(self.d, dtype=float)
-
-    @property
-    def projection(self) -> tuple[float, ...]:
-        """P (3x4 row-major) of the CameraInfo: [K | 0], a monocular camera's."""
-        k = self.k
-        return (k[0], k[1], k[2], 0.0, k[3], k[4], k[5], 0.0, k[6], k[7], k[8], 0.0)
+        super().__post_init__()
 
 
 @dataclass(frozen=True)
@@ -175,20 +147,17 @@ class SimulatedCamera:
         self.look = look
         self.fwd_b, self.right_b, self.height_b = level_axes(mount)
         self.mount_xy = (float(mount.translation[0]), float(mount.translation[1]))
-        k = model.camera_matrix
+        k = model.matrix
         fx, fy = k[0, 0], k[1, 1]
         # normalized (undistorted) coordinates of every pixel centre of the image
         u, v = np.meshgrid(np.arange(model.width, dtype=float),
                            np.arange(model.height, dtype=float))
-        pts = np.stack((u.ravel(), v.ravel()), axis=1).reshape(-1, 1, 2)
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-        xy = cv2.undistortPoints(pts, k, model.dist_coeffs, None, None, None,
-                                 criteria).reshape(model.height, model.width, 2)
+        pts = np.stack((u.ravel(), v.ravel()), axis=1)
+        xy = model.normalized(pts).reshape(model.height, model.width, 2)
         # the map must invert OpenCV's forward model over the whole image: a distortion that
         # folds over (not monotonic, as a strong barrel towards the corners) has no inverse
-        back, _ = cv2.projectPoints(np.concatenate((xy.reshape(-1, 2), np.ones(
-            (xy.shape[0] * xy.shape[1], 1))), axis=1), np.zeros(3), np.zeros(3), k,
-            model.dist_coeffs)
+        back = model.project(np.concatenate((xy.reshape(-1, 2), np.ones(
+            (xy.shape[0] * xy.shape[1], 1))), axis=1))
         miss = float(np.abs(back.reshape(-1, 2) - pts.reshape(-1, 2)).max())
         if not miss < MAP_TOLERANCE:
             raise ValueError(f'the distortion {model.d} cannot be inverted over the image '

@@ -27,17 +27,11 @@ from typing import Any
 import numpy as np
 from nav_msgs.msg import Odometry
 
-from enbarr_core.framework.driver import SensorDriver
-from enbarr_core.framework.errors import ConfigurationError, FrameError
-from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_interfaces import convert, topics
 from enbarr_plugins.lidar.common import laser_scan
 from enbarr_plugins.lidar.sim_scan import A1Model, RANGE_MAX, RANGE_MIN, SimulatedA1
-
-#: Truths stamped further ahead of the clock than this are refused [s] (as ``sim_mocap``).
-TRUTH_MAX_FUTURE = 0.01
+from enbarr_plugins.sim_sensor import TruthSensor
 
 SPECS = [
     ParamSpec('frame_id', topics.LASER_FRAME, "The lidar's own frame: the scan is published "
@@ -104,7 +98,7 @@ class SimLidarSettings:
         return cls(frame_id, v['rotation_hz'], int(v['bins']), model, int(v['seed']), stalls)
 
 
-class SimLidarNode(SensorDriver):
+class SimLidarNode(TruthSensor):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'lidar', **kwargs: Any) -> None:
@@ -112,18 +106,11 @@ class SimLidarNode(SensorDriver):
         self.settings: SimLidarSettings
         self.bind_settings(SPECS, SimLidarSettings.from_params, self._apply)
         s = self.settings
-        try:
-            mount = self.frame_tree.lookup(topics.BODY_FRAME, s.frame_id)
-        except FrameError as err:
-            raise ConfigurationError(f'node {self.get_name()!r}: frame_id: the frame tree '
-                                     f'cannot place the lidar: {err}',
-                                     parameter='frame_id') from err
+        mount = self.mount(s.frame_id, 'lidar')
         self.lidar = SimulatedA1(self.world, mount, s.model, np.random.default_rng(s.seed))
         self._next_ns: int | None = None
         self.revolutions = 0
         self.stalled = 0
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         self._pub = self.create_topic_publisher(topics.SCAN)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
@@ -137,22 +124,12 @@ class SimLidarNode(SensorDriver):
         """Return the driver's status, with the revolutions published and truths refused."""
         return {**super().status_values(), 'revolutions': self.revolutions,
                 'stalled': self.stalled,
-                'obstacles': len(self.world), 'refused': self._gate.refused}
-
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, DEGRADED while truths are refused."""
-        level, message, _ = self.health.report(1.0)
-        return worst(super().status(), (level, message))
+                'obstacles': len(self.world), 'refused': self.truth_gate.refused}
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('sim/odometry', verdict.value)
-            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_truth(truth)
+        if t is None:
             return
-        self.health.accepted('sim/odometry')
         if not self.started:  # a source: silent before start and after stop
             return
         s = self.settings

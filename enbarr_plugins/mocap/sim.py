@@ -6,11 +6,10 @@ at ``rate``, with white Gaussian position and heading noise and dropouts: schedu
 random single-sample losses (``dropout_probability``), as markers hidden behind the lidar or a
 person do.
 
-Time: the truth's stamp schedules the measurements, so a truth stamped more than
-``TRUTH_MAX_FUTURE`` ahead of the clock, or not later than the last one taken, is refused and
-counted (``refused``): one such truth once silenced the motion capture for as long as it was
-ahead. The simulator stamps its truth from the clock of the same process (no offset), so 10 ms
-is only slack.
+Time: the truth's stamp schedules the measurements; a truth stamped ahead of the clock, or
+not later than the last one taken, is refused and counted (``refused``, see
+``enbarr_plugins.sim_sensor``): one such truth once silenced the motion capture for as long
+as it was ahead.
 """
 
 from __future__ import annotations
@@ -24,15 +23,10 @@ import numpy as np
 from nav_msgs.msg import Odometry
 
 from enbarr_core.framework.kinematics import ssa
-from enbarr_core.framework.driver import SensorDriver
-from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.params import ParamSpec
-from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
-
-#: Truths stamped further ahead of the clock than this are refused [s].
-TRUTH_MAX_FUTURE = 0.01
+from enbarr_plugins.sim_sensor import TruthSensor
 
 SPECS = [
     ParamSpec('rate', 50.0, 'Measurement rate (at most the simulator rate)', 'Hz', 0.1, 1000.0,
@@ -70,7 +64,7 @@ class SimMocapSettings:
                    v['dropout_probability'], v['seed'])
 
 
-class SimMocapNode(SensorDriver):
+class SimMocapNode(TruthSensor):
     """See the module docstring."""
 
     def __init__(self, node_name: str = 'mocap', **kwargs: Any) -> None:
@@ -83,33 +77,21 @@ class SimMocapNode(SensorDriver):
         self._start_ns: int | None = None
         self.published = 0
         self.dropped = 0
-        self._gate = StampGate(StampPolicy(max_future=TRUTH_MAX_FUTURE))
-        self.health = InputHealth()
         self._pub = self.create_topic_publisher(topics.MOCAP_POSE)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
     def status_values(self) -> dict[str, Any]:
         """Return the driver's status, with the count of dropped samples."""
         return {**super().status_values(), 'dropped': self.dropped,
-                'refused': self._gate.refused}
-
-    def status(self) -> tuple[int, str]:
-        """Return the driver's status, DEGRADED while truths are refused."""
-        level, message, _ = self.health.report(1.0)
-        return worst(super().status(), (level, message))
+                'refused': self.truth_gate.refused}
 
     def _apply(self, v: SimMocapSettings) -> None:
         self.settings = v
 
     def _on_truth(self, truth: Odometry) -> None:
-        t = convert.stamp_to_ns(truth.header.stamp)
-        verdict = self._gate.offer(t, self.now_ns())
-        if verdict is not StampVerdict.ACCEPTED:
-            self.health.refused('sim/odometry', verdict.value)
-            self.get_logger().warn(f'sim/odometry refused ({verdict.value})',
-                                   throttle_duration_sec=1.0)
+        t = self.admit_truth(truth)
+        if t is None:
             return
-        self.health.accepted('sim/odometry')
         if self._next_ns is None:
             self._next_ns = self._start_ns = t
         if t < self._next_ns:

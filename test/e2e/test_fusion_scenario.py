@@ -1,6 +1,8 @@
 """``enbarr scenario ca_buoy_fusion`` as a user runs it (a real process): ca_buoy with the
 guidance reading the fusion node's ``obstacles/fused``. The avoidance passes ca_buoy's own
-targets, and the buoy's reports carry the detector's class for an orange buoy.
+targets, the buoy's reports carry the detector's class for an orange buoy, and the detector's
+precision and recall against the rendered ground truth are at least 0.9 (the vision figures,
+``enbarr_core.tools.vision_metrics``).
 """
 
 from __future__ import annotations
@@ -23,13 +25,20 @@ BUOY = (1.0, 0.0)          # params/scenarios/ca_buoy.yaml
 ORANGE = 3
 
 
-def test_the_avoidance_passes_on_fused_obstacles_and_the_buoy_is_orange(tmp_path: Path):
+def test_the_avoidance_passes_on_fused_obstacles_and_the_buoy_is_orange_and_found(tmp_path: Path):
     out = tmp_path / 'out'
     proc = subprocess.run([*ENBARR, 'scenario', 'ca_buoy_fusion', '--output', str(out),
                            '--no-plot'], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])
     assert r['verdict'] == 'pass' and r['failed'] == []
+    # the vision figures are computed and judged, not merely absent (None would fail too)
+    assert r['targets']['detection_precision']['pass']
+    assert r['targets']['detection_recall']['pass']
+    assert r['detection_precision'] >= 0.9 and r['detection_recall'] >= 0.9
+    assert r['detection_frames'] > 300   # 70 s at 15 fps, less the frames the detector skips
+    assert r['fusion_position_error_rms_m'] < 0.05
+    assert 0.0 < r['fusion_latency_p50_ms'] <= r['fusion_latency_p99_ms']
     # never blind: obstacles/fused kept coming (that the guidance reads it and not obstacles
     # is test_fusion_node's wiring test)
     assert r['blind_s'] == 0.0 and r['avoidance_s'] > 5.0

@@ -227,6 +227,23 @@ def test_a_stalled_lidar_sends_nothing_in_its_windows(context, executor, spin):
     assert lidar.status_values()['stalled'] == 2
 
 
+def test_a_truth_stamped_ahead_is_refused_and_does_not_silence_the_lidar(
+        context, executor, spin):
+    """A truth stamped ahead of the clock neither schedules a revolution nor moves the next
+    one: it is refused, counted, and the node is DEGRADED for it."""
+    lidar, clock, truth, scans = sim_rig(context, executor, World([BASIN]), noise_scale=0.0)
+    for _ in range(10):
+        feed(spin, executor, lidar, truth, clock, scans)
+    for ahead in (20.0, 5.0):
+        truth.publish(odometry_msg(clock.ns + round(ahead * 1e9), [0.0, 0.0, 0.0]))
+    assert spin(executor, lambda: lidar.status_values()['refused'] == 2, TIMEOUT)
+    level, message = lidar.status()
+    assert level == 1 and 'sim/odometry: refused 2 of 12' in message, message
+    for _ in range(91):
+        feed(spin, executor, lidar, truth, clock, scans)
+    assert len(scans) == 6  # as without the truths ahead: one per 1 / 5.5 s of 1 s
+
+
 def test_bad_parameters_and_a_missing_frame_are_named(context):
     install_world(context, World())
     install_frame_tree(context, FrameTree.of([Frame('base_link')]))

@@ -11,6 +11,7 @@ from enbarr_core.framework.errors import ProfileError
 from enbarr_core.tools.metrics import figures_of
 from enbarr_core.tools.scenario import scenario_spec
 from enbarr_core.tools.avoidance_metrics import AVOIDANCE_FIGURES
+from enbarr_core.tools.vision_metrics import VISION_FIGURES
 from enbarr_core.tools.targets import describe, EXIT_FAILED, judge, parse_targets, Target
 
 
@@ -71,9 +72,11 @@ def test_a_figure_of_another_kind_is_refused_with_its_own_kinds_list() -> None:
     assert "'position_error_rms_m' is not a figure of a path scenario" in message
     assert 'cross_track_rms_m' in message and 'settled' not in message
     run = error({'cross_track_rms_m': {'max': 0.05}}, kind='run')
-    # every kind's figures, then the collision avoidance's (a run may avoid too)
+    # every kind's figures, then the collision avoidance's (a run may avoid too), then the
+    # camera's
     assert run.endswith('its figures: ' + ', '.join(
-        ('mode_changes', 'thrust_saturation_s', 'final_speed_mps', *AVOIDANCE_FIGURES)))
+        ('mode_changes', 'thrust_saturation_s', 'final_speed_mps', *AVOIDANCE_FIGURES,
+         *VISION_FIGURES)))
 
 
 def test_the_scenario_section_requires_its_targets() -> None:

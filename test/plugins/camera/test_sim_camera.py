@@ -112,6 +112,27 @@ def test_frames_at_the_frame_rate_of_truth_time_with_the_drivers_topics(
                             0.0]
 
 
+def test_a_truth_stamped_ahead_is_refused_and_does_not_move_the_frames(
+        context, executor, spin):
+    """A truth stamped ahead of the clock is refused and counted (DEGRADED for it): it
+    neither makes a frame nor moves the schedule of the next ones."""
+    rig = Rig(context, executor, spin, World([BASIN]), width=64, height=48, focal_length=50.0)
+    for _ in range(10):
+        rig.feed()
+    node = rig.node
+    for ahead in (20.0, 5.0):
+        rig.truth.publish(odometry_msg(rig.clock.ns + round(ahead * 1e9), [0.0, 0.0, 0.0]))
+    assert spin(executor, lambda: node.status_values()['refused'] == 2, TIMEOUT)
+    level, message = node.status()
+    assert level == 1 and 'sim/odometry: refused 2 of 12' in message, message
+    for _ in range(91):
+        rig.feed()
+    assert [seconds(m) for m in rig.jpeg] == pytest.approx(
+        [0.0, 0.07, 0.14, 0.2, 0.27, 0.34, 0.4, 0.47, 0.54, 0.6, 0.67, 0.74, 0.8, 0.87,
+         0.94, 1.0], abs=1e-6)
+    assert node.truths == 101
+
+
 def test_the_world_is_drawn_at_the_stamp_from_the_mount_at_the_true_pose(
         context, executor, spin):
     """A buoy crossing from left to right 4 m ahead of a vessel at (1, 0.5) heading 20 deg:
