@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from enbarr_interfaces.convert import NS_PER_S
+from enbarr_interfaces.fastmsg import new
 
 #: (name, meaning) of each value, in wire order.
 FIELDS: tuple[tuple[str, str], ...] = (
@@ -34,6 +35,9 @@ FIELDS: tuple[tuple[str, str], ...] = (
 )
 NAMES = tuple(name for name, _ in FIELDS)
 LABEL = ','.join(NAMES)
+#: The layout of every message, built once (one per control step: the constructors' checks
+#: cost more than the data). Shared by the messages: a receiver must not change it.
+_DIM = MultiArrayDimension(label=LABEL, size=len(NAMES), stride=len(NAMES))
 
 
 def to_msg(values: Mapping[str, float], estimate_ns: int, obstacles_ns: int | None
@@ -43,8 +47,8 @@ def to_msg(values: Mapping[str, float], estimate_ns: int, obstacles_ns: int | No
     for prefix, ns in (('estimate', estimate_ns), ('obstacles', obstacles_ns or 0)):
         stamps[f'{prefix}_stamp_sec'], stamps[f'{prefix}_stamp_nanosec'] = divmod(ns, NS_PER_S)
     merged = {**values, **stamps}
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=LABEL, size=len(NAMES), stride=len(NAMES))]
+    msg = new(Float64MultiArray)
+    msg.layout.dim = [_DIM]
     msg.data = [float(merged[name]) for name in NAMES]
     return msg
 
