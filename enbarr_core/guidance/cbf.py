@@ -92,6 +92,9 @@ COLUMNS = ('x', 'y', 'x2', 'y2', 'radius', 'vx', 'vy')
 _SIDES = 16                                 # the speed limit's polygon
 _DIRECTIONS = np.array([[math.cos(k * math.pi / 8), math.sin(k * math.pi / 8)]
                         for k in range(_SIDES // 2)])
+_DIRECTION_PAIRS = tuple((float(cx), float(cy)) for cx, cy in _DIRECTIONS)
+_DIRECTION_ROWS = list(_DIRECTION_PAIRS)
+_HALF = _SIDES // 2
 _INSCRIBED = math.cos(math.pi / _SIDES)     # its apothem / circumradius
 _INF = 1e30                                 # daqp's "no bound"
 _H = np.eye(2)
@@ -140,7 +143,9 @@ def moved(rows: Vector, age: float) -> Vector:
     """Return a copy of obstacle ``rows`` carried along their velocities for ``age`` [s]."""
     out = rows.copy()
     if age and len(out):
-        out[:, 0:4] += age * np.tile(out[:, 5:7], 2)
+        shift = age * out[:, 5:7]
+        out[:, 0:2] += shift
+        out[:, 2:4] += shift
     return out
 
 
@@ -214,14 +219,23 @@ def constraints(p: Vector, rows: Vector, settings: CbfSettings
                 ) -> tuple[Vector, Vector, Vector]:
     """(n, b, B): normals n_i (k, 2), lower bounds b_i = n_i^T v_o,i - gamma B_i and B_i.
 
-    The constraint of obstacle i is n_i^T v >= b_i (see the module docstring). A loop over
-    Python floats: for the ten or so obstacles of a basin it is faster than numpy, whose
+    The constraint of obstacle i is n_i^T v >= b_i (see the module docstring).
+    """
+    out = _constraints(float(p[0]), float(p[1]), rows.tolist(), settings.margin,
+                       settings.gamma)
+    a = np.array(out, dtype=float).reshape(-1, 4)
+    return a[:, 0:2], a[:, 2], a[:, 3]
+
+
+def _constraints(px: float, py: float, rows: list[list[float]], margin: float, gamma: float
+                 ) -> list[tuple[float, float, float, float]]:
+    """:func:`constraints` as rows (nx, ny, b, B) of Python floats.
+
+    A loop over floats: for the ten or so obstacles of a basin it is faster than numpy, whose
     per-call cost would be the whole cost (docs/benchmarks.md).
     """
-    px, py = float(p[0]), float(p[1])
-    margin, gamma = settings.margin, settings.gamma
     out = []
-    for ax, ay, bx, by, r, vx, vy in rows.tolist():
+    for ax, ay, bx, by, r, vx, vy in rows:
         dx, dy, ex, ey = bx - ax, by - ay, px - ax, py - ay
         n2 = dx * dx + dy * dy
         s = (ex * dx + ey * dy) / n2 if n2 > 0.0 else 0.0   # c_i = a + s d, s in [0, 1]
@@ -233,28 +247,40 @@ def constraints(p: Vector, rows: Vector, settings: CbfSettings
         nx, ny = (gx / dist, gy / dist) if dist > 1e-12 else (1.0, 0.0)
         B = dist - r - margin
         out.append((nx, ny, nx * vx + ny * vy - gamma * B, B))
-    a = np.array(out, dtype=float).reshape(-1, 4)
-    return a[:, 0:2], a[:, 2], a[:, 3]
+    return out
 
 
 def solve_qp(v_nom: Vector, n: Vector, b: Vector, max_speed: float) -> QpResult:
     """Solve min |v - v_nom|^2 s.t. n v >= b and the speed polygon by daqp (module doc)."""
+    cons = [(float(nx), float(ny), float(bi), 0.0) for (nx, ny), bi in zip(n.tolist(),
+                                                                             b.tolist())]
+    return _solve_qp(float(v_nom[0]), float(v_nom[1]), cons, max_speed)
+
+
+def _solve_qp(vx: float, vy: float, cons: list[tuple[float, float, float, float]],
+              max_speed: float) -> QpResult:
+    """:func:`solve_qp` of v_nom = (vx, vy) and the rows (nx, ny, b, B) of _constraints.
+
+    The test of v_nom against every constraint, which most steps end with, is done in floats;
+    numpy and daqp only when a QP is to be solved.
+    """
     limit = max_speed * _INSCRIBED
-    k = len(b)
-    vx, vy = float(v_nom[0]), float(v_nom[1])
-    inside = math.hypot(vx, vy) <= limit or bool(np.all(np.abs(_DIRECTIONS @ v_nom) <= limit))
-    if inside and (k == 0 or float((n[:, 0] * vx + n[:, 1] * vy - b).min()) >= 0.0):
-        return QpResult(v_nom, True, False, np.zeros(k, dtype=bool))
-    m = k + len(_DIRECTIONS)
-    A = np.empty((m, 2))
-    A[:k], A[k:] = n, _DIRECTIONS
-    bu, bl = np.full(m, limit), np.full(m, -limit)
-    bu[:k], bl[:k] = _INF, b
-    x, _, exitflag, _ = daqp.solve(_H, -v_nom, A, bu, bl, np.zeros(m, dtype=np.int32))
-    if exitflag != 1 or not np.all(np.isfinite(x)):
+    k = len(cons)
+    if math.hypot(vx, vy) <= limit or all(abs(cx * vx + cy * vy) <= limit
+                                          for cx, cy in _DIRECTION_PAIRS):
+        if all(nx * vx + ny * vy >= bi for nx, ny, bi, _ in cons):
+            return QpResult(np.array((vx, vy)), True, False, np.zeros(k, dtype=bool))
+    lower = [bi for _, _, bi, _ in cons]
+    A = np.array([(nx, ny) for nx, ny, _, _ in cons] + _DIRECTION_ROWS)
+    x, _, exitflag, _ = daqp.solve(_H, np.array((-vx, -vy)), A,
+                                   np.array([_INF] * k + [limit] * _HALF),
+                                   np.array(lower + [-limit] * _HALF),
+                                   np.zeros(k + _HALF, dtype=np.int32))
+    vx, vy = float(x[0]), float(x[1])
+    if exitflag != 1 or not (math.isfinite(vx) and math.isfinite(vy)):
         return QpResult(np.zeros(2), False, True, np.zeros(k, dtype=bool))
-    v = np.asarray(x, dtype=float)
-    return QpResult(v, True, True, n @ v - b <= 1e-9)
+    binding = np.array([nx * vx + ny * vy - bi <= 1e-9 for nx, ny, bi, _ in cons], dtype=bool)
+    return QpResult(np.array((vx, vy)), True, True, binding)
 
 
 def _rot2(psi: float) -> Vector:
@@ -273,15 +299,18 @@ class SafetyFilter:
         settings.validate()
         self.settings = settings
         self.engaged = False
-        self.p_d = np.zeros(2)
-        self.v = np.zeros(2)
-        self.a_ff = np.zeros(2)
+        # p_d, its velocity v* and the feed-forward acceleration [world, m, m/s, m/s^2], as
+        # Python floats: the step is a few dozen 2-vector operations, and a numpy call costs
+        # more than the arithmetic of one.
+        self.p_d: tuple[float, float] = (0.0, 0.0)
+        self.v: tuple[float, float] = (0.0, 0.0)
+        self.a_ff: tuple[float, float] = (0.0, 0.0)
         self.side = 0             # passing side of this engagement: +1 starboard, -1 port
         self.infeasible_count = 0
         # The last output's position, world velocity and kind of law (a position reference
         # or LOS): a law that changes kind (LOS finishing into a hold) moves its position
         # reference at once, which the filter must not follow in one step.
-        self._last: tuple[Vector, Vector, bool] | None = None
+        self._last: tuple[tuple[float, float], tuple[float, float], bool] | None = None
 
     def reset(self) -> None:
         """Forget p_d: the next step starts from the nominal reference."""
@@ -293,9 +322,9 @@ class SafetyFilter:
         The pull then brings p_d to the law's reference within the constraints.
         """
         self.engaged = True
-        self.p_d = np.array(p[:2], dtype=float)
-        self.v = np.zeros(2)
-        self.a_ff = np.zeros(2)
+        self.p_d = (float(p[0]), float(p[1]))
+        self.v = (0.0, 0.0)
+        self.a_ff = (0.0, 0.0)
 
     def step(self, eta_hat: Vector, nominal: Reference, rows: Vector, dt: float) -> CbfOutput:
         """Filter ``nominal``, the law's reference for ``eta_hat`` now.
@@ -309,43 +338,54 @@ class SafetyFilter:
         own_position = nominal.position_mask[0] and nominal.position_mask[1]
         psi_d = float(nominal.eta_d[2])
         psi_v = psi_d if own_position else float(eta_hat[2])
-        R = _rot2(psi_v)
-        v_ff = R @ nominal.nu_d[:2]
-        target = np.array(nominal.eta_d[:2] if own_position else eta_hat[:2], dtype=float)
+        c, sn = math.cos(psi_v), math.sin(psi_v)
+        u, w = float(nominal.nu_d[0]), float(nominal.nu_d[1])
+        v_ff = (c * u - sn * w, sn * u + c * w)                  # R(psi_v) nu_d[:2]
+        source = nominal.eta_d if own_position else eta_hat
+        target = (float(source[0]), float(source[1]))
         if not self.engaged and self._last is not None and self._last[2] != own_position:
             # The position reference jumps (LOS -> hold at the last waypoint): go on from
             # where the reference was, with its velocity, and let the pull take p_d there
             # within the constraints (the new target may lie in a zone, or behind one).
             self.engaged, self.side = True, 0
-            self.p_d, self.v, self.a_ff = self._last[0], self._last[1], np.zeros(2)
-        p = self.p_d + dt * self.v if self.engaged else target
-        v_nom = v_ff + s.pull_gain * (target - p)
-        n, b, B = constraints(p, rows, s)
-        qp = solve_qp(v_nom, n, b, s.max_speed)
-        if not qp.solved and (not self.engaged
-                              or float(np.hypot(*(p - target))) <= s.release_distance):
+            self.p_d, self.v, self.a_ff = self._last[0], self._last[1], (0.0, 0.0)
+        if self.engaged:
+            p = (self.p_d[0] + dt * self.v[0], self.p_d[1] + dt * self.v[1])
+        else:
+            p = target
+        k = s.pull_gain
+        v_nom = (v_ff[0] + k * (target[0] - p[0]), v_ff[1] + k * (target[1] - p[1]))
+        cons = _constraints(p[0], p[1], rows.tolist(), s.margin, s.gamma)
+        min_b = min((row[3] for row in cons), default=math.inf)
+        qp = _solve_qp(v_nom[0], v_nom[1], cons, s.max_speed)
+        if not qp.solved and (not self.engaged or math.hypot(p[0] - target[0], p[1] - target[1])
+                              <= s.release_distance):
             self.engaged, self.side = False, 0
             self._last = (target, v_ff, own_position)
-            return CbfOutput(nominal, False, False, 0, False, _min(B))
+            return CbfOutput(nominal, False, False, 0, False, min_b)
         if qp.active and s.pass_gain > 0.0:
-            qp = self._pass(qp, v_nom, n, b, B)
+            qp = self._pass(qp, v_nom, cons)
         reason = ''
         if not qp.feasible:
             self.infeasible_count += 1
             reason = 'infeasible: no velocity keeps every obstacle out; stopped'
         if not self.engaged:  # engaging: the feed-forward starts from the law's
-            r_d, nu = float(nominal.nu_d[2]), nominal.nu_d
-            self.a_ff = R @ (nominal.nu_d_dot[:2] + r_d * np.array((-nu[1], nu[0])))
+            r_d = float(nominal.nu_d[2])
+            ax = float(nominal.nu_d_dot[0]) - r_d * w
+            ay = float(nominal.nu_d_dot[1]) + r_d * u
+            self.a_ff = (c * ax - sn * ay, sn * ax + c * ay)
             self.v = v_ff
-        self.a_ff = self.a_ff + min(1.0, dt / s.accel_time if s.accel_time > 0.0 else 1.0) \
-            * ((qp.v - self.v) / dt - self.a_ff)
-        self.engaged, self.p_d, self.v = True, p, qp.v
-        self._last = (p, qp.v, own_position)
+        qv = (float(qp.v[0]), float(qp.v[1]))
+        gain = min(1.0, dt / s.accel_time if s.accel_time > 0.0 else 1.0)
+        self.a_ff = (self.a_ff[0] + gain * ((qv[0] - self.v[0]) / dt - self.a_ff[0]),
+                     self.a_ff[1] + gain * ((qv[1] - self.v[1]) / dt - self.a_ff[1]))
+        self.engaged, self.p_d, self.v = True, p, qv
+        self._last = (p, qv, own_position)
         return CbfOutput(self._reference(psi_d, psi_v, nominal), True, qp.solved, qp.active,
-                         not qp.feasible, _min(B), reason)
+                         not qp.feasible, min_b, reason)
 
-    def _pass(self, qp: QpResult, v_nom: Vector, n: Vector, b: Vector, B: Vector
-              ) -> QpResult:
+    def _pass(self, qp: QpResult, v_nom: tuple[float, float],
+              cons: list[tuple[float, float, float, float]]) -> QpResult:
         """Slide along the blocking obstacle instead of stopping in front of it.
 
         The QP alone stops p_d where an obstacle lies across v_nom (the local minimum of a CBF
@@ -356,18 +396,22 @@ class SafetyFilter:
         (the obstacle passed on the port side) unless v_nom leans clearly to port; zero
         lost speed (just engaged) adds nothing, so the reference stays continuous.
         """
-        lost = float(np.hypot(*v_nom)) - float(np.hypot(*qp.v))
+        speed_nom = math.hypot(*v_nom)
+        vx, vy = float(qp.v[0]), float(qp.v[1])
+        lost = speed_nom - math.hypot(vx, vy)
         if lost <= 0.0:
             return qp
-        i = int(np.argmin(np.where(qp.binding, B, np.inf)))
-        t = np.array((-n[i, 1], n[i, 0]))   # starboard of a heading into the obstacle (-n)
+        i = min((row[3], j) for j, row in enumerate(cons) if qp.binding[j])[1]
+        tx, ty = -cons[i][1], cons[i][0]   # starboard of a heading into the obstacle (-n)
         if self.side == 0:
-            self.side = 1 if t @ v_nom >= -0.2 * float(np.hypot(*v_nom)) else -1
-        again = solve_qp(qp.v + self.settings.pass_gain * lost * self.side * t, n, b,
-                         self.settings.max_speed)
+            self.side = 1 if tx * v_nom[0] + ty * v_nom[1] >= -0.2 * speed_nom else -1
+        push = self.settings.pass_gain * lost * self.side
+        again = _solve_qp(vx + push * tx, vy + push * ty, cons, self.settings.max_speed)
         if not again.feasible:
             return qp
-        return QpResult(again.v, True, True, n @ again.v - b <= 1e-9)
+        binding = np.array([nx * again.v[0] + ny * again.v[1] - b <= 1e-9
+                            for nx, ny, b, _ in cons], dtype=bool)
+        return QpResult(again.v, True, True, binding)
 
     def _reference(self, psi_d: float, psi_v: float, nominal: Reference) -> Reference:
         """Build the engaged reference: p_d, the law's heading, v* in its body frame."""
