@@ -163,14 +163,25 @@ class LinkPublisher:
                 sub.callback(msg)
             except Exception as err:  # noqa: BLE001 - one faulty node must not stop the chain
                 sub.failed(err)
+        if self._dds_readers():
+            self.ros_publisher.publish(msg)
+
+    def has_readers(self) -> bool:
+        """Return whether a message published now reaches anyone, in the process or outside.
+
+        For a message that costs more to build than to send (a status at the control rate):
+        build it only when someone reads it.
+        """
+        return bool(self._subscribers) or self._dds_readers() > 0
+
+    def _dds_readers(self) -> int:
         # Only DDS readers outside the fast path count (``external_readers``), asked of the
         # middleware at most every READER_CHECK_PERIOD (a new reader waits that long).
         now = time.monotonic()
         if now - self._readers_checked >= READER_CHECK_PERIOD:
             self._readers = self.external_readers()
             self._readers_checked = now
-        if self._readers:
-            self.ros_publisher.publish(msg)
+        return self._readers
 
     def external_readers(self) -> int:
         """Return how many DDS readers outside this bus's fast path this publisher reaches.

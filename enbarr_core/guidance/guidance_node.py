@@ -50,6 +50,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 from enbarr_interfaces import avoidance, convert, topics
 from enbarr_interfaces.obstacles import cloud_stamp_ns, from_cloud, ObstacleEncodingError
 from enbarr_interfaces.fastmsg import new
+from enbarr_interfaces.links import LinkPublisher
 from enbarr_interfaces.modes import Mode
 from enbarr_core.framework.health import (
     DEGRADED, future_tolerance_problem, InputHealth, IntervalMeter, OK, worst)
@@ -394,6 +395,8 @@ class GuidanceNode(EnbarrNode):
 
     def _publish_avoidance(self, t: int, elapsed: float, out: CbfOutput | None, count: int,
                            obstacles_ns: int | None, *, blind: bool) -> None:
+        if isinstance(self._avoid_pub, LinkPublisher) and not self._avoid_pub.has_readers():
+            return   # one message per estimate: not built for nobody
         values = {'solve_time': elapsed, 'active': out.active if out else 0,
                   'infeasible': float(bool(out and out.infeasible)),
                   'min_barrier': out.min_barrier if out else math.nan,

@@ -136,6 +136,36 @@ def test_publishes_to_dds_while_another_context_subscribes(context, executor, ot
     assert spy.count == before
 
 
+def test_has_readers_says_whether_anyone_would_receive(context, executor, other):
+    """A status built only for readers: none, a subscriber in the process, one elsewhere."""
+    a = add(executor, EnbarrNode('producer', context=context))
+    pub = a.create_topic_publisher(topics.IMU)
+    LinkBus.of(context).connect()
+    assert not pub.has_readers()
+    local = add(executor, EnbarrNode('consumer', context=context)).create_topic_subscription(
+        topics.IMU, lambda _msg: None)
+    assert pub.has_readers()
+    local.destroy()
+    assert not pub.has_readers()
+
+    remote_sub = other.node.create_subscription(Imu, topics.IMU.name, lambda _msg: None,
+                                                topics.IMU.qos)
+
+    def sees_the_remote_reader() -> bool:
+        executor.spin_once(timeout_sec=0.01)
+        other.executor.spin_once(timeout_sec=0.01)
+        return pub.has_readers()
+
+    assert spin_other(sees_the_remote_reader), 'a reader in another context never counted'
+    other.node.destroy_subscription(remote_sub)
+
+    def forgets_it() -> bool:
+        executor.spin_once(timeout_sec=0.01)
+        return not pub.has_readers()
+
+    assert spin_other(forgets_it), 'still counted a reader that left'
+
+
 def spin_other(step: Any, timeout: float = TIMEOUT) -> bool:
     import time
     deadline = time.monotonic() + timeout
