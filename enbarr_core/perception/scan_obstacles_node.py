@@ -228,12 +228,14 @@ class ScanObstaclesNode(EnbarrNode):
                 self.pipeline.settings = settings.perception
 
     def _on_odometry(self, msg: Odometry) -> None:
-        eta = convert.pose_to_eta(msg.pose.pose)
-        if not convert.all_finite(eta):
+        # Floats, not an eta array: one call per estimate (50 Hz) for three numbers.
+        pose = msg.pose.pose
+        x, y, psi = pose.position.x, pose.position.y, convert.quaternion_to_yaw(pose.orientation)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(psi)):
             self.refused_poses += 1
             return
         with self._pose_lock:
-            if not self.poses.add(convert.stamp_to_ns(msg.header.stamp), *eta.tolist()):
+            if not self.poses.add(convert.stamp_to_ns(msg.header.stamp), x, y, psi):
                 self.refused_poses += 1
 
     def _mount(self, frame_id: str) -> LidarMount | None:
