@@ -58,10 +58,10 @@ def _time_steps(case: str, k: int) -> float:
         c = world[0, 0:2]
         f.engage_at(c - (world[0, 4] + settings.margin + 0.01) * c / np.linalg.norm(c))
     start = time.perf_counter()
+    pressed = f.p_d
     for _ in range(STEPS):
-        if case == 'engaged':
-            f.p_d = f.p_d.copy()   # stays pressed: the state is reset, not the cost
-            f.v = np.zeros(2)
+        if case == 'engaged':   # stays pressed: the state is reset, not the cost
+            f.p_d, f.v = pressed, (0.0, 0.0)
         f.step(eta, nominal, world, 0.02)
     return (time.perf_counter() - start) / STEPS * 1e6
 
