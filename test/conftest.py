@@ -101,6 +101,15 @@ def _unit_tier_guard(request: pytest.FixtureRequest,
 # Test runs side by side on one machine keep apart with ENBARR_TEST_DOMAINS=first-last.
 _first, _, _last = os.environ.get('ENBARR_TEST_DOMAINS', '1-100').partition('-')
 _DOMAIN_FIRST, _DOMAIN_COUNT = int(_first), int(_last) - int(_first) + 1
+# Under pytest-xdist (``-n N``) every worker takes its own slice of the range: two workers'
+# runs must never meet on one domain.
+_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+if _WORKER.startswith('gw') and int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')) > 1:
+    _workers = int(os.environ['PYTEST_XDIST_WORKER_COUNT'])
+    _slice = max(1, _DOMAIN_COUNT // _workers)
+    _DOMAIN_FIRST += int(_WORKER[2:]) * _slice % _DOMAIN_COUNT
+    _DOMAIN_COUNT = _slice
+    os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN_FIRST)
 # The e2e tier's processes draw from the upper half of the range, everything else (node tests
 # in this process) from the lower half: a node of the pytest process itself, still on the ROS
 # graph after its test, once refused a later e2e run of the same vessel (a /pwm) whose domain
