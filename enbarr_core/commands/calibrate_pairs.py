@@ -42,6 +42,9 @@ def add_pairs_arguments(parser: argparse.ArgumentParser) -> None:
                      help='subscribe to the live scan and image topics for --seconds')
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='--live: how long to listen [s] (default 60; Ctrl-C ends early)')
+    parser.add_argument('--count', type=int, default=0,
+                        help='--live: stop listening once this many places were held still '
+                             '(default 0: listen for --seconds)')
     parser.add_argument('-o', '--output', required=True, metavar='CSV',
                         help='the pairs file to write (x,y,u,v)')
     parser.add_argument('--scan-topic', default='',
@@ -115,7 +118,7 @@ def run_pairs(args: argparse.Namespace) -> int:
     else:
         source = 'live'
         _feed_live(collector, args.scan_topic or 'scan',
-                   args.image_topic or 'camera/image_raw/compressed', args.seconds)
+                   args.image_topic or 'camera/image_raw/compressed', args.seconds, args.count)
     poses = collector.finish()
     print(f'{collector.scans} scans ({collector.with_mark} with one mark candidate, '
           f'{collector.ambiguous} with several), {collector.images} images: '
@@ -235,8 +238,11 @@ def feed(collector: PairCollector, kind: str, msg: Any) -> None:
 
 
 def _feed_live(collector: PairCollector, scan_topic: str, image_topic: str,
-               seconds: float) -> None:
-    """Subscribe to both topics for ``seconds`` (Ctrl-C ends early); errors name the topics."""
+               seconds: float, count: int = 0) -> None:
+    """Subscribe to both topics for ``seconds``, or until ``count`` places were held still.
+
+    Ctrl-C ends early; no message on a topic is an error naming the topics of its type.
+    """
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -260,6 +266,8 @@ def _feed_live(collector: PairCollector, scan_topic: str, image_topic: str,
     try:
         while time.monotonic() - start < seconds:
             executor.spin_once(timeout_sec=0.05)
+            if count and collector.places >= count:
+                break
         seen = dict(node.get_topic_names_and_types())
     except KeyboardInterrupt:
         print('stopped: pairing what was collected', file=sys.stderr)

@@ -192,6 +192,11 @@ class PairCollector:
         self._images: list[tuple[int, Any]] = []   # (stamp, pixel or image)
         self._last_image_ns = -1
 
+    @property
+    def places(self) -> int:
+        """How many places the mark was held still at so far (closed runs)."""
+        return len(self.poses) + len(self._pending)
+
     # -- input ----------------------------------------------------------------------------
     def add_scan(self, stamp_ns: int, ranges: Sequence[float] | Array, angle_min: float,
                  angle_increment: float) -> None:
