@@ -213,10 +213,15 @@ def _colour(args: argparse.Namespace) -> ColourClass:
 
 
 def _check_display() -> None:
+    """Refuse clicking where no window can open, before the bag is read."""
     if not (os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY')):
         raise CalibrationError('--pick click needs a display (no $DISPLAY here): use --pick '
                                "colour with the mark's colour, or write the CSV x,y,u,v by "
                                'hand (docs/calibration_lidar.md)')
+    import matplotlib.pyplot as plt
+    if plt.get_backend().lower() == 'agg':
+        raise CalibrationError('--pick click: matplotlib has no interactive backend here '
+                               '(install python3-tk, or use --pick colour)')
 
 
 def _feed_bag(collector: PairCollector, bag: str, scan: str, image: str) -> None:
@@ -286,19 +291,15 @@ def _feed_live(collector: PairCollector, scan_topic: str, image_topic: str,
 
 
 def _click(poses: Sequence[MarkPose], args: argparse.Namespace) -> None:
-    import matplotlib.pyplot as plt
-
-    from enbarr_core.vision.marks import show_for_click
-    if plt.get_backend().lower() == 'agg':
-        raise CalibrationError('--pick click: matplotlib has no interactive backend here '
-                               '(install python3-tk, or use --pick colour)')
+    """Show each place's image, the guess marked; take the click, a skip or the end."""
+    from enbarr_core.vision import marks
     project = _guess_projector(args)
     for i, p in enumerate(poses):
         if p.image is None:
             continue
         guess = project(p.centre) if project else None
-        picker = show_for_click(p.image, f'place {i} of {len(poses)}: lidar ({p.centre[0]:.2f}, '
-                                f'{p.centre[1]:.2f}) m', guess)
+        title = f'place {i} of {len(poses)}: lidar ({p.centre[0]:.2f}, {p.centre[1]:.2f}) m'
+        picker = marks.show_for_click(p.image, title, guess)
         p.pixel = picker.pixel
         if picker.quit:
             break

@@ -117,3 +117,79 @@ def test_options_are_checked(bag, capsys, args, message, tmp_path):
     bag(PLACES)
     rc, _, err = run(capsys, *args, '-o', str(tmp_path / 'x.csv'))
     assert rc == 2 and len(err) == 1 and message in err[0], err
+
+
+class _Clicks:
+    """Stands in for the window: records what it was shown, answers as a user would."""
+
+    def __init__(self, answers):
+        self.answers = list(answers)
+        self.shown = []
+
+    def __call__(self, image, title, guess):
+        from types import SimpleNamespace
+        self.shown.append((image.shape, title, guess))
+        answer = self.answers.pop(0)
+        pixel = guess if answer == 'guess' else None
+        return SimpleNamespace(pixel=pixel, skipped=answer == 'skip', quit=answer == 'quit')
+
+
+CAMERA_INFO = """image_width: 160
+image_height: 120
+camera_name: test
+camera_matrix: {rows: 3, cols: 3, data: [100.0, 0.0, 79.5, 0.0, 100.0, 59.5, 0.0, 0.0, 1.0]}
+distortion_model: plumb_bob
+distortion_coefficients: {rows: 1, cols: 5, data: [0.0, 0.0, 0.0, 0.0, 0.0]}
+rectification_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}
+projection_matrix: {rows: 3, cols: 4, data: [100, 0, 79.5, 0, 0, 100, 59.5, 0, 0, 0, 1, 0]}
+"""
+
+
+def test_click_shows_each_place_with_the_guess_and_takes_the_answers(bag, capsys, tmp_path,
+                                                                     monkeypatch):
+    from enbarr_core.vision import marks
+    monkeypatch.setattr(calibrate_pairs, '_check_display', lambda: None)
+    clicks = _Clicks(['guess', 'skip', 'guess', 'guess', 'guess'])
+    monkeypatch.setattr(marks, 'show_for_click', clicks)
+    cam = tmp_path / 'cam.yaml'
+    cam.write_text(CAMERA_INFO)
+    bag(PLACES)
+    csv = tmp_path / 'm.csv'
+    rc, out, err = run(capsys, '--pick', 'click', '--mark-radius', '0.05', '--profile',
+                       'saucer_marks_sim', '--camera-info', str(cam), '-o', str(csv))
+    assert rc == 0, err
+    assert [s[0] for s in clicks.shown] == [(120, 160, 3)] * 5
+    assert clicks.shown[0][1] == 'place 0 of 5: lidar (1.50, 0.40) m'
+    # the guess: saucer_core.yaml's mounts (camera 8 cm behind and 10 cm above the lidar),
+    # this 100 px pinhole: u = 79.5 - 100 y / (x + 0.08), v = 59.5 + 100 * 0.10 / (x + 0.08)
+    x, y = PLACES[0][0]
+    assert clicks.shown[0][2] == pytest.approx((79.5 - 100 * y / (x + 0.08),
+                                                59.5 + 10.0 / (x + 0.08)), abs=0.1)
+    assert 'place 1: (2.500, -0.500) m: left out (skipped)' in out
+    xy, uv = read_pairs(str(csv))
+    assert len(xy) == 4 and xy[1] == pytest.approx(PLACES[2][0], abs=2e-3)
+
+
+def test_quitting_the_clicks_keeps_what_was_picked(bag, capsys, tmp_path, monkeypatch):
+    from enbarr_core.vision import marks
+    monkeypatch.setattr(calibrate_pairs, '_check_display', lambda: None)
+    clicks = _Clicks(['guess', 'quit'])
+    monkeypatch.setattr(marks, 'show_for_click', clicks)
+    bag(PLACES)
+    rc, _, err = run(capsys, '--pick', 'click', '-o', str(tmp_path / 'x.csv'))
+    # no profile: no guess, so the stand-in user has nothing to click either
+    assert rc == 2 and len(clicks.shown) == 2 and clicks.shown[0][2] is None
+    assert err == ['enbarr calibrate: error: 0 pairs found (5 places held still): PnP needs at '
+                   'least 4 (the manual suggests 10 to 20); hold the mark still at more places']
+
+
+def test_a_display_without_an_interactive_backend_is_refused(bag, capsys, tmp_path,
+                                                              monkeypatch):
+    import matplotlib
+    matplotlib.use('Agg')
+    monkeypatch.setenv('DISPLAY', ':99')
+    bag(PLACES)
+    rc, _, err = run(capsys, '--pick', 'click', '-o', str(tmp_path / 'x.csv'))
+    assert rc == 2 and err == ['enbarr calibrate: error: --pick click: matplotlib has no '
+                               'interactive backend here (install python3-tk, or use --pick '
+                               'colour)']
