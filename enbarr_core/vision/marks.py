@@ -116,12 +116,12 @@ def mark_centre(points: Array, radius: float) -> Array:
     if radius <= 0.0:
         out: Array = mean
         return out
-    start = mean + radius * mean / max(float(np.linalg.norm(mean)), 1e-9)
+    start: Array = mean + radius * mean / max(float(np.linalg.norm(mean)), 1e-9)
     fit = refine_circle(points, float(start[0]), float(start[1]), radius, fixed_radius=True,
                         iterations=30)
     if fit is None:
         return start
-    return np.array([fit[0], fit[1]])
+    return np.array([fit[0], fit[1]], dtype=np.float64)
 
 
 def blob_centre(image: NDArray[np.uint8], colour: ColourClass, *, min_area: float = 30.0,
