@@ -38,10 +38,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-# mypy 2.4 takes scipy 1.17's least_squares for the submodule of the same name (as in
-# extrinsics.py: the call carries the ignore); the function is scipy's public API.
-from scipy.optimize import least_squares
-
 from enbarr_core.framework.errors import CalibrationError
 from enbarr_core.perception.fitting import refine_circle
 from enbarr_core.perception.scan_geometry import RangeNoise, scan_points, ScanPoints
@@ -113,11 +109,12 @@ def candidates(scan: ScanPoints, s: MarkSettings) -> list[Array]:
 def mark_centre(points: Array, radius: float) -> Array:
     """Return the mark's centre [m] from its points: the circle of ``radius`` (0: the mean).
 
-    A ray meets the near side of a round mark, so the mean lies short of the axis. The centre
-    is fitted to the ranges, each ray's measured range against the range at which it meets
-    the circle (the lidar's error is along its rays): a fit to the points' distances from the
-    centre instead comes out short by several millimetres at 2 to 3 m, where the A1's noise is
-    a third of a thin post's radius. Started from that geometric fit.
+    A ray meets the near side of a round mark, so the mean lies short of the axis; the centre
+    starts ``radius`` beyond the mean along the line of sight and is fitted from there. Under
+    the A1's noise this fit of the points' distances comes out a few millimetres short at 2
+    to 3 m; that is the way the image's error goes too (a pixel shows the mark's near face),
+    and a fit to the ranges, unbiased, gave the worse calibration (docs/benchmarks.md,
+    "Camera-lidar marks").
     """
     mean = points.mean(axis=0)
     if radius <= 0.0:
@@ -126,34 +123,9 @@ def mark_centre(points: Array, radius: float) -> Array:
     start: Array = mean + radius * mean / max(float(np.linalg.norm(mean)), 1e-9)
     fit = refine_circle(points, float(start[0]), float(start[1]), radius, fixed_radius=True,
                         iterations=30)
-    if fit is not None:
-        start = np.array([fit[0], fit[1]], dtype=np.float64)
-    r = np.hypot(points[:, 0], points[:, 1])
-    u = points / r[:, None]
-
-    def residuals(c: Array) -> Array:
-        along = u @ c
-        miss2 = np.maximum(float(c @ c) - along ** 2, 0.0)   # squared distance ray - centre
-        out: Array = r - (along - np.sqrt(np.maximum(radius * radius - miss2, 0.0)))
-        return out
-
-    solved: Array = np.asarray(least_squares(residuals, start).x,  # type: ignore[operator]
-                               dtype=np.float64)
-    return solved
-
-
-def face_point(centre: Array, depth: float, camera_xy: Sequence[float] = (0.0, 0.0)) -> Array:
-    """Return the point of a round mark's face that the camera sees in its middle [m].
-
-    ``depth`` nearer than the ``centre`` along the horizontal line of sight from the camera
-    (at ``camera_xy`` in the laser frame; the laser's origin when unknown, a small error for a
-    camera a few centimetres off). What a pixel of the mark shows is its face, not its axis:
-    paired with the axis, the pixel would lie below (a camera above the scan plane) by the
-    difference in depth.
-    """
-    sight = np.asarray(centre, dtype=np.float64) - np.asarray(camera_xy, dtype=np.float64)
-    out: Array = centre - depth * sight / max(float(np.linalg.norm(sight)), 1e-9)
-    return out
+    if fit is None:
+        return start
+    return np.array([fit[0], fit[1]], dtype=np.float64)
 
 
 def blob_centre(image: NDArray[np.uint8], colour: ColourClass, *, min_area: float = 30.0,
