@@ -3,8 +3,9 @@
 Each action is a ``CalibrationAction`` listed in ``ACTIONS`` (name -> ``'module:Class'``),
 imported only when ``enbarr calibrate`` builds its parser; a new procedure is a module with
 one class and a line here. ``camera`` (manual 4.1) is ``calibrate_camera``; ``lidar`` and
-``reproject`` (manual 4.2) are ``calibrate_lidar``'s functions, hung here by two small
-classes. See docs/calibration.md and docs/calibration_lidar.md.
+``reproject`` (manual 4.2) are ``calibrate_lidar``'s functions and ``pairs`` (the marks of
+4.2, for ``lidar --method pnp``) ``calibrate_pairs``', hung here by small classes. See
+docs/calibration.md and docs/calibration_lidar.md.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from enbarr_core.commands.arguments import wrap
 #: name -> 'module:Class' of the calibration actions, in the order ``--help`` lists them.
 ACTIONS: dict[str, str] = {
     'camera': 'enbarr_core.commands.calibrate_camera:CameraCalibration',
+    'pairs': 'enbarr_core.commands.calibrate:PairsCalibration',
     'lidar': 'enbarr_core.commands.calibrate:LidarCalibration',
     'reproject': 'enbarr_core.commands.calibrate:ReprojectCalibration',
 }
@@ -70,6 +72,24 @@ class ReprojectCalibration(CalibrationAction):
     def run(self, args: argparse.Namespace) -> int:
         """Draw the scans onto the images."""
         return self._module.run_reproject(args)
+
+
+class PairsCalibration(CalibrationAction):
+    """``enbarr calibrate pairs``: ``calibrate_pairs``' collection of the manual's marks."""
+
+    def __init__(self) -> None:
+        from enbarr_core.commands import calibrate_pairs
+        self._module = calibrate_pairs
+        self.help = calibrate_pairs.PAIRS_HELP
+        self.description = calibrate_pairs.PAIRS_DESCRIPTION
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Declare ``calibrate pairs``' options."""
+        self._module.add_pairs_arguments(parser)
+
+    def run(self, args: argparse.Namespace) -> int:
+        """Collect the pairs into the CSV."""
+        return self._module.run_pairs(args)
 
 
 def load_action(name: str) -> CalibrationAction:

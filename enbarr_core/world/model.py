@@ -167,12 +167,14 @@ class Waypoints:
 
     ``path[0]`` is the reference point at t = 0, the rest the waypoints [m] in odom;
     ``loop``: back to ``path[0]`` and round again, else stop at the last one. Legs of zero
-    length are skipped.
+    length are skipped. ``dwell`` [s]: stopped this long at the end of each leg (a mark held
+    still at each place for a calibration), the last one's included when looping.
     """
 
     path: tuple[Point, ...]
     speed: float
     loop: bool = False
+    dwell: float = 0.0
     _legs: tuple[tuple[float, float, float, float, float], ...] = field(
         init=False, repr=False, compare=False)  # (s0, x0, y0, ux, uy) of each leg
     _length: float = field(init=False, repr=False, compare=False)
@@ -200,17 +202,35 @@ class Waypoints:
             x0, y0 = self.path[0]
             ux, uy = (self._legs[0][3], self._legs[0][4]) if self._legs else (0.0, 0.0)
             return 0.0, x0, y0, ux, uy, bool(self._legs) and t == 0.0
-        s = self.speed * t
-        moving = True
-        if self.loop:
-            s = math.fmod(s, self._length)
-        elif s >= self._length:
-            s, moving = self._length, False
+        if self.dwell > 0.0:
+            s, moving = self._along_with_dwell(t)
+        else:
+            s = self.speed * t
+            moving = True
+            if self.loop:
+                s = math.fmod(s, self._length)
+            elif s >= self._length:
+                s, moving = self._length, False
         i = len(self._legs) - 1
         while i > 0 and self._legs[i][0] > s:
             i -= 1
         s0, x0, y0, ux, uy = self._legs[i]
         return s - s0, x0, y0, ux, uy, moving
+
+    def _along_with_dwell(self, t: float) -> tuple[float, bool]:
+        """(distance along the path [m], moving) at ``t`` > 0 with stops of ``dwell``."""
+        ends = [leg[0] for leg in self._legs[1:]] + [self._length]
+        if self.loop:
+            t = math.fmod(t, self._length / self.speed + len(self._legs) * self.dwell)
+        for (s0, *_), s1 in zip(self._legs, ends):
+            travel = (s1 - s0) / self.speed
+            if t < travel:
+                return s0 + self.speed * t, True
+            t -= travel
+            if t < self.dwell:
+                return s1, False
+            t -= self.dwell
+        return self._length, False
 
     def position(self, t: float) -> Point:
         """Where the reference point is at ``t`` [s]."""

@@ -36,8 +36,8 @@ from enbarr_core.world.model import (Circle, Colour, ConstantVelocity, EMPTY_WOR
 
 KINDS = ('circle', 'polygon', 'walls')
 #: Keys every obstacle may have, then the keys of each kind.
-COMMON_KEYS = ('kind', 'enabled', 'velocity', 'waypoints', 'speed', 'loop', 'height',
-               'colour')
+COMMON_KEYS = ('kind', 'enabled', 'velocity', 'waypoints', 'speed', 'loop', 'dwell',
+               'height', 'colour')
 KIND_KEYS = {'circle': ('center', 'radius'), 'polygon': ('points',),
              'walls': ('points', 'closed')}
 ALL_KEYS = COMMON_KEYS + ('center', 'radius', 'points', 'closed')
@@ -152,13 +152,13 @@ def _motion(entry: dict[str, Any], shape: Shape, key: str, refuse: Refuse) -> Mo
         raise refuse('give a velocity or waypoints (with a speed), not both',
                      f'{key}.velocity')
     if 'velocity' in entry:
-        for k in ('speed', 'loop'):
+        for k in ('speed', 'loop', 'dwell'):
             if k in entry:
                 raise refuse('only with waypoints (a velocity sets the speed)', f'{key}.{k}')
         v = _point(entry['velocity'], refuse, f'{key}.velocity')
         return ConstantVelocity(v) if v != (0.0, 0.0) else Static()
     if 'waypoints' not in entry:
-        for k in ('speed', 'loop'):
+        for k in ('speed', 'loop', 'dwell'):
             if k in entry:
                 raise refuse('only with waypoints: the points [x, y] [m] the obstacle goes '
                              'through', f'{key}.{k}')
@@ -175,7 +175,10 @@ def _motion(entry: dict[str, Any], shape: Shape, key: str, refuse: Refuse) -> Mo
     loop = entry.get('loop', False)
     if not isinstance(loop, bool):
         raise refuse(f'expected true or false, got {loop!r}', f'{key}.loop')
-    return Waypoints((shape.reference, *points), speed, loop)
+    dwell = _number(entry.get('dwell', 0.0), refuse, f'{key}.dwell')
+    if dwell < 0.0:
+        raise refuse(f'expected a dwell >= 0 [s] at each waypoint, got {dwell}', f'{key}.dwell')
+    return Waypoints((shape.reference, *points), speed, loop, dwell)
 
 
 def _kind(v: Any) -> str:

@@ -237,5 +237,5 @@ def test_image_encodings(encoding, data, bigendian, want):
 
 
 def test_calibrate_has_a_table_of_actions():
-    assert list(ACTIONS) == ['camera', 'lidar', 'reproject']
+    assert list(ACTIONS) == ['camera', 'pairs', 'lidar', 'reproject']
     assert all(isinstance(load_action(name), CalibrationAction) for name in ACTIONS)

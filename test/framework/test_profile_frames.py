@@ -20,7 +20,8 @@ SHIPPED = sorted(p.stem for d in search_dirs()[-1:] for p in d.glob('*.yaml'))
 #: Fragments that only add nodes to a vessel's tree: checked in the profiles that include them.
 ADD_ONS = {'saucer_ca_core': ('saucer_ca', 'saucer_ca_sim')}
 #: Which node kind publishes each pose topic a tree may name.
-POSE_PUBLISHERS = {'observer/odometry': {'dp_observer'}, 'imu/data': {'attitude_filter'}}
+POSE_PUBLISHERS = {'observer/odometry': {'dp_observer'}, 'imu/data': {'attitude_filter'},
+                   'sim/odometry': {'vessel3dof_simulator'}}
 LIDARS, CAMERAS = {'rplidar', 'sim_lidar'}, {'camera', 'sim_camera'}
 IMUS = {'sim_imu', 'lsm9ds1_imu', 'fxos8700_imu'}
 

@@ -190,3 +190,25 @@ def _slow_cast(world: World, o: np.ndarray, b: float, t: float) -> float:
                 if tt > 1e-9 and 0 <= u <= 1:
                     best = min(best, tt)
     return best
+
+
+def test_waypoints_with_a_dwell_stop_at_each_waypoint() -> None:
+    # 4 m east then 3 m north at 1 m/s, 2 s stopped at each waypoint: arrive at (4, 0) at 4 s,
+    # leave at 6 s, arrive at (4, 3) at 9 s and stay
+    wp = Waypoints(((0.0, 0.0), (4.0, 0.0), (4.0, 3.0)), 1.0, loop=False, dwell=2.0)
+    assert wp.position(3.0) == pytest.approx((3.0, 0.0))
+    assert wp.velocity(3.0) == pytest.approx((1.0, 0.0))
+    assert wp.position(4.5) == pytest.approx((4.0, 0.0))
+    assert wp.position(5.9) == pytest.approx((4.0, 0.0))
+    assert wp.velocity(5.0) == (0.0, 0.0)
+    assert wp.position(7.0) == pytest.approx((4.0, 1.0))
+    assert wp.velocity(7.0) == pytest.approx((0.0, 1.0))
+    assert wp.position(10.0) == pytest.approx((4.0, 3.0))
+    assert wp.position(100.0) == pytest.approx((4.0, 3.0))
+    # looping: the 5 m leg home, 2 s there too: a round is 12 m / 2 m/s + 3 x 2 s = 12 s
+    loop = Waypoints(((0.0, 0.0), (4.0, 0.0), (4.0, 3.0)), 2.0, loop=True, dwell=2.0)
+    assert loop.position(2.0 + 1.0) == pytest.approx((4.0, 0.0))     # stopped at (4, 0)
+    assert loop.position(4.0 + 1.0) == pytest.approx((4.0, 2.0))     # 1 s into the north leg
+    assert loop.position(11.0) == pytest.approx((0.0, 0.0))          # home, stopped
+    assert loop.velocity(11.0) == (0.0, 0.0)
+    assert loop.position(12.0 + 1.0) == pytest.approx((2.0, 0.0))    # round two

@@ -165,6 +165,10 @@ def test_an_error_names_the_file_that_set_the_key(tmp_path: Path) -> None:
      'world.boat.velocity', 'expected a finite number, got inf'),
     ('boat: {kind: circle, center: [0, 0], radius: 1, waypoints: [[1, 1]], speed: 1, '
      'loop: 2}', 'world.boat.loop', 'expected true or false, got 2'),
+    ('boat: {kind: circle, center: [0, 0], radius: 1, waypoints: [[1, 1]], speed: 1, '
+     'dwell: -1}', 'world.boat.dwell', 'expected a dwell >= 0 [s] at each waypoint, got -1.0'),
+    ('boat: {kind: circle, center: [0, 0], radius: 1, dwell: 2}', 'world.boat.dwell',
+     'only with waypoints'),
     ('buoy: {kind: circle, center: [0, 0], radius: 1, height: 0}', 'world.buoy.height',
      'expected a height > 0 [m] above the water, got 0.0'),
     ('buoy: {kind: circle, center: [0, 0], radius: 1, height: tall}', 'world.buoy.height',
