@@ -123,6 +123,21 @@ def test_a_detected_buoy_gets_its_class_and_the_rest_stay_obstacles(context, exe
     assert values['tracks_classified'] == '1'
 
 
+def test_detections_alone_never_refresh_the_fused_obstacles(context, executor, spin):
+    """A stalled lidar must leave obstacles/fused as stale as obstacles: the avoidance then
+    goes blind and holds (ca_lidar_dropout_fusion) though the camera still sees the buoy."""
+    h = Harness(context, executor, spin)
+    h.info()
+    h.poses(T0)
+    h.obstacles([BUOY], T0)
+    published = len(h.fused)
+    for k in range(1, 6):   # the camera goes on at 15 fps, no scan comes
+        h.detections([(3, 0.9, *BUOY_BOX)], T0 + k * 66 * MS)
+    assert h.node.counts['matched'] >= 1
+    assert len(h.fused) == published
+    assert cloud_stamp_ns(h.fused[-1]) == T0
+
+
 def test_stale_inputs_are_counted_and_not_matched(context, executor, spin):
     h = Harness(context, executor, spin, max_age=0.5)
     h.detections([(3, 0.9, *BUOY_BOX)], T0)
