@@ -9,6 +9,7 @@ assignment).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,18 +114,22 @@ class ScanObstacles:
             return None
         if len(scan.r) == 0:
             return [], 0, 0
-        base = mount.to_base(scan.laser)
-        world = to_world(base, eta)
-        sensor = to_world(np.broadcast_to(mount.translation[:2], base.shape).copy(), eta)
-        sigma = s.breakpoints.noise.sigma(scan.r)
+        world = to_world(mount.to_base(scan.laser), eta)
+        # Where the lidar was and its range noise, at each kept cluster's middle ray only: in
+        # floats, the few clusters of a scan cost less than arrays over all its rays.
+        tx, ty = float(mount.translation[0]), float(mount.translation[1])
+        noise = s.breakpoints.noise
         shapes: list[CircleFit | SegmentFit] = []
         kept = 0
         for c in clusters(scan, s.breakpoints):
             if len(c) < s.min_cluster_points:
                 continue
             kept += 1
-            mid = c[len(c) // 2]
-            shapes += fit_cluster(world[c], sensor[mid], float(sigma[mid]), s.fit)
+            mid = int(c[len(c) // 2])
+            x, y, psi = eta[mid].tolist()
+            cos, sin = math.cos(psi), math.sin(psi)
+            sensor = np.array((x + cos * tx - sin * ty, y + sin * tx + cos * ty))
+            shapes += fit_cluster(world[c], sensor, noise.sigma_at(float(scan.r[mid])), s.fit)
         return shapes, len(scan.r), kept
 
     def process(self, ranges: Vector, angle_min: float, angle_increment: float,

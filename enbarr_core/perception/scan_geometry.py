@@ -60,6 +60,14 @@ class RangeNoise:
         out: Vector = np.asarray(self.fractions)[band] * r
         return out
 
+    def sigma_at(self, r: float) -> float:
+        """Return the range standard deviation [m] at one range ``r`` [m] (as :meth:`sigma`)."""
+        band = 0
+        for limit in self.limits:
+            if limit <= r:
+                band += 1
+        return self.fractions[band] * r
+
 
 @dataclass(frozen=True, eq=False)
 class ScanPoints:

@@ -21,6 +21,9 @@ def test_range_noise_is_the_manuals_bands():
     noise = RangeNoise(NOISE_LIMITS, NOISE_FRACTIONS)
     r = np.array([1.0, 2.99, 3.0, 4.5, 5.0, 10.0])
     assert noise.sigma(r) == pytest.approx([0.01, 0.0299, 0.06, 0.09, 0.125, 0.25])
+    # one range at a time (the fits' noise at a cluster's middle ray): the same bands
+    assert [noise.sigma_at(float(x)) for x in r] == pytest.approx(
+        [0.01, 0.0299, 0.06, 0.09, 0.125, 0.25])
 
 
 def test_only_finite_ranges_become_points_in_ring_order():
