@@ -105,7 +105,8 @@ from enbarr_core.framework.sources import SourceGuard
 from enbarr_core.framework.stamps import StampGate, StampPolicy, StampVerdict
 from enbarr_core.guidance.cbf import moved, obstacle_rows
 from enbarr_core.guidance.force_cbf import ForceCbfSettings, ForceOutput, ForceSafetyFilter
-from enbarr_core.guidance.guidance_node import AVOIDANCE_LEVELS, msg_to_reference
+from enbarr_core.guidance import avoidance_params
+from enbarr_core.guidance.guidance_node import msg_to_reference
 from enbarr_core.models.vessel3dof_params import (
     vector3, VESSEL_PARAMETERS, VESSEL_SPECS, vessel_from_params)
 
@@ -149,15 +150,8 @@ SPECS = [
     # Collision avoidance at the force level (guidance.force_cbf). enabled, level,
     # safety_radius, vessel_radius and staleness are the guidance node's too: a profile gives
     # them once, in its common parameters.
-    ParamSpec('avoidance.enabled', False, 'Collision avoidance on (with avoidance.level force '
-              'this node filters its force outside manual)'),
-    ParamSpec('avoidance.level', 'guidance', 'Where the barrier functions act: guidance (the '
-              'desired position, in the guidance node) or force (the force, here)',
-              read_only=True),
-    ParamSpec('avoidance.safety_radius', 0.2, 'Clearance that must hold between the hull and '
-              'every obstacle', 'm', 0.0, 10.0),
-    ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 with '
-              'the force level on)', 'm', 0.0, 50.0),
+    avoidance_params.ENABLED, avoidance_params.LEVEL, avoidance_params.SAFETY_RADIUS,
+    avoidance_params.VESSEL_RADIUS,
     ParamSpec('avoidance.staleness', 0.5, 'Obstacles older than this against the estimate are '
               'reported stale on /diagnostics', 's', 0.02, 10.0),
     ParamSpec('avoidance.force_max', [2.0, 2.0], 'Force box (surge, sway) the force-level '
@@ -189,10 +183,7 @@ class ForceAvoidanceSettings:
     def from_params(cls, v: Mapping[str, Any], control: DpControlSettings
                     ) -> ForceAvoidanceSettings:
         """Build from the declared parameters' values (ValueError naming the parameter)."""
-        level = v['avoidance.level']
-        if level not in AVOIDANCE_LEVELS:
-            raise ValueError(f'avoidance.level: expected one of {", ".join(AVOIDANCE_LEVELS)}, '
-                             f'got {level!r}')
+        level = avoidance_params.level_of(v)
         staleness = float(v['avoidance.staleness'])
         if not (v['avoidance.enabled'] and level == 'force'):
             return cls(None, staleness)

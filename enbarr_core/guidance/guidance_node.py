@@ -59,11 +59,9 @@ from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_core.guidance.cbf import (
     blind_reason, CbfOutput, CbfSettings, moved, obstacle_rows, SafetyFilter)
+from enbarr_core.guidance import avoidance_params
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
-#: Where the barrier functions act (``avoidance.level``): on the desired position here, or on
-#: the DP controller's force.
-AVOIDANCE_LEVELS = ('guidance', 'force')
 
 SPECS = [
     ParamSpec('path.waypoints', [0.0], 'Guidance: x, y of one waypoint to go to, or x0, y0, '
@@ -78,15 +76,8 @@ SPECS = [
     ParamSpec('path.heading', 'fixed', 'Heading along the path: fixed (keep the heading held '
               'when guidance starts) or course (face the direction of travel)'),
     # Collision avoidance (guidance.cbf): off unless the profile turns it on.
-    ParamSpec('avoidance.enabled', False, 'Filter the reference through the control barrier '
-              'functions of the obstacles (automatic and guidance modes)'),
-    ParamSpec('avoidance.level', 'guidance', 'Where the barrier functions act: guidance (the '
-              "desired position, here) or force (the DP controller's force; here only the "
-              'blind hold)', read_only=True),
-    ParamSpec('avoidance.safety_radius', 0.2, 'Clearance that must hold between the hull and '
-              'every obstacle', 'm', 0.0, 10.0),
-    ParamSpec('avoidance.vessel_radius', 0.0, 'Hull radius about the CO (required > 0 when '
-              'avoidance is enabled)', 'm', 0.0, 50.0),
+    avoidance_params.ENABLED, avoidance_params.LEVEL, avoidance_params.SAFETY_RADIUS,
+    avoidance_params.VESSEL_RADIUS,
     ParamSpec('avoidance.tracking_margin', 0.2, 'How far the vessel may lag the desired '
               'position: added to the zone the desired position keeps out of', 'm', 0.0, 10.0),
     ParamSpec('avoidance.gamma', 0.5, 'Barrier decay rate: dB/dt >= -gamma B', '1/s', 0.01,
@@ -160,7 +151,7 @@ class AvoidanceSettings:
     enabled: bool
     staleness: float            # obstacles or pose older than this: blind [s]
     cbf: CbfSettings
-    level: str = 'guidance'     # AVOIDANCE_LEVELS: 'force' filters nothing here
+    level: str = 'guidance'     # avoidance_params.AVOIDANCE_LEVELS: 'force' filters nothing here
 
     @property
     def filters(self) -> bool:
@@ -181,10 +172,7 @@ class AvoidanceSettings:
         except ValueError as err:
             raise ValueError(f'avoidance.{err}') from err
         enabled = bool(v['avoidance.enabled'])
-        level = v['avoidance.level']
-        if level not in AVOIDANCE_LEVELS:
-            raise ValueError(f'avoidance.level: expected one of {", ".join(AVOIDANCE_LEVELS)}, '
-                             f'got {level!r}')
+        level = avoidance_params.level_of(v)
         if enabled and cbf.vessel_radius <= 0.0:
             raise ValueError('avoidance.vessel_radius: give the hull radius (> 0) to enable '
                              'avoidance')
