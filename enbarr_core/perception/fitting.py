@@ -210,8 +210,9 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
 
 def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
     """Whether the centre lies beyond the points' middle, seen from the sensor."""
-    mid = points.sum(axis=0) / len(points)
-    return float((np.array([cx, cy]) - mid) @ (mid - sensor)) > 0.0
+    mx, my = (points.sum(axis=0) / len(points)).tolist()
+    sx, sy = float(sensor[0]), float(sensor[1])
+    return (cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0
 
 
 def fallback_circle(points: Vector, sensor: Vector, sigma: float,
@@ -348,9 +349,10 @@ def fit_cluster(points: Vector, sensor: Vector, sigma: float,
                 s: FitSettings) -> list[CircleFit | SegmentFit]:
     """Circle or segments for one cluster (module docstring); ``sigma`` the range noise [m]."""
     n = len(points)
-    extent = math.dist(points[0], points[-1])
+    (x0, y0), (x1, y1) = points[0].tolist(), points[-1].tolist()
+    extent = math.hypot(x1 - x0, y1 - y0)
     if n >= 3:
-        extent = max(extent, float(np.ptp(points, axis=0).max()))
+        extent = max(extent, float((points.max(axis=0) - points.min(axis=0)).max()))
     if extent > 2.0 * s.max_radius:
         return _segments(points, sigma, s)
     circle = fit_circle(points, sensor, sigma, s.min_radius, s.max_radius)

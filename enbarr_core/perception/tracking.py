@@ -96,16 +96,17 @@ class CircleTrack:
 
     def innovation(self, z: CircleFit) -> float:
         """Squared Mahalanobis distance of measurement ``z`` from the prediction."""
-        nu = np.array([z.x - self.kf.x[0, 0], z.y - self.kf.x[1, 0]])
-        p = self.kf.P
-        s = np.array([[p[0, 0] + z.cov[0], p[0, 1] + z.cov[1]],
-                      [p[1, 0] + z.cov[1], p[1, 1] + z.cov[2]]])
-        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        # In floats: every track meets every measurement of a scan, and two small arrays per
+        # pair cost more than the arithmetic.
+        x, y = self.kf.x[0, 0], self.kf.x[1, 0]
+        (p00, p01), (p10, p11) = self.kf.P[:2, :2].tolist()
+        nu0, nu1 = z.x - float(x), z.y - float(y)
+        s00, s01, s10, s11 = p00 + z.cov[0], p01 + z.cov[1], p10 + z.cov[1], p11 + z.cov[2]
+        det = s00 * s11 - s01 * s10
         if not det > 0.0:
             return math.inf
         # nu^T S^-1 nu with the 2x2 inverse written out
-        return float((s[1, 1] * nu[0] * nu[0] - 2.0 * s[0, 1] * nu[0] * nu[1]
-                      + s[0, 0] * nu[1] * nu[1]) / det)
+        return float((s11 * nu0 * nu0 - 2.0 * s01 * nu0 * nu1 + s00 * nu1 * nu1) / det)
 
     def update(self, z: CircleFit, stamp_ns: int, alpha: float) -> None:
         """Correct with ``z`` measured at ``stamp_ns``; smooth the radius with weight alpha."""
