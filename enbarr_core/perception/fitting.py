@@ -212,7 +212,7 @@ def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
     """Whether the centre lies beyond the points' middle, seen from the sensor."""
     mx, my = (points.sum(axis=0) / len(points)).tolist()
     sx, sy = float(sensor[0]), float(sensor[1])
-    return (cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0
+    return bool((cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0)
 
 
 def fallback_circle(points: Vector, sensor: Vector, sigma: float,
