@@ -288,11 +288,11 @@ def fit_line(points: Vector) -> tuple[Vector, Vector, float]:
     """Total least squares line: (a point on it, unit direction, sum of squared distances)."""
     m = points.sum(axis=0) / len(points)
     p = points - m
-    sxx, syy, sxy = float(p[:, 0] @ p[:, 0]), float(p[:, 1] @ p[:, 1]), float(p[:, 0] @ p[:, 1])
+    (sxx, sxy), (_, syy) = (p.T @ p).tolist()        # one product for the three sums
     theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)   # the principal axis
-    u = np.array([math.cos(theta), math.sin(theta)])
-    dist = p @ np.array([-u[1], u[0]])
-    return m, u, float(dist @ dist)
+    c, s = math.cos(theta), math.sin(theta)
+    dist = p @ np.array((-s, c))
+    return m, np.array((c, s)), float(dist @ dist)
 
 
 def fit_segment(points: Vector) -> SegmentFit:
