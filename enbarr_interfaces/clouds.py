@@ -8,6 +8,7 @@ numeric type, so that a writer may add fields later; this module is that reader.
 from __future__ import annotations
 
 from collections.abc import Sequence
+import functools
 from typing import Any
 
 import numpy as np
@@ -49,6 +50,14 @@ def read_fields(msg: PointCloud2, names: Sequence[str], what: str,
                         f'{step} bytes')
         formats.append(np_type)
         offsets.append(f.offset)
-    view = np.dtype({'names': list(names), 'formats': formats, 'offsets': offsets,
-                     'itemsize': step})
+    view = _view(tuple(names), tuple(formats), tuple(offsets), step)
     return np.frombuffer(data[:n * step], dtype=view)
+
+
+@functools.lru_cache(maxsize=64)
+def _view(names: tuple[str, ...], formats: tuple[str, ...], offsets: tuple[int, ...],
+          step: int) -> np.dtype[Any]:
+    # One layout per writer: building the structured dtype cost more than reading the points
+    # of an obstacles message, read once per scan by every subscriber.
+    return np.dtype({'names': list(names), 'formats': list(formats), 'offsets': list(offsets),
+                     'itemsize': step})
