@@ -8,8 +8,8 @@ of ``linux/i2c-dev.h``; the timeout is in units of 10 ms): an I2C transfer is do
 kernel, so that is the only bound on how long one transfer can block.
 
 ``FakeI2cBus`` implements the subset of smbus2's ``SMBus`` interface that ``I2cDevice`` uses
-(``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``, ``write_i2c_block_data``,
-``close``), backed by a 256-byte register map or an emulator object per address, and injects
+(``write_byte``, ``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``,
+``write_i2c_block_data``, ``close``), backed by a 256-byte register map or an emulator object per address, and injects
 the failures a real bus shows: a NACK (``EREMOTEIO``, what Linux adapters return when no
 device acknowledges) and a stall (``ETIMEDOUT``, a device holding SCL low).
 References: smbus2 0.6 (https://github.com/kplindegaard/smbus2), the Linux kernel's
@@ -37,6 +37,8 @@ MAX_BLOCK = 32
 
 class SMBusLike(Protocol):
     """The part of ``smbus2.SMBus`` that ``I2cDevice`` uses."""
+
+    def write_byte(self, i2c_addr: int, value: int) -> None: ...  # noqa: D102
 
     def read_byte_data(self, i2c_addr: int, register: int) -> int: ...  # noqa: D102
 
@@ -121,6 +123,11 @@ class I2cDevice:
                     time.sleep(self.retry_delay)
         raise AssertionError('unreachable')
 
+    def command(self, command: int) -> None:
+        """Send the one-byte ``command`` alone (SMBus send byte: a command-driven chip's
+        reset or conversion start, which has no register behind it)."""
+        self._transfer(command, 'command', self.bus.write_byte)
+
     def read_u8(self, register: int) -> int:
         """One register's byte."""
         return self._transfer(register, 'read', self.bus.read_byte_data)
@@ -162,7 +169,10 @@ class I2cDevice:
 
 
 class RegisterEmulator(Protocol):
-    """A device behind ``FakeI2cBus``: how it answers reads and takes writes."""
+    """A device behind ``FakeI2cBus``: how it answers reads and takes writes.
+
+    A send byte (``write_byte``) arrives as a write of no data to the byte's "register".
+    """
 
     def read(self, register: int, length: int) -> bytes: ...  # noqa: D102
 
@@ -232,6 +242,11 @@ class FakeI2cBus:
         if device is None:
             raise OSError(errno.EREMOTEIO, 'Remote I/O error')
         return device
+
+    def write_byte(self, i2c_addr: int, value: int) -> None:
+        """SMBus send byte: ``value`` alone, handed to the device as a write of no data."""
+        self._device(i2c_addr).write(value, b'')
+        self.log.append(('write', i2c_addr, value, b''))
 
     def read_byte_data(self, i2c_addr: int, register: int) -> int:
         """SMBus read byte data."""
