@@ -14,7 +14,7 @@ from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
 from enbarr_plugins.check import CheckTarget
 from enbarr_plugins.imu.common import Bus
-from enbarr_plugins.pressure.ms5837 import Ms5837Chip
+from enbarr_plugins.pressure.ms5837 import Ms5837Device
 from enbarr_plugins.pressure.ms5837_emulator import attach_ms5837
 from enbarr_plugins.pressure.ms5837_protocol import ADDRESS, compensate
 from enbarr_plugins.transport.i2c import FakeI2cBus
@@ -37,7 +37,7 @@ def check_ms5837(target: CheckTarget) -> list[str]:
         except ValueError as err:
             raise DeviceError(str(err)) from err
         try:
-            chip = Ms5837Chip(bus.device(address), 4096)
+            chip = Ms5837Device(bus.device(address), 4096)
             cal = chip.open()
             d2 = chip.convert(d1=False)
             d1 = chip.convert(d1=True)

@@ -95,7 +95,7 @@ class Ms5837Settings:
         parse_bus(v['bus'])
         osr = int(v['osr'])
         if osr not in OSR:
-            raise ValueError(f'osr: {osr} is not one of the chip\'s '
+            raise ValueError(f"osr: {osr} is not one of the chip's "
                              f'({", ".join(map(str, OSR))})')
         fastest = 1.0 / (2.0 * OSR[osr][1])
         if v['rate'] > fastest:
@@ -114,7 +114,7 @@ def wait_until(deadline_ns: int) -> None:
         time.sleep(left * 1e-9)
 
 
-class Ms5837Chip:
+class Ms5837Device:
     """The chip behind the driver: open (reset + PROM) and one sample (D2, D1)."""
 
     def __init__(self, dev: I2cDevice, osr: int) -> None:
@@ -155,8 +155,8 @@ class Ms5837Node(SensorDriver):
         self._pressure_pub = self.create_topic_publisher(topics.PRESSURE)
         self._temperature_pub = self.create_topic_publisher(topics.PRESSURE_TEMPERATURE)
         self._depth_pub = self.create_topic_publisher(topics.DEPTH)
-        self._bus: Bus | None = None
-        self._chip: Ms5837Chip | None = None
+        self._i2c_bus: Bus | None = None
+        self._chip: Ms5837Device | None = None
         self.zero_reads = 0
         self._zero_run = 0
         self.identity = ''
@@ -172,14 +172,16 @@ class Ms5837Node(SensorDriver):
         """Open the bus, reset the chip and check its PROM."""
         s = self.settings
         bus = Bus(s.bus, s.i2c_timeout)
-        chip = Ms5837Chip(bus.device(s.address), s.osr)
+        chip = Ms5837Device(bus.device(s.address), s.osr)
         try:
             cal = chip.open()
         except DeviceError as err:
             bus.close()
-            raise DeviceError(f'{self.device}: MS5837 does not answer or is not one: '
-                              f'{err}') from err
-        self._bus, self._chip = bus, chip
+            if isinstance(err.__cause__, PromError):
+                raise  # it names the device and the words read
+            text = str(err).removeprefix(f'{self.device}: ')  # transport errors name it
+            raise DeviceError(f'{self.device}: no MS5837-30BA answers: {text}') from err
+        self._i2c_bus, self._chip = bus, chip
         self._zero_run = 0
         self.identity = f'MS5837-30BA, C1..C6 {", ".join(map(str, cal.coefficients))}'
         self.get_logger().info(f'{self.device}: {self.identity}, osr {s.osr}')
@@ -187,7 +189,7 @@ class Ms5837Node(SensorDriver):
     def close_device(self) -> None:
         """Drop the chip and close the bus (when this driver opened it)."""
         self._chip = None
-        bus, self._bus = self._bus, None
+        bus, self._i2c_bus = self._i2c_bus, None
         if bus is not None:
             bus.close()
 

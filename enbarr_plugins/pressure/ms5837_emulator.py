@@ -43,7 +43,7 @@ FULL_SCALE = (1 << 24) - 1
 
 
 def prom_crc4(words: Sequence[int]) -> int:
-    """The data sheet's CRC-4 of the 7 PROM words (CRC nibble of word 0 taken as 0)."""
+    """Return the data sheet's CRC-4 of the 7 PROM words (CRC nibble of word 0 taken as 0)."""
     n = [words[0] & 0x0FFF, *words[1:7], 0]
     rem = 0
     for cnt in range(16):
@@ -73,7 +73,7 @@ def temp_and_p(c: Sequence[int], d1: int, d2: int) -> tuple[int, int]:
 
 
 def _smallest(at_least: Callable[[int], bool]) -> int:
-    """The smallest 24-bit value for which ``at_least`` holds (monotonic), else full scale."""
+    """Return the smallest 24-bit value where ``at_least`` (monotonic) holds, else full scale."""
     lo, hi = 0, FULL_SCALE
     while lo < hi:
         mid = (lo + hi) // 2

@@ -58,7 +58,7 @@ class PromError(ValueError):
 def convert_command(d1: bool, osr: int) -> int:
     """Return the command byte converting D1 (``d1``) or D2 at ``osr``."""
     if osr not in OSR:
-        raise ValueError(f'osr: {osr} is not one of the chip\'s ({", ".join(map(str, OSR))})')
+        raise ValueError(f"osr: {osr} is not one of the chip's ({', '.join(map(str, OSR))})")
     return (CONVERT_D1 if d1 else CONVERT_D2) + OSR[osr][0]
 
 
@@ -115,10 +115,11 @@ def parse_prom(words: list[int] | tuple[int, ...], device: str) -> Calibration:
                         'not an MS5837?')
     product = (words[0] >> 5) & 0x7F
     if product != PRODUCT_30BA:
-        raise PromError(f'{device}: product type 0x{product:02x} in PROM word 0 (0x{words[0]:04x}) '
-                        f'is not an MS5837-30BA\'s (0x{PRODUCT_30BA:02x}); a 02BA needs '
-                        'another compensation')
-    return Calibration(*words[1:7], product=product)
+        raise PromError(f'{device}: product type 0x{product:02x} in PROM word 0 '
+                        f"(0x{words[0]:04x}) is not an MS5837-30BA's (0x{PRODUCT_30BA:02x}); "
+                        'a 02BA needs another compensation')
+    c1, c2, c3, c4, c5, c6 = words[1:7]
+    return Calibration(c1, c2, c3, c4, c5, c6, product=product)
 
 
 @dataclass(frozen=True)
@@ -146,8 +147,9 @@ class Reading:
 
 
 def compensate(cal: Calibration, d1: int, d2: int) -> Reading:
-    """Return TEMP and P of raw ``d1`` (pressure) and ``d2`` (temperature): the 30BA's
-    first-order calculation (figure 9) and second-order compensation.
+    """Return TEMP and P of raw ``d1`` (pressure) and ``d2`` (temperature).
+
+    The 30BA's first-order calculation (figure 9), then its second-order compensation.
     """
     c1, c2, c3, c4, c5, c6 = cal.coefficients
     d_t = d2 - (c5 << 8)                                 # dT = D2 - C5 * 2^8

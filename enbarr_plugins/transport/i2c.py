@@ -9,9 +9,9 @@ kernel, so that is the only bound on how long one transfer can block.
 
 ``FakeI2cBus`` implements the subset of smbus2's ``SMBus`` interface that ``I2cDevice`` uses
 (``write_byte``, ``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``,
-``write_i2c_block_data``, ``close``), backed by a 256-byte register map or an emulator object per address, and injects
-the failures a real bus shows: a NACK (``EREMOTEIO``, what Linux adapters return when no
-device acknowledges) and a stall (``ETIMEDOUT``, a device holding SCL low).
+``write_i2c_block_data``, ``close``), backed by a 256-byte register map or an emulator object
+per address, and injects the failures a real bus shows: a NACK (``EREMOTEIO``, what Linux
+adapters return when no device acknowledges) and a stall (``ETIMEDOUT``, a device holding SCL low).
 References: smbus2 0.6 (https://github.com/kplindegaard/smbus2), the Linux kernel's
 Documentation/i2c/dev-interface.rst and include/uapi/linux/i2c-dev.h.
 """
@@ -116,7 +116,7 @@ class I2cDevice:
                     reason = (errno.errorcode.get(err.errno, str(err.errno))
                               if err.errno else str(err))
                     raise DeviceError(
-                        f'{self.name}: {what} register 0x{register:02x} failed after '
+                        f'{self.name}: {what} 0x{register:02x} failed after '
                         f'{self.retries + 1} attempts: {reason} ({err.strerror or err})'
                     ) from err
                 if self.retry_delay:
@@ -124,25 +124,27 @@ class I2cDevice:
         raise AssertionError('unreachable')
 
     def command(self, command: int) -> None:
-        """Send the one-byte ``command`` alone (SMBus send byte: a command-driven chip's
-        reset or conversion start, which has no register behind it)."""
+        """Send the one-byte ``command`` alone (SMBus send byte).
+
+        A command-driven chip's reset or conversion start: no register behind it.
+        """
         self._transfer(command, 'command', self.bus.write_byte)
 
     def read_u8(self, register: int) -> int:
         """One register's byte."""
-        return self._transfer(register, 'read', self.bus.read_byte_data)
+        return self._transfer(register, 'read register', self.bus.read_byte_data)
 
     def write_u8(self, register: int, value: int) -> None:
         """Write one register."""
         if not 0 <= value <= 0xFF:
             raise ValueError(f'value: {value} is not a byte')
-        self._transfer(register, 'write', self.bus.write_byte_data, value)
+        self._transfer(register, 'write register', self.bus.write_byte_data, value)
 
     def read_block(self, register: int, length: int) -> bytes:
         """``length`` (1..32) consecutive registers from ``register`` (auto-increment)."""
         if not 1 <= length <= MAX_BLOCK:
             raise ValueError(f'length: must be 1..{MAX_BLOCK}, got {length}')
-        data = self._transfer(register, 'read', self.bus.read_i2c_block_data, length)
+        data = self._transfer(register, 'read register', self.bus.read_i2c_block_data, length)
         if len(data) != length:
             self.failures += 1
             raise DeviceError(f'{self.name}: read register 0x{register:02x}: expected '
@@ -153,7 +155,7 @@ class I2cDevice:
         """Write ``data`` (1..32 bytes) to consecutive registers from ``register``."""
         if not 1 <= len(data) <= MAX_BLOCK:
             raise ValueError(f'data: must be 1..{MAX_BLOCK} bytes, got {len(data)}')
-        self._transfer(register, 'write', self.bus.write_i2c_block_data, list(data))
+        self._transfer(register, 'write register', self.bus.write_i2c_block_data, list(data))
 
     def update_bits(self, register: int, mask: int, value: int) -> None:
         """Read-modify-write: set the bits of ``mask`` in ``register`` to those of ``value``."""
