@@ -32,23 +32,18 @@ from dataclasses import dataclass
 import time
 from typing import Any
 
-from geometry_msgs.msg import PoseWithCovarianceStamped
-from sensor_msgs.msg import FluidPressure, Temperature
-
 from enbarr_core.framework.driver import SensorDriver
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import topics
 from enbarr_plugins.imu.common import Bus, check_address, parse_bus
+from enbarr_plugins.pressure.common import DEPTH_SPECS, DepthTopics
 from enbarr_plugins.pressure.ms5837_protocol import (
-    ADC_READ, ADDRESS, Calibration, compensate, convert_command, DENSITY_FRESH, depth, OSR,
-    parse_prom, PROM_READ, PROM_WORDS, PromError, RESET, RESET_TIME)
+    ADC_READ, ADDRESS, Calibration, compensate, convert_command, OSR, parse_prom, PROM_READ,
+    PROM_WORDS, PromError, Reading, RESET, RESET_TIME)
 from enbarr_plugins.transport.i2c import I2cDevice
 
 #: Consecutive ADC reads of 0 that make a device fault.
 MAX_ZERO_READS = 5
-#: Variance published for the unobserved axes of ``depth`` [m^2 / rad^2].
-UNOBSERVED = 1e9
 
 SPECS = [
     ParamSpec('bus', '1', "I2C bus: a number ('1'), a device ('/dev/i2c-1') or "
@@ -62,12 +57,7 @@ SPECS = [
               400.0, read_only=True),
     ParamSpec('i2c_timeout', 0.05, 'I2C adapter timeout: longest one transfer may block',
               's', 0.01, 1.0, read_only=True),
-    ParamSpec('fluid_density', DENSITY_FRESH, 'Water density for the depth: 997 fresh, 1029 '
-              'salt', 'kg/m^3', 900.0, 1100.0),
-    ParamSpec('surface_pressure', 101325.0, 'Pressure at the surface (depth 0); 0 takes the '
-              'next reading as the surface (re-zero)', 'Pa', 0.0, 200000.0),
-    ParamSpec('depth_noise', 0.002, 'Depth standard deviation published in covariance[14]',
-              'm', 0.0, 10.0),
+    *DEPTH_SPECS,
 ]
 
 
@@ -148,13 +138,10 @@ class Ms5837Node(SensorDriver):
     def __init__(self, node_name: str = 'depth_sensor', **kwargs: Any) -> None:
         super().__init__(node_name, device='i2c', **kwargs)
         self.settings: Ms5837Settings
-        self._surface: float | None = None
+        self._topics = DepthTopics(self)
         self.bind_settings(SPECS, Ms5837Settings.from_params, self._apply)
         s = self.settings
         self.device = f'{s.bus} 0x{s.address:02x}'
-        self._pressure_pub = self.create_topic_publisher(topics.PRESSURE)
-        self._temperature_pub = self.create_topic_publisher(topics.PRESSURE_TEMPERATURE)
-        self._depth_pub = self.create_topic_publisher(topics.DEPTH)
         self._i2c_bus: Bus | None = None
         self._chip: Ms5837Device | None = None
         self.zero_reads = 0
@@ -165,7 +152,7 @@ class Ms5837Node(SensorDriver):
 
     def _apply(self, settings: Ms5837Settings) -> None:
         self.settings = settings
-        self._surface = settings.surface_pressure or None  # None: re-zero on the next read
+        self._topics.set_surface(settings.surface_pressure)
 
     # -- device lifecycle ---------------------------------------------------------------------
     def open_device(self) -> None:
@@ -216,40 +203,17 @@ class Ms5837Node(SensorDriver):
         self._zero_run = 0
         self._publish(compensate(chip.calibration, d1, d2))
 
-    def _publish(self, reading: Any) -> None:
+    def _publish(self, reading: Reading) -> None:
         s = self.settings
-        pressure = reading.pressure_pa
-        if self._surface is None:
-            self._surface = pressure
-            self.get_logger().info(f'{self.device}: depth zeroed at {pressure:.0f} Pa')
-        stamp = self.get_clock().now().to_msg()
-        p = FluidPressure()
-        p.header.stamp = stamp
-        p.header.frame_id = topics.PRESSURE_FRAME
-        p.fluid_pressure = pressure
-        self._pressure_pub.publish(p)
-        t = Temperature()
-        t.header.stamp = stamp
-        t.header.frame_id = topics.PRESSURE_FRAME
-        t.temperature = reading.temperature_c
-        self._temperature_pub.publish(t)
-        d = PoseWithCovarianceStamped()
-        d.header.stamp = stamp
-        d.header.frame_id = topics.WORLD_FRAME
-        d.pose.pose.position.z = -depth(pressure, self._surface, s.fluid_density)
-        d.pose.pose.orientation.w = 1.0
-        c = d.pose.covariance
-        for i in (0, 7, 21, 28, 35):
-            c[i] = UNOBSERVED
-        c[14] = s.depth_noise ** 2
-        self._depth_pub.publish(d)
+        self._topics.publish(self.get_clock().now().to_msg(), reading.pressure_pa,
+                             reading.temperature_c, s.fluid_density, s.depth_noise)
         self.sample_received()
 
     def status_values(self) -> dict[str, Any]:
         """Return the sample and zero-read counters, the identity and the surface pressure."""
         values = super().status_values()
         values.update({'identity': self.identity, 'zero_reads': self.zero_reads,
-                       'surface_pressure': self._surface,
+                       'surface_pressure': self._topics.surface,
                        'loop_overruns': self._loop.overruns})
         return values
 
