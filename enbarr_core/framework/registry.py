@@ -54,6 +54,7 @@ BUILTIN: dict[str, str] = {
     'sim_mocap': 'enbarr_plugins.mocap.sim:SimMocapNode',
     'sim_lidar': 'enbarr_plugins.lidar.sim:SimLidarNode',
     'sim_camera': 'enbarr_plugins.camera.sim:SimCameraNode',
+    'sim_depth': 'enbarr_plugins.pressure.sim:SimDepthNode',
     'sim_arduino': 'enbarr_plugins.arduino.sim:SimArduinoNode',
     'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
     'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
