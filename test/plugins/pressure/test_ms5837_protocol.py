@@ -16,6 +16,7 @@ Every number below is typed from the sources, never read from the code under tes
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from enbarr_plugins.pressure import ms5837_protocol as proto
@@ -96,6 +97,9 @@ def _hand(d2: int) -> tuple[int, int, int, int]:
     (6821376, 'boundary'),           # dT = 0: TEMP = 2000 exactly, the high branch
     (6821376 - 100000, 'low'),       # 2000 > TEMP > -1500
     (6821376 - 2000000, 'very low'),  # TEMP < -1500
+    (6821376 - 1106888, 'low'),       # TEMP -1450: not yet very low
+    (6821376 - 1122930, 'low'),       # TEMP -1500 exactly: the very-low branch is < -1500
+    (6821376 - 1123250, 'very low'),  # TEMP -1501
 ])
 def test_second_order_branches(d2, branch_temp):
     temp, ti, offi, sensi = _hand(d2)
@@ -106,6 +110,8 @@ def test_second_order_branches(d2, branch_temp):
         assert (temp, ti, offi, sensi) == (2000, 0, 0, 0)
     if branch_temp == 'very low':
         assert temp < -1500 and offi > 3 * (temp - 2000) ** 2 // 2
+    if branch_temp == 'low':
+        assert -1500 <= temp < 2000 and offi == 3 * (temp - 2000) ** 2 // 2
 
 
 def test_at_exactly_2000_no_low_temperature_correction():
@@ -218,3 +224,13 @@ def test_emulator_raw_values_compensate_to_the_truth(pressure, temperature):
     r = proto.compensate(example(), d1, d2)
     assert abs(r.pressure_pa - pressure) <= 10.0        # 0.1 mbar steps
     assert abs(r.temperature_c - temperature) <= 0.01   # 0.01 degC steps
+
+
+def test_emulator_and_driver_crcs_agree_on_other_calibrations():
+    # Two copies of the data sheet's algorithm (the emulator's and the protocol's), pinned
+    # together on 0x9340 above; here they must agree on calibrations of other chips too.
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        c = [int(x) for x in rng.integers(0, 65536, 6)]
+        chip = Ms5837Chip(c)
+        assert proto.parse_prom(chip.prom, 'i2c-1 0x76').coefficients == tuple(c)
