@@ -66,6 +66,7 @@ BUILTIN: dict[str, str] = {
     'fxos8700_imu': 'enbarr_plugins.imu.fxos8700:Fxos8700ImuNode',
     'fxos8700_emulator': 'enbarr_plugins.imu.fxos8700_emulator:Fxos8700EmulatorNode',
     'ms5837_depth': 'enbarr_plugins.pressure.ms5837:Ms5837Node',
+    'ms5837_emulator': 'enbarr_plugins.pressure.ms5837_emulator:Ms5837EmulatorNode',
     'arduino_pwm': 'enbarr_plugins.arduino.link:ArduinoPwmNode',
     'arduino_emulator': 'enbarr_plugins.arduino.emulator:ArduinoEmulatorNode',
     'rplidar': 'enbarr_plugins.lidar.rplidar:RplidarNode',

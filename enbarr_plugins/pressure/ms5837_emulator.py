@@ -17,16 +17,28 @@ The raw values measure ``pressure`` [Pa] and ``temperature`` [degC]: D2 and D1 a
 bisection on the compensation (both are monotonic in their raw value), so the driver's
 result equals the truth within the chip's 0.1 mbar / 0.01 degC steps. ``noise`` [Pa] adds
 seeded white noise to the pressure measured.
+
+``Ms5837EmulatorNode`` puts the chip on the shared emulated bus
+(``emulation.get_or_create('i2c', name, FakeI2cBus)``, where the PCA9685 and IMU emulators
+also sit) when started and feeds it the simulator's depth (``sim/odometry``: depth = -z of
+base_link in odom ENU) as the pressure of its simulated water.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 import threading
 import time
+from typing import Any
 
+from nav_msgs.msg import Odometry
 import numpy as np
 
+from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.params import ParamSpec
+from enbarr_interfaces import topics
+from enbarr_plugins import emulation
 from enbarr_plugins.transport.i2c import FakeI2cBus
 
 # The data sheet's commands and numbers, typed again for the emulator.
@@ -40,6 +52,7 @@ PRODUCT_30BA = 0x1A
 #: The data sheet's example calibration (C1..C6).
 EXAMPLE_C = (34982, 36352, 20328, 22354, 26646, 26146)
 FULL_SCALE = (1 << 24) - 1
+G = 9.80665  # [m/s^2]
 
 
 def prom_crc4(words: Sequence[int]) -> int:
@@ -166,3 +179,91 @@ def attach_ms5837(bus: FakeI2cBus, address: int = ADDRESS, **kwargs: object) -> 
     chip = Ms5837Chip(**kwargs)  # type: ignore[arg-type]
     bus.attach(address, chip)
     return chip
+
+
+SPECS = [
+    ParamSpec('name', 'default', "Name of the emulated bus (the driver's bus: 'emulated' for "
+              "'default', else 'emulated:NAME')", read_only=True),
+    ParamSpec('address', ADDRESS, 'I2C address of the emulated chip', '', 3, 0x77,
+              read_only=True),
+    ParamSpec('water_density', 997.0, 'Density of the simulated water', 'kg/m^3', 900.0,
+              1100.0),
+    ParamSpec('water_surface_pressure', 101325.0, 'Air pressure on the simulated water', 'Pa',
+              50000.0, 150000.0),
+    ParamSpec('water_temperature', 15.0, 'Temperature of the simulated water', 'degC', -5.0,
+              40.0),
+    ParamSpec('pressure_noise', 20.0, 'White noise on the measured pressure, std', 'Pa', 0.0,
+              10000.0),
+    ParamSpec('seed', 4, 'Seed of the noise generator', '', 0, 2**31 - 1, read_only=True),
+]
+
+
+@dataclass(frozen=True)
+class EmulatorSettings:
+    """Settings of ``Ms5837EmulatorNode`` (``SPECS``)."""
+
+    name: str
+    address: int
+    water_density: float           # [kg/m^3]
+    water_surface_pressure: float  # [Pa]
+    water_temperature: float       # [degC]
+    pressure_noise: float          # [Pa]
+    seed: int
+
+    @classmethod
+    def from_params(cls, v: Mapping[str, Any]) -> EmulatorSettings:
+        """Build from the declared parameters' values."""
+        return cls(**{name: v[name] for name in cls.__dataclass_fields__})
+
+
+class Ms5837EmulatorNode(EnbarrNode):
+    """An emulated MS5837-30BA for profiles without hardware; see the module docstring."""
+
+    device_emulator = True  # bringup builds it before the drivers (compose.build_nodes)
+
+    def __init__(self, node_name: str = 'ms5837_emulator', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings: EmulatorSettings
+        self.bind_settings(SPECS, EmulatorSettings.from_params, self._apply)
+        s = self.settings
+        self.chip = Ms5837Chip(pressure=s.water_surface_pressure,
+                               temperature=s.water_temperature, noise=s.pressure_noise,
+                               seed=s.seed)
+        self.bus: FakeI2cBus | None = None
+        self._depth = 0.0
+        self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
+
+    def _apply(self, settings: EmulatorSettings) -> None:
+        self.settings = settings
+        chip = getattr(self, 'chip', None)
+        if chip is not None:
+            with chip.lock:
+                chip.noise = settings.pressure_noise
+                chip.temperature = settings.water_temperature
+            self._set_depth(self._depth)
+
+    def start(self) -> None:
+        """Put the chip on the shared emulated bus (a profile check builds, never starts)."""
+        if self.bus is None:
+            self.bus = emulation.get_or_create('i2c', self.settings.name, FakeI2cBus)
+            self.bus.attach(self.settings.address, self.chip)
+        super().start()
+
+    def _set_depth(self, depth: float) -> None:
+        s = self.settings
+        self._depth = depth
+        with self.chip.lock:
+            self.chip.pressure = s.water_surface_pressure + s.water_density * G * max(depth, 0.0)
+
+    def _on_truth(self, msg: Odometry) -> None:
+        self._set_depth(-msg.pose.pose.position.z)
+
+    def destroy_node(self) -> None:
+        """Unplug the chip; withdraw the bus when nothing else sits on it."""
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            if bus.devices.get(self.settings.address) is self.chip:
+                bus.detach(self.settings.address)
+            if not bus.devices:
+                emulation.unregister('i2c', self.settings.name, bus)
+        super().destroy_node()

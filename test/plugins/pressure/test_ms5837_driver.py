@@ -165,3 +165,36 @@ def test_bus_fault_at_run_time_is_counted_reported_and_recovered(context, execut
     assert spin_until(executor, lambda: len(pressures) >= n + 2 and node.connected, TIMEOUT)
     assert spin_until(executor, lambda: diag[-1].level == bytes([OK]), TIMEOUT)
     assert chip.resets >= 2   # the reopen reset the chip and read its PROM again
+
+
+def test_emulator_node_feeds_the_simulated_depth_to_the_driver(context, executor):
+    from enbarr_interfaces.links import LinkBus
+    from enbarr_plugins.pressure.ms5837_emulator import Ms5837EmulatorNode
+    from nav_msgs.msg import Odometry
+    name = f'ms5837-node-{next(_names)}'
+    emulator = Ms5837EmulatorNode(context=context, parameter_overrides=[
+        Parameter('name', value=name), Parameter('water_density', value=1029.0),
+        Parameter('pressure_noise', value=0.0)])
+    executor.add_node(emulator)
+    emulator.start()
+    probe = EnbarrNode('simulator', context=context)
+    executor.add_node(probe)
+    truth = probe.create_topic_publisher(topics.SIM_ODOMETRY)
+    depths: list = []
+    probe.create_topic_subscription(topics.DEPTH, depths.append)
+    LinkBus.of(context).connect()
+    msg = Odometry()
+    msg.pose.pose.position.z = -4.0
+    truth.publish(msg)
+    node = make_node(context, executor, f'emulated:{name}', fluid_density=1029.0)
+    node.start()
+    assert node.connected
+    assert spin_until(executor, lambda: len(depths) >= 2, TIMEOUT)
+    # 4 m of salt water, the sensor told the same density: 4 m within a 10 Pa step (1 mm).
+    assert depths[-1].pose.pose.position.z == pytest.approx(-4.0, abs=0.0015)
+    assert emulator.chip.early_reads == 0
+    node.stop()
+    executor.remove_node(emulator)
+    emulator.destroy_node()   # unplugged, and the bus withdrawn: nothing else sat on it
+    with pytest.raises(DeviceError):
+        emulation.lookup('i2c', f'emulated:{name}')
