@@ -100,7 +100,9 @@ def _smallest(at_least: Callable[[int], bool]) -> int:
 class Ms5837Chip:
     """One emulated MS5837-30BA: a ``RegisterEmulator`` for ``FakeI2cBus``.
 
-    ``clock`` returns monotonic nanoseconds (tests may pass their own). Counters:
+    ``clock`` returns monotonic nanoseconds (tests may pass their own). Fault:
+    ``lose_conversions`` (every conversion is lost, as after a brown-out reset: ADC reads 0).
+    Counters:
     ``early_reads`` (ADC reads before the conversion finished), ``protocol_errors``
     (unknown commands, a conversion started during another), ``conversions``.
     """
@@ -122,6 +124,7 @@ class Ms5837Chip:
         self.protocol_errors = 0
         self.conversions = 0
         self.resets = 0
+        self.lose_conversions = False
         self._result: int | None = None   # the finished (or running) conversion's value
         self._done_ns = 0
 
@@ -140,7 +143,7 @@ class Ms5837Chip:
             self.protocol_errors += 1  # the data sheet: the result will be wrong
         pressure = self.pressure + (self.rng.normal(0.0, self.noise) if self.noise else 0.0)
         d1, d2 = self.raw(pressure, self.temperature)
-        self._result = d1 if base == D1_BASE else d2
+        self._result = None if self.lose_conversions else (d1 if base == D1_BASE else d2)
         self._done_ns = now + CONVERSION_NS[offset]
         self.conversions += 1
 

@@ -198,3 +198,19 @@ def test_emulator_node_feeds_the_simulated_depth_to_the_driver(context, executor
     emulator.destroy_node()   # unplugged, and the bus withdrawn: nothing else sat on it
     with pytest.raises(DeviceError):
         emulation.lookup('i2c', f'emulated:{name}')
+
+
+def test_lost_conversions_are_dropped_counted_and_a_fault_when_they_persist(context, executor,
+                                                                             rig):
+    value, _, chip = rig
+    node = make_node(context, executor, value)
+    node.start()
+    assert spin_until(executor, lambda: node.samples >= 2, TIMEOUT)
+    chip.lose_conversions = True     # ADC reads 0: no sample may be published from them
+    n = node.samples
+    assert spin_until(executor, lambda: node.faults >= 1, TIMEOUT)
+    assert node.samples == n
+    assert node.zero_reads >= 5
+    assert 'ADC reads of 0 in a row' in node.last_fault and f'{value} 0x76' in node.last_fault
+    chip.lose_conversions = False
+    assert spin_until(executor, lambda: node.samples >= n + 2 and node.connected, TIMEOUT)
