@@ -45,9 +45,12 @@ from enbarr_plugins.transport.i2c import FakeI2cBus
 ADDRESS = 0x76
 RESET, ADC_READ, PROM_READ = 0x1E, 0x00, 0xA0
 D1_BASE, D2_BASE = 0x40, 0x50
-#: Command offset -> longest conversion time [ns] (OSR 256 .. 4096).
-CONVERSION_NS = {0x0: 600_000, 0x2: 1_170_000, 0x4: 2_280_000, 0x6: 4_540_000,
-                 0x8: 9_040_000}
+#: Command offset -> when the emulated chip's conversion is done [ns] (OSR 256 .. 4096); a read
+#: before then returns 0. The chip is taken to need all the time its manufacturer's driver gives
+#: it (TE Connectivity, MS5837_Arduino_Library, ms5837.h: 1, 2, 3, 5, 9 ms), the longest it can
+#: take by that source, so that a driver waiting any less is caught.
+CONVERSION_NS = {0x0: 1_000_000, 0x2: 2_000_000, 0x4: 3_000_000, 0x6: 5_000_000,
+                 0x8: 9_000_000}
 PRODUCT_30BA = 0x1A
 #: The data sheet's example calibration (C1..C6).
 EXAMPLE_C = (34982, 36352, 20328, 22354, 26646, 26146)

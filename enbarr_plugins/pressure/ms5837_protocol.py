@@ -38,11 +38,12 @@ PRODUCT_30BA = 0x1A
 #: Time the chip needs after a reset to reload its PROM [s] (Blue Robotics waits 10 ms).
 RESET_TIME = 0.010
 
-#: OSR -> (command offset, longest conversion time [s]). The conversion times are the
-#: maxima of the MS58xx family's ADC table (0.60 ms at OSR 256, doubling, 9.04 ms at 4096);
-#: Blue Robotics waits 2.5 us * OSR, a little longer.
-OSR = {256: (0x0, 0.60e-3), 512: (0x2, 1.17e-3), 1024: (0x4, 2.28e-3), 2048: (0x6, 4.54e-3),
-       4096: (0x8, 9.04e-3)}
+#: OSR -> (command offset, time the driver waits for a conversion [s]). The waits are the
+#: manufacturer's own driver's (TE Connectivity, MS5837_Arduino_Library, ms5837.h:
+#: MS5837_CONVERSION_TIME_OSR_256 .. _4096 = 1, 2, 3, 5, 9 ms), whole milliseconds at or
+#: above the chip's longest conversion; Blue Robotics' library waits 2.5 us * OSR.
+OSR = {256: (0x0, 1e-3), 512: (0x2, 2e-3), 1024: (0x4, 3e-3), 2048: (0x6, 5e-3),
+       4096: (0x8, 9e-3)}
 
 #: Standard gravity [m/s^2] (depth from pressure).
 G = 9.80665

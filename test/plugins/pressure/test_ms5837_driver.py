@@ -24,9 +24,6 @@ from support.waiting import spin_until
 
 TIMEOUT = 10.0
 _names = itertools.count()
-#: The data sheet's conversion times [ns] (max), typed again: the driver must wait this long.
-CONVERSION_NS = {256: 600_000, 512: 1_170_000, 1024: 2_280_000, 2048: 4_540_000,
-                 4096: 9_040_000}
 
 
 @pytest.fixture
@@ -79,7 +76,7 @@ def test_settings_refuse_osr_8192_and_a_rate_too_fast_for_the_conversions():
     base = {spec.name: spec.default for spec in ms5837.SPECS}
     with pytest.raises(ValueError, match='^osr: 8192 is not one'):
         ms5837.Ms5837Settings.from_params({**base, 'osr': 8192})
-    # OSR 4096: two conversions of 9.04 ms, at most 55 samples a second.
+    # OSR 4096: two conversions of 9 ms waited, at most 55 samples a second.
     with pytest.raises(ValueError, match='^rate: 60 Hz is faster'):
         ms5837.Ms5837Settings.from_params({**base, 'rate': 60.0})
     assert ms5837.Ms5837Settings.from_params({**base, 'rate': 55.0}).rate == 55.0

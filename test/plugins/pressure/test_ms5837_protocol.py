@@ -29,7 +29,9 @@ EXAMPLE_PROM = [0x9340, *EXAMPLE_C]
 D1_COMMANDS = {256: 0x40, 512: 0x42, 1024: 0x44, 2048: 0x46, 4096: 0x48}
 D2_COMMANDS = {256: 0x50, 512: 0x52, 1024: 0x54, 2048: 0x56, 4096: 0x58}
 #: Longest conversion time [ms] per OSR (the MS58xx family's ADC table).
-CONVERSION_MS = {256: 0.60, 512: 1.17, 1024: 2.28, 2048: 4.54, 4096: 9.04}
+# The driver's waits: TE Connectivity's MS5837_Arduino_Library, ms5837.h
+# (MS5837_CONVERSION_TIME_OSR_256 .. _4096), typed again.
+CONVERSION_MS = {256: 1.0, 512: 2.0, 1024: 3.0, 2048: 5.0, 4096: 9.0}
 
 
 def example() -> proto.Calibration:
@@ -203,14 +205,14 @@ def test_adc_read_mid_conversion_returns_0_and_spoils_it():
     bus = FakeI2cBus()
     bus.attach(0x76, chip)
     dev = I2cDevice(bus, 0x76)
-    dev.command(0x48)                                  # D1 at OSR 4096: 9.04 ms
-    clock.ns += 9_000_000                              # 9.00 ms: still converting
+    dev.command(0x48)                                  # D1 at OSR 4096: 9 ms
+    clock.ns += 8_900_000                              # 8.9 ms: still converting
     assert dev.read_block(0x00, 3) == b'\0\0\0'
     assert chip.early_reads == 1
     clock.ns += 1_000_000
     assert dev.read_block(0x00, 3) == b'\0\0\0'        # spoiled: no result after all
-    dev.command(0x40)                                  # D1 at OSR 256: 0.60 ms
-    clock.ns += 600_000
+    dev.command(0x40)                                  # D1 at OSR 256: 1 ms
+    clock.ns += 1_000_000
     d1 = int.from_bytes(dev.read_block(0x00, 3), 'big')
     assert d1 != 0
     assert dev.read_block(0x00, 3) == b'\0\0\0'        # read twice: 0
