@@ -19,14 +19,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from geometry_msgs.msg import (
+    PoseStamped, PoseWithCovarianceStamped, TwistStamped, WrenchStamped)
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter
 from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
-    CameraInfo, CompressedImage, Image, Imu, JointState, Joy, LaserScan, MagneticField,
-    PointCloud2)
+    CameraInfo, CompressedImage, FluidPressure, Image, Imu, JointState, Joy, LaserScan,
+    MagneticField, PointCloud2, Temperature)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -124,6 +125,18 @@ SIM_IMU = TopicSpec(
     'sim/imu', Imu, SENSOR_QOS, 'as imu/data, exact', IMU_FRAME,
     'Simulator ground truth at the IMU: true orientation, rate and specific force.',
     fast=True)
+PRESSURE_FRAME = 'pressure_link'
+PRESSURE = TopicSpec(
+    'pressure', FluidPressure, SENSOR_QOS, 'Pa', PRESSURE_FRAME,
+    'Absolute water pressure at the depth sensor (MS5837-30BA driver).')
+PRESSURE_TEMPERATURE = TopicSpec(
+    'pressure/temperature', Temperature, SENSOR_QOS, 'degC', PRESSURE_FRAME,
+    "Water temperature at the depth sensor (the pressure chip's own thermometer).")
+DEPTH = TopicSpec(
+    'depth', PoseWithCovarianceStamped, SENSOR_QOS, 'm', WORLD_FRAME,
+    'Depth of the pressure sensor as a pose: position.z = -depth (odom ENU, z up), with '
+    'its variance in covariance[14]; every other axis unobserved (variance 1e9), orientation '
+    'identity. The form a pose-fusing filter (robot_localization) takes a depth in.')
 SIM_ODOMETRY = TopicSpec(
     'sim/odometry', Odometry, SENSOR_QOS, 'm, m/s, rad/s', WORLD_FRAME,
     'Simulator ground truth pose (odom ENU) and body velocity (child frame base_link).',
@@ -264,4 +277,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLES_FUSED, OBSTACLE_MARKERS,
-    CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE)
+    CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE,
+    PRESSURE, PRESSURE_TEMPERATURE, DEPTH)

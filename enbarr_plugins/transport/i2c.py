@@ -8,10 +8,10 @@ of ``linux/i2c-dev.h``; the timeout is in units of 10 ms): an I2C transfer is do
 kernel, so that is the only bound on how long one transfer can block.
 
 ``FakeI2cBus`` implements the subset of smbus2's ``SMBus`` interface that ``I2cDevice`` uses
-(``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``, ``write_i2c_block_data``,
-``close``), backed by a 256-byte register map or an emulator object per address, and injects
-the failures a real bus shows: a NACK (``EREMOTEIO``, what Linux adapters return when no
-device acknowledges) and a stall (``ETIMEDOUT``, a device holding SCL low).
+(``write_byte``, ``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``,
+``write_i2c_block_data``, ``close``), backed by a 256-byte register map or an emulator object
+per address, and injects the failures a real bus shows: a NACK (``EREMOTEIO``, what Linux
+adapters return when no device acknowledges) and a stall (``ETIMEDOUT``, a device holding SCL low).
 References: smbus2 0.6 (https://github.com/kplindegaard/smbus2), the Linux kernel's
 Documentation/i2c/dev-interface.rst and include/uapi/linux/i2c-dev.h.
 """
@@ -37,6 +37,8 @@ MAX_BLOCK = 32
 
 class SMBusLike(Protocol):
     """The part of ``smbus2.SMBus`` that ``I2cDevice`` uses."""
+
+    def write_byte(self, i2c_addr: int, value: int) -> None: ...  # noqa: D102
 
     def read_byte_data(self, i2c_addr: int, register: int) -> int: ...  # noqa: D102
 
@@ -114,28 +116,35 @@ class I2cDevice:
                     reason = (errno.errorcode.get(err.errno, str(err.errno))
                               if err.errno else str(err))
                     raise DeviceError(
-                        f'{self.name}: {what} register 0x{register:02x} failed after '
+                        f'{self.name}: {what} 0x{register:02x} failed after '
                         f'{self.retries + 1} attempts: {reason} ({err.strerror or err})'
                     ) from err
                 if self.retry_delay:
                     time.sleep(self.retry_delay)
         raise AssertionError('unreachable')
 
+    def command(self, command: int) -> None:
+        """Send the one-byte ``command`` alone (SMBus send byte).
+
+        A command-driven chip's reset or conversion start: no register behind it.
+        """
+        self._transfer(command, 'command', self.bus.write_byte)
+
     def read_u8(self, register: int) -> int:
         """One register's byte."""
-        return self._transfer(register, 'read', self.bus.read_byte_data)
+        return self._transfer(register, 'read register', self.bus.read_byte_data)
 
     def write_u8(self, register: int, value: int) -> None:
         """Write one register."""
         if not 0 <= value <= 0xFF:
             raise ValueError(f'value: {value} is not a byte')
-        self._transfer(register, 'write', self.bus.write_byte_data, value)
+        self._transfer(register, 'write register', self.bus.write_byte_data, value)
 
     def read_block(self, register: int, length: int) -> bytes:
         """``length`` (1..32) consecutive registers from ``register`` (auto-increment)."""
         if not 1 <= length <= MAX_BLOCK:
             raise ValueError(f'length: must be 1..{MAX_BLOCK}, got {length}')
-        data = self._transfer(register, 'read', self.bus.read_i2c_block_data, length)
+        data = self._transfer(register, 'read register', self.bus.read_i2c_block_data, length)
         if len(data) != length:
             self.failures += 1
             raise DeviceError(f'{self.name}: read register 0x{register:02x}: expected '
@@ -146,7 +155,7 @@ class I2cDevice:
         """Write ``data`` (1..32 bytes) to consecutive registers from ``register``."""
         if not 1 <= len(data) <= MAX_BLOCK:
             raise ValueError(f'data: must be 1..{MAX_BLOCK} bytes, got {len(data)}')
-        self._transfer(register, 'write', self.bus.write_i2c_block_data, list(data))
+        self._transfer(register, 'write register', self.bus.write_i2c_block_data, list(data))
 
     def update_bits(self, register: int, mask: int, value: int) -> None:
         """Read-modify-write: set the bits of ``mask`` in ``register`` to those of ``value``."""
@@ -162,7 +171,10 @@ class I2cDevice:
 
 
 class RegisterEmulator(Protocol):
-    """A device behind ``FakeI2cBus``: how it answers reads and takes writes."""
+    """A device behind ``FakeI2cBus``: how it answers reads and takes writes.
+
+    A send byte (``write_byte``) arrives as a write of no data to the byte's "register".
+    """
 
     def read(self, register: int, length: int) -> bytes: ...  # noqa: D102
 
@@ -232,6 +244,11 @@ class FakeI2cBus:
         if device is None:
             raise OSError(errno.EREMOTEIO, 'Remote I/O error')
         return device
+
+    def write_byte(self, i2c_addr: int, value: int) -> None:
+        """SMBus send byte: ``value`` alone, handed to the device as a write of no data."""
+        self._device(i2c_addr).write(value, b'')
+        self.log.append(('write', i2c_addr, value, b''))
 
     def read_byte_data(self, i2c_addr: int, register: int) -> int:
         """SMBus read byte data."""
