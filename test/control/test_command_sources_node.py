@@ -224,3 +224,15 @@ def test_a_bad_source_configuration_is_refused_naming_the_field(context, overrid
     with pytest.raises(ConfigurationError, match=field.replace('[', r'\[')):
         CommandReceiverNode(node_name='command_receiver', context=context,
                             parameter_overrides=overrides)
+
+
+def test_a_second_publisher_on_the_driving_source_stops_it_at_once(rig, context, executor):
+    rig.send('autonomy', AUTONOMY)
+    assert rig.driving() == 'autonomy'
+    intruder = probe(context, executor, 'intruder')
+    intruder.create_publisher(TwistStamped, AUTONOMY_TOPIC, topics.SURFACE_TWIST.qos)
+    assert rig.until(lambda: rig.node.source_guards['autonomy']._sub.get_publisher_count() == 2)
+    rig.set_time(T0 + 50 * MS)  # well within autonomy's 0.5 s
+    rig.send('autonomy', AUTONOMY, Verdict.CONTESTED)
+    assert rig.driving() == 'none'
+    assert not np.any(rig.goals[-1])
