@@ -236,3 +236,22 @@ def test_a_second_publisher_on_the_driving_source_stops_it_at_once(rig, context,
     rig.send('autonomy', AUTONOMY, Verdict.CONTESTED)
     assert rig.driving() == 'none'
     assert not np.any(rig.goals[-1])
+
+
+def test_the_profile_example_of_the_docs_configures_the_sources(context, executor, tmp_path):
+    """The YAML of docs/profiles.md (Command sources), included beside the simulated ROV,
+    reaches the node as its dotted parameters."""
+    from pathlib import Path
+
+    from enbarr_core.bringup.profile import load_profile
+    docs = (Path(__file__).parents[2] / 'docs' / 'profiles.md').read_text(encoding='utf-8')
+    example = docs.split('### Command sources', 1)[1].split('```yaml\n', 1)[1].split('```')[0]
+    path = tmp_path / 'rov_autonomy.yaml'
+    path.write_text('include: [enbarr_sim]\n' + example, encoding='utf-8')
+    values = load_profile(str(path)).node('command_receiver').parameters
+    node = add(executor, CommandReceiverNode(
+        node_name='command_receiver', context=context,
+        parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]))
+    assert node.arbiter is not None
+    assert [(s.name, s.topic, s.priority, s.timeout) for s in node.arbiter.settings.sources] \
+        == [('station', 'surface_command/twist', 10, 0.5), ('autonomy', 'autonomy/twist', 1, 1.0)]
