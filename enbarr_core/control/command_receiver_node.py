@@ -134,17 +134,17 @@ class CommandReceiverNode(EnbarrNode):
                 self, self.create_topic_subscription(topics.SURFACE_TWIST, self._on_twist))
         else:
             self.twist_guard = None
-            self.arbiter = Arbiter(sources)
+            self.arbiter = arbiter = Arbiter(sources)
             for src in sources.sources:
                 self.gates[src.name] = CommandGate(replace(self.settings.gate,
                                                            timeout=src.timeout))
                 # Each source's topic has the contract of surface_command/twist (on DDS).
                 sub = self.create_topic_subscription(
                     replace(topics.SURFACE_TWIST, name=src.topic),
-                    lambda msg, name=src.name: self._on_source(name, msg))
+                    lambda msg, name=src.name: self._on_source(arbiter, name, msg))
                 self.source_guards[src.name] = SourceGuard(self, sub)
             self.stop_guard = SourceGuard(self, self.create_topic_subscription(
-                topics.SURFACE_STOP, self._on_stop))
+                topics.SURFACE_STOP, lambda msg: self._on_stop(arbiter, msg)))
             self._active_pub = self.create_topic_publisher(topics.SURFACE_ACTIVE_SOURCE)
         self.io_guard = SourceGuard(self, self.create_topic_subscription(
             topics.SURFACE_IO, self._on_io))
@@ -177,22 +177,22 @@ class CommandReceiverNode(EnbarrNode):
         return self.now_ns()
 
     def _on_twist(self, msg: TwistStamped) -> None:
-        assert self.twist_guard is not None
+        if self.twist_guard is None:  # not subscribed with named sources: never called
+            return
         verdict = self._offer(msg, self.gate, self.twist_guard, topics.SURFACE_TWIST.name)
         if verdict is Verdict.ACCEPTED:
             self.period.add(convert.stamp_to_ns(msg.header.stamp))
         if verdict in (Verdict.ACCEPTED, Verdict.CONTESTED):
             self._publish_goal()
 
-    def _on_source(self, name: str, msg: TwistStamped) -> None:
-        assert self.arbiter is not None
+    def _on_source(self, arbiter: Arbiter, name: str, msg: TwistStamped) -> None:
         gate = self.gates[name]
         guard = self.source_guards[name]
         verdict = self._offer(msg, gate, guard, guard.topic)
         if verdict is Verdict.ACCEPTED and gate.last_accept_ns is not None:
-            self.arbiter.offer(name, gate.last_accept_ns)  # the gate's time: one clock
+            arbiter.offer(name, gate.last_accept_ns)  # the gate's time: one clock
         elif verdict is Verdict.CONTESTED:
-            self.arbiter.withdraw(name)  # the next live source takes over now
+            arbiter.withdraw(name)  # the next live source takes over now
         else:
             return
         self._publish_goal()
@@ -212,24 +212,24 @@ class CommandReceiverNode(EnbarrNode):
             self.health.refused(topic, verdict.value)
             why = (f'frame {msg.header.frame_id!r}, expected {topics.BODY_FRAME!r}'
                    if verdict is Verdict.WRONG_FRAME else verdict.value)
-            self.get_logger().warn(f'refused command on {topic} ({why})',
+            what = 'surface command' if self.arbiter is None else f'command on {topic}'
+            self.get_logger().warn(f'refused {what} ({why})',
                                    throttle_duration_sec=1.0)
             return verdict
         self.health.accepted(topic)
         return verdict
 
-    def _on_stop(self, msg: Bool) -> None:
-        assert self.arbiter is not None
+    def _on_stop(self, arbiter: Arbiter, msg: Bool) -> None:
         # A stop is taken from anyone (two stations both stopping is still a stop); a release
         # only from a single publisher, as any command.
         if not msg.data and self.stop_guard.contested():
             self.health.refused(topics.SURFACE_STOP.name, Verdict.CONTESTED.value)
             self.get_logger().error(self.stop_guard.status()[1], throttle_duration_sec=1.0)
             return
-        if msg.data != self.arbiter.stopped:
+        if msg.data != arbiter.stopped:
             self.get_logger().warn('station stop set: velocity goal held at zero' if msg.data
                                    else 'station stop released')
-        self.arbiter.set_stop(msg.data)
+        arbiter.set_stop(msg.data)
         self._publish_goal()
 
     def _on_io(self, msg: Parameter) -> None:

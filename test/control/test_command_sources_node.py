@@ -255,3 +255,17 @@ def test_the_profile_example_of_the_docs_configures_the_sources(context, executo
     assert node.arbiter is not None
     assert [(s.name, s.topic, s.priority, s.timeout) for s in node.arbiter.settings.sources] \
         == [('station', 'surface_command/twist', 10, 0.5), ('autonomy', 'autonomy/twist', 1, 1.0)]
+
+
+def test_with_two_stop_publishers_a_stop_is_taken_and_a_release_is_not(rig, context,
+                                                                        executor):
+    rig.send('autonomy', AUTONOMY)
+    intruder = probe(context, executor, 'intruder')
+    intruder.create_publisher(Bool, topics.SURFACE_STOP.name, topics.SURFACE_STOP.qos)
+    assert rig.until(lambda: rig.node.stop_guard._sub.get_publisher_count() == 2)
+    rig.stop(True)
+    assert rig.driving() == 'stop'
+    refused = rig.node.stop_guard.contested_count
+    rig.stop_pub.publish(Bool(data=False))
+    assert rig.until(lambda: rig.node.stop_guard.contested_count == refused + 1)
+    assert rig.node.arbiter.stopped and rig.driving() == 'stop'
