@@ -95,6 +95,16 @@ IMU = TopicSpec(
 SURFACE_TWIST = TopicSpec(
     'surface_command/twist', TwistStamped, COMMAND_QOS, 'm/s, rad/s', BODY_FRAME,
     'Velocity the operator or a mission asks for. Stamped: stale commands are refused.')
+SURFACE_STOP = TopicSpec(
+    'surface_command/stop', Bool, LATCHED_QOS, 'true = stop', '',
+    "The station's stop (latched), with named command sources only: true holds the velocity "
+    'goal at zero whatever any source sends, until false. A true is taken from any '
+    'publisher; a false only from a single one.')
+SURFACE_ACTIVE_SOURCE = TopicSpec(
+    'surface_command/active_source', String, LATCHED_QOS, 'source name', '',
+    'Which named command source drives the velocity goal (latched), with named sources only: '
+    'a source name, "stop" (the station stop is set) or "none" (no source is live: the goal '
+    'is zero).')
 SURFACE_IO = TopicSpec(
     'surface_command/io', Parameter, COMMAND_QOS, 'plugin-defined', '',
     'IO request from the surface: name = executor, value = typed request.')
@@ -269,7 +279,8 @@ DETECTION_IMAGE = TopicSpec(
     'The image with its detections drawn, for a viewer (built only while one subscribes).')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
-    IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_IO, TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
+    IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
+    TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
     DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
     MODE,
