@@ -46,6 +46,7 @@ def test_calibration_is_the_data_sheets_formula():
     assert p.calibration(0.00005, 0.1) == 8192
     assert p.calibration(0.001, 0.001) == 40960      # a 1 mOhm power module, 1 mA steps
     assert p.calibration(0.0003, 0.1) == 1364        # trunc(1365.33), bit 0 cleared
+    assert p.calibration(0.00011, 0.1) == 3722       # trunc(3723.64), not rounded to 3724
     with pytest.raises(ValueError, match='calibration'):
         p.calibration(1e-6, 0.0001)
 
