@@ -68,6 +68,7 @@ BUILTIN: dict[str, str] = {
     'ms5837_depth': 'enbarr_plugins.pressure.ms5837:Ms5837Node',
     'ms5837_emulator': 'enbarr_plugins.pressure.ms5837_emulator:Ms5837EmulatorNode',
     'ina219_battery': 'enbarr_plugins.power.ina219:Ina219Node',
+    'ina219_emulator': 'enbarr_plugins.power.ina219_emulator:Ina219EmulatorNode',
     'arduino_pwm': 'enbarr_plugins.arduino.link:ArduinoPwmNode',
     'arduino_emulator': 'enbarr_plugins.arduino.emulator:ArduinoEmulatorNode',
     'rplidar': 'enbarr_plugins.lidar.rplidar:RplidarNode',

@@ -13,11 +13,12 @@ from support.rov import overrides
 from support.waiting import spin_until
 
 from enbarr_core.framework.driver import ERROR
+from enbarr_core.framework.errors import DeviceError
 from enbarr_interfaces import topics
 from enbarr_plugins import emulation
 from enbarr_plugins.power import ina219_protocol as p
 from enbarr_plugins.power.ina219 import Ina219Node, percentage
-from enbarr_plugins.power.ina219_emulator import Ina219Chip
+from enbarr_plugins.power.ina219_emulator import Ina219Chip, Ina219EmulatorNode
 from enbarr_plugins.transport.i2c import FakeI2cBus
 
 TIMEOUT = 10.0
@@ -155,3 +156,22 @@ def test_no_chip_is_a_clear_error(context, executor, rig):
     node = monitor(context, executor, value)
     node.start()
     assert not node.connected and 'no INA219 answers' in node.last_fault
+
+
+@pytest.mark.node
+def test_the_emulator_node_serves_the_driver_on_a_named_bus(context, executor):
+    name = f'ina219-node-{next(_names)}'
+    emulator = add(executor, Ina219EmulatorNode(context=context, parameter_overrides=overrides(
+        {'name': name, 'volts': 11.1, 'amps': 2.0})))
+    emulator.start()
+    node = monitor(context, executor, f'emulated:{name}', cells=3)
+    got = listen(context, executor)
+    node.start()
+    assert spin_until(executor, lambda: len(got) >= 1, TIMEOUT)
+    assert got[-1].voltage == pytest.approx(11.1, abs=0.004)
+    assert got[-1].current == pytest.approx(-2.0, abs=0.0002)
+    for n in (node, emulator):
+        executor.remove_node(n)
+        n.destroy_node()
+    with pytest.raises(DeviceError):
+        emulation.lookup('i2c', f'emulated:{name}')  # the bus is withdrawn with its chip
