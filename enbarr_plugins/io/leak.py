@@ -34,7 +34,7 @@ from typing import Any
 
 from std_msgs.msg import Bool
 
-from enbarr_core.framework.driver import DeviceNode, ERROR
+from enbarr_core.framework.driver import DeviceNode, ERROR, OK
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import topics
@@ -183,9 +183,10 @@ class LeakGpioNode(DeviceNode):
 
     def status(self) -> tuple[int, str]:
         """ERROR naming the pin while a leak is latched, else the device's status."""
+        level, message = super().status()
         if self.latch.leak:
-            return ERROR, f'LEAK at {self.device}'
-        return super().status()
+            return ERROR, f'LEAK at {self.device}' + ('' if level == OK else f'; {message}')
+        return level, message
 
     def status_values(self) -> dict[str, Any]:
         """Return the leak state, the raw reading and the count of leaks declared."""

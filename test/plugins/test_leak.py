@@ -120,6 +120,28 @@ def test_a_late_subscriber_learns_the_leak_and_diagnostics_name_the_pin(context,
 
 
 @pytest.mark.node
+def test_a_failing_pin_is_a_fault_and_the_leak_stays_latched(context, executor, spin):
+    node = leak_node(context, executor, debounce=0.0, **{'reconnect.initial_delay': 0.05,
+                                                          'reconnect.max_delay': 0.1})
+    pin = node.factory.pin(PIN)
+    pin.drive_high()
+    node.poll(0.0)
+    assert node.latch.leak
+
+    def broken() -> bool:
+        raise OSError(5, 'Input/output error')
+    pin._get_state = broken                      # the pin dies (this factory only)
+    node.poll(0.1)
+    assert not node.connected and node.faults == 1
+    assert 'GPIO27 (mock): reading the pin failed' in node.last_fault
+    level, message = node.status()
+    assert level == ERROR and message.startswith(f'LEAK at GPIO{PIN} (mock); device fault')
+    assert spin(executor, lambda: node.connected, TIMEOUT)   # a new factory: a good pin
+    node.poll(0.2)                               # it reads dry, but not for dry_hold yet
+    assert node.latch.leak and node.wet is False
+
+
+@pytest.mark.node
 def test_a_bad_pull_is_refused_naming_the_parameter(context):
     from enbarr_core.framework.errors import ConfigurationError
     with pytest.raises(ConfigurationError, match='pull'):
