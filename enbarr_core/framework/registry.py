@@ -51,6 +51,7 @@ BUILTIN: dict[str, str] = {
     'sim_thrusters': 'enbarr_plugins.thrusters.sim:SimThrustersNode',
     'sim_stepper': 'enbarr_plugins.io.sim_stepper:SimStepperNode',
     'sim_gpio': 'enbarr_plugins.io.sim_gpio:SimGpioNode',
+    'sim_leak': 'enbarr_plugins.io.sim_leak:SimLeakNode',
     'sim_mocap': 'enbarr_plugins.mocap.sim:SimMocapNode',
     'sim_lidar': 'enbarr_plugins.lidar.sim:SimLidarNode',
     'sim_camera': 'enbarr_plugins.camera.sim:SimCameraNode',

@@ -6,8 +6,9 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
-from support.devices import diagnostics_of
+from support.devices import diagnostics_of, pass_time
 from support.nodes import add, probe, TIMEOUT
 from support.rov import overrides
 
@@ -147,3 +148,38 @@ def test_a_bad_pull_is_refused_naming_the_parameter(context):
     with pytest.raises(ConfigurationError, match='pull'):
         LeakGpioNode(context=context, parameter_overrides=overrides(
             {'pin_factory': 'mock', 'pull': 'sideways'}))
+
+
+# -- the simulated twin ----------------------------------------------------------------------
+@pytest.mark.node
+def test_the_twin_floods_at_leak_at_and_stays_flooded(context, executor, spin):
+    import time
+
+    from enbarr_core.framework.node import install_world, WorldOf
+    from enbarr_plugins.io.sim_leak import SimLeakNode
+    install_world(context, WorldOf.of(context).world, epoch_ns=time.time_ns())  # world time 0
+    got = listen(context, executor)
+    now = add(executor, SimLeakNode('now', context=context, parameter_overrides=overrides(
+        {'leak_at': 0.0})))
+    now.start()
+    assert spin(executor, lambda: True in got, TIMEOUT)
+    assert now.leak
+    now.set_parameters([Parameter('leak_at', value=-1.0)])   # latched: it stays flooded
+    pass_time(executor, spin, now, 0.3)
+    assert now.leak and got.count(True) == 1
+
+
+@pytest.mark.node
+def test_the_twin_stays_dry_before_leak_at(context, executor, spin):
+    import time
+
+    from enbarr_core.framework.node import install_world, WorldOf
+    from enbarr_plugins.io.sim_leak import SimLeakNode
+    install_world(context, WorldOf.of(context).world, epoch_ns=time.time_ns())
+    got = listen(context, executor)
+    later = add(executor, SimLeakNode('later', context=context, parameter_overrides=overrides(
+        {'leak_at': 1e6})))
+    later.start()
+    assert spin(executor, lambda: got == [False], TIMEOUT)
+    pass_time(executor, spin, later, 0.3)
+    assert got == [False] and not later.leak
