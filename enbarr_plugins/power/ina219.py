@@ -8,7 +8,8 @@ and the calibration computed from ``shunt`` [ohm] and ``current_lsb`` [A], then 
 calibration back: the INA219 has no identity register, and a chip that returns what was
 written is the chip expected. Every sample reads the calibration, the bus voltage and the
 current; a calibration that reads 0 (the chip reset by a supply dip, when its current reads 0
-too) is written again, the sample dropped and counted in ``recalibrations``.
+too) is written again, the sample dropped and counted in ``recalibrations``; ``MAX_RECALIBRATIONS``
+in a row are a fault.
 
 Published on ``battery``: voltage [V], current [A] (negative while discharging, as
 BatteryState defines it: the INA219's positive current is the load's draw) and percentage
@@ -40,6 +41,8 @@ from enbarr_plugins.power.ina219_protocol import (
 from enbarr_plugins.transport.i2c import I2cDevice
 
 NAN = float('nan')
+#: Recalibrations in a row (the calibration never holds) that make a device fault.
+MAX_RECALIBRATIONS = 5
 
 SPECS = [
     ParamSpec('bus', '1', "I2C bus: a number ('1'), a device ('/dev/i2c-1') or "
@@ -116,6 +119,7 @@ class Ina219Node(SensorDriver):
         self._i2c_bus: Bus | None = None
         self._dev: I2cDevice | None = None
         self.recalibrations = 0
+        self._recalibration_run = 0
         self.overflows = 0
         self._loop = self.create_rate_loop(s.rate, self._tick)
         self.open_on(self._loop)
@@ -141,6 +145,7 @@ class Ina219Node(SensorDriver):
             raise DeviceError(f'{self.device}: not an INA219: the calibration register reads '
                               f'0x{back:04x} after 0x{s.calibration:04x} was written')
         self._i2c_bus, self._dev = bus, dev
+        self._recalibration_run = 0
         self.get_logger().info(f'{self.device}: INA219, calibration {s.calibration}')
 
     def close_device(self) -> None:
@@ -159,9 +164,14 @@ class Ina219Node(SensorDriver):
         try:
             if read16(dev, CALIBRATION) != s.calibration:
                 self.recalibrations += 1   # reset by a supply dip: current reads 0 until set
+                self._recalibration_run += 1
+                if self._recalibration_run >= MAX_RECALIBRATIONS:
+                    raise DeviceError(f'{self.device}: the calibration does not hold '
+                                      f'({self._recalibration_run} writes in a row)')
                 write16(dev, CONFIG, CONFIG_32V_320MV_12BIT)
                 write16(dev, CALIBRATION, s.calibration)
                 return
+            self._recalibration_run = 0
             bus = bus_voltage(read16(dev, BUS_VOLTAGE))
             amps = current(read16(dev, CURRENT), s.current_lsb)
         except DeviceError as err:

@@ -175,3 +175,15 @@ def test_the_emulator_node_serves_the_driver_on_a_named_bus(context, executor):
         n.destroy_node()
     with pytest.raises(DeviceError):
         emulation.lookup('i2c', f'emulated:{name}')  # the bus is withdrawn with its chip
+
+
+@pytest.mark.node
+def test_a_calibration_that_never_holds_is_a_fault(context, executor, rig):
+    value, bus, chip = rig
+    node = monitor(context, executor, value)
+    node.start()
+    assert node.connected
+    chip.write = lambda register, data: None     # the chip now ignores every write
+    chip.brown_out()
+    assert spin_until(executor, lambda: node.faults >= 1, TIMEOUT)
+    assert 'calibration does not hold' in node.last_fault and node.recalibrations >= 4
