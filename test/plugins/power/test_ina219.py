@@ -187,3 +187,14 @@ def test_a_calibration_that_never_holds_is_a_fault(context, executor, rig):
     chip.brown_out()
     assert spin_until(executor, lambda: node.faults >= 1, TIMEOUT)
     assert 'calibration does not hold' in node.last_fault and node.recalibrations >= 4
+
+
+@pytest.mark.unit
+def test_check_device_reads_the_emulated_chip_without_writing():
+    from enbarr_plugins.check import CheckTarget
+    from enbarr_plugins.power.check import check_ina219
+    lines = check_ina219(CheckTarget(bus='emulated'))
+    # The power-on configuration, calibration 0 (nothing written), 14.8 V, 1 A x 0.1 ohm.
+    assert lines == ['INA219 at emulated:' + lines[0].split('emulated:')[1].split(' ')[0]
+                     + ' 0x40: configuration 0x399f, calibration 0 (not set: current and '
+                     'power read 0)', 'bus 14.800 V, shunt 100.00 mV']
