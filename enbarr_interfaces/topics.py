@@ -27,7 +27,7 @@ from rclpy.qos import (
     DurabilityPolicy, HistoryPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy)
 from sensor_msgs.msg import (
     CameraInfo, CompressedImage, FluidPressure, Image, Imu, JointState, Joy, LaserScan,
-    MagneticField, PointCloud2, Temperature)
+    BatteryState, MagneticField, PointCloud2, Temperature)
 from std_msgs.msg import Bool, Float64, Float64MultiArray, String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -277,6 +277,14 @@ DETECTIONS = TopicSpec(
 DETECTION_IMAGE = TopicSpec(
     'detections/image', Image, SENSOR_QOS, 'pixels (bgr8)', CAMERA_OPTICAL_FRAME,
     'The image with its detections drawn, for a viewer (built only while one subscribes).')
+LEAK = TopicSpec(
+    'leak', Bool, LATCHED_QOS, '', '',
+    'Hull leak (latched): true after the leak sensor read wet for its debounce time, until it '
+    'read dry for its dry_hold time (leak_gpio driver); published on every change.')
+BATTERY = TopicSpec(
+    'battery', BatteryState, SENSOR_QOS, 'V, A (negative while discharging), 0..1', '',
+    'Battery voltage, current and state of charge from the power monitor (ina219_battery '
+    'driver); unmeasured fields NaN.')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
@@ -289,4 +297,4 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLES_FUSED, OBSTACLE_MARKERS,
     CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE,
-    PRESSURE, PRESSURE_TEMPERATURE, DEPTH)
+    PRESSURE, PRESSURE_TEMPERATURE, DEPTH, LEAK, BATTERY)

@@ -35,6 +35,7 @@ CHECKS: dict[str, str] = {
     'lsm9ds1': 'enbarr_plugins.imu.check:check_lsm9ds1',
     'fxos8700': 'enbarr_plugins.imu.check:check_fxos8700',
     'ms5837': 'enbarr_plugins.pressure.check:check_ms5837',
+    'ina219': 'enbarr_plugins.power.check:check_ina219',
     'arduino': 'enbarr_plugins.arduino.check:check_device',
     'rplidar': 'enbarr_plugins.lidar.check:check_device',
     'camera': 'enbarr_plugins.camera.check:check_device',

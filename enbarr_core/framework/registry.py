@@ -51,6 +51,7 @@ BUILTIN: dict[str, str] = {
     'sim_thrusters': 'enbarr_plugins.thrusters.sim:SimThrustersNode',
     'sim_stepper': 'enbarr_plugins.io.sim_stepper:SimStepperNode',
     'sim_gpio': 'enbarr_plugins.io.sim_gpio:SimGpioNode',
+    'sim_leak': 'enbarr_plugins.io.sim_leak:SimLeakNode',
     'sim_mocap': 'enbarr_plugins.mocap.sim:SimMocapNode',
     'sim_lidar': 'enbarr_plugins.lidar.sim:SimLidarNode',
     'sim_camera': 'enbarr_plugins.camera.sim:SimCameraNode',
@@ -67,6 +68,8 @@ BUILTIN: dict[str, str] = {
     'fxos8700_emulator': 'enbarr_plugins.imu.fxos8700_emulator:Fxos8700EmulatorNode',
     'ms5837_depth': 'enbarr_plugins.pressure.ms5837:Ms5837Node',
     'ms5837_emulator': 'enbarr_plugins.pressure.ms5837_emulator:Ms5837EmulatorNode',
+    'ina219_battery': 'enbarr_plugins.power.ina219:Ina219Node',
+    'ina219_emulator': 'enbarr_plugins.power.ina219_emulator:Ina219EmulatorNode',
     'arduino_pwm': 'enbarr_plugins.arduino.link:ArduinoPwmNode',
     'arduino_emulator': 'enbarr_plugins.arduino.emulator:ArduinoEmulatorNode',
     'rplidar': 'enbarr_plugins.lidar.rplidar:RplidarNode',
@@ -78,6 +81,7 @@ BUILTIN: dict[str, str] = {
     'ds4_evdev': 'enbarr_plugins.joystick.ds4_evdev:Ds4EvdevNode',
     'ds4_emulator': 'enbarr_plugins.joystick.ds4_emulator:Ds4EmulatorNode',
     'gpio_lights': 'enbarr_plugins.io.gpio_lights:GpioLightsNode',
+    'leak_gpio': 'enbarr_plugins.io.leak:LeakGpioNode',
     'stepper': 'enbarr_plugins.io.stepper:StepperNode',
 }
 
