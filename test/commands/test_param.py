@@ -189,9 +189,9 @@ def test_describe_prints_type_description_and_range(h):
                    '    Max value: 10.0\n'
                    'Parameter name: avoidance.level\n'
                    '  Type: string\n'
-                   "  Description: Where the barrier functions act: guidance (the desired "
-                   "position, here) or force (the DP controller's force; here only the blind "
-                   'hold)\n'
+                   '  Description: Where the barrier functions act: guidance (the desired '
+                   'position, in the guidance node) or force (the force, in the DP control '
+                   'node; the guidance then keeps only its blind hold)\n'
                    '  Constraints:\n'
                    '    Read only: true\n')
 

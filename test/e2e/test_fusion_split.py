@@ -69,7 +69,9 @@ def test_the_fusion_receives_every_input_across(run: dict[str, Any]) -> None:
     level, values = last_status(run, 'fusion')
     detections = int(values['detections_msgs'])
     assert detections >= 5 * DURATION                      # detections
-    assert values['no_camera_info'] == '0'                 # camera/camera_info
+    # camera/camera_info: it crosses (latched); on a loaded machine the first detections
+    # may beat its discovery across the processes, a start-up race, never a lasting one
+    assert int(values['no_camera_info']) <= 2
     assert int(values['published']) >= 2 * DURATION        # obstacles (lidar at 5 Hz)
     # odometry: the images are posed (a few before the first obstacles are allowed)
     assert int(values['no_pose']) + int(values['no_obstacles']) < 0.1 * detections

@@ -58,6 +58,16 @@ def test_neutral_before_the_fault_does_not_count() -> None:
     assert not judge.judge_removal('sigkill:supervisor', obs, T0).passed
 
 
+def test_already_neutral_at_the_fault_is_safe_at_once() -> None:
+    # A control group starved on a loaded machine: its thrusters went neutral by their own
+    # command timeout before it was killed, and no output came after (a driver holds it).
+    obs = [(T0 - int(0.5 * S), False), (T0 - int(0.2 * S), True)]
+    assert judge.time_to_neutral(obs, T0) == 0.0
+    assert judge.judge_removal('sigkill:control', obs, T0).passed
+    # ... and driving again after it does not undo that it was safe at the fault
+    assert judge.time_to_neutral(obs + [(T0 + int(0.3 * S), False)], T0) == 0.0
+
+
 def test_extra_condition_fails_an_in_time_neutral() -> None:
     v = judge.judge_removal('sigkill:supervisor', outputs([0.1], 0.1), T0,
                             extra='last recorded actuator output [0.02]', extra_ok=False)

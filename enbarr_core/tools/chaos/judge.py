@@ -45,7 +45,7 @@ class Verdict:
     fault: str                      # e.g. 'future+20s:imu/data_raw', 'sigkill:control'
     expected: str                   # REMOVES_CONTROL or KEEPS_CONTROL
     passed: bool
-    time_to_safe_s: float | None    # removal faults: fault -> first neutral output
+    time_to_safe_s: float | None    # removal faults: fault -> actuators neutral (time_to_neutral)
     detail: str = ''
     figures: dict[str, Any] = field(default_factory=dict)
 
@@ -58,10 +58,17 @@ class Verdict:
 
 
 def time_to_neutral(outputs: Iterable[tuple[int, bool]], fault_ns: int) -> float | None:
-    """Seconds from ``fault_ns`` to the first neutral actuator output stamped at or after it.
+    """Seconds from ``fault_ns`` until the actuators are neutral; None when they never were.
 
-    ``outputs`` are ``(stamp ns, neutral)`` pairs; None when no neutral output came.
+    ``outputs`` are ``(stamp ns, neutral)`` pairs. 0 when the last output before the fault was
+    already neutral (a starved control group had put them there: a driver holds its last
+    output, so they stay neutral until a new output says otherwise); else the first neutral
+    output stamped at or after the fault.
     """
+    outputs = sorted(outputs)
+    before = [neutral for t, neutral in outputs if t < fault_ns]
+    if before and before[-1]:
+        return 0.0
     after = [t for t, neutral in outputs if neutral and t >= fault_ns]
     return (min(after) - fault_ns) * 1e-9 if after else None
 
