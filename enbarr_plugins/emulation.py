@@ -17,7 +17,10 @@ plugged in yet.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 import threading
+import time
 from typing import Any
 
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
@@ -113,3 +116,50 @@ def get_or_create(kind: str, name: str, factory: Any) -> Any:
         if endpoint is None:
             endpoint = _endpoints[(kind, name)] = factory()
         return endpoint
+
+
+# -- emulated I2C chips on a shared bus --------------------------------------------------------
+# An emulator node plugs its chips into the named emulated bus when started and unplugs them
+# when destroyed; a ``check-device --bus emulated`` puts chips on a private bus for the check's
+# duration. One place for both, so that no emulator leaves a bus registered behind it.
+
+def plug_i2c(name: str, chips: Mapping[int, Any]) -> Any:
+    """Attach ``chips`` (address -> chip) to the emulated I2C bus ``name`` (made if missing).
+
+    Returns the bus (a ``transport.i2c.FakeI2cBus``).
+    """
+    from enbarr_plugins.transport.i2c import FakeI2cBus
+    bus = get_or_create('i2c', name, FakeI2cBus)
+    for address, chip in chips.items():
+        bus.attach(address, chip)
+    return bus
+
+
+def unplug_i2c(name: str, bus: Any, chips: Mapping[int, Any]) -> None:
+    """Detach those of ``chips`` still on ``bus``; withdraw the bus ``name`` once it is empty."""
+    for address, chip in chips.items():
+        if bus.devices.get(address) is chip:
+            bus.detach(address)
+    if not bus.devices:
+        unregister('i2c', name, bus)
+
+
+@contextmanager
+def checked_i2c_bus(value: str, attach: Callable[[Any], object]) -> Iterator[str]:
+    """Yield the bus a device check opens, its own or a private emulated one.
+
+    ``value`` itself; for an emulated one a private emulated bus (its ``emulated:NAME``) on
+    which ``attach(bus)`` put the chips, withdrawn when the check ends.
+    """
+    if not is_emulated(value):
+        yield value
+        return
+    from enbarr_plugins.transport.i2c import FakeI2cBus
+    name = f'check-device-{time.monotonic_ns()}'
+    bus = FakeI2cBus()
+    attach(bus)
+    register('i2c', name, bus)
+    try:
+        yield f'emulated:{name}'
+    finally:
+        unregister('i2c', name)

@@ -82,14 +82,10 @@ def check_imu(target: CheckTarget, default_settings: Callable[..., I2cImuSetting
         s = default_settings(**changes)
     except ValueError as err:
         raise DeviceError(str(err)) from err
-    name = None
-    if emulation.is_emulated(value):
-        name = f'check-device-{time.monotonic_ns()}'
-        fake = FakeI2cBus()
-        attach(fake, chips_class.addresses(s))
-        emulation.register('i2c', name, fake)
-        s = default_settings(**{**changes, 'bus': f'emulated:{name}'})
-    try:
+    addresses = chips_class.addresses(s)
+    with emulation.checked_i2c_bus(value, lambda fake: attach(fake, addresses)) as opened:
+        if opened != value:
+            s = default_settings(**{**changes, 'bus': opened})
         bus = Bus(s.bus, min(target.timeout, 1.0))
         try:
             chips = chips_class(bus, s)
@@ -97,7 +93,4 @@ def check_imu(target: CheckTarget, default_settings: Callable[..., I2cImuSetting
             sample = wait_sample(chips, target.timeout)
         finally:
             bus.close()
-    finally:
-        if name is not None:
-            emulation.unregister('i2c', name)
     return lines + sample_lines(sample)

@@ -221,9 +221,7 @@ class EmulatorNode(EnbarrNode):
     def start(self) -> None:
         """Put the chips on the shared emulated bus (a profile check builds, never starts)."""
         if self.bus is None:
-            self.bus = emulation.get_or_create('i2c', self.settings.name, FakeI2cBus)
-            for address, chip in self.chips.items():
-                self.bus.attach(address, chip)
+            self.bus = emulation.plug_i2c(self.settings.name, self.chips)
         super().start()
 
     def _apply(self, settings: EmulatorSettings) -> None:
@@ -258,9 +256,5 @@ class EmulatorNode(EnbarrNode):
         """Unplug the chips; withdraw the bus when nothing else sits on it."""
         bus, self.bus = self.bus, None
         if bus is not None:
-            for address, chip in self.chips.items():
-                if bus.devices.get(address) is chip:
-                    bus.detach(address)
-            if not bus.devices:
-                emulation.unregister('i2c', self.settings.name, bus)
+            emulation.unplug_i2c(self.settings.name, bus, self.chips)
         super().destroy_node()

@@ -8,7 +8,6 @@ Lives apart from the driver: it is the one place that needs both the driver and 
 
 from __future__ import annotations
 
-import time
 
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
@@ -18,21 +17,14 @@ from enbarr_plugins.power.ina219 import read16
 from enbarr_plugins.power.ina219_emulator import Ina219Chip
 from enbarr_plugins.power.ina219_protocol import (
     ADDRESS, BUS_VOLTAGE, bus_voltage, CALIBRATION, CONFIG, SHUNT_VOLTAGE, shunt_voltage)
-from enbarr_plugins.transport.i2c import FakeI2cBus
 
 
 def check_ina219(target: CheckTarget) -> list[str]:
     """Return the configuration, the calibration, the bus and shunt voltage (module doc)."""
     value = target.bus or '1'
     address = ADDRESS if target.address is None else target.address
-    name = None
-    if emulation.is_emulated(value):
-        name = f'check-device-{time.monotonic_ns()}'
-        fake = FakeI2cBus()
-        fake.attach(address, Ina219Chip(volts=14.8, amps=1.0))
-        emulation.register('i2c', name, fake)
-        value = f'emulated:{name}'
-    try:
+    with emulation.checked_i2c_bus(
+            value, lambda fake: fake.attach(address, Ina219Chip(volts=14.8, amps=1.0))) as value:
         try:
             bus = Bus(value, min(target.timeout, 1.0))
         except ValueError as err:
@@ -44,9 +36,6 @@ def check_ina219(target: CheckTarget) -> list[str]:
             shunt = shunt_voltage(read16(dev, SHUNT_VOLTAGE))
         finally:
             bus.close()
-    finally:
-        if name is not None:
-            emulation.unregister('i2c', name)
     return [f'INA219 at {bus.name} 0x{address:02x}: configuration 0x{config:04x}, '
             f'calibration {cal}' + (' (not set: current and power read 0)' if not cal else ''),
             f'bus {volts.volts:.3f} V{" (overflow)" if volts.overflow else ""}, shunt '

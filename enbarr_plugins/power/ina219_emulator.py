@@ -129,16 +129,12 @@ class Ina219EmulatorNode(EnbarrNode):
     def start(self) -> None:
         """Put the chip on the shared emulated bus (a profile check builds, never starts)."""
         if self.bus is None:
-            self.bus = emulation.get_or_create('i2c', self.settings.name, FakeI2cBus)
-            self.bus.attach(self.settings.address, self.chip)
+            self.bus = emulation.plug_i2c(self.settings.name, {self.settings.address: self.chip})
         super().start()
 
     def destroy_node(self) -> None:
         """Unplug the chip; withdraw the bus when nothing else sits on it."""
         bus, self.bus = self.bus, None
         if bus is not None:
-            if bus.devices.get(self.settings.address) is self.chip:
-                bus.detach(self.settings.address)
-            if not bus.devices:
-                emulation.unregister('i2c', self.settings.name, bus)
+            emulation.unplug_i2c(self.settings.name, bus, {self.settings.address: self.chip})
         super().destroy_node()

@@ -8,7 +8,6 @@ one place that needs both the driver and the emulator.
 
 from __future__ import annotations
 
-import time
 
 from enbarr_core.framework.errors import DeviceError
 from enbarr_plugins import emulation
@@ -17,21 +16,13 @@ from enbarr_plugins.imu.common import Bus
 from enbarr_plugins.pressure.ms5837 import Ms5837Device
 from enbarr_plugins.pressure.ms5837_emulator import attach_ms5837
 from enbarr_plugins.pressure.ms5837_protocol import ADDRESS, compensate
-from enbarr_plugins.transport.i2c import FakeI2cBus
 
 
 def check_ms5837(target: CheckTarget) -> list[str]:
     """Return the PROM's calibration and one compensated sample (see the module doc)."""
     value = target.bus or '1'
     address = ADDRESS if target.address is None else target.address
-    name = None
-    if emulation.is_emulated(value):
-        name = f'check-device-{time.monotonic_ns()}'
-        fake = FakeI2cBus()
-        attach_ms5837(fake, address)
-        emulation.register('i2c', name, fake)
-        value = f'emulated:{name}'
-    try:
+    with emulation.checked_i2c_bus(value, lambda fake: attach_ms5837(fake, address)) as value:
         try:
             bus = Bus(value, min(target.timeout, 1.0))
         except ValueError as err:
@@ -43,9 +34,6 @@ def check_ms5837(target: CheckTarget) -> list[str]:
             d1 = chip.convert(d1=True)
         finally:
             bus.close()
-    finally:
-        if name is not None:
-            emulation.unregister('i2c', name)
     if d1 == 0 or d2 == 0:
         raise DeviceError(f'{bus.name} 0x{address:02x}: ADC read 0 (D1 {d1}, D2 {d2}): '
                           'conversion lost')

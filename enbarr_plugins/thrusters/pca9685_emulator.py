@@ -376,9 +376,7 @@ class Pca9685EmulatorNode(EnbarrNode):
         drivers write their neutral pulses after every node has stopped).
         """
         if self.bus is None:
-            s = self.settings
-            self.bus = emulation.get_or_create('i2c', s.name, FakeI2cBus)
-            self.bus.attach(s.address, self.chip)
+            self.bus = emulation.plug_i2c(self.settings.name, {self.settings.address: self.chip})
         super().start()
 
     def _build(self, v: dict[str, Any]) -> EmulatorSettings:
@@ -437,10 +435,7 @@ class Pca9685EmulatorNode(EnbarrNode):
                     self.tick()
                 except Exception as err:  # noqa: BLE001 - the unplugging must still happen
                     self.get_logger().warn(f'last output report failed: {err!r}')
-            if bus.devices.get(self.settings.address) is self.chip:
-                bus.detach(self.settings.address)
-            if not bus.devices:
-                emulation.unregister('i2c', self.settings.name, bus)
+            emulation.unplug_i2c(self.settings.name, bus, {self.settings.address: self.chip})
         super().destroy_node()
 
 
@@ -455,10 +450,4 @@ def start_check_emulator(bus: str, address: int) -> Callable[[], None]:
     if address in fake.devices:
         return lambda: None
     chip = fake.attach(address, Pca9685Emulator())
-
-    def clean_up() -> None:
-        if fake.devices.get(address) is chip:
-            fake.detach(address)
-        if not fake.devices:
-            emulation.unregister('i2c', name, fake)
-    return clean_up
+    return lambda: emulation.unplug_i2c(name, fake, {address: chip})
