@@ -283,11 +283,6 @@ def _solve_qp(vx: float, vy: float, cons: list[tuple[float, float, float, float]
     return QpResult(np.array((vx, vy)), True, True, binding)
 
 
-def _rot2(psi: float) -> Vector:
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([[c, -s], [s, c]])
-
-
 class SafetyFilter:
     """The guidance-level CBF safety filter (module docstring).
 
@@ -426,10 +421,6 @@ class SafetyFilter:
         return Reference(np.array((self.p_d[0], self.p_d[1], psi_d)), np.array(nu_d),
                          np.array(nu_d_dot), _ALL, nominal.cross_track, nominal.along_track,
                          nominal.segment, nominal.finished)
-
-
-def _min(B: Vector) -> float:
-    return float(B.min()) if len(B) else math.inf
 
 
 def blind_reason(estimate_ns: int, obstacles_ns: int | None, measurement_age: float | None,
