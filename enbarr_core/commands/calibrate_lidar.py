@@ -95,7 +95,7 @@ def run_lidar(args: argparse.Namespace) -> int:
 
     profile = load_profile(args.profile, allow_fragment=True)
     tree = profile.frames
-    camera = _camera(args.camera_info)
+    camera = load_camera(args.camera_info)
     guess = E.optical_laser(tree, args.optical_frame, args.laser_frame)
     if args.method == 'pnp':
         if not args.pairs:
@@ -136,7 +136,11 @@ def _fmt(v: Sequence[float] | np.ndarray) -> str:
     return '[' + ', '.join(f'{x:.4f}' for x in np.asarray(v, dtype=float)) + ']'
 
 
-def _camera(path: str) -> CameraModel:
+def load_camera(path: str) -> CameraModel:
+    """Read a camera_info YAML (manual 4.1) into the extrinsics solvers' camera model.
+
+    CalibrationError naming the file when it cannot be read.
+    """
     from enbarr_core.vision.extrinsics import CameraModel
     from enbarr_plugins.camera.calibration import load_calibration
     try:
@@ -246,7 +250,7 @@ def run_reproject(args: argparse.Namespace) -> int:
 
     tree = load_profile(args.profile, allow_fragment=True).frames
     transform = E.optical_laser(tree, args.optical_frame, args.laser_frame)
-    camera = _camera(args.camera_info)
+    camera = load_camera(args.camera_info)
     topics = recorded.bag_topics(args.bag, args.scan_topic, args.image_topic)
     out = Path(args.output)
     video = out.suffix.lower() in ('.mp4', '.avi')

@@ -310,12 +310,12 @@ def _guess_projector(args: argparse.Namespace) -> Any:
     if not (args.profile and args.camera_info):
         return None
     from enbarr_core.bringup.profile import load_profile
-    from enbarr_core.commands.calibrate_lidar import _camera
+    from enbarr_core.commands.calibrate_lidar import load_camera
     from enbarr_core.vision.extrinsics import optical_laser, project_scan
 
     tree = load_profile(args.profile, allow_fragment=True).frames
     transform = optical_laser(tree, args.optical_frame, args.laser_frame)
-    camera = _camera(args.camera_info)
+    camera = load_camera(args.camera_info)
 
     def project(xy: np.ndarray) -> Pixel | None:
         px, ok = project_scan(np.asarray(xy, dtype=float).reshape(1, 2), transform, camera)
