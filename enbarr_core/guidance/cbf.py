@@ -73,7 +73,7 @@ and the QP is only solved when v_nom violates a constraint (then it is exactly i
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import math
 from typing import Protocol
@@ -227,15 +227,19 @@ def constraints(p: Vector, rows: Vector, settings: CbfSettings
     return a[:, 0:2], a[:, 2], a[:, 3]
 
 
-def _constraints(px: float, py: float, rows: list[list[float]], margin: float, gamma: float
-                 ) -> list[tuple[float, float, float, float]]:
+def _constraints(px: float, py: float, rows: Sequence[Sequence[float]], margin: float,
+                 gamma: float, age: float = 0.0) -> list[tuple[float, float, float, float]]:
     """:func:`constraints` as rows (nx, ny, b, B) of Python floats.
 
     A loop over floats: for the ten or so obstacles of a basin it is faster than numpy, whose
-    per-call cost would be the whole cost (docs/benchmarks.md).
+    per-call cost would be the whole cost (docs/benchmarks.md). ``age`` [s] carries each
+    obstacle along its velocity first, as :func:`moved` does (the same float operations).
     """
     out = []
     for ax, ay, bx, by, r, vx, vy in rows:
+        if age:
+            sx, sy = age * vx, age * vy
+            ax, ay, bx, by = ax + sx, ay + sy, bx + sx, by + sy
         dx, dy, ex, ey = bx - ax, by - ay, px - ax, py - ay
         n2 = dx * dx + dy * dy
         s = (ex * dx + ey * dy) / n2 if n2 > 0.0 else 0.0   # c_i = a + s d, s in [0, 1]
@@ -321,11 +325,14 @@ class SafetyFilter:
         self.v = (0.0, 0.0)
         self.a_ff = (0.0, 0.0)
 
-    def step(self, eta_hat: Vector, nominal: Reference, rows: Vector, dt: float) -> CbfOutput:
+    def step(self, eta_hat: Vector, nominal: Reference,
+             rows: Vector | Sequence[Sequence[float]], dt: float, age: float = 0.0) -> CbfOutput:
         """Filter ``nominal``, the law's reference for ``eta_hat`` now.
 
-        ``rows``: the obstacles at the estimate's time (:func:`obstacle_rows`); ``dt`` [s]
-        since the previous step.
+        ``rows``: the obstacles (:func:`obstacle_rows`, or its ``tolist()``, which a caller
+        that steps many times on the same obstacles converts once), taken ``age`` [s] before
+        the estimate's time: each is carried along its velocity for that long
+        (:func:`moved`). ``dt`` [s] since the previous step.
         """
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f'dt must be finite and > 0, got {dt!r}')
@@ -350,7 +357,8 @@ class SafetyFilter:
             p = target
         k = s.pull_gain
         v_nom = (v_ff[0] + k * (target[0] - p[0]), v_ff[1] + k * (target[1] - p[1]))
-        cons = _constraints(p[0], p[1], rows.tolist(), s.margin, s.gamma)
+        cons = _constraints(p[0], p[1], rows.tolist() if isinstance(rows, np.ndarray) else rows,
+                            s.margin, s.gamma, age)
         min_b = min((row[3] for row in cons), default=math.inf)
         qp = _solve_qp(v_nom[0], v_nom[1], cons, s.max_speed)
         if not qp.solved and (not self.engaged or math.hypot(p[0] - target[0], p[1] - target[1])

@@ -261,6 +261,31 @@ def test_obstacle_rows_are_moved_on_by_their_age():
     np.testing.assert_allclose(r, [[2.0, 1.5, 4.0, 1.5, 0.3, 0.5, -0.25]])
 
 
+def test_step_carries_the_obstacles_by_their_age_as_moved_does():
+    """The guidance hands the step the obstacles of the last scan and their age: the step
+    must give exactly what it gives on the rows moved to the estimate's time (a head-on boat
+    and a crossing wall, so that the age decides the references)."""
+    from enbarr_core.guidance.cbf import moved
+    scan = rows(circle(2.0, 0.0, 0.2, vx=-0.2), [-1.0, 1.2, 3.0, 0.8, 0.1, 0.05, -0.1])
+    hold = HoldPose((0.0, 0.0, 0.0))
+    moved_filter, aged_filter = SafetyFilter(SETTINGS), SafetyFilter(SETTINGS)
+    eta = np.array((0.0, 0.0, 0.0))
+    engaged = 0
+    for k in range(int(12.0 / DT)):
+        age = (k % 9) * DT   # a scan every nine estimates
+        if k % 9 == 0 and k:
+            scan = moved(scan, 9 * DT)
+        a = moved_filter.step(eta, hold.reference(eta, DT), moved(scan, age), DT)
+        b = aged_filter.step(eta, hold.reference(eta, DT), scan.tolist(), DT, age=age)
+        assert (a.engaged, a.active, a.infeasible) == (b.engaged, b.active, b.infeasible)
+        assert a.min_barrier == b.min_barrier
+        np.testing.assert_array_equal(a.reference.eta_d, b.reference.eta_d)
+        np.testing.assert_array_equal(a.reference.nu_d, b.reference.nu_d)
+        engaged += a.engaged
+        eta = a.reference.eta_d.copy()
+    assert engaged > 50   # the obstacles did shape the references
+
+
 @pytest.mark.parametrize('kwargs, match', [
     ({'gamma': 0.0}, '^gamma'), ({'max_speed': -1.0}, '^max_speed'),
     ({'safety_radius': -0.1}, '^safety_radius'), ({'tracking_margin': math.nan},
