@@ -284,23 +284,34 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
 
 
 # -- segments ------------------------------------------------------------------------------
-def fit_line(points: Vector) -> tuple[Vector, Vector, float]:
-    """Total least squares line: (a point on it, unit direction, sum of squared distances)."""
-    m = points.sum(axis=0) / len(points)
-    p = points - m
-    (sxx, sxy), (_, syy) = (p.T @ p).tolist()        # one product for the three sums
-    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)   # the principal axis
+def fit_line(points: Vector) -> tuple[tuple[float, float], tuple[float, float], float]:
+    """Total least squares line: (a point on it, unit direction, sum of squared distances).
+
+    From the points' sums about the first point, two numpy calls: a scan fits several lines
+    to clusters of tens of points, where each numpy call costs more than its arithmetic. The
+    sum of squared distances is n^T C n of the centred scatter C and the line's normal n.
+    """
+    n = len(points)
+    o = points[0]
+    p = points - o
+    sx, sy = p.sum(axis=0).tolist()
+    (sxx, sxy), (_, syy) = (p.T @ p).tolist()
+    mx, my = sx / n, sy / n
+    cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my     # centred scatter
+    theta = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)                   # the principal axis
     c, s = math.cos(theta), math.sin(theta)
-    dist = p @ np.array((-s, c))
-    return m, np.array((c, s)), float(dist @ dist)
+    ss = s * s * cxx - 2.0 * s * c * cxy + c * c * cyy
+    ox, oy = o.tolist()
+    return (ox + mx, oy + my), (c, s), max(ss, 0.0)
 
 
 def fit_segment(points: Vector) -> SegmentFit:
     """Fit a segment: the TLS line, ends the extreme projections of the points."""
-    m, u, ss = fit_line(points)
-    t = (points - m) @ u
-    a, b = m + t.min() * u, m + t.max() * u
-    return SegmentFit(float(a[0]), float(a[1]), float(b[0]), float(b[1]),
+    (mx, my), (c, s), ss = fit_line(points)
+    t = points @ np.array((c, s))
+    base = mx * c + my * s        # the projection of the line's point
+    lo, hi = float(t.min()) - base, float(t.max()) - base
+    return SegmentFit(mx + lo * c, my + lo * s, mx + hi * c, my + hi * s,
                       math.sqrt(ss / len(points)), len(points))
 
 
@@ -318,14 +329,14 @@ def split(points: Vector, threshold: float, min_points: int = 2) -> list[tuple[i
         if end - start < 2 * min_points - 1:
             out.append((start, end))
             continue
-        a, b = points[start], points[end - 1]
-        ab = b - a
-        norm = math.hypot(*ab)
-        p = points[start:end] - a
-        if norm > 0.0:
-            dist = np.abs(p[:, 0] * ab[1] - p[:, 1] * ab[0]) / norm
+        (ax, ay), (bx, by) = points[start].tolist(), points[end - 1].tolist()
+        dx, dy = bx - ax, by - ay
+        norm = math.hypot(dx, dy)
+        if norm > 0.0:   # |(p - a) x (b - a)| / |b - a|, the distance from the chord
+            dist = np.abs(points[start:end] @ np.array((dy, -dx)) - (ax * dy - ay * dx))
+            dist /= norm
         else:
-            dist = np.hypot(p[:, 0], p[:, 1])
+            dist = np.hypot(points[start:end, 0] - ax, points[start:end, 1] - ay)
         k = int(np.argmax(dist))
         if (dist[k] > threshold and k + 1 >= min_points and end - start - k >= min_points):
             todo += [(start + k, end), (start, start + k + 1)]
@@ -336,9 +347,10 @@ def split(points: Vector, threshold: float, min_points: int = 2) -> list[tuple[i
     for start, end in out[1:]:
         s0, _ = merged[-1]
         union = points[s0:end]
-        m, u, _ = fit_line(union)
-        dist = np.abs((union - m) @ np.array([-u[1], u[0]]))
-        if float(dist.max()) <= threshold:
+        (mx, my), (c, s), _ = fit_line(union)
+        side = union @ np.array((-s, c))    # signed distance from the line, plus a constant
+        offset = -s * mx + c * my
+        if max(float(side.max()) - offset, offset - float(side.min())) <= threshold:
             merged[-1] = (s0, end)
         else:
             merged.append((start, end))

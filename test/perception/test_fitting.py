@@ -14,7 +14,8 @@ from scipy.optimize import least_squares
 from support.lidar_scene import Circle, Wall, cast
 
 from enbarr_core.perception.fitting import (
-    CircleFit, fit_circle, fit_cluster, FitSettings, kasa, refine_circle, SegmentFit, split)
+    CircleFit, fit_circle, fit_cluster, fit_segment, FitSettings, kasa, refine_circle, SegmentFit,
+    split)
 
 SETTINGS = FitSettings(min_radius=0.05, max_radius=1.0, min_segment_length=0.4,
                        circle_ratio=0.8, split_distance=0.1)
@@ -159,11 +160,42 @@ def test_an_l_shaped_wall_is_two_segments_meeting_at_the_corner():
     assert corner[0] < 0.15 and math.dist(corner[1], (3.0, 2.0)) < 0.15
 
 
+@pytest.mark.parametrize('seed', range(4))
+def test_a_segment_is_the_total_least_squares_line_of_its_points(seed):
+    # the principal axis by numpy's SVD of the centred points, far from the origin (a basin
+    # wall seen from its far side): ends the extreme projections, rms the perpendicular one
+    rng = np.random.default_rng(seed)
+    angle, length = rng.uniform(-math.pi, math.pi), rng.uniform(0.3, 5.0)
+    start = rng.uniform(-20.0, 20.0, 2)
+    t = np.sort(rng.uniform(0.0, length, 40))
+    u = np.array((math.cos(angle), math.sin(angle)))
+    pts = start + np.outer(t, u) + 0.02 * np.outer(rng.standard_normal(40), (-u[1], u[0]))
+    centre = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centre)
+    axis, normal = vt[0], vt[1]
+    proj = (pts - centre) @ axis
+    ends = [centre + proj.min() * axis, centre + proj.max() * axis]
+    seg = fit_segment(pts)
+    got = [np.array((seg.x1, seg.y1)), np.array((seg.x2, seg.y2))]
+    if float((got[1] - got[0]) @ axis) < 0.0:
+        got.reverse()
+    np.testing.assert_allclose(got, ends, atol=1e-9)
+    assert seg.rms == pytest.approx(float(np.sqrt(np.mean(((pts - centre) @ normal) ** 2))),
+                                    rel=1e-9)
+    assert seg.points == 40
+
+
 def test_split_keeps_a_straight_run_whole_and_cuts_a_corner_once():
     line = np.column_stack((np.linspace(0, 4, 20), np.zeros(20)))
     assert split(line, 0.05) == [(0, 20)]
     corner = np.vstack((line, np.column_stack((np.full(10, 4.0), np.linspace(0.4, 4, 10)))))
     assert split(corner, 0.05) == [(0, 20), (19, 30)]
+    # a short bend at the end lies on one side of the union's line only, on either side: the
+    # merge must not take it back into the straight run
+    line = np.column_stack((np.linspace(0, 4, 40), np.zeros(40)))
+    bend = np.vstack((line, [[4.1, -0.1], [4.2, -0.2], [4.3, -0.3]]))
+    assert split(bend, 0.05) == [(0, 40), (39, 43)]
+    assert split(bend * (1.0, -1.0), 0.05) == [(0, 40), (39, 43)]
 
 
 def test_settings_refuse_a_minimum_radius_above_the_maximum():
