@@ -211,24 +211,28 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
 def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
     """Whether the centre lies beyond the points' middle, seen from the sensor."""
     mx, my = (points.sum(axis=0) / len(points)).tolist()
-    sx, sy = float(sensor[0]), float(sensor[1])
+    sx, sy = sensor.tolist()
     return bool((cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0)
 
 
 def fallback_circle(points: Vector, sensor: Vector, sigma: float,
                     min_radius: float, max_radius: float) -> CircleFit:
     """Return the circle of what cannot be fitted (the fallback of the module docstring)."""
-    chord = points[-1] - points[0]
-    half = 0.5 * math.hypot(*chord)
+    # In floats but for the rms: 2-vectors, where a numpy call costs more than the arithmetic
+    (x0, y0), (x1, y1) = points[0].tolist(), points[-1].tolist()
+    half = 0.5 * math.hypot(x1 - x0, y1 - y0)
     radius = min(max(half, min_radius), max_radius)
-    mid = 0.5 * (points[0] + points[-1])
-    out = mid - sensor
-    norm = math.hypot(*out)
-    u = out / norm if norm > 0.0 else np.array([1.0, 0.0])
-    c = mid + math.sqrt(max(radius * radius - half * half, 0.0)) * u
+    mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    sx, sy = sensor.tolist()
+    ox, oy = mx - sx, my - sy
+    norm = math.hypot(ox, oy)
+    ux, uy = (ox / norm, oy / norm) if norm > 0.0 else (1.0, 0.0)
+    behind = math.sqrt(max(radius * radius - half * half, 0.0))
+    cx, cy = mx + behind * ux, my + behind * uy
     var = sigma * sigma + radius * radius
-    rms = float(np.sqrt(np.mean((np.hypot(*(points - c).T) - radius) ** 2)))
-    return CircleFit(float(c[0]), float(c[1]), radius, (var, 0.0, var), rms, fallback=True)
+    e = np.hypot(points[:, 0] - cx, points[:, 1] - cy) - radius
+    rms = math.sqrt(float(e @ e) / len(points))
+    return CircleFit(cx, cy, radius, (var, 0.0, var), rms, fallback=True)
 
 
 def _circle_cov(jtj: list[list[float]], e2: float, n: int,
@@ -364,7 +368,8 @@ def fit_cluster(points: Vector, sensor: Vector, sigma: float,
     (x0, y0), (x1, y1) = points[0].tolist(), points[-1].tolist()
     extent = math.hypot(x1 - x0, y1 - y0)
     if n >= 3:
-        extent = max(extent, float((points.max(axis=0) - points.min(axis=0)).max()))
+        (lx, ly), (hx, hy) = points.min(axis=0).tolist(), points.max(axis=0).tolist()
+        extent = max(extent, hx - lx, hy - ly)
     if extent > 2.0 * s.max_radius:
         return _segments(points, sigma, s)
     circle = fit_circle(points, sensor, sigma, s.min_radius, s.max_radius)
