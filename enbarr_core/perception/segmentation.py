@@ -48,6 +48,9 @@ class BreakpointSettings:
 def breakpoint_distance(r_prev: Vector, dphi: Vector, lam: float, sigma_r: Vector) -> Vector:
     """Return D_max [m] (module docstring); -1 where ``dphi`` >= lambda (always a break)."""
     ok = dphi < lam
+    if ok.all():   # no ray missing more than lambda: the common case, without the masks
+        d: Vector = r_prev * np.sin(dphi) / np.sin(lam - dphi) + 3.0 * sigma_r
+        return d
     out: Vector = np.full(np.shape(r_prev), -1.0)
     out[ok] = (r_prev[ok] * np.sin(dphi[ok]) / np.sin(lam - dphi[ok]) + 3.0 * sigma_r[ok])
     return out
@@ -72,7 +75,10 @@ def clusters(scan: ScanPoints, s: BreakpointSettings) -> list[NDArray[np.intp]]:
     gap = np.diff(scan.index)
     d = np.hypot(*np.diff(scan.laser, axis=0).T)
     cut = np.flatnonzero(_breaks(scan.r[:-1], gap, d, scan.angle_increment, s)) + 1
-    pieces = np.split(np.arange(n, dtype=np.intp), cut)
+    # slices of one arange: np.split makes the same views at a higher cost per piece
+    every = np.arange(n, dtype=np.intp)
+    bounds = [0, *cut.tolist(), n]
+    pieces = [every[a:b] for a, b in zip(bounds, bounds[1:])]
     if scan.full_circle and len(pieces) > 1:
         seam_gap = np.array([scan.rays - scan.index[-1] + scan.index[0]])
         seam_d = np.array([math.dist(scan.laser[-1], scan.laser[0])])

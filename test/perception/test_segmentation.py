@@ -14,7 +14,8 @@ import pytest
 from support.lidar_scene import Circle, NOISE_FRACTIONS, NOISE_LIMITS, Wall, cast
 
 from enbarr_core.perception.scan_geometry import RangeNoise, scan_points
-from enbarr_core.perception.segmentation import BreakpointSettings, clusters
+from enbarr_core.perception.segmentation import (BreakpointSettings, breakpoint_distance,
+                                                  clusters)
 
 LAM = math.radians(10.0)
 INC = 2.0 * math.pi / 360
@@ -31,6 +32,16 @@ def d_max(r: float, rays_apart: int) -> float:
 def cluster_rays(ranges: np.ndarray, settings: BreakpointSettings = SETTINGS) -> list[set[int]]:
     scan = scan_points(ranges, -math.pi, INC)
     return [set(scan.index[c].tolist()) for c in clusters(scan, settings)]
+
+
+@pytest.mark.parametrize('apart', [[1, 1, 2, 3], [1, 2, 12, 1]])
+def test_the_breakpoint_distance_is_the_papers_and_a_wide_gap_always_breaks(apart):
+    # whether or not a gap reaches lambda (10 rays here), each pair gets the paper's bound
+    r = np.array([0.5, 2.9, 4.0, 7.5])
+    sigma = SETTINGS.noise.sigma(r)
+    got = breakpoint_distance(r, np.array(apart) * INC, LAM, sigma)
+    want = [d_max(ri, k) if k * INC < LAM else -1.0 for ri, k in zip(r.tolist(), apart)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
 def test_two_buoys_one_behind_the_other_split_exactly_where_the_breakpoint_says():
