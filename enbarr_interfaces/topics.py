@@ -131,6 +131,11 @@ THRUSTER_OUTPUT = TopicSpec(
     'thruster_output', JointState, SENSOR_QOS, 'normalized -1..1 (effort)', BODY_FRAME,
     'What a thruster plugin actually applied, including neutral on timeout and shutdown.',
     fast=True)
+THRUSTER_SENSORS = TopicSpec(
+    'thruster_sensors', JointState, SENSOR_QOS, 'rad/s (velocity), A (effort)', BODY_FRAME,
+    "Per-thruster feedback (the Enbarr README's thruster_sensors): velocity[i] = shaft speed "
+    'of thruster name[i], signed like its command; effort[i] = its current, NaN where the ESC '
+    'does not measure it.', fast=True)
 SIM_IMU = TopicSpec(
     'sim/imu', Imu, SENSOR_QOS, 'as imu/data, exact', IMU_FRAME,
     'Simulator ground truth at the IMU: true orientation, rate and specific force.',
@@ -289,9 +294,9 @@ BATTERY = TopicSpec(
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
     TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
-    FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, SIM_IMU, SIM_ODOMETRY, SIM_THRUST,
-    DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS, OBSERVER_AGE,
-    MODE,
+    FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, THRUSTER_SENSORS, SIM_IMU, SIM_ODOMETRY,
+    SIM_THRUST, DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS,
+    OBSERVER_AGE, MODE,
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
     AZIMUTH_COMMANDS,
     ALLOCATION_DELIVERED,

@@ -32,6 +32,7 @@ BUILTIN: dict[str, str] = {
     'command_receiver': 'enbarr_core.control.command_receiver_node:CommandReceiverNode',
     'velocity_control': 'enbarr_core.control.velocity_control_node:VelocityControlNode',
     'thruster_converter': 'enbarr_core.allocation.thruster_converter_node:ThrusterConverterNode',
+    'thruster_monitor': 'enbarr_core.control.thruster_monitor_node:ThrusterMonitorNode',
     'rov_simulator': 'enbarr_core.simulation.rov_simulator_node:RovSimulatorNode',
     'scripted_commands': 'enbarr_plugins.operator.scripted_commands:ScriptedCommandsNode',
     'recorder': 'enbarr_core.recording.recorder_node:RecorderNode',

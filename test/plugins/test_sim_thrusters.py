@@ -7,6 +7,7 @@ import time
 from typing import Any
 
 import numpy as np
+import rclpy.parameter
 import pytest
 from sensor_msgs.msg import JointState
 from support.devices import pass_time
@@ -374,3 +375,39 @@ def test_commands_stamped_ahead_or_out_of_order_are_refused_and_counted(rig):
     level, message, values = reports[-1]
     assert level == 1 and 'thruster_commands' in message, message
     assert values['thruster_commands.future'] == 1
+
+
+def test_thruster_sensors_report_the_speed_of_a_quadratic_propeller(rig):
+    # T = K n|n|: a command c (thrust c T_max, no lag here) turns at sign(c) sqrt(|c|) n_full
+    sensors: list[JointState] = []
+    rig.probe.create_topic_subscription(topics.THRUSTER_SENSORS, sensors.append)
+    LinkBus.of(rig.node.context).connect()
+    rig.command(CMD)
+    full = rig.node.settings.full_speed
+    assert sensors[-1].name == NAMES
+    assert sensors[-1].velocity.tolist() == pytest.approx(
+        [math.copysign(math.sqrt(abs(c)) * full, c) for c in CMD])
+    assert all(math.isnan(e) for e in sensors[-1].effort)   # the sim has no current
+
+
+@pytest.mark.parametrize('factor', [0.0, 0.5])
+def test_a_fouled_rotor_turns_slower_and_gives_the_square_of_its_thrust(rig, factor):
+    sensors: list[JointState] = []
+    rig.probe.create_topic_subscription(topics.THRUSTER_SENSORS, sensors.append)
+    LinkBus.of(rig.node.context).connect()
+    name = NAMES[2]   # commanded full forward in CMD
+    rig.node.set_parameters([rclpy.parameter.Parameter('fouled', value=[f'{name}:{factor}'])])
+    rig.command(CMD)
+    full = rig.node.settings.full_speed
+    assert sensors[-1].velocity[2] == pytest.approx(factor * full)
+    assert rig.thrusts[-1].effort[2] == pytest.approx(factor * factor * 51.5)
+    assert rig.thrusts[-1].effort[0] == pytest.approx(0.5 * 51.5)   # the others as before
+
+
+@pytest.mark.parametrize('entry, match', [
+    ('nope:0.5', "no thruster named 'nope'"), (f'{NAMES[0]}:1.5', 'factor in 0..1'),
+    (NAMES[0], 'want name:factor')])
+def test_a_bad_fouled_entry_is_refused_naming_it(rig, entry, match):
+    result = rig.node.set_parameters([rclpy.parameter.Parameter('fouled', value=[entry])])
+    assert not result[0].successful and match in result[0].reason
+    assert rig.node.settings.fouled == {}
