@@ -134,7 +134,7 @@ class DepthEstimator:
         return math.nan if self.kf is None else float(self.kf.x[2, 0])
 
     def covariance(self) -> Vector:
-        """The state covariance (3, 3) (NaN before the start)."""
+        """Return the state covariance (3, 3) (NaN before the start)."""
         if self.kf is None:
             return np.full((3, 3), math.nan)
         out: Vector = self.kf.P.copy()

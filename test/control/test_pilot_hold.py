@@ -1,0 +1,185 @@
+"""Depth and heading hold (pure): the loops alone, then the Enbarr ROV in closed loop.
+
+The closed loop is the simulated profile's vehicle (``params/enbarr_sim.yaml``: Wu 2018's
+BlueROV2-class model, eight thrusters with their limits) under a 0.2 m/s current, driven by
+its velocity loop with the profile's gains, the depth from the pressure sensor at its
+resolution through ``estimation.depth_estimator``, the heading with an AHRS's noise. The plant
+is also run 30 % heavier (mass, added mass, inertia) with 30 % more damping and 2 N light,
+which the controller's model does not know. Targets (the pilot modes' figures): after settling,
+depth error RMS at most 2 cm and heading error at most 1 deg.
+
+Noise figures typed here: the MS5837-30BA's resolution at OSR 4096, 0.2 mbar = 20 Pa (TE data
+sheet); an AHRS heading noise of 0.3 deg RMS and an accelerometer's 0.02 m/s^2 RMS (an
+LSM9DS1-class IMU at 100 Hz).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from support.rov import sim_parameters, sim_thrusters, vehicle_parameters
+
+from enbarr_core.allocation.fixed import ThrustAllocator
+from enbarr_core.control.pilot_hold import (
+    DepthHold, DepthHoldSettings, HeadingHold, HeadingHoldSettings)
+from enbarr_core.control.velocity_control import VelocityController
+from enbarr_core.control.velocity_control_node import VelocityControlNodeSettings
+from enbarr_core.estimation.depth_estimator import DepthEstimator, DepthEstimatorSettings
+from enbarr_core.framework.kinematics import quat_to_euler, quat_to_rotmat, ssa
+from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
+
+KI = 0.3
+DEPTH = DepthHoldSettings(gain=1.0, max_climb=0.5, deadband=0.05, integral_gain=KI,
+                          integral_limit=0.2)
+HEADING = HeadingHoldSettings(gain=2.0, max_rate=0.6, deadband=0.05, settle_rate=0.05,
+                              settle_time=0.5)
+DEPTH_STD = 20.0 / (997.0 * 9.80665)   # 20 Pa of fresh water [m]
+HEADING_STD = math.radians(0.3)
+ACCEL_STD = 0.02
+G = 9.80665
+
+
+# -- the loops alone ----------------------------------------------------------------------
+@pytest.mark.unit
+def test_depth_stick_drives_then_the_release_point_is_held():
+    d = DepthHold(DEPTH)
+    assert d.step(-1.0, -1.0) == pytest.approx(-0.5)     # full stick down: dive at max_climb
+    assert d.target is None
+    assert d.step(0.0, -1.3) == 0.0                      # released at z = -1.3: held there
+    assert d.target == -1.3
+    assert d.step(0.02, -1.2) == pytest.approx(-0.1)     # inside the deadband: back down
+    assert d.step(0.0, 0.5) == -0.5                      # far off: at most max_climb
+    assert d.step(math.nan, -1.3) == 0.0                 # a lost stick is a centred one
+
+
+@pytest.mark.unit
+def test_the_depth_integral_builds_up_and_is_clamped():
+    d = DepthHold(DEPTH)
+    d.engage(-2.0)
+    assert d.step(0.0, -2.1, 1.0) == pytest.approx(0.1 + KI * 0.1)   # P plus one second of I
+    for _ in range(100):
+        d.step(0.0, -2.1, 1.0)
+    assert d.integral == pytest.approx(0.2)                           # the clamp
+    assert d.step(0.0, -2.1) == pytest.approx(0.3)                    # dt 0: no integration
+
+
+@pytest.mark.unit
+def test_heading_waits_for_the_turn_to_die_out_then_holds():
+    h = HeadingHold(HEADING)
+    assert h.step(1.0, 0.0, 0.6, 0.01) == pytest.approx(0.6)
+    # released while still turning at 0.3 rad/s: no rate commanded, no target yet
+    assert h.step(0.0, 0.5, 0.3, 0.01) == 0.0 and h.target is None
+    assert h.step(0.0, 0.52, 0.01, 0.01) == 0.0           # below settle_rate: held from here
+    assert h.target == 0.52
+    assert h.step(0.0, 0.42, 0.0, 0.01) == pytest.approx(0.2)
+    # across +-pi the error is wrapped
+    h.engage(math.pi - 0.05)
+    assert h.step(0.0, -math.pi + 0.05, 0.0, 0.01) == pytest.approx(-0.2)
+
+
+@pytest.mark.unit
+def test_heading_holds_after_settle_time_even_if_still_turning():
+    h = HeadingHold(HEADING)
+    h.step(1.0, 0.0, 0.6, 0.01)
+    for _ in range(49):
+        assert h.step(0.0, 1.0, 0.2, 0.01) == 0.0
+    h.step(0.0, 1.0, 0.2, 0.01)
+    assert h.target == 1.0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize('cls, settings, field', [
+    (DepthHoldSettings, dict(gain=0.0, max_climb=0.5, deadband=0.05), 'gain'),
+    (DepthHoldSettings, dict(gain=1.0, max_climb=0.5, deadband=1.0), 'deadband'),
+    (HeadingHoldSettings, dict(gain=1.0, max_rate=math.inf, deadband=0.0, settle_rate=0.1,
+                               settle_time=0.5), 'max_rate')])
+def test_settings_name_the_bad_field(cls, settings, field):
+    with pytest.raises(ValueError, match=f'^{field}'):
+        cls(**settings).validate()
+
+
+# -- the ROV in closed loop -----------------------------------------------------------------
+def plant(scale: float, light: float) -> RigidBodyModel:
+    v = sim_parameters('simulator')
+    m = v['vehicle.mass'] * scale
+    return RigidBodyModel(RigidBodyParams.from_mapping({
+        'mass': m, 'inertia': [i * scale for i in v['vehicle.inertia']],
+        'r_g': v['vehicle.r_g'], 'r_b': v['vehicle.r_b'],
+        'buoyancy': m * G + light,
+        'added_mass': [a * scale for a in v['vehicle.added_mass']],
+        'd_lin': [d * scale for d in v['vehicle.d_lin']],
+        'd_quad': [d * scale for d in v['vehicle.d_quad']]}))
+
+
+def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0):
+    """Pilot: full stick down for 4 s, then centred (hold); a yaw turn of 2 s at 10 s; step
+    disturbances at 40 and 50 s."""
+    rng = np.random.default_rng(seed)
+    model = plant(scale, light)
+    settings = VelocityControlNodeSettings.from_params({
+        **{k: v for k, v in vehicle_parameters().items()},
+        'kd': [0.0] * 6, 'derivative_filter': 0.02, 'goal_timeout': 1.0, 'max_gap': 0.5,
+        'max_future': 0.01, 'velocity_topic': ''})
+    control = VelocityController(settings.controller)
+    allocator = ThrustAllocator(sim_thrusters())
+    depth_hold, heading_hold = DepthHold(DEPTH), HeadingHold(HEADING)
+    estimator = DepthEstimator(DepthEstimatorSettings(0.05, 0.002, 0.1, 0.5))
+    state = RigidBodyState.at_rest((0.0, 0.0, -0.3), yaw=0.4)
+    dt, current = 0.01, (0.2, 0.0, 0.0)
+    nu_dot = np.zeros(6)
+    log = []
+    for k in range(int(seconds / dt)):
+        t = k * dt
+        stamp = int(round(t * 1e9))
+        # sensors
+        roll, pitch, yaw = quat_to_euler(state.q)
+        f = model.specific_force(state, nu_dot)
+        up = float((quat_to_rotmat(state.q) @ f)[2])   # the specific force in odom's z
+        estimator.predict(up - G + ACCEL_STD * rng.standard_normal(), stamp)
+        if k % 5 == 0:   # 20 Hz pressure
+            estimator.update(-state.p[2] + DEPTH_STD * rng.standard_normal(), DEPTH_STD ** 2,
+                             stamp)
+        psi = yaw + HEADING_STD * rng.standard_normal()
+        # the pilot
+        heave_stick = -1.0 if 1.0 <= t < 5.0 else 0.0
+        yaw_stick = 0.5 if 10.0 <= t < 12.0 else 0.0
+        w_goal = depth_hold.step(heave_stick, -estimator.depth, dt)
+        r_goal = heading_hold.step(yaw_stick, psi, float(state.nu[5]), dt)
+        nu_d = np.array([0.0, 0.0, w_goal, 0.0, 0.0, r_goal])
+        measured = np.array([math.nan, math.nan, estimator.vertical_velocity,
+                             *state.nu[3:6].tolist()])
+        out = control.step(nu_d, measured, dt, roll=roll, pitch=pitch)
+        thrust = allocator.allocate(out.tau)
+        tau = thrust.tau_delivered
+        nu_before = state.nu.copy()
+        # step disturbances the model does not know: a yaw moment from 40 s (a tether pulled
+        # sideways), 3 N down from 50 s (a sample picked up)
+        ext = [0.0, 0.0, -3.0 if t >= 50.0 else 0.0, 0.0, 0.0, 1.0 if t >= 40.0 else 0.0]
+        state = model.step(state, tau, dt, tau_ext=ext, current=current)
+        nu_dot = (state.nu - nu_before) / dt
+        log.append((t, -state.p[2], yaw, depth_hold.target, heading_hold.target))
+    return log
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize('scale, light', [(1.0, 0.0), (1.3, 2.0)])
+def test_the_rov_dives_and_holds_depth_and_heading_in_a_current(scale, light):
+    log = dive_and_hold(scale, light, seed=11)
+    t = np.array([r[0] for r in log])
+    depth = np.array([r[1] for r in log])
+    yaw = np.array([r[2] for r in log])
+    depth_target = np.array([math.nan if r[3] is None else -r[3] for r in log])
+    heading_target = np.array([math.nan if r[4] is None else r[4] for r in log])
+    assert 1.5 < depth_target[-1] < 2.5     # the dive went to about 2 m and was held there
+    # settled: before the steps, and from 5 s after each
+    settled = ((t > 30.0) & (t < 40.0)) | ((t > 45.0) & (t < 50.0)) | (t > 55.0)
+    depth_err = depth[settled] - depth_target[settled]
+    heading_err = np.degrees(np.abs([ssa(a - b) for a, b in zip(yaw[settled],
+                                                                  heading_target[settled])]))
+    rms = float(np.sqrt(np.mean(depth_err ** 2)))
+    assert rms <= 0.02, f'depth error RMS {rms:.4f} m'
+    assert float(heading_err.max()) <= 1.0, f'heading error {heading_err.max():.2f} deg'
+    # the turn happened (the heading target moved by the turn, about 1 rad)
+    assert abs(ssa(heading_target[-1] - 0.4)) > 0.5
