@@ -111,6 +111,14 @@ SURFACE_IO = TopicSpec(
 TRAJECTORY_REQUEST = TopicSpec(
     'trajectory_request', TwistStamped, COMMAND_QOS, 'm/s, rad/s', BODY_FRAME,
     'Validated velocity goal from the command receiver (zero on failsafe).', fast=True)
+PILOT_MODE = TopicSpec(
+    'pilot_mode', String, LATCHED_QOS, 'mode name', '',
+    "The ROV's pilot mode (latched): manual, stabilize, depth_hold or velocity. Requested "
+    'as an io request to executor pilot_mode with the mode as string_value.')
+PILOT_MODE_REASON = TopicSpec(
+    'pilot_mode/reason', String, COMMAND_QOS, 'text', '',
+    'Why a pilot mode request was refused, or why the mode fell back (depth_hold -> '
+    'stabilize on a stale depth).')
 IO_REQUEST = TopicSpec(
     'io_request', Parameter, COMMAND_QOS, 'plugin-defined', '',
     'Validated IO request: name = executor (e.g. manipulator, gpio_12), value = request.',
@@ -293,7 +301,7 @@ BATTERY = TopicSpec(
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
-    TRAJECTORY_REQUEST, IO_REQUEST, IO_STATE,
+    TRAJECTORY_REQUEST, PILOT_MODE, PILOT_MODE_REASON, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, THRUSTER_SENSORS, SIM_IMU, SIM_ODOMETRY,
     SIM_THRUST, DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS,
     OBSERVER_AGE, MODE,
