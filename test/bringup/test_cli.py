@@ -291,7 +291,8 @@ def bringup_help(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_bringup_help_lists_the_options(bringup_help: str) -> None:
-    for option in ('--profile', '--duration', '--output', '--record-topic', '--set', '--check'):
+    for option in ('--profile', '--duration', '--output', '--record-topic', '--set', '--check',
+                   '--only-group', '--skip-group'):
         assert option in bringup_help
 
 
