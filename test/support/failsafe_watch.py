@@ -3,13 +3,15 @@
 A probe for tests that run a vessel in a process they cannot look into (another network
 namespace): it subscribes to ``/diagnostics`` in the ROS domain and discovery range of its
 environment and prints ``failsafe True`` or ``failsafe False`` whenever the receiver's report
-changes, flushed, until it is stopped (SIGINT or SIGTERM).
+changes (with the wall-clock time it saw it), flushed, until it is stopped (SIGINT or
+SIGTERM).
 """
 
 from __future__ import annotations
 
 import signal
 import sys
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
@@ -34,7 +36,7 @@ def main() -> None:
             value = {kv.key: kv.value for kv in status.values}.get('failsafe')
             if value is not None and (not last or last[-1] != value):
                 last.append(value)
-                print(f'failsafe {value}', flush=True)
+                print(f'failsafe {value} at {time.time():.3f}', flush=True)  # wall clock [s]
 
     node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, on_diagnostics,
                              topics.DIAGNOSTICS.qos)
