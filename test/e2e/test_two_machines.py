@@ -104,6 +104,8 @@ def tether() -> Iterator[Tether]:
     finally:
         for ns in made:  # deleting a namespace deletes its end of the pair, and so the pair
             subprocess.run(['ip', 'netns', 'del', ns], capture_output=True)
+        # a pair left here when moving it into the namespaces failed (else: no such device)
+        subprocess.run(['ip', 'link', 'del', t.vessel_dev], capture_output=True)
 
 
 def in_namespace(ns: str, domain: str, argv: list[str]) -> subprocess.Popen[str]:
