@@ -21,6 +21,7 @@ from enbarr_plugins.operator.keyboard import KeyboardTeleopNode, KeyState, Statu
     apply_key, status_line
 from support.cli import enbarr, refused
 from support.nodes import add, probe
+from support.waiting import poll_until
 
 STEPS = (0.05, 0.1, 0.5, 0.5)  # linear_step, angular_step, max_linear, max_angular
 
@@ -160,19 +161,23 @@ def test_node_space_stops(terminal, executor, spin):
 def test_node_shows_what_it_commands_on_the_last_row_below_a_scrolling_region(
         terminal, executor, spin):
     seen: list[str] = []
+    # The status row, drawn at CUP (CSI 24;1 H) after the cursor is saved (ESC 7) and then
+    # restored (ESC 8)
+    status = ('\x1b7\x1b[24;1H\x1b[2Kgoal u +0.10 v +0.00 w +0.00 m/s r +0.00 rad/s | '
+              'lights on | manipulator +0 steps | Ctrl-C quits\x1b8')
     terminal.type(b'wwl')
-    assert spin(executor, lambda: seen.append(terminal.screen()) or 'lights on' in seen[-1],
-                10.0)
-    shown = ''.join(seen)
-    # DECSTBM (CSI 1;23 r): rows 1-23 scroll, so log lines pass above row 24, the status
-    # row, drawn at CUP (CSI 24;1 H) after the cursor is saved (ESC 7) and then restored
-    assert '\x1b[1;23r' in shown
-    assert ('\x1b7\x1b[24;1H\x1b[2Kgoal u +0.10 v +0.00 w +0.00 m/s r +0.00 rad/s | '
-            'lights on | manipulator +0 steps | Ctrl-C quits\x1b8') in shown
+    assert spin(executor, lambda: seen.append(terminal.screen()) or status in ''.join(seen),
+                10.0), ''.join(seen)
+    # DECSTBM (CSI 1;23 r): rows 1-23 scroll, so log lines pass above row 24
+    assert '\x1b[1;23r' in ''.join(seen)
     executor.remove_node(terminal.node)
     terminal.node.destroy_node()
-    # the whole screen scrolls again (DECSTBM without arguments), the status row cleared
-    assert terminal.screen().endswith('\x1b7\x1b[r\x1b8\x1b7\x1b[24;1H\x1b[2K\x1b8')
+    # the whole screen scrolls again (DECSTBM without arguments), the status row cleared; the
+    # pty hands the writes over asynchronously: read until the last one is there
+    after: list[str] = []
+    closed = '\x1b7\x1b[r\x1b8\x1b7\x1b[24;1H\x1b[2K\x1b8'
+    assert poll_until(lambda: after.append(terminal.screen()) or ''.join(after).endswith(closed),
+                      10.0), ''.join(after)
 
 
 def test_the_status_line_gives_the_screen_back_when_closed():
@@ -183,7 +188,16 @@ def test_the_status_line_gives_the_screen_back_when_closed():
         status.draw('x' * 200)
         status.close()
         os.set_blocking(master, False)
-        shown = os.read(master, 4096).decode()
+        chunks: list[bytes] = []
+
+        def read_all() -> bool:  # the pty hands the writes over asynchronously
+            try:
+                chunks.append(os.read(master, 4096))
+            except BlockingIOError:
+                pass
+            return b''.join(chunks).endswith(b'\x1b[2K\x1b8')
+        poll_until(read_all, 10.0)
+        shown = b''.join(chunks).decode()
         assert '\x1b[1;29r' in shown and 'x' * 79 + '\x1b8' in shown  # cut to 79 columns
         # DECSTBM with no arguments: the whole screen scrolls again; the status row cleared
         assert shown.endswith('\x1b7\x1b[r\x1b8\x1b7\x1b[30;1H\x1b[2K\x1b8')
