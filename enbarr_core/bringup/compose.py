@@ -186,7 +186,7 @@ def _check_parameters(profile: Profile, nodes: list[Node], group: str | None) ->
                     f'node {spec.name!r} ({spec.plugin}) has no parameter {name!r}{hint}; '
                     f'it has: {", ".join(declared)}',
                     path=profile.where(key), key=key)
-    if group is None:
+    if group is None and not profile.partial:  # a part may leave a common one to the rest
         for name in profile.parameters:
             if not any(n.has_parameter(name) for n in nodes):
                 key = f'parameters.{name}'

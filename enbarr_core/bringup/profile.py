@@ -6,7 +6,8 @@ A profile (see ``params/*.yaml`` and ``docs/profiles.md``)::
     description: ...                     # one line, shown by ``enbarr list``
     fragment: false                      # true: include-only (bringup refuses to run it)
     include: [core.yaml]                 # merged first, in order; this file overrides them
-    environment: {ROS_AUTOMATIC_DISCOVERY_RANGE: LOCALHOST}   # set before ROS starts
+    environment: {ROS_AUTOMATIC_DISCOVERY_RANGE: LOCALHOST}   # set before ROS starts (null:
+                                         # drop an included profile's, the shell's applies)
     parameters: {...}                    # given to every node (like '/**' in a ROS params file)
     nodes:
       imu:                               # node name
@@ -130,6 +131,8 @@ class Profile:
     scenario: Mapping[str, Any] | None = None  # only scenario profiles (enbarr scenario)
     frames: FrameTree = DEFAULT_TREE  # the ``frames`` section (framework.frames)
     world: World = EMPTY_WORLD  # the ``world`` section (enbarr_core.world)
+    #: Groups were left out (``select_groups``): a common parameter may be theirs alone.
+    partial: bool = False
 
     def node(self, name: str) -> NodeSpec:
         """Return the node called ``name``; ``ProfileError`` listing the nodes if none."""
@@ -519,15 +522,22 @@ def did_you_mean(word: str, candidates: Sequence[str], what: str = '') -> str:
     return registry.did_you_mean(word, candidates, what)
 
 
-def _check_environment(env: Any, where: str) -> dict[str, str]:
-    """Return the ``environment`` section as strings, the ROS variables' values checked."""
+def _check_environment(env: Any, where: str) -> dict[str, str | None]:
+    """Return the ``environment`` section as strings, the ROS variables' values checked.
+
+    A null value stays None: it drops the variable an included profile set (the merged
+    profile leaves it out).
+    """
     _expect_mapping(env, where, 'environment')
-    out: dict[str, str] = {}
+    out: dict[str, str | None] = {}
     for k, v in env.items():
         key = f'environment.{k}'
         if not isinstance(k, str) or not _ENV_NAME.match(k):
             raise ProfileError('an environment variable name is letters, digits and _ and '
                                'does not start with a digit', path=where, key=key)
+        if v is None:  # drops what an included profile set: the shell's value applies
+            out[k] = None
+            continue
         if isinstance(v, float) and not math.isfinite(v):
             raise ProfileError(f'expected a finite number, got {v}', path=where, key=key)
         if not isinstance(v, (str, int, float, bool)):
@@ -810,7 +820,9 @@ def _build(merged: dict[str, Any], path: str, origins: dict[str, str],
     return Profile(
         name=merged.get('profile') or Path(path).stem, path=path,
         description=merged.get('description', ''),
-        environment=dict(merged.get('environment') or {}), parameters=dict(common),
+        environment={k: v for k, v in (merged.get('environment') or {}).items()
+                     if v is not None},
+        parameters=dict(common),
         nodes=tuple(nodes), groups=groups,
         record=record, files=files, origins=dict(origins),
         scenario=merged.get('scenario'),
@@ -851,6 +863,32 @@ def with_record(profile: Profile, path: str, topics: Sequence[str] = (),
         split_size=old.split_size if split_size is None else split_size,
         split_seconds=old.split_seconds if split_seconds is None else split_seconds),
         origins={**profile.origins, 'record.path': origin})
+
+
+def select_groups(profile: Profile, only: Sequence[str] = (),
+                  skip: Sequence[str] = ()) -> Profile:
+    """Return the profile with the nodes of ``only``'s groups (all when empty), less ``skip``'s.
+
+    ``--only-group`` / ``--skip-group`` of bringup: one profile split between two computers
+    (the vessel runs every group but ``operator``, the operator computer only ``operator``),
+    as if the other groups' nodes were dropped with ``enabled: false``. A name that is no
+    group of the profile is refused with the list of its groups.
+    """
+    names = profile.group_names()
+    for option, given in (('--only-group', only), ('--skip-group', skip)):
+        for g in given:
+            if g not in names:
+                raise ProfileError(f'{option} {_show(g)}: no such group; the groups of the '
+                                   f'profile are {", ".join(names)}{did_you_mean(g, names)}',
+                                   path=profile.path)
+    keep = [n for n in profile.nodes
+            if (not only or n.group in only) and n.group not in skip]
+    if not keep:
+        raise ProfileError(f'no group left to run (groups: {", ".join(names)})',
+                           path=profile.path)
+    kept = {n.group for n in keep}
+    return replace(profile, nodes=tuple(keep), partial=kept != set(names),
+                   groups={g: spec for g, spec in profile.groups.items() if g in kept})
 
 
 def apply_environment(profile: Profile, environ: Any = os.environ) -> None:

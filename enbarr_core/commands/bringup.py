@@ -29,7 +29,7 @@ class BringupCommand(Command):
     epilog = EPILOG
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """Declare ``--profile``, ``--duration``, ``--output``, ``--set``, ``--check``."""
+        """Declare ``--profile``, ``--duration``, ``--output``, ``--set``, ``--check``, ..."""
         parser.add_argument('--profile', required=True, metavar='NAME|PATH',
                             help='vessel profile (YAML) to run, e.g. enbarr_sim')
         parser.add_argument('--duration', type=float, metavar='S',
@@ -53,6 +53,13 @@ class BringupCommand(Command):
                             help='override a node parameter; VALUE is YAML (repeatable)')
         parser.add_argument('--check', action='store_true',
                             help='validate the profile and build every node, then exit')
+        which = parser.add_mutually_exclusive_group()
+        which.add_argument('--only-group', action='append', default=[], metavar='GROUP',
+                           help='run only the nodes of this process group of the profile '
+                           '(repeatable), e.g. operator on the operator computer')
+        which.add_argument('--skip-group', action='append', default=[], metavar='GROUP',
+                           help='run every process group of the profile but this one '
+                           '(repeatable), e.g. operator on the vessel')
         parser.add_argument('--group', help=argparse.SUPPRESS)  # a supervised child process
 
     def main(self, *, args: argparse.Namespace, argv: Sequence[str]) -> int:
@@ -61,6 +68,8 @@ class BringupCommand(Command):
 
         check_seconds('--duration', args.duration)
         prof = profiles.load_profile(args.profile, args.set)
+        if args.only_group or args.skip_group:
+            prof = profiles.select_groups(prof, args.only_group, args.skip_group)
         profiles.apply_environment(prof)
         if args.output:
             prof = profiles.with_record(prof, args.output, args.record_topic,

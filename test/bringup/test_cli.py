@@ -291,7 +291,8 @@ def bringup_help(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_bringup_help_lists_the_options(bringup_help: str) -> None:
-    for option in ('--profile', '--duration', '--output', '--record-topic', '--set', '--check'):
+    for option in ('--profile', '--duration', '--output', '--record-topic', '--set', '--check',
+                   '--only-group', '--skip-group'):
         assert option in bringup_help
 
 
@@ -370,3 +371,30 @@ def test_error_about_a_member_field_names_the_users_file(tmp_path: Path) -> None
         """)
     line = refused(enbarr('bringup', '--profile', path, '--check', cwd=tmp_path))
     assert f'{path}: parameters.azimuths.az_bow.angle_' in line, line
+
+
+def test_skip_group_checks_the_vessels_part_of_a_split_profile(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--profile', 'saucer_fusion_split_sim', '--skip-group', 'operator',
+               '--check', cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0].endswith(': ok (13 nodes in 1 group(s))')
+
+
+def test_only_group_checks_the_operators_part_of_a_split_profile(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--profile', 'saucer_fusion_split_sim', '--only-group', 'operator',
+               '--check', cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0].endswith(': ok (2 nodes in 1 group(s))')
+
+
+def test_an_unknown_group_is_one_line_naming_the_groups(tmp_path: Path) -> None:
+    line = refused(enbarr('bringup', '--profile', 'saucer_fusion_split_sim', '--skip-group',
+                          'topside', '--check', cwd=tmp_path))
+    assert line.endswith("--skip-group 'topside': no such group; the groups of the profile "
+                         'are main, operator')
+
+
+def test_only_and_skip_group_together_are_refused(tmp_path: Path) -> None:
+    r = enbarr('bringup', '--profile', 'enbarr_sim', '--only-group', 'main', '--skip-group',
+               'main', cwd=tmp_path)
+    assert r.returncode == 2 and 'not allowed with argument' in r.stderr

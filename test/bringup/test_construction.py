@@ -18,9 +18,10 @@ from enbarr_core.bringup.profile import load_profile, with_record
 from enbarr_interfaces.links import LinkPublisher
 
 #: What a test needs to build a profile at all: the keyboard's terminal (not stdin under pytest).
-OVERRIDES = {'enbarr_teleop': ['keyboard.device=/dev/tty']}
-RUNNABLE = ('enbarr_sim', 'enbarr_teleop', 'enbarr_rov', 'enbarr_rov_emulated', 'saucer',
-            'saucer_sim', 'saucer_emulated', 'skiff_sim')
+OVERRIDES = {'enbarr_teleop': ['keyboard.device=/dev/tty'],
+             'enbarr_rov_topside': ['keyboard.device=/dev/tty']}
+RUNNABLE = ('enbarr_sim', 'enbarr_teleop', 'enbarr_rov', 'enbarr_rov_emulated',
+            'enbarr_rov_topside', 'saucer', 'saucer_sim', 'saucer_emulated', 'skiff_sim')
 
 
 @pytest.mark.parametrize('name', RUNNABLE)

@@ -95,6 +95,33 @@ def test_apply_environment_overrides_only_the_profile_keys() -> None:
     assert env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'OTHER': 'x'}
 
 
+def test_a_null_environment_value_drops_the_included_profiles(tmp_path: Path) -> None:
+    base = write(tmp_path / 'base.yaml', f"""
+        include: [{SIM}]
+        environment: {{ROS_DOMAIN_ID: 42, ROS_AUTOMATIC_DISCOVERY_RANGE: SUBNET}}
+        """)
+    sim = write(tmp_path / 'sim.yaml', f"""
+        include: [{base}]
+        environment: {{ROS_DOMAIN_ID: ~, ROS_AUTOMATIC_DISCOVERY_RANGE: LOCALHOST}}
+        """)
+    assert load_profile(base).environment['ROS_DOMAIN_ID'] == '42'
+    prof = load_profile(sim)
+    assert prof.environment == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {'ROS_DOMAIN_ID': '7'}
+    profiles.apply_environment(prof, env)
+    assert env['ROS_DOMAIN_ID'] == '7'  # the shell's
+
+
+def test_the_rov_and_its_topside_share_one_domain_and_the_emulation_keeps_its_own() -> None:
+    vessel, topside = load_profile('enbarr_rov'), load_profile('enbarr_rov_topside')
+    # the tether's domain, docs/deployment.md
+    assert vessel.environment['ROS_DOMAIN_ID'] == topside.environment['ROS_DOMAIN_ID'] == '42'
+    assert vessel.environment['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
+    assert topside.environment['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
+    for name in ('enbarr_rov_emulated', 'enbarr_sim', 'enbarr_teleop'):
+        assert 'ROS_DOMAIN_ID' not in load_profile(name).environment, name
+
+
 def test_with_record_switches_recording_on_in_a_copy() -> None:
     prof = load_profile(SIM)
     rec = profiles.with_record(prof, 'bags/x', ['/imu/data'])
@@ -1069,3 +1096,41 @@ def test_huge_integers_are_refused_without_a_traceback(tmp_path: Path) -> None:
                  + '"}\n')
     assert 'environment.ROS_DOMAIN_ID: expected an integer from 0 to 232' in str(
         load_error(path))
+
+
+# -- one profile split between two computers (--only-group / --skip-group) -------------------
+@pytest.fixture(scope='module')
+def split() -> profiles.Profile:
+    return load_profile('saucer_fusion_split_sim')  # groups main and operator
+
+
+def test_skip_group_drops_the_groups_nodes_as_enabled_false_would(
+        split: profiles.Profile) -> None:
+    vessel = profiles.select_groups(split, skip=['operator'])
+    assert vessel.group_names() == ['main'] and list(vessel.groups) == ['main']
+    assert 'fusion' not in vessel.node_names() and 'detector' not in vessel.node_names()
+    assert len(vessel.nodes) == len(split.nodes) - 2
+    assert vessel.partial and not split.partial
+    assert not profiles.select_groups(split, skip=[]).partial
+
+
+def test_only_group_keeps_the_groups_nodes_alone(split: profiles.Profile) -> None:
+    operator = profiles.select_groups(split, only=['operator'])
+    assert operator.node_names() == ['detector', 'fusion']
+    assert list(operator.groups) == ['operator']
+    assert operator.frames == split.frames  # the fusion reads the camera's mount from them
+
+
+def test_an_unknown_group_is_refused_naming_the_groups(split: profiles.Profile) -> None:
+    with pytest.raises(ProfileError) as info:
+        profiles.select_groups(split, skip=['operater'])
+    assert str(info.value) == (
+        f"{split.path}: --skip-group 'operater': no such group; the groups of the profile are "
+        "main, operator (did you mean 'operator'?)")
+    with pytest.raises(ProfileError, match="--only-group 'topside': no such group"):
+        profiles.select_groups(split, only=['topside'])
+
+
+def test_skipping_every_group_is_refused(split: profiles.Profile) -> None:
+    with pytest.raises(ProfileError, match='no group left to run'):
+        profiles.select_groups(split, skip=['main', 'operator'])
