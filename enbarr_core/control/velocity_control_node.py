@@ -245,6 +245,10 @@ class VelocityControlNode(EnbarrNode):
         self.create_topic_subscription(topics.IMU, self._on_imu)
         self.create_topic_subscription(topics.DEPTH, self._on_depth)
         self.create_topic_subscription(topics.IO_REQUEST, self._on_io)
+
+    def start(self) -> None:
+        """Start, and say the pilot mode (latched: a console that joins later learns it)."""
+        super().start()
         self._publish_mode()
         self.create_periodic(REPORT_PERIOD, self._report)
         velocity_topic = self.settings.velocity_topic

@@ -45,6 +45,7 @@ class Rov:
         p.create_topic_subscription(topics.PILOT_MODE_REASON,
                                     lambda m: self.reasons.append(m.data))
         LinkBus.of(context).connect()
+        self.node.start()
         self.t = 1_000_000_000
         self.depth = 1.0
 
