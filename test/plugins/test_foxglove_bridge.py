@@ -332,6 +332,7 @@ def test_a_client_publishes_to_an_allowed_topic_only(context, executor, bridge):
 def test_with_client_publish_off_nothing_reaches_ros(context, executor, bridge):
     twists, _ = _listen(context, executor)
     node, client = bridge()
+    assert 'clientPublish' not in client.text('serverInfo')['capabilities']
     client.channel('/surface_command/twist')
     client.send('advertise', channels=[
         {'id': 3, 'topic': '/surface_command/twist', 'encoding': 'cdr',
@@ -342,6 +343,12 @@ def test_with_client_publish_off_nothing_reaches_ros(context, executor, bridge):
     _values(client, 'after')
     assert twists == []
     assert node.client_messages == 0
+    assert node.count_publishers(topics.SURFACE_TWIST.name) == 0
+    # The node refuses too, should a client's advertisement get past the server.
+    node._client_advertise((0, 9), '/surface_command/twist', 'cdr',
+                           'geometry_msgs/msg/TwistStamped')
+    node._client_message((0, 9), serialize_message(_twist(0.4)))
+    assert node.refused_messages == 1
     assert node.count_publishers(topics.SURFACE_TWIST.name) == 0
 
 
