@@ -11,6 +11,12 @@ subprotocol, served by the maintained ``foxglove-sdk``) and sees:
   recorder would ask (``recording.recorder_node.request_profile``: a latched topic such as
   ``mode`` arrives at once), and forwarded stamped with its receive time. A fast topic of
   this process goes out over DDS while the bridge listens (``enbarr_interfaces.links``).
+- Frames: ``/tf`` and ``/tf_static`` are topics like any other when a node publishes them
+  (the frame publisher, with tf2_msgs installed). Where none does (a pip install has no
+  tf2_msgs), the bridge offers them itself as the recorder writes them into bags: the
+  profile's static frames (``EnbarrNode.frame_tree``), sent to each client that subscribes,
+  and each dynamic frame's pose from its source topic (``framework.frame_sources``), encoded
+  while a client listens; so Foxglove's 3D panel places the vessel and its sensors.
 - Parameters: every declared parameter of the nodes of this process (the nodes of the
   bridge's executor), named ``/<node>.<parameter>`` (``foxglove.parameters``). A set goes
   through the node's own ``set_parameters``, what ``ros2 param set`` reaches through the
@@ -28,9 +34,10 @@ could retune or drive the vessel, and the protocol has no authentication. Open t
 profile that means it (docs/profiles.md "Foxglove").
 
 Threads: the SDK calls the listener on its own threads. Everything that touches rclpy entities
-or nodes' parameters runs on the executor's thread instead, handed over through a queue and a
-guard condition, in the order the client sent it; a parameter request waits for its answer
-at most ``request_timeout``. Nothing is opened before ``start``.
+or nodes' parameters runs on the executor's thread instead, handed over through a queue that a
+timer empties every ``JOB_PERIOD`` (bringup's ``EventsExecutor`` takes no guard condition, the
+one wake-up from another thread rclpy has), in the order the client sent it; a parameter
+request waits for its answer at most ``request_timeout``. Nothing is opened before ``start``.
 """
 
 from __future__ import annotations
@@ -51,15 +58,20 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
 from enbarr_core.framework.errors import ConfigurationError
+from enbarr_core.framework.frame_sources import pose_sources
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.recording.recorder_node import message_class, qos_of, request_profile
 from enbarr_core.recording.schemas import MESSAGE_ENCODING, ros2msg_definition, SCHEMA_ENCODING
+from enbarr_core.recording.tf import pose_encoder, tf_message_cdr, TF_MESSAGE
 from enbarr_interfaces import topics
 from enbarr_plugins.foxglove.parameters import foxglove_name, split_name, to_foxglove, to_ros
 
 #: The name the server gives itself in its serverInfo.
 SERVER_NAME = 'enbarr'
+#: How often the executor takes the clients' requests [s]: the most a teleop message or a
+#: parameter request waits for the executor when it is idle.
+JOB_PERIOD = 0.02
 
 SPECS = [
     ParamSpec('host', '127.0.0.1', 'Address the WebSocket server binds to (127.0.0.1: this '
@@ -109,10 +121,11 @@ class FoxgloveBridgeSettings:
 
 @dataclass(frozen=True)
 class _Advertised:
-    """A graph topic offered to clients."""
+    """A topic offered to clients: from the graph, or the bridge's own frames."""
 
     msgtype: str
     channel: Channel
+    own: bool = False
 
 
 @dataclass(frozen=True)
@@ -184,11 +197,13 @@ class FoxgloveBridgeNode(EnbarrNode):
         self._client_pubs: dict[tuple[int, int], _ClientPublisher] = {}
         self._refused_channels: set[tuple[int, int]] = set()
         self._unknown_types: set[str] = set()
+        self._pose_sources = pose_sources(self.frame_tree)
+        self._following_poses = False
         self.forwarded = 0          # messages sent to clients
         self.client_messages = 0    # client messages published in ROS
         self.refused_messages = 0   # client messages not published (refused channel, bad CDR)
         self._jobs: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
-        self._wake = self.create_guard_condition(self._run_jobs)
+        self.create_timer(JOB_PERIOD, self._run_jobs)
         self.create_periodic(1.0, self._discover)
         self.create_periodic(1.0, self._report)
 
@@ -241,7 +256,6 @@ class FoxgloveBridgeNode(EnbarrNode):
     def _post(self, job: Callable[[], None]) -> None:
         """Run ``job`` on the executor's thread (from the SDK's), in posting order."""
         self._jobs.put(job)
-        self._wake.trigger()
 
     def _run_jobs(self) -> None:
         while True:
@@ -283,7 +297,7 @@ class FoxgloveBridgeNode(EnbarrNode):
             msgtype = types[0] if len(types) == 1 else None  # mixed types: no one schema
             with self._lock:
                 known = self._advertised.get(name)
-            if known is not None and known.msgtype == msgtype:
+            if known is not None and known.msgtype == msgtype and not known.own:
                 continue
             if known is not None:
                 self._withdraw(name)
@@ -296,14 +310,31 @@ class FoxgloveBridgeNode(EnbarrNode):
                     self.get_logger().warn(f'{name}: no definition of {msgtype} in the Jazzy '
                                            'type store; not offered to Foxglove')
                 continue
-            channel = Channel(name, message_encoding=MESSAGE_ENCODING, context=self._fox,
-                              schema=Schema(name=msgtype, encoding=SCHEMA_ENCODING,
-                                            data=text.encode()))
-            with self._lock:
-                self._advertised[name] = _Advertised(msgtype, channel)
-            self._reconcile(name)
-        for name in [n for n in list(self._advertised) if n not in graph]:
+            self._advertise(name, msgtype, text)
+        with self._lock:
+            gone = [n for n, a in self._advertised.items() if n not in graph and not a.own]
+        for name in gone:
             self._withdraw(name)
+        self._advertise_frames(graph)
+
+    def _advertise(self, name: str, msgtype: str, text: str, own: bool = False) -> None:
+        channel = Channel(name, message_encoding=MESSAGE_ENCODING, context=self._fox,
+                          schema=Schema(name=msgtype, encoding=SCHEMA_ENCODING,
+                                        data=text.encode()))
+        with self._lock:
+            self._advertised[name] = _Advertised(msgtype, channel, own)
+        self._reconcile(name)
+
+    def _advertise_frames(self, graph: Mapping[str, Any]) -> None:
+        """Offer the frame tree as ``/tf_static`` and ``/tf`` where no node publishes it."""
+        text = ros2msg_definition(TF_MESSAGE)
+        assert text is not None  # the Jazzy store has tf2_msgs
+        for name, has in ((topics.TF_STATIC_TOPIC, bool(self.frame_tree.static_edges())),
+                          (topics.TF_TOPIC, bool(self._pose_sources))):
+            with self._lock:
+                known = name in self._advertised
+            if has and not known and name not in graph:
+                self._advertise(name, TF_MESSAGE, text, own=True)
 
     def _withdraw(self, name: str) -> None:
         with self._lock:
@@ -319,12 +350,46 @@ class FoxgloveBridgeNode(EnbarrNode):
             if n == 0:
                 del self._wanted[topic]
         self._post(lambda: self._reconcile(topic))
+        if step > 0 and topic == topics.TF_STATIC_TOPIC:
+            self._post(self._send_static_frames)
+
+    def _send_static_frames(self) -> None:
+        """Send the static frames (again: latched, a new client needs them; executor)."""
+        with self._lock:
+            a = self._advertised.get(topics.TF_STATIC_TOPIC)
+        if a is not None and a.own:
+            now = self.now_ns()
+            a.channel.log(tf_message_cdr(self.frame_tree.static_transforms(now)), log_time=now)
+
+    def _follow_poses(self) -> None:
+        """Forward each dynamic frame's pose on ``/tf`` while a client listens (executor)."""
+        self._following_poses = True
+        wanted = self._wanted
+        for source in self._pose_sources:
+            encode = pose_encoder(source)
+
+            def on_pose(msg: Any, encode: Callable[[Any], bytes | None] = encode) -> None:
+                # Runs on the source's thread (a fast topic: the control path): nothing is
+                # encoded unless a client listens. A read without the lock: a stale answer
+                # costs one message either way.
+                if not wanted.get(topics.TF_TOPIC):
+                    return
+                a = self._advertised.get(topics.TF_TOPIC)
+                data = encode(msg)
+                if data is not None and a is not None and a.own:
+                    a.channel.log(data, log_time=self.now_ns())
+                    self.forwarded += 1
+            self.create_topic_subscription(source.spec, on_pose)
 
     def _reconcile(self, topic: str) -> None:
         """Subscribe to ``topic`` in ROS while a client wants it and it is advertised."""
         with self._lock:
             advertised = self._advertised.get(topic)
             wanted = self._wanted.get(topic, 0) > 0
+        if advertised is not None and advertised.own:
+            if wanted and topic == topics.TF_TOPIC and not self._following_poses:
+                self._follow_poses()
+            return
         sub = self._ros_subs.get(topic)
         if sub is not None and (not wanted or advertised is None):
             self.destroy_subscription(self._ros_subs.pop(topic))

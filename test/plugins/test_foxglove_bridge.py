@@ -18,15 +18,19 @@ from typing import Any
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Odometry
 import pytest
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.typesys import get_typestore, Stores
 from std_msgs.msg import Bool
 from support.nodes import add, probe, TIMEOUT
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
+from enbarr_core.bringup.compose import make_executor
 from enbarr_core.framework.errors import ConfigurationError
-from enbarr_core.framework.node import EnbarrNode
+from enbarr_core.framework.frames import parse_frames
+from enbarr_core.framework.node import EnbarrNode, install_frame_tree
 from enbarr_core.framework.params import ParamSpec
 from enbarr_interfaces import topics
 from enbarr_plugins.foxglove.bridge import FoxgloveBridgeNode
@@ -105,6 +109,21 @@ class FoxgloveClient:
     def statuses(self, level: int) -> list[str]:
         return [m['message'] for m in self.texts if m.get('op') == 'status'
                 and m.get('level') == level]
+
+
+@pytest.fixture(params=['single_threaded', 'events'])
+def executor(request, context):
+    """Both executors: the tests' ``SingleThreadedExecutor`` and bringup's
+    ``EventsExecutor`` (which takes no guard condition and passes no message info)."""
+    ex = (SingleThreadedExecutor(context=context) if request.param == 'single_threaded'
+          else make_executor(context))
+    try:
+        yield ex
+    finally:
+        for node in list(ex.get_nodes()):
+            ex.remove_node(node)
+            node.destroy_node()
+        ex.shutdown()
 
 
 @pytest.fixture
@@ -214,6 +233,41 @@ def test_a_latched_topic_reaches_a_late_client_and_a_gone_topic_is_withdrawn(
     p.destroy_publisher(pub)
     client.text('unadvertise', channelIds=[ch['id']])
     assert '/station/latched' not in node.advertised_topics
+
+
+TREE = {'odom': {}, 'base_link': {'parent': 'odom', 'pose': 'observer/odometry'},
+        'laser': {'parent': 'base_link', 'xyz': [0.0, 0.0, 0.15]}}
+
+
+def _transforms(frame: bytes) -> list[tuple[str, str, float, float]]:
+    """(parent, child, x, z) of a TFMessage, decoded by rosbags (not the bridge's packer)."""
+    msg = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(frame[MESSAGE_DATA_HEAD.size:],
+                                                          'tf2_msgs/msg/TFMessage')
+    return [(t.header.frame_id, t.child_frame_id, t.transform.translation.x,
+             t.transform.translation.z) for t in msg.transforms]
+
+
+def test_without_a_tf_publisher_the_frame_tree_is_served_by_the_bridge(
+        context, executor, bridge):
+    install_frame_tree(context, parse_frames(TREE))
+    p = probe(context, executor, 'observer')
+    pub = p.create_topic_publisher(topics.OBSERVER_ODOMETRY)
+    node, client = bridge()
+    static = client.channel('/tf_static')
+    tf = client.channel('/tf')
+    assert static['schemaName'] == tf['schemaName'] == 'tf2_msgs/msg/TFMessage'
+    assert static['schema'].startswith('geometry_msgs/TransformStamped[] transforms\n')
+    client.send('subscribe', subscriptions=[{'id': 5, 'channelId': static['id']},
+                                            {'id': 6, 'channelId': tf['id']}])
+
+    def on(sub_id: int) -> list[bytes]:
+        return [f for f in client.frames if MESSAGE_DATA_HEAD.unpack_from(f)[1] == sub_id]
+    frame = client.wait(lambda: next(iter(on(5)), None), 'the static frames')
+    assert _transforms(frame) == [('base_link', 'laser', 0.0, 0.15)]
+    odometry = _odometry(1.5)
+    odometry.header.stamp.sec = 12
+    client.wait(lambda: pub.publish(odometry) or on(6), 'a pose on /tf')
+    assert _transforms(on(6)[0]) == [('odom', 'base_link', 1.5, 0.0)]
 
 
 # -- parameters -----------------------------------------------------------------------------
