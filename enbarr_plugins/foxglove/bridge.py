@@ -10,7 +10,10 @@ subprotocol, served by the maintained ``foxglove-sdk``) and sees:
   channel, raw (the CDR bytes as DDS carried them, never decoded here), with the QoS the
   recorder would ask (``recording.recorder_node.request_profile``: a latched topic such as
   ``mode`` arrives at once), and forwarded stamped with its receive time. A fast topic of
-  this process goes out over DDS while the bridge listens (``enbarr_interfaces.links``).
+  this process is taken from the link bus instead, as the recorder takes it, and encoded
+  with the recorder's generated CDR encoders (``recording.cdr``) on the publisher's thread,
+  only while a client listens: over DDS it would cost its publisher a serialization and the
+  executor a dispatch per message (``docs/benchmarks.md``, "Foxglove").
 - Frames: ``/tf`` and ``/tf_static`` are topics like any other when a node publishes them
   (the frame publisher, with tf2_msgs installed). Where none does (a pip install has no
   tf2_msgs), the bridge offers them itself as the recorder writes them into bags: the
@@ -55,16 +58,18 @@ from foxglove.websocket import (Capability, ChannelView, Client, ClientChannel, 
                                 WebSocketServer)
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.frame_sources import pose_sources
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
+from enbarr_core.recording import cdr
 from enbarr_core.recording.recorder_node import message_class, qos_of, request_profile
 from enbarr_core.recording.schemas import MESSAGE_ENCODING, ros2msg_definition, SCHEMA_ENCODING
 from enbarr_core.recording.tf import pose_encoder, tf_message_cdr, TF_MESSAGE
 from enbarr_interfaces import topics
+from enbarr_interfaces.topics import TopicSpec
 from enbarr_plugins.foxglove.parameters import foxglove_name, split_name, to_foxglove, to_ros
 
 #: The name the server gives itself in its serverInfo.
@@ -198,6 +203,7 @@ class FoxgloveBridgeNode(EnbarrNode):
         self._refused_channels: set[tuple[int, int]] = set()
         self._unknown_types: set[str] = set()
         self._pose_sources = pose_sources(self.frame_tree)
+        self._linked: set[str] = set()                  # fast topics followed on the bus
         self._following_poses = False
         self.forwarded = 0          # messages sent to clients
         self.client_messages = 0    # client messages published in ROS
@@ -403,6 +409,10 @@ class FoxgloveBridgeNode(EnbarrNode):
             self._status(StatusLevel.Warning, f'{topic}: no Python message class for '
                          f'{advertised.msgtype} in this process; it cannot be forwarded')
             return
+        local = self.link_bus.local_topics().get(topic)
+        if local is not None and local.type_name == advertised.msgtype:
+            self._follow_link(topic, local)
+            return
         offers = [qos_of(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
         log = advertised.channel.log
         stamp = self.now_ns
@@ -413,6 +423,24 @@ class FoxgloveBridgeNode(EnbarrNode):
         self._ros_subs[topic] = self.create_subscription(
             cls, topic, forward, request_profile(offers), raw=True)
 
+    def _follow_link(self, topic: str, spec: TopicSpec) -> None:
+        """Forward a fast topic of this process from the bus while a client wants it."""
+        if topic in self._linked:
+            return  # subscribed once: the gate below does the rest
+        self._linked.add(topic)
+        encode = cdr.encoder(spec.msg_type) or serialize_message
+        wanted, advertised, stamp = self._wanted, self._advertised, self.now_ns
+
+        def forward(msg: Any) -> None:
+            # The publisher's thread (the control path): nothing is encoded unless a client
+            # listens. Reads without the lock: a stale answer costs one message either way.
+            a = advertised.get(topic)
+            if a is None or not wanted.get(topic):
+                return
+            a.channel.log(encode(msg), log_time=stamp())
+            self.forwarded += 1
+        self.create_topic_subscription(spec, forward)
+
     @property
     def advertised_topics(self) -> dict[str, str]:
         """The topics offered to clients and their types."""
@@ -421,8 +449,10 @@ class FoxgloveBridgeNode(EnbarrNode):
 
     @property
     def subscribed_topics(self) -> tuple[str, ...]:
-        """The topics subscribed in ROS for clients now."""
-        return tuple(sorted(self._ros_subs))
+        """Return the topics taken for clients now (raw from DDS, or fast from the bus)."""
+        with self._lock:
+            linked = {t for t in self._linked if self._wanted.get(t)}
+        return tuple(sorted(set(self._ros_subs) | linked))
 
     # -- parameters -------------------------------------------------------------------------
     def _process_nodes(self) -> dict[str, Node]:
@@ -570,7 +600,7 @@ class FoxgloveBridgeNode(EnbarrNode):
     def _report(self) -> None:
         s = self.settings
         values = {'host': s.host, 'port': self.port if self.port is not None else '',
-                  'advertised': len(self._advertised), 'subscribed': len(self._ros_subs),
+                  'advertised': len(self._advertised), 'subscribed': len(self.subscribed_topics),
                   'forwarded': self.forwarded, 'client_messages': self.client_messages,
                   'refused_messages': self.refused_messages,
                   'parameter_writes': s.allow_parameter_writes,

@@ -218,6 +218,26 @@ def test_a_topic_is_advertised_with_its_ros2_schema_and_forwarded_as_cdr(
     client.wait(lambda: node.subscribed_topics == (), 'the ROS subscription dropped')
 
 
+def test_a_fast_topic_of_the_process_is_taken_from_the_bus_not_dds(context, executor, bridge):
+    p = probe(context, executor, 'observer')
+    pub = p.create_topic_publisher(topics.OBSERVER_ODOMETRY)  # a link publisher
+    node, client = bridge()
+    ch = client.channel('/observer/odometry')
+    client.send('subscribe', subscriptions=[{'id': 3, 'channelId': ch['id']}])
+    client.wait(lambda: node.subscribed_topics == ('/observer/odometry',), 'the bus followed')
+    frame = client.wait(lambda: pub.publish(_odometry(-2.0)) or next(iter(client.frames),
+                                                                      None), 'message data')
+    assert MESSAGE_DATA_HEAD.unpack_from(frame)[:2] == (MESSAGE_DATA, 3)
+    msg = deserialize_message(frame[MESSAGE_DATA_HEAD.size:], Odometry)
+    assert (msg.pose.pose.position.x, msg.child_frame_id) == (-2.0, 'base_link')
+    assert pub.external_readers() == 0  # the bridge is no DDS reader: nothing serialized
+    client.send('unsubscribe', subscriptionIds=[3])
+    client.wait(lambda: node.subscribed_topics == (), 'the topic dropped')
+    sent = node.forwarded
+    pub.publish(_odometry(-3.0))  # delivered on the bus at once, in this thread
+    assert node.forwarded == sent  # nothing encoded for nobody
+
+
 def test_a_latched_topic_reaches_a_late_client_and_a_gone_topic_is_withdrawn(
         context, executor, bridge):
     p = probe(context, executor, 'controller')
