@@ -76,7 +76,7 @@ from enbarr_plugins.foxglove.parameters import foxglove_name, split_name, to_fox
 SERVER_NAME = 'enbarr'
 #: How often the executor takes the clients' requests [s]: the most a teleop message or a
 #: parameter request waits for the executor when it is idle.
-JOB_PERIOD = 0.02
+JOB_PERIOD = 0.05
 
 SPECS = [
     ParamSpec('host', '127.0.0.1', 'Address the WebSocket server binds to (127.0.0.1: this '
