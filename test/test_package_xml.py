@@ -56,6 +56,7 @@ KEYS = {
     'evdev': 'python3-evdev',
     'cv2': 'python3-opencv',
     'pytest': 'python3-pytest',
+    'websockets': 'python3-websockets',
     'control': 'python-control-pip',
     'mcap_ros2': 'mcap-ros2-support',
     # No rosdistro key (package.xml says so): the -pip convention
@@ -64,6 +65,7 @@ KEYS = {
     'daqp': 'python3-daqp-pip',
     'quadprog': 'python3-quadprog-pip',
     'onnx': 'python3-onnx-pip',
+    'foxglove': 'python3-foxglove-sdk-pip',
 }
 
 RUN_TAGS = ('depend', 'exec_depend')

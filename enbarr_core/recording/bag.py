@@ -46,6 +46,7 @@ import yaml
 
 from enbarr_core.framework.errors import RecorderError
 from enbarr_core.recording.mcap_file import FileInfo, McapError, McapFile, recover
+from enbarr_core.recording.schemas import MESSAGE_ENCODING, ros2msg_definition, SCHEMA_ENCODING
 
 ROSBAG2_VERSION = 9
 MB = 1_000_000
@@ -327,9 +328,10 @@ class BagWriter:
 
     def _add_channel(self, mcap: McapFile, topic: str, msgtype: str) -> int:
         if msgtype not in mcap.schemas:
-            text, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
-            mcap.add_schema(msgtype, 'ros2msg', text)
-        return mcap.add_channel(topic, msgtype, 'cdr',
+            text = ros2msg_definition(msgtype, self.typestore)
+            assert text is not None  # write() took only types the store knows
+            mcap.add_schema(msgtype, SCHEMA_ENCODING, text)
+        return mcap.add_channel(topic, msgtype, MESSAGE_ENCODING,
                                 {'offered_qos_profiles': self._qos.get(topic, '')})
 
     def _repeat_latched(self, f: _File, timestamp_ns: int | None) -> None:

@@ -73,7 +73,7 @@ from enbarr_core.recording.bag import (BagStorageError, BagWriter, check_bag_pat
 from enbarr_core.recording.qos import (adapt_request, offered_qos_yaml, Qos, TF_QOS,
                                        TF_STATIC_QOS)
 from enbarr_core.recording.recorder import Recorder
-from enbarr_core.recording.tf import tf_message_cdr, TF_MESSAGE
+from enbarr_core.recording.tf import pose_encoder, tf_message_cdr, TF_MESSAGE
 
 SPECS = [
     ParamSpec('path', '', 'Bag directory to create (must not exist or be empty)',
@@ -338,7 +338,7 @@ class RecorderNode(EnbarrNode, Recorder):
         self._control(lambda writer: writer.set_offered_qos(topics.TF_TOPIC, tf_yaml))
         put = self._put
         for source in self._pose_sources:
-            entry = (topics.TF_TOPIC, TF_MESSAGE, _tf_encoder(source))
+            entry = (topics.TF_TOPIC, TF_MESSAGE, pose_encoder(source))
             self.create_topic_subscription(
                 source.spec, lambda msg, e=entry: put((e, self._stamp(), msg)))
 
@@ -548,14 +548,3 @@ class RecorderNode(EnbarrNode, Recorder):
         self.link_bus.remove_tap(self._on_link_publisher)
         self.close()
         super().destroy_node()
-
-
-def _tf_encoder(source: PoseSource) -> Any:
-    """``msg -> TFMessage CDR`` of one pose source (None when a message gives no pose)."""
-    def encode(msg: Any) -> bytes | None:
-        try:
-            t = source.transform(msg)
-            return None if t is None else tf_message_cdr([t])
-        except Exception:  # noqa: BLE001 - a malformed estimate gives no transform, no stop
-            return None
-    return encode

@@ -9,14 +9,17 @@ base_link) with a small packer of its own. ``read_transforms`` reads them back f
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 import functools
 import struct
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 from rosbags.typesys import get_typestore, Stores
 
 from enbarr_core.framework.frames import StampedTransform, Transform
+
+if TYPE_CHECKING:
+    from enbarr_core.framework.frame_sources import PoseSource
 
 TF_MESSAGE = 'tf2_msgs/msg/TFMessage'
 
@@ -49,6 +52,17 @@ def tf_message_cdr(transforms: Sequence[StampedTransform]) -> bytes:
         _align(out, 8)
         out += _POSE.pack(*s.transform.translation, *s.transform.rotation)
     return bytes(out)
+
+
+def pose_encoder(source: PoseSource) -> Callable[[Any], bytes | None]:
+    """Return ``msg -> TFMessage CDR`` of one pose source (None when a message gives no pose)."""
+    def encode(msg: Any) -> bytes | None:
+        try:
+            t = source.transform(msg)
+            return None if t is None else tf_message_cdr([t])
+        except Exception:  # noqa: BLE001 - a malformed estimate gives no transform, no stop
+            return None
+    return encode
 
 
 _HEADER = b'\x00\x01\x00\x00'  # CDR little endian, no options

@@ -1,0 +1,1 @@
+"""Foxglove: a live WebSocket connection to the vessel process (``bridge``)."""
