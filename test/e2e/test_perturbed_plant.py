@@ -13,33 +13,15 @@ The scenario's own metrics (``enbarr_core.tools.metrics``) are not used: only th
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
-import subprocess
 from typing import Any
 
 import numpy as np
 import pytest
-from support.bags import read_bag
-from support.cli import ENBARR
+from support.scenarios import run_scenario
 
-from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.kinematics import quat_to_rotmat, ssa
 from enbarr_interfaces import convert
-
-SCENARIOS = Path(__file__).resolve().parents[2] / 'params' / 'scenarios'
-
-
-def run_scenario(name: str, out: Path) -> dict[str, Any]:
-    """``enbarr scenario NAME`` as a user runs it; the profile as loaded and the bag."""
-    proc = subprocess.run([*ENBARR, 'scenario', name, '--output', str(out), '--no-plot'],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    json.loads(proc.stdout.strip().splitlines()[-1])  # it finished and reported
-    profile = load_profile(str(SCENARIOS / f'{name}.yaml'))
-    return {'name': name, 'profile': profile, 'msgs': read_bag(out / 'bag')}
-
 
 def node_parameters(profile: Any, node: str) -> dict[str, Any]:
     """What ``node`` is given: the common parameters, then its own over them (as bringup)."""
