@@ -233,22 +233,26 @@ def test_one_azimuth_dead_the_two_left_give_surge_sway_yaw(dead):
                                    atol=1e-12)
 
 
-def test_a_stuck_azimuth_pushes_only_along_its_angle():
+@pytest.mark.parametrize('name, deg', [('az_bow', 30.0), ('az_port_aft', -60.0)])
+def test_a_stuck_azimuth_pushes_only_along_its_angle(name, deg):
     a = AzimuthAllocator(saucer_specs())
-    stuck = math.radians(30.0)
-    a.fail('az_bow', STUCK, stuck)
-    assert a.lost_dofs == () and a.failed['az_bow'] == Failure(STUCK, stuck)
-    x, y = SAUCER_POS['az_bow']
+    stuck = math.radians(deg)
+    a.fail(name, STUCK, stuck)
+    assert a.lost_dofs == () and a.failed[name] == Failure(STUCK, stuck)
+    i = SAUCER_NAMES.index(name)
+    others = [n for n in SAUCER_NAMES if n != name]
+    x, y = SAUCER_POS[name]
     col = [math.cos(stuck), math.sin(stuck), x * math.sin(stuck) - y * math.cos(stuck)]
-    B = np.column_stack([col, ext_columns(['az_port_aft', 'az_stbd_aft'])])
+    B = np.column_stack([col, ext_columns(others)])
     for tau in ([0.5, -0.3, 0.05], [-0.6, 0.2, 0.0], [0.0, 0.0, 0.08]):
         r = a.allocate(tau, previous_angle=[0.0, 0.0, 0.0])
-        assert r.angle[0] == pytest.approx(stuck, abs=0.0)
+        assert r.angle[i] == pytest.approx(stuck, abs=0.0)
         np.testing.assert_allclose(tau_of_azimuths(SAUCER_NAMES, r.thrust, r.angle), tau,
                                    atol=1e-12)
         f, *_ = np.linalg.lstsq(B, np.array(tau), rcond=None)  # 5 columns, equal weights
-        assert r.thrust[0] == pytest.approx(f[0], abs=1e-12)   # signed: reverse allowed
-        np.testing.assert_allclose(np.abs(r.thrust[1:]), np.hypot(f[1::2], f[2::2]),
+        assert r.thrust[i] == pytest.approx(f[0], abs=1e-12)   # signed: reverse allowed
+        rest = [SAUCER_NAMES.index(n) for n in others]
+        np.testing.assert_allclose(np.abs(r.thrust[rest]), np.hypot(f[1::2], f[2::2]),
                                    atol=1e-12)
 
 
