@@ -9,37 +9,17 @@ independent ``numpy.linalg.lstsq`` on the columns left, never from the code unde
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
+from support.layouts import ROV, rov_thrusters, SAUCER, saucer_specs
 
 from enbarr_core.allocation import azimuth as azimuth_module
 from enbarr_core.allocation import fixed as fixed_module
 from enbarr_core.allocation.azimuth import AzimuthAllocator
 from enbarr_core.allocation.failures import (
     DEAD, DIAGNOSTIC_KEY, Failure, FailureBook, parse_entries, parse_entry, STUCK)
-from enbarr_core.allocation.fixed import ThrustAllocator, Thruster
-from enbarr_core.models.vessel3dof import AzimuthSpec
-
-PARAMS = Path(__file__).resolve().parents[2] / 'params'
-
-
-def _common(profile: str) -> dict:
-    with open(PARAMS / profile, encoding='utf-8') as f:
-        return yaml.safe_load(f)['parameters']
-
-
-ROV = _common('enbarr_sim.yaml')
-SAUCER = _common('saucer_core.yaml')
-
-
-def rov_thrusters() -> list[Thruster]:
-    t = ROV['thrusters']
-    return [Thruster(n, t[n]['position'], t[n]['direction'], t[n]['max_forward'],
-                     t[n]['max_reverse']) for n in ROV['thruster_names']]
-
+from enbarr_core.allocation.fixed import ThrustAllocator
 
 def rov_B(names: list[str]) -> np.ndarray:
     """Columns [d; r x d] of the named thrusters, written out from the profile."""
@@ -50,13 +30,6 @@ def rov_B(names: list[str]) -> np.ndarray:
         d /= np.linalg.norm(d)
         cols.append(np.concatenate([d, np.cross(r, d)]))
     return np.array(cols).T
-
-
-def saucer_specs() -> list[AzimuthSpec]:
-    a = SAUCER['azimuths']
-    return [AzimuthSpec(n, tuple(a[n]['position']), a[n]['max_forward'], a[n]['max_reverse'],
-                        a[n]['angle_min'], a[n]['angle_max'], a[n]['time_constant'],
-                        a[n]['max_angle_rate']) for n in SAUCER['azimuth_names']]
 
 
 SAUCER_POS = {n: SAUCER['azimuths'][n]['position'] for n in SAUCER['azimuth_names']}
