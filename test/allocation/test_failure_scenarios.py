@@ -108,7 +108,8 @@ CASES = [(('az_bow', DEAD), 1.0), (('az_bow', DEAD), 1.3),
 
 
 @pytest.mark.sim
-@pytest.mark.parametrize('failure, scale', CASES)
+@pytest.mark.parametrize('failure, scale', CASES,
+                         ids=[f'{name}-{mode}-{scale}' for (name, mode), scale in CASES])
 def test_saucer_keeps_station_on_two_azimuths(failure, scale):
     nominal = station_keeping(None, scale)
     failed = station_keeping(failure, scale)
