@@ -135,3 +135,113 @@ def test_telling_the_allocator_is_what_keeps_the_transient_small():
     print(f'\nuntold: transient max {untold[0] * 1e3:.1f} mm psi '
           f'{math.degrees(untold[2]):.2f} deg')
     assert untold[0] > 3.0 * told[0] and untold[0] > TRANSIENT_MAX
+
+
+# -- the ROV: eight fixed thrusters, one dies ------------------------------------------------
+
+ROV_DT = 0.01          # [s] control period (and the plant's step)
+ROV_FAIL_AT = 12.0     # [s]
+ROV_SECONDS = 48.0
+NU_NOISE = np.array([0.005, 0.005, 0.005, 0.002, 0.002, 0.002])  # velocity measurement std
+
+
+def rov_goal(t: float) -> np.ndarray:
+    """A manoeuvre through every DOF the pilot commands: [u v w p q r] [m/s, rad/s]."""
+    legs = [(0.3, 0.0, 0.0, 0.0, 0.0, 0.0), (0.3, 0.15, 0.0, 0.0, 0.0, 0.3),
+            (0.0, -0.15, 0.15, 0.0, 0.0, -0.3), (0.2, 0.0, -0.15, 0.0, 0.0, 0.0),
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.4), (-0.2, 0.1, 0.1, 0.0, 0.0, 0.0)]
+    return np.array(legs[int(t // 8.0) % len(legs)])
+
+
+def rov_run(dead: str | None, scale: float = 1.0, seed: int = 2,
+            tell: bool = True) -> np.ndarray:
+    """Fly ``rov_goal``; ``dead`` dies at ``ROV_FAIL_AT`` (the allocator told
+    ``DETECTION_DELAY`` later, never when ``tell`` is False). The plant's mass, buoyancy and damping are ``scale`` times the
+    profile's (the controller's model). Returns rows (t, nu_ref - nu (6), roll, pitch)."""
+    import dataclasses
+
+    from support.layouts import rov_thrusters
+    from support.saucer_plant import profile_settings
+
+    from enbarr_core.allocation.fixed import allocation_matrix, ThrustAllocator
+    from enbarr_core.control import velocity_control_node as vc
+    from enbarr_core.control.velocity_control import VelocityController, VelocityReference
+    from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyState
+    from enbarr_core.framework.kinematics import quat_to_euler
+    from enbarr_core.simulation import rov_simulator_node as sim
+
+    rng = np.random.default_rng(seed)
+    node = profile_settings('control_loop', vc.SPECS, vc.VelocityControlNodeSettings.from_params,
+                            'enbarr_sim')
+    vehicle = profile_settings('simulator', sim.SPECS, sim.RovSimulatorSettings.from_params,
+                               'enbarr_sim').vehicle
+    vehicle = dataclasses.replace(
+        vehicle, mass=vehicle.mass * scale, buoyancy=vehicle.buoyancy * scale,
+        inertia=tuple(i * scale for i in vehicle.inertia),
+        added_mass=tuple(a * scale for a in vehicle.added_mass),
+        d_lin=tuple(d * scale for d in vehicle.d_lin),
+        d_quad=tuple(d * scale for d in vehicle.d_quad))
+    thrusters = rov_thrusters()
+    B = allocation_matrix(thrusters)
+    index = [t.name for t in thrusters].index(dead) if dead else -1
+    allocator = ThrustAllocator(thrusters)
+    ctl = VelocityController(node.controller)
+    ref = VelocityReference(node.reference_time_constant, node.max_accel)
+    plant = RigidBodyModel(vehicle)
+    state = RigidBodyState.at_rest((0.0, 0.0, -2.0))
+    log = []
+    for k in range(int(round(ROV_SECONDS / ROV_DT))):
+        t = k * ROV_DT
+        if tell and dead and t >= ROV_FAIL_AT + DETECTION_DELAY and not allocator.failed:
+            allocator.fail(dead)
+        roll, pitch, _ = quat_to_euler(state.q)
+        nu_ref, nu_ref_dot = ref.step(rov_goal(t), ROV_DT)
+        nu = state.nu + rng.normal(0.0, NU_NOISE)
+        tau = ctl.step(nu_ref, nu, ROV_DT, nu_d_dot=nu_ref_dot, roll=roll, pitch=pitch).tau
+        thrust = allocator.allocate(tau).thrust.copy()
+        if dead and t >= ROV_FAIL_AT:
+            thrust[index] = 0.0  # the hardware, whatever it is told
+        state = plant.step(state, B @ thrust, ROV_DT)
+        log.append((t, *(nu_ref - state.nu), roll, pitch))
+    return np.array(log)
+
+
+def rov_errors(log: np.ndarray, t0: float, t1: float = math.inf) -> tuple[np.ndarray, float]:
+    """(RMS velocity error per DOF (6,), max |roll|, |pitch| [rad]) in [t0, t1)."""
+    w = (log[:, 0] >= t0) & (log[:, 0] < t1)
+    return np.sqrt(np.mean(log[w, 1:7] ** 2, axis=0)), float(np.abs(log[w, 7:9]).max())
+
+
+ROV_TOLD = ROV_FAIL_AT + DETECTION_DELAY + 2.0  # [s] told, and the integral settled again
+ROV_CASES = [('front_right', 1.3), ('front_right', 0.7), ('vert_rear_left', 1.3)]
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize('dead, scale', ROV_CASES, ids=[f'{d}-{s}' for d, s in ROV_CASES])
+def test_rov_holds_its_velocity_and_attitude_on_seven_thrusters(dead, scale):
+    """The plant 30 % off the controller's model, so the nominal error is not just noise."""
+    nominal = rov_run(None, scale)
+    failed = rov_run(dead, scale)
+    nominal_rms, nominal_tilt = rov_errors(nominal, ROV_TOLD)
+    failed_rms, failed_tilt = rov_errors(failed, ROV_TOLD)
+    w = (failed[:, 0] >= ROV_FAIL_AT) & (failed[:, 0] < ROV_TOLD)
+    peak = np.abs(failed[w, 1:7]).max(axis=0)
+    with np.printoptions(precision=4, suppress=True):
+        print(f'\n{dead} scale {scale}: velocity error RMS nominal {nominal_rms} failed '
+              f'{failed_rms}; max tilt nominal {math.degrees(nominal_tilt):.2f} deg failed '
+              f'{math.degrees(failed_tilt):.2f} deg; peak before told {peak}')
+    assert np.array_equal(nominal[nominal[:, 0] < ROV_FAIL_AT],
+                          failed[failed[:, 0] < ROV_FAIL_AT])
+    assert np.all(failed_rms <= 2.0 * nominal_rms)
+    assert failed_tilt <= 2.0 * nominal_tilt
+    assert np.all(peak < 0.2)  # [m/s, rad/s] the half second before the allocator knows
+
+
+@pytest.mark.sim
+def test_rov_allocation_never_told_misses_the_twice_nominal_bound():
+    """The bound above tells a re-solved allocation from one that keeps the dead column."""
+    nominal_rms, nominal_tilt = rov_errors(rov_run(None, 1.3), ROV_TOLD)
+    untold_rms, untold_tilt = rov_errors(rov_run('vert_rear_left', 1.3, tell=False), ROV_TOLD)
+    print(f'\nuntold vert_rear_left: max tilt {math.degrees(untold_tilt):.2f} deg, roll rate '
+          f'error RMS {untold_rms[3]:.4f} rad/s (nominal {nominal_rms[3]:.4f})')
+    assert untold_tilt > 2.0 * nominal_tilt and untold_rms[3] > 2.0 * nominal_rms[3]
