@@ -15,19 +15,28 @@ bounded against it; docs/benchmarks.md lists the figures (``python -m pytest -s`
 
 from __future__ import annotations
 
+import dataclasses
+from functools import cache
 import math
 
 import numpy as np
 import pytest
-from support.layouts import saucer_specs
-from support.saucer_plant import DT, NOISE, dp_settings, observer_settings, vessel_params
+from support.layouts import rov_thrusters, saucer_specs
+from support.saucer_plant import (
+    DT, NOISE, dp_settings, observer_settings, profile_settings, vessel_params)
 
 from enbarr_core.allocation.azimuth import AzimuthAllocator
 from enbarr_core.allocation.failures import DEAD, STUCK
+from enbarr_core.allocation.fixed import allocation_matrix, ThrustAllocator
+from enbarr_core.control import velocity_control_node as vc
 from enbarr_core.control.dp_control import DpController
+from enbarr_core.control.velocity_control import VelocityController, VelocityReference
 from enbarr_core.estimation.dp_observer import PassiveObserver
+from enbarr_core.framework.kinematics import quat_to_euler
 from enbarr_core.guidance.guidance import HoldPose
+from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyState
 from enbarr_core.models.vessel3dof import AzimuthActuators, Vessel3Dof, Vessel3DofParams
+from enbarr_core.simulation import rov_simulator_node as sim
 
 B_WORLD = np.array([0.3, -0.2, 0.02])  # current-like world bias [N, N, N m]
 FAIL_AT = 40.0                          # [s] the azimuth fails (after the initial transient)
@@ -86,6 +95,14 @@ def station_keeping(failure: tuple[str, str] | None, scale: float, seed: int = 5
     return np.array(log)
 
 
+@cache
+def saucer_nominal(scale: float) -> np.ndarray:
+    """``station_keeping`` without a failure (deterministic: run once per scale)."""
+    log = station_keeping(None, scale)
+    log.setflags(write=False)
+    return log
+
+
 def errors(log: np.ndarray, t0: float, t1: float = math.inf) -> tuple[float, float, float]:
     """(max position error [m], RMS position error [m], max heading error [rad]) in [t0, t1)."""
     w = (log[:, 0] >= t0) & (log[:, 0] < t1)
@@ -111,7 +128,7 @@ CASES = [(('az_bow', DEAD), 1.0), (('az_bow', DEAD), 1.3),
 @pytest.mark.parametrize('failure, scale', CASES,
                          ids=[f'{name}-{mode}-{scale}' for (name, mode), scale in CASES])
 def test_saucer_keeps_station_on_two_azimuths(failure, scale):
-    nominal = station_keeping(None, scale)
+    nominal = saucer_nominal(scale)
     failed = station_keeping(failure, scale)
     n_max, n_rms, n_psi = errors(nominal, FAIL_AT)
     transient = errors(failed, FAIL_AT, FAIL_AT + 20.0)
@@ -156,20 +173,9 @@ def rov_goal(t: float) -> np.ndarray:
 def rov_run(dead: str | None, scale: float = 1.0, seed: int = 2,
             tell: bool = True) -> np.ndarray:
     """Fly ``rov_goal``; ``dead`` dies at ``ROV_FAIL_AT`` (the allocator told
-    ``DETECTION_DELAY`` later, never when ``tell`` is False). The plant's mass, buoyancy and damping are ``scale`` times the
-    profile's (the controller's model). Returns rows (t, nu_ref - nu (6), roll, pitch)."""
-    import dataclasses
-
-    from support.layouts import rov_thrusters
-    from support.saucer_plant import profile_settings
-
-    from enbarr_core.allocation.fixed import allocation_matrix, ThrustAllocator
-    from enbarr_core.control import velocity_control_node as vc
-    from enbarr_core.control.velocity_control import VelocityController, VelocityReference
-    from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyState
-    from enbarr_core.framework.kinematics import quat_to_euler
-    from enbarr_core.simulation import rov_simulator_node as sim
-
+    ``DETECTION_DELAY`` later, never when ``tell`` is False). The plant's mass, buoyancy and
+    damping are ``scale`` times the profile's (the controller's model). Returns rows
+    (t, nu_ref - nu (6), roll, pitch)."""
     rng = np.random.default_rng(seed)
     node = profile_settings('control_loop', vc.SPECS, vc.VelocityControlNodeSettings.from_params,
                             'enbarr_sim')
@@ -206,6 +212,14 @@ def rov_run(dead: str | None, scale: float = 1.0, seed: int = 2,
     return np.array(log)
 
 
+@cache
+def rov_nominal(scale: float) -> np.ndarray:
+    """``rov_run`` without a failure (deterministic: run once per scale)."""
+    log = rov_run(None, scale)
+    log.setflags(write=False)
+    return log
+
+
 def rov_errors(log: np.ndarray, t0: float, t1: float = math.inf) -> tuple[np.ndarray, float]:
     """(RMS velocity error per DOF (6,), max |roll|, |pitch| [rad]) in [t0, t1)."""
     w = (log[:, 0] >= t0) & (log[:, 0] < t1)
@@ -220,7 +234,7 @@ ROV_CASES = [('front_right', 1.3), ('front_right', 0.7), ('vert_rear_left', 1.3)
 @pytest.mark.parametrize('dead, scale', ROV_CASES, ids=[f'{d}-{s}' for d, s in ROV_CASES])
 def test_rov_holds_its_velocity_and_attitude_on_seven_thrusters(dead, scale):
     """The plant 30 % off the controller's model, so the nominal error is not just noise."""
-    nominal = rov_run(None, scale)
+    nominal = rov_nominal(scale)
     failed = rov_run(dead, scale)
     nominal_rms, nominal_tilt = rov_errors(nominal, ROV_TOLD)
     failed_rms, failed_tilt = rov_errors(failed, ROV_TOLD)
@@ -240,7 +254,7 @@ def test_rov_holds_its_velocity_and_attitude_on_seven_thrusters(dead, scale):
 @pytest.mark.sim
 def test_rov_allocation_never_told_misses_the_twice_nominal_bound():
     """The bound above tells a re-solved allocation from one that keeps the dead column."""
-    nominal_rms, nominal_tilt = rov_errors(rov_run(None, 1.3), ROV_TOLD)
+    nominal_rms, nominal_tilt = rov_errors(rov_nominal(1.3), ROV_TOLD)
     untold_rms, untold_tilt = rov_errors(rov_run('vert_rear_left', 1.3, tell=False), ROV_TOLD)
     print(f'\nuntold vert_rear_left: max tilt {math.degrees(untold_tilt):.2f} deg, roll rate '
           f'error RMS {untold_rms[3]:.4f} rad/s (nominal {nominal_rms[3]:.4f})')
