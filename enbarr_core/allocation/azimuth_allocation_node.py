@@ -12,7 +12,7 @@ clock, or not later than the last one allocated, is refused and counted (dp_cont
 force stream ordered); more than 5 % refused in a second makes the node DEGRADED.
 ``max_future`` must stay under the measured force period.
 
-Failed azimuths (``failure_input``): the parameter ``failed_thrusters`` (``name``,
+Failed azimuths (``failure_params``): the parameter ``failed_thrusters`` (``name``,
 ``name:dead`` or ``name:stuck:<deg>``) and ERROR statuses on ``/diagnostics`` with a
 ``failed_thruster`` value change the allocation at run time: a dead azimuth gets zero thrust,
 a stuck one thrust along its stuck angle (which it is commanded), the others are re-solved,
@@ -33,7 +33,7 @@ from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.azimuth import AzimuthAllocator, DOF_NAMES_3
-from enbarr_core.allocation.failure_input import FailureInput
+from enbarr_core.allocation.failure_params import FailureInput
 from enbarr_core.allocation.layout_params import AZIMUTHS
 from enbarr_core.framework.errors import AllocationError
 from enbarr_core.framework.health import (

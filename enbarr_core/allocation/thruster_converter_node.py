@@ -11,7 +11,7 @@ of the node's clock, or not later than the last accepted one, is refused and cou
 stamp would travel on to the thrusters as the command's time); ``/diagnostics`` reports the
 node degraded when more than 5 % of a second's commands are refused.
 
-Failed thrusters (``failure_input``): the parameter ``failed_thrusters`` (``name`` or
+Failed thrusters (``failure_params``): the parameter ``failed_thrusters`` (``name`` or
 ``name:dead``) and ERROR statuses on ``/diagnostics`` with a ``failed_thruster`` value take a
 thruster out of the allocation at run time; it is commanded zero, the others re-solved, and
 ``/diagnostics`` says DEGRADED with the thrusters out and the DOFs lost.
@@ -29,7 +29,7 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.allocation.failure_input import FailureInput
+from enbarr_core.allocation.failure_params import FailureInput
 from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
 from enbarr_core.allocation.layout_params import THRUSTERS
 from enbarr_core.framework.errors import AllocationError
