@@ -12,6 +12,15 @@ direction phi_i; a reversible propeller produces it either as (a = phi, T > 0) o
 (a = phi -/+ pi, T < 0), and the allocator picks the one inside the servo travel (closest to
 the previous angle when both are). Saturation scales all thrusts by one factor, which keeps the
 direction of the delivered tau.
+
+A failed azimuth (``fail``) changes B_ext once, and its weighted pseudo-inverse is recomputed
+then (never per call): a dead one loses its column pair and is commanded zero thrust; one stuck
+at angle a_s still pushes, along that direction only, so its pair becomes the single column
+
+    [cos a_s, sin a_s, x_i sin a_s - y_i cos a_s]^T   (its thrust T_i, weight w_i on T_i^2).
+
+A DOF the azimuths left cannot produce alone (``least_norm.reachable_pinv``) is reported in
+``lost_dofs`` and its demand dropped; the others are delivered exactly when within the limits.
 """
 
 from __future__ import annotations
@@ -25,7 +34,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from enbarr_core.allocation.least_norm import check_weights, unreachable_rows, weighted_pinv
+from enbarr_core.allocation.failures import DEAD, STUCK, Failure
+from enbarr_core.allocation.least_norm import check_weights, reachable_pinv, unreachable_rows
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
 from enbarr_core.models.vessel3dof import AzimuthSpec, _floats, _tau_xyn
 
@@ -64,7 +74,11 @@ class AzimuthResult:
 
 
 class AzimuthAllocator:
-    """Weighted least-norm extended-thrust allocation with direction-preserving saturation."""
+    """Weighted least-norm extended-thrust allocation with direction-preserving saturation.
+
+    ``fail`` (dead, or stuck at an angle) and ``restore`` change the azimuths in use at run
+    time (see the module docstring); ``failed``, ``lost_dofs`` and ``rank`` say what is left.
+    """
 
     def __init__(self, specs: Sequence[AzimuthSpec],
                  weights: Sequence[float] | None = None) -> None:
@@ -88,16 +102,21 @@ class AzimuthAllocator:
         positions = np.array([s.position for s in self.specs])
         B = extended_allocation_matrix(positions)
         self._check_reachable(B, names)
-        # B^+ = W^-1 B^T (B W^-1 B^T)^-1, W = diag(w_i, w_i per pair)
-        B_pinv = weighted_pinv(B, np.repeat(w, 2))
-        for a in (positions, B, B_pinv, w):
+        for a in (positions, B, w):
             a.setflags(write=False)
         self.positions: Vector = positions
         self.B_ext: Vector = B
-        self.B_pinv: Vector = B_pinv  # (2n x 3)
         self.weights: Vector = w
+        self._names = names
+        self._failed: dict[str, Failure] = {}
+        self.B_pinv: Vector  # (2n x 3): rows (f_xi, f_yi) per azimuth
+        self.rank: int
+        self.lost_dofs: tuple[str, ...]
+        # (cos a_s, sin a_s, a_s) of a stuck azimuth, else None (a dead one's rows are zero)
+        self._stuck: tuple[tuple[float, float, float] | None, ...] = (None,) * n
+        self._rows: tuple[tuple[float, ...], ...] = ()
+        self._solve()
         # Fast-path constants as Python floats.
-        self._rows = tuple(tuple(row) for row in B_pinv.tolist())
         self._pos = tuple(s.position for s in self.specs)
         self._fwd = tuple(s.max_forward for s in self.specs)
         self._rev = tuple(s.max_reverse for s in self.specs)
@@ -105,6 +124,69 @@ class AzimuthAllocator:
         self._hi = tuple(s.angle_max for s in self.specs)
         self._rest = tuple(min(max(0.0, s.angle_min), s.angle_max) for s in self.specs)
         self._eps = _ZERO_FORCE * min(min(self._fwd), min(self._rev))
+
+    def _solve(self) -> None:
+        """Recompute ``B_pinv`` for the failures (once per change, not per allocation)."""
+        cols: list[Vector] = []
+        weights: list[float] = []
+        owner: list[tuple[int, Vector]] = []  # per column: azimuth i, its (f_x, f_y) direction
+        for i, name in enumerate(self._names):
+            failure = self._failed.get(name)
+            if failure is None:
+                cols += [self.B_ext[:, 2 * i], self.B_ext[:, 2 * i + 1]]
+                weights += [self.weights[i]] * 2
+                owner += [(i, np.array([1.0, 0.0])), (i, np.array([0.0, 1.0]))]
+            elif failure.mode == STUCK:
+                x, y = self.positions[i]
+                c, s = math.cos(failure.angle), math.sin(failure.angle)
+                cols.append(np.array([c, s, x * s - y * c]))  # N = x f_y - y f_x
+                weights.append(self.weights[i])
+                owner.append((i, np.array([c, s])))
+        B = np.array(cols).T if cols else np.zeros((3, 0))
+        # B^+ = W^-1 B^T (B W^-1 B^T)^-1 over the columns left, lost rows dropped
+        P, rank, lost = reachable_pinv(B, np.array(weights))
+        # Back to one (f_x, f_y) row pair per azimuth: a stuck one's T times (cos, sin) a_s.
+        B_pinv = np.zeros((2 * len(self._names), 3))
+        for row, (i, direction) in zip(P, owner):
+            B_pinv[2 * i:2 * i + 2, :] += direction[:, None] * row[None, :]
+        B_pinv.setflags(write=False)
+        self.B_pinv = B_pinv
+        self.rank = rank
+        self.lost_dofs = tuple(DOF_NAMES_3[j] for j in lost)
+        self._rows = tuple(tuple(row) for row in B_pinv.tolist())
+        self._stuck = tuple(
+            (math.cos(f.angle), math.sin(f.angle), f.angle) if f is not None and f.mode == STUCK
+            else None for f in (self._failed.get(n) for n in self._names))
+
+    @property
+    def failed(self) -> dict[str, Failure]:
+        """The failed azimuths and how, in layout order (a copy)."""
+        return {n: self._failed[n] for n in self._names if n in self._failed}
+
+    def fail(self, name: str, mode: str = DEAD, angle: float = 0.0) -> None:
+        """Mark azimuth ``name`` ``'dead'`` or ``'stuck'`` at ``angle`` [rad].
+
+        Raises ValueError for an unknown azimuth or mode.
+        """
+        self.set_failures({**self._failed, self._known(name): Failure(mode, angle)})
+
+    def restore(self, name: str) -> None:
+        """Give azimuth ``name`` back to the allocation (ValueError when unknown)."""
+        self.set_failures({n: f for n, f in self._failed.items() if n != self._known(name)})
+
+    def set_failures(self, failures: dict[str, Failure]) -> None:
+        """Run with exactly these azimuths failed (one re-solve for the whole set)."""
+        for name in failures:
+            self._known(name)
+        if failures != self._failed:
+            self._failed = dict(failures)
+            self._solve()
+
+    def _known(self, name: str) -> str:
+        if name not in self._names:
+            raise ValueError(f'unknown azimuth {name!r}; expected one of '
+                             f'{", ".join(self._names)}')
+        return name
 
     @staticmethod
     def _check_reachable(B: Vector, names: list[str]) -> None:
@@ -125,7 +207,9 @@ class AzimuthAllocator:
         ``previous_angle`` (n,) [rad], the last commanded (or measured) angles: when both signs
         of thrust can produce a force, the angle closest to it is kept (no 180 deg servo flips),
         and an azimuth with (almost) no force keeps it with zero thrust. Without it, positive
-        thrust is preferred and idle azimuths point at 0 rad (clipped to their travel).
+        thrust is preferred and idle azimuths point at 0 rad (clipped to their travel). A dead
+        azimuth gets zero thrust the same way; a stuck one its stuck angle, whatever the sign
+        of its thrust (``lost_dofs`` of tau are not delivered).
         """
         n = len(self.specs)
         X, Y, N = _floats('tau', tau, 3)
@@ -137,6 +221,13 @@ class AzimuthAllocator:
         for i in range(n):
             fx, fy = fxy[2 * i], fxy[2 * i + 1]
             lo, hi = self._lo[i], self._hi[i]
+            stuck = self._stuck[i]
+            if stuck is not None:
+                T = fx * stuck[0] + fy * stuck[1]  # (f_x, f_y) = T (cos, sin) a_s
+                ratio = T / self._fwd[i] if T >= 0.0 else -T / self._rev[i]
+                T_out[i], a_out[i] = T, stuck[2]
+                s = max(s, ratio)
+                continue
             m = math.hypot(fx, fy)
             if m <= eps:
                 a_out[i] = self._rest[i] if prev is None else min(max(prev[i], lo), hi)

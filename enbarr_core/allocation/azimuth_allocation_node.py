@@ -11,6 +11,12 @@ Time (``framework.stamps``): a force stamped more than ``max_future`` ahead of t
 clock, or not later than the last one allocated, is refused and counted (dp_control keeps its
 force stream ordered); more than 5 % refused in a second makes the node DEGRADED.
 ``max_future`` must stay under the measured force period.
+
+Failed azimuths (``failure_params``): the parameter ``failed_thrusters`` (``name``,
+``name:dead`` or ``name:stuck:<deg>``) and ERROR statuses on ``/diagnostics`` with a
+``failed_thruster`` value change the allocation at run time: a dead azimuth gets zero thrust,
+a stuck one thrust along its stuck angle (which it is commanded), the others are re-solved,
+and ``/diagnostics`` says DEGRADED with the azimuths out and the DOFs lost.
 """
 
 from __future__ import annotations
@@ -26,7 +32,8 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
-from enbarr_core.allocation.azimuth import AzimuthAllocator
+from enbarr_core.allocation.azimuth import AzimuthAllocator, DOF_NAMES_3
+from enbarr_core.allocation.failure_params import FailureInput
 from enbarr_core.allocation.layout_params import AZIMUTHS
 from enbarr_core.framework.errors import AllocationError
 from enbarr_core.framework.health import (
@@ -75,6 +82,8 @@ class AzimuthAllocationNode(EnbarrNode):
         self._gate = StampGate()
         self.bind_settings([MAX_FUTURE], self._build_max_future, self._apply_max_future)
         self.names = [a.name for a in specs]
+        self.failures = FailureInput(self, self.allocator, tuple(self.names), True,
+                                     DOF_NAMES_3)
         self.angle = np.zeros(len(specs))
         self.result = None
         self.infeasible = 0
@@ -147,9 +156,10 @@ class AzimuthAllocationNode(EnbarrNode):
         if problem:
             rates = (DEGRADED, problem)
             self.report_problem(f'parameter {problem}')
-        level, message = worst(own, (level, message), rates)
+        out_level, out_message, out_values = self.failures.status()
+        level, message = worst(own, (level, message), rates, (out_level, out_message))
         return level, message, {'infeasible': self.infeasible, 'rejected': self.rejected,
-                                **totals}
+                                **totals, **out_values}
 
     def _report(self) -> None:
         self.publish_diagnostics(*self.diagnostic_status())

@@ -13,6 +13,11 @@ over the controlled rows ``B_c`` of ``B``; its solution ``f = B_c^+ tau_c`` with
 ``B_c^+ = W^-1 B_c^T (B_c W^-1 B_c^T)^-1`` is precomputed once. Saturation is handled by
 scaling the whole thrust vector, which keeps the direction of the delivered ``tau`` (the
 vehicle slows down along the requested motion instead of drifting sideways).
+
+A thruster marked failed (``fail``) loses its column: ``B_c^+`` is recomputed once for the
+thrusters left (``least_norm.reachable_pinv``), the failed one is commanded zero, and a
+controlled DOF the others cannot produce any more is reported in ``lost_dofs`` and its demand
+dropped, so the DOFs still reachable are delivered exactly.
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from enbarr_core.allocation.least_norm import check_weights, unreachable_rows, weighted_pinv
+from enbarr_core.allocation.failures import DEAD, Failure
+from enbarr_core.allocation.least_norm import check_weights, reachable_pinv, unreachable_rows
 from enbarr_core.framework.errors import AllocationError, ConfigurationError
 
 Vector = NDArray[np.float64]
@@ -99,7 +105,11 @@ class AllocationResult:
 
 
 class ThrustAllocator:
-    """Weighted pseudo-inverse allocation with direction-preserving saturation."""
+    """Weighted pseudo-inverse allocation with direction-preserving saturation.
+
+    ``fail`` and ``restore`` take a thruster out of the solution and give it back at run time
+    (see the module docstring); ``failed``, ``lost_dofs`` and ``rank`` say what is left.
+    """
 
     def __init__(
         self,
@@ -127,17 +137,65 @@ class ThrustAllocator:
         B_c = B[list(self.controlled_dofs), :]
         self._check_reachable(B_c, names)
 
-        B_pinv = weighted_pinv(B_c, w)  # B_c^+ = W^-1 B_c^T (B_c W^-1 B_c^T)^-1
-
         B.setflags(write=False)
-        B_pinv.setflags(write=False)
         self.B: Vector = B
-        self.B_pinv: Vector = B_pinv  # (n x m), m = len(controlled_dofs)
         self.weights: Vector = w
         self.weights.setflags(write=False)
+        self._B_c = B_c
+        self._names = names
         self._dof_index = np.array(self.controlled_dofs, dtype=np.intp)
         self._inv_forward = np.array([1.0 / t.max_forward for t in self.thrusters])
         self._inv_reverse = np.array([1.0 / t.max_reverse for t in self.thrusters])
+        self._failed: dict[str, Failure] = {}
+        self.B_pinv: Vector  # (n x m), m = len(controlled_dofs); zero rows for failed ones
+        self.rank: int
+        self.lost_dofs: tuple[str, ...]
+        self._solve()
+
+    def _solve(self) -> None:
+        """Recompute ``B_pinv`` for the thrusters not failed (once per change, not per call)."""
+        alive = [i for i, n in enumerate(self._names) if n not in self._failed]
+        # B_c^+ = W^-1 B_c^T (B_c W^-1 B_c^T)^-1 over the live columns, lost rows dropped
+        P, rank, lost = reachable_pinv(self._B_c[:, alive], self.weights[alive])
+        B_pinv = np.zeros((len(self._names), len(self.controlled_dofs)))
+        B_pinv[alive, :] = P
+        B_pinv.setflags(write=False)
+        self.B_pinv = B_pinv
+        self.rank = rank
+        self.lost_dofs = tuple(DOF_NAMES[self.controlled_dofs[j]] for j in lost)
+
+    @property
+    def failed(self) -> dict[str, Failure]:
+        """The failed thrusters and how, in layout order (a copy)."""
+        return {n: self._failed[n] for n in self._names if n in self._failed}
+
+    def fail(self, name: str, mode: str = DEAD) -> None:
+        """Take thruster ``name`` out of the allocation (``mode``: only ``'dead'`` here).
+
+        Raises ValueError for an unknown thruster or mode.
+        """
+        self.set_failures({**self._failed, self._known(name): Failure(mode)})
+
+    def restore(self, name: str) -> None:
+        """Give thruster ``name`` back to the allocation (ValueError when unknown)."""
+        self.set_failures({n: f for n, f in self._failed.items() if n != self._known(name)})
+
+    def set_failures(self, failures: dict[str, Failure]) -> None:
+        """Run with exactly these thrusters failed (one re-solve for the whole set)."""
+        for name, failure in failures.items():
+            self._known(name)
+            if failure.mode != DEAD:
+                raise ValueError(f'thruster {name!r}: a fixed thruster can only be '
+                                 f'{DEAD!r}, got {failure.mode!r}')
+        if failures != self._failed:
+            self._failed = dict(failures)
+            self._solve()
+
+    def _known(self, name: str) -> str:
+        if name not in self._names:
+            raise ValueError(f'unknown thruster {name!r}; expected one of '
+                             f'{", ".join(self._names)}')
+        return name
 
     def _check_reachable(self, B_c: Vector, names: list[str]) -> None:
         """Raise AllocationError unless rank(B_c) == number of controlled DOFs.
@@ -160,9 +218,10 @@ class ThrustAllocator:
         """Thrusts for the generalized force ``tau`` [N, N m] (6,).
 
         Only the controlled DOFs of ``tau`` are used (the others are ignored, but must still be
-        finite). If a thruster would exceed its limit the whole thrust vector is scaled by
-        ``1/s``, ``s = max_i |f_i| / limit_i``, so ``tau_delivered`` stays parallel to the
-        controlled part of ``tau``.
+        finite), and of those not the ``lost_dofs`` (a failed thruster's). If a thruster would
+        exceed its limit the whole thrust vector is scaled by ``1/s``,
+        ``s = max_i |f_i| / limit_i``, so ``tau_delivered`` stays parallel to the controlled
+        part of ``tau``.
         """
         tau = np.asarray(tau, dtype=float)
         if tau.shape != (6,):

@@ -61,7 +61,31 @@ def weighted_pinv(B: Vector, w: Vector) -> Vector:
     """``B^+ = W^-1/2 pinv(B W^-1/2)`` (k x m), ``W = diag(w)`` with one weight per column.
 
     The same as ``W^-1 B^T (B W^-1 B^T)^-1`` when B has full row rank, computed through the
-    SVD for conditioning.
+    SVD for conditioning. Singular values below ``RANK_RTOL`` of the largest count as zero,
+    as in ``unreachable_rows``, so a rank-deficient B gives no huge gains.
     """
     w_isqrt: Vector = 1.0 / np.sqrt(np.asarray(w, dtype=float))
-    return w_isqrt[:, None] * np.linalg.pinv(B * w_isqrt[None, :])
+    return w_isqrt[:, None] * np.linalg.pinv(B * w_isqrt[None, :], RANK_RTOL)
+
+
+def reachable_pinv(B: Vector, w: Vector) -> tuple[Vector, int, list[int]]:
+    """``(B_r^+, rank(B), lost rows)`` for a B that may have lost rank (a failed thruster).
+
+    ``B_r^+`` (k x m) is ``weighted_pinv(B, w)`` with the columns of the lost rows (those
+    ``unreachable_rows`` lists) set to zero: ``f = B_r^+ tau`` solves
+
+        min_f  f^T W f   subject to   B f = P tau,
+
+    ``P`` zeroing the lost rows of tau. ``P tau`` lies in range(B) (every kept row's unit
+    vector does), so the kept DOFs are delivered exactly and nothing appears in the lost
+    ones: a demand that cannot be met any more is dropped instead of leaking into the DOFs
+    that still can be (which the least-squares ``pinv(B) tau`` would do). With no columns at
+    all (k = 0) every row is lost.
+    """
+    m, k = B.shape
+    if k == 0:
+        return np.zeros((0, m)), 0, list(range(m))
+    rank, lost = unreachable_rows(B)
+    B_pinv = weighted_pinv(B, w)
+    B_pinv[:, lost] = 0.0
+    return B_pinv, rank, lost

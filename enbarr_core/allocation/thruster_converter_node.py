@@ -10,6 +10,11 @@ Time policy (``framework.stamps``): a ``force_command`` stamped more than ``max_
 of the node's clock, or not later than the last accepted one, is refused and counted (its
 stamp would travel on to the thrusters as the command's time); ``/diagnostics`` reports the
 node degraded when more than 5 % of a second's commands are refused.
+
+Failed thrusters (``failure_params``): the parameter ``failed_thrusters`` (``name`` or
+``name:dead``) and ERROR statuses on ``/diagnostics`` with a ``failed_thruster`` value take a
+thruster out of the allocation at run time; it is commanded zero, the others re-solved, and
+``/diagnostics`` says DEGRADED with the thrusters out and the DOFs lost.
 """
 
 from __future__ import annotations
@@ -24,10 +29,11 @@ from sensor_msgs.msg import JointState
 from enbarr_interfaces.fastmsg import new
 from enbarr_interfaces import convert, topics
 
+from enbarr_core.allocation.failure_params import FailureInput
 from enbarr_core.allocation.fixed import DOF_NAMES, Thruster, ThrustAllocator
 from enbarr_core.allocation.layout_params import THRUSTERS
 from enbarr_core.framework.errors import AllocationError
-from enbarr_core.framework.health import InputHealth
+from enbarr_core.framework.health import InputHealth, worst
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import (
@@ -85,6 +91,8 @@ class ThrusterConverterNode(EnbarrNode):
         self.rejected = 0
         self.result = None
         self._names = [t.name for t in s.thrusters]
+        self.failures = FailureInput(self, self.allocator, tuple(self._names), False,
+                                     tuple(DOF_NAMES[k] for k in s.controlled_dofs))
         self._pub = self.create_topic_publisher(topics.THRUSTER_COMMANDS)
         self.create_topic_subscription(topics.FORCE_COMMAND, self._on_wrench)
         self.create_periodic(REPORT_PERIOD, self._report)
@@ -129,5 +137,8 @@ class ThrusterConverterNode(EnbarrNode):
 
     def _report(self) -> None:
         level, message, values = self.health.report(REPORT_PERIOD)
+        out_level, out_message, out_values = self.failures.status()
+        level, message = worst((level, message), (out_level, out_message))
         self.publish_diagnostics(level, message, {'saturated': self.saturated,
-                                                  'rejected': self.rejected, **values})
+                                                  'rejected': self.rejected, **values,
+                                                  **out_values})
