@@ -8,9 +8,11 @@ speed for ``hold_time`` is failed (blocked or tangled) and stays failed until th
 clears it (``thruster_monitor/clear``: a thruster's name, or empty for all).
 
 A failure is reported at once and then every second on ``/diagnostics``: level ERROR, the
-message naming the thrusters, ``failed_thrusters`` their names (comma separated) and
-``failed.<name>`` why. The allocation takes the thruster out from there, so that it is
-commanded zero and the others make up for it. A thruster whose speed stops arriving is not
+message naming the thrusters, one ``failed_thruster`` value per failed thruster (its name: the
+convention of ``allocation.failures``, which the thruster converter and the azimuth
+allocation listen for) and ``failed.<name>`` why. The allocation takes the thruster out from
+there, so that it is commanded zero and the others make up for it; clearing the failure here
+gives it back. A thruster whose speed stops arriving is not
 judged (the monitor cannot tell); the message then says the feedback is stale.
 """
 
@@ -24,6 +26,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from enbarr_interfaces import convert, topics
+from enbarr_core.allocation.failures import DIAGNOSTIC_KEY
 from enbarr_core.control.thruster_health import HealthSettings, ThrusterHealth
 from enbarr_core.framework.health import DEGRADED, ERROR, OK
 from enbarr_core.framework.node import EnbarrNode
@@ -119,11 +122,11 @@ class ThrusterMonitorNode(EnbarrNode):
         self.get_logger().info(f'thruster {name or "(all)"} trusted again by the operator')
         self._report()
 
-    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
-        """(level, message, values) for ``/diagnostics``."""
+    def diagnostic_status(self) -> tuple[int, str, list[tuple[str, Any]]]:
+        """(level, message, values) for ``/diagnostics``; ``failed_thruster`` may repeat."""
         failed = dict(self.health.failed) if self.health is not None else {}
-        values: dict[str, Any] = {'failed_thrusters': ','.join(sorted(failed))}
-        values.update({f'failed.{n}': why for n, why in sorted(failed.items())})
+        values: list[tuple[str, Any]] = [(DIAGNOSTIC_KEY, n) for n in sorted(failed)]
+        values += [(f'failed.{n}', why) for n, why in sorted(failed.items())]
         if failed:
             return ERROR, f'thruster(s) failed: {", ".join(sorted(failed))}', values
         last = self.last_feedback_ns

@@ -27,7 +27,7 @@ additions that bringup relies on:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 import threading
 import time
 from typing import Any, TypeVar
@@ -488,8 +488,14 @@ class EnbarrNode(Node):
         """The faults reported with ``report_problem``, oldest first."""
         return tuple(self._problems)
 
-    def publish_diagnostics(self, level: int, message: str, values: dict[str, Any]) -> None:
-        """Publish this node's status on ``/diagnostics`` (counters, modes, faults)."""
+    def publish_diagnostics(self, level: int, message: str,
+                            values: Mapping[str, Any] | Sequence[tuple[str, Any]]) -> None:
+        """Publish this node's status on ``/diagnostics`` (counters, modes, faults).
+
+        ``values``: a mapping, or (key, value) pairs where a key may repeat (one
+        ``failed_thruster`` per failed thruster, ``allocation.failures``).
+        """
+        pairs = values.items() if isinstance(values, Mapping) else values
         if self._diagnostics_pub is None:
             self._diagnostics_pub = self.create_publisher(
                 DiagnosticArray, topics.DIAGNOSTICS.name, topics.DIAGNOSTICS.qos,
@@ -497,7 +503,7 @@ class EnbarrNode(Node):
         status = DiagnosticStatus(
             level=bytes([level]), name=self.get_fully_qualified_name(), message=message,
             hardware_id=self.get_name(),
-            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+            values=[KeyValue(key=k, value=str(v)) for k, v in pairs])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics_pub.publish(msg)
