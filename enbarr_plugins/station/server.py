@@ -46,6 +46,7 @@ ASSETS = {
 TOKEN_COOKIE = 'enbarr_station_token'
 #: WebSocket close code when the page's input stopped for longer than input_timeout.
 CLOSE_INPUT_TIMEOUT = 4000
+_WATCH = web.AppKey('watch', asyncio.Task)
 
 
 class StationBackend(Protocol):
@@ -227,10 +228,10 @@ class StationServer:
             await asyncio.sleep(period)
 
     async def _on_startup(self, app: web.Application) -> None:
-        app['watch'] = asyncio.ensure_future(self._watch())
+        app[_WATCH] = asyncio.ensure_future(self._watch())
 
     async def _on_shutdown(self, app: web.Application) -> None:
-        app['watch'].cancel()
+        app[_WATCH].cancel()
         for ws in list(self._sockets):
             await ws.close(code=1001, message=b'station stopped')
 
