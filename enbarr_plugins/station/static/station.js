@@ -369,8 +369,14 @@ function paramRow(node, p) {
       input.value = v;
       input.addEventListener('change', () => {
         const raw = input.value;
-        const value = input.type === 'number' ? Number(raw) : raw;
-        submit(node, p, i, value, tr);
+        if (input.type === 'number' && (raw.trim() === '' || !Number.isFinite(Number(raw)))) {
+          // An emptied field is no value (Number('') would send 0): nothing is sent.
+          const status = tr.querySelector('.param-status');
+          status.textContent = 'enter a number';
+          status.className = 'param-status';
+          return;
+        }
+        submit(node, p, i, input.type === 'number' ? Number(raw) : raw, tr);
       });
     }
     cell.appendChild(input);

@@ -1,0 +1,316 @@
+"""The surface station in a real browser: Debian's headless chromium driven by Selenium.
+
+The CS Saucer simulation (``saucer_station_sim``) is composed in this process on a thread of
+its own, with the station on a free port and a token; a probe node in a separate rclpy
+context watches the graph over DDS as any outside process would (``joy``, ``joy/connected``,
+``force_command``, ``sim/odometry``). Every wait is bounded (``poll_until`` / ``spin_until``);
+nothing is judged by how long it took.
+
+Skipped, saying why, when chromium or chromium-driver are missing (``./dev test`` installs
+them as root: ``ensure_test_packages``). ``ENBARR_STATION_SCREENSHOTS=docs`` makes the
+screenshot test write the PNGs of docs/station.md there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import os
+from pathlib import Path
+import shutil
+import tempfile
+import threading
+from typing import Any
+import urllib.error
+import urllib.request
+
+import pytest
+
+from support.waiting import poll_until, spin_until
+
+pytestmark = pytest.mark.e2e
+
+CHROMIUM = '/usr/bin/chromium'
+CHROMEDRIVER = '/usr/bin/chromedriver'
+TOKEN = 'browser-test-token'
+FLAGS = ('--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+         '--disable-background-networking', '--disable-component-update', '--disable-sync',
+         '--window-size=1400,1000')
+
+if not (os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)):
+    pytest.skip('the browser tests need Debian\'s chromium and chromium-driver '
+                f'({CHROMIUM}, {CHROMEDRIVER}); as root: apt-get install chromium '
+                'chromium-driver (./dev test does it)', allow_module_level=True)
+
+from selenium import webdriver  # noqa: E402 - after the skip: absent without the browser
+from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.common.keys import Keys  # noqa: E402
+
+
+class Vessel:
+    """The composed simulation on its thread, and a probe in its own context."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.signals import SignalHandlerOptions
+
+        from enbarr_core.bringup.compose import composed
+        from enbarr_core.bringup.profile import load_profile
+        from enbarr_interfaces import topics
+
+        profile = load_profile('saucer_station_sim', [
+            'station.port=0', f'station.token={TOKEN}', 'station.input_timeout=0.5'])
+        self._composed = composed(profile)
+        self.c = self._composed.__enter__()
+        self.c.start()
+        self.station = self.c.node('station')
+        self.dp = self.c.node('dp_control')
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name='vessel', daemon=True)
+        self._thread.start()
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
+        self.probe = Node('station_probe', context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.probe)
+        self.joys: list[Any] = []
+        self.connected: list[bool] = []
+        self.forces: list[Any] = []
+        self.odometry: Any = None
+        for spec, sink in ((topics.JOY, self.joys.append),
+                           (topics.JOY_CONNECTED, lambda m: self.connected.append(m.data)),
+                           (topics.FORCE_COMMAND, self.forces.append),
+                           (topics.SIM_ODOMETRY, self._on_odometry)):
+            self.probe.create_subscription(spec.msg_type, spec.name, sink, spec.qos)
+
+    def _on_odometry(self, msg: Any) -> None:
+        self.odometry = msg
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self.c.context.ok():
+            self.c.executor.spin_once(timeout_sec=0.05)
+
+    def spin_until(self, condition: Any, timeout: float = 20.0) -> bool:
+        return spin_until(self.ex, condition, timeout)
+
+    @property
+    def url(self) -> str:
+        return self.station.server.url
+
+    def pose(self) -> tuple[float, float]:
+        p = self.odometry.pose.pose.position
+        return p.x, p.y
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self._composed.__exit__(None, None, None)
+        self.ex.shutdown()
+        self.probe.destroy_node()
+        import rclpy
+        rclpy.try_shutdown(context=self.ctx)
+
+
+@pytest.fixture(scope='module')
+def vessel() -> Iterator[Vessel]:
+    v = Vessel()
+    try:
+        assert v.spin_until(lambda: v.odometry is not None), 'no sim/odometry on DDS'
+        yield v
+    finally:
+        v.close()
+
+
+@pytest.fixture
+def browser() -> Iterator[webdriver.Chrome]:
+    profile_dir = tempfile.mkdtemp(prefix='enbarr-chromium-')
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*FLAGS, f'--user-data-dir={profile_dir}'):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(options=options,
+                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
+    try:
+        yield driver
+    finally:
+        try:
+            driver.quit()
+        finally:
+            shutil.rmtree(profile_dir, ignore_errors=True)
+
+
+def text(driver: webdriver.Chrome, element_id: str) -> str:
+    return driver.find_element(By.ID, element_id).text
+
+
+def open_page(driver: webdriver.Chrome, vessel: Vessel) -> None:
+    driver.get(vessel.url)
+    assert poll_until(lambda: text(driver, 'conn') == 'connected', 20.0), text(driver, 'conn')
+
+
+def hold_key(driver: webdriver.Chrome, key: str, down: bool) -> None:
+    # Dispatched to the document as a keyboard user's would be (keydown/keyup events).
+    kind = 'keydown' if down else 'keyup'
+    driver.execute_script(
+        f"document.dispatchEvent(new KeyboardEvent('{kind}', {{key: arguments[0]}}))", key)
+
+
+def test_the_page_loads_and_its_telemetry_follows_the_vessel(vessel, browser):
+    open_page(browser, vessel)
+    assert browser.title == 'Enbarr surface station'
+    assert poll_until(lambda: text(browser, 'x') != '-', 20.0)
+    first = (text(browser, 'x'), text(browser, 'y'), text(browser, 'heading'))
+    # The basin's current carries the vessel: the shown pose changes as the vessel moves.
+    assert poll_until(lambda: (text(browser, 'x'), text(browser, 'y'),
+                               text(browser, 'heading')) != first, 30.0)
+    assert text(browser, 'mode') == 'manual'
+    assert 'az_bow' in browser.find_element(By.ID, 'actuators').text
+    assert '/dp_control' in browser.find_element(By.ID, 'diagnostics').text
+
+
+def test_a_key_held_on_the_page_drives_the_simulated_vessel(vessel, browser):
+    open_page(browser, vessel)
+    assert vessel.spin_until(lambda: vessel.odometry is not None)
+    x0, y0 = vessel.pose()
+    n_forces = len(vessel.forces)
+    hold_key(browser, 'w', True)
+    try:
+        # w: surge ahead at the page's stick gain: the controller's manual force is ahead...
+        assert vessel.spin_until(lambda: any(
+            f.wrench.force.x > 0.1 for f in vessel.forces[n_forces:])), 'no surge force'
+        assert vessel.joys[-1].axes[1] > 0.0   # enbarr_ds4: left_y, up = +1
+        # ...and the simulated vessel moves well beyond what the current alone does.
+        assert vessel.spin_until(lambda: abs(vessel.pose()[0] - x0)
+                                 + abs(vessel.pose()[1] - y0) > 0.4, 40.0)
+    finally:
+        hold_key(browser, 'w', False)
+    assert vessel.spin_until(lambda: vessel.joys[-1].axes[1] == 0.0)
+    assert browser.find_element(By.ID, 'input-stale').is_displayed() is False
+
+
+def row(driver: webdriver.Chrome, node: str, name: str) -> Any:
+    return driver.find_element(
+        By.CSS_SELECTOR, f'tr.param[data-node="{node}"][data-name="{name}"]')
+
+
+def test_a_gain_edit_is_applied_and_a_refused_one_shows_its_reason(vessel, browser):
+    open_page(browser, vessel)
+    browser.find_element(By.ID, 'tab-tune').click()
+    assert poll_until(lambda: len(browser.find_elements(
+        By.CSS_SELECTOR, 'tr.param[data-node="/dp_control"][data-name="kp"]')) == 1, 20.0)
+    kp = list(vessel.dp.get_parameter('kp').value)
+    inputs = row(browser, '/dp_control', 'kp').find_elements(By.CSS_SELECTOR, '.editor input')
+    assert len(inputs) == 3 and float(inputs[0].get_attribute('value')) == kp[0]
+    inputs[0].clear()
+    inputs[0].send_keys('12.5', Keys.TAB)
+    status = row(browser, '/dp_control', 'kp').find_element(By.CLASS_NAME, 'param-status')
+    assert poll_until(lambda: status.text == 'applied', 20.0), status.text
+    assert list(vessel.dp.get_parameter('kp').value) == [12.5, *kp[1:]]
+    inputs[1].clear()
+    inputs[1].send_keys('-3', Keys.TAB)
+    assert poll_until(lambda: status.text.startswith('refused'), 20.0), status.text
+    assert status.text == 'refused: kp[1] = -3.0 is outside [0.0, 10000.0]'
+    assert list(vessel.dp.get_parameter('kp').value) == [12.5, *kp[1:]]
+    assert float(inputs[1].get_attribute('value')) == kp[1]   # back to what the node kept
+    inputs[0].clear()
+    inputs[0].send_keys(str(kp[0]), Keys.TAB)
+    assert poll_until(lambda: status.text == 'applied', 20.0)
+
+
+def test_a_refused_mode_change_shows_its_reason(vessel, browser):
+    open_page(browser, vessel)
+    assert poll_until(lambda: text(browser, 'mode') == 'manual', 20.0)
+    # cross (manual) while manual: the controller refuses it, 'already manual'.
+    browser.find_element(By.ID, 'mode-manual').click()
+    assert poll_until(lambda: text(browser, 'refusal') == 'manual: already manual', 20.0), \
+        text(browser, 'refusal')
+    assert vessel.dp.refusals >= 1
+
+
+def _drive(vessel: Vessel, browser: webdriver.Chrome) -> int:
+    """Open the page and hold w until the controller pushes ahead; the joy count then."""
+    open_page(browser, vessel)
+    n = len(vessel.forces)
+    hold_key(browser, 'w', True)
+    assert vessel.spin_until(lambda: any(f.wrench.force.x > 0.1 for f in vessel.forces[n:]))
+    assert vessel.connected[-1] is True and vessel.station.driving
+    return vessel.station.neutrals_sent
+
+
+def _assert_failsafe(vessel: Vessel, neutrals_before: int) -> None:
+    # One neutral sample and joy/connected False: the controller's connection rule drops to
+    # manual with zero force at once...
+    assert vessel.spin_until(lambda: vessel.connected[-1] is False)
+    assert vessel.spin_until(lambda: vessel.forces[-1].wrench.force.x == 0.0
+                             and vessel.forces[-1].wrench.force.y == 0.0
+                             and vessel.forces[-1].wrench.torque.z == 0.0)
+    assert vessel.joys[-1].axes[1] == 0.0
+    assert vessel.station.neutrals_sent == neutrals_before + 1 and not vessel.station.driving
+    # ...and the station then stays silent: no held command is sent on the page's behalf.
+    n = len(vessel.joys)
+    sent = vessel.station.commands_sent
+    vessel.spin_until(lambda: False, 1.5)
+    assert len(vessel.joys) == n and vessel.station.commands_sent == sent
+    assert vessel.dp.mode.value == 'manual'
+
+
+@pytest.mark.parametrize('how', ['quit', 'navigate away'])
+def test_closing_the_page_trips_the_failsafe(vessel, how):
+    profile_dir = tempfile.mkdtemp(prefix='enbarr-chromium-')
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*FLAGS, f'--user-data-dir={profile_dir}'):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(options=options,
+                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
+    try:
+        before = _drive(vessel, driver)
+        if how == 'quit':
+            driver.quit()   # w still held: the page just goes
+        else:
+            driver.get('about:blank')
+        _assert_failsafe(vessel, before)
+    finally:
+        try:
+            driver.quit()
+        finally:
+            shutil.rmtree(profile_dir, ignore_errors=True)
+
+
+def test_a_frozen_page_trips_the_failsafe(vessel, browser):
+    before = _drive(vessel, browser)
+    # The page's script stops (a frozen tab) while its socket stays open.
+    browser.execute_script('stopSending(); state.ws.onclose = null;')
+    _assert_failsafe(vessel, before)
+
+
+def test_the_token_is_required_and_no_path_leaves_the_assets(vessel):
+    base = vessel.url.split('?')[0]
+    for path in ('', 'static/station.js', 'api/params', 'ws'):
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(base + path, timeout=10)
+        assert err.value.code == 401, path
+    with urllib.request.urlopen(f'{base}?token={TOKEN}', timeout=10) as r:
+        assert r.status == 200
+    for path in ('static/..%2fnode.py', 'static/%2e%2e%2fserver.py', 'static/..%5cnode.py'):
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(f'{base}{path}?token={TOKEN}', timeout=10)
+        assert err.value.code == 404, path
+
+
+def test_screenshots_of_the_main_views(vessel, browser, tmp_path):
+    out = Path(os.environ.get('ENBARR_STATION_SCREENSHOTS') or tmp_path)
+    open_page(browser, vessel)
+    hold_key(browser, 'a', True)
+    assert poll_until(lambda: text(browser, 'x') != '-', 20.0)
+    vessel.spin_until(lambda: False, 3.0)   # let a trail build up on the map
+    hold_key(browser, 'a', False)
+    assert browser.save_screenshot(str(out / 'station_drive.png'))
+    browser.find_element(By.ID, 'tab-tune').click()
+    browser.find_element(By.ID, 'filter').send_keys('dp_control')
+    assert poll_until(lambda: len(browser.find_elements(By.CSS_SELECTOR, 'tr.param')) > 10,
+                      20.0)
+    assert browser.save_screenshot(str(out / 'station_tune.png'))
+    assert (out / 'station_drive.png').stat().st_size > 10_000
