@@ -303,14 +303,19 @@ def test_the_token_is_required_and_no_path_leaves_the_assets(vessel):
 def test_screenshots_of_the_main_views(vessel, browser, tmp_path):
     out = Path(os.environ.get('ENBARR_STATION_SCREENSHOTS') or tmp_path)
     open_page(browser, vessel)
-    hold_key(browser, 'a', True)
+    hold_key(browser, 'w', True)
+    hold_key(browser, 'q', True)
     assert poll_until(lambda: text(browser, 'x') != '-', 20.0)
-    vessel.spin_until(lambda: False, 3.0)   # let a trail build up on the map
-    hold_key(browser, 'a', False)
+    vessel.spin_until(lambda: False, 8.0)   # let a trail build up on the map
+    hold_key(browser, 'q', False)
+    hold_key(browser, 'w', False)
     assert browser.save_screenshot(str(out / 'station_drive.png'))
     browser.find_element(By.ID, 'tab-tune').click()
     browser.find_element(By.ID, 'filter').send_keys('dp_control')
     assert poll_until(lambda: len(browser.find_elements(By.CSS_SELECTOR, 'tr.param')) > 10,
                       20.0)
+    assert not browser.find_element(By.ID, 'view-drive').is_displayed()
+    assert not browser.find_element(
+        By.CSS_SELECTOR, 'div.node[data-node="/allocation"]').is_displayed()
     assert browser.save_screenshot(str(out / 'station_tune.png'))
     assert (out / 'station_drive.png').stat().st_size > 10_000

@@ -413,6 +413,9 @@ function applyFilter() {
   document.querySelectorAll('tr.param').forEach((tr) => {
     tr.hidden = !!f && !(tr.dataset.node + ' ' + tr.dataset.name).toLowerCase().includes(f);
   });
+  document.querySelectorAll('div.node').forEach((div) => {
+    div.hidden = !!f && !div.querySelector('tr.param:not([hidden])');
+  });
 }
 
 function showTab(name) {
