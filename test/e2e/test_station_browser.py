@@ -37,7 +37,7 @@ FLAGS = ('--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-
          '--window-size=1400,1000')
 
 if not (os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)):
-    pytest.skip('the browser tests need Debian\'s chromium and chromium-driver '
+    pytest.skip("the browser tests need Debian's chromium and chromium-driver "
                 f'({CHROMIUM}, {CHROMEDRIVER}); as root: apt-get install chromium '
                 'chromium-driver (./dev test does it)', allow_module_level=True)
 
