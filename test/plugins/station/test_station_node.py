@@ -46,6 +46,11 @@ class Rig:
         self.probe = Node('probe', context=context)
         self.goals: list[tuple[float, ...]] = []
         self.io: list[ParameterMsg] = []
+        self.sent: list[tuple[float, ...]] = []   # what the station itself published
+        self.probe.create_subscription(
+            TwistStamped, topics.SURFACE_TWIST.name,
+            lambda m: self.sent.append(tuple(convert.twist_to_nu(m.twist))),
+            topics.SURFACE_TWIST.qos)
         self.probe.create_subscription(
             TwistStamped, topics.TRAJECTORY_REQUEST.name,
             lambda m: self.goals.append(tuple(convert.twist_to_nu(m.twist))),
@@ -125,10 +130,16 @@ def test_the_page_drives_the_receiver_and_closing_it_stops_the_vessel(rig):
             await until(lambda: any(m.name == 'gpio_12' and m.value.bool_value
                                     for m in rig.io))
             assert sum(m.name == 'gpio_12' for m in rig.io) == 1   # on change only
+            page.lights = False
+            await until(lambda: sum(m.name == 'gpio_12' for m in rig.io) == 2)
+            assert rig.io[-1].value.bool_value is False
             page.task.cancel()
             await ws.close()
+            await until(lambda: rig.station.neutrals_sent == 1)
+            # The station's last word is a zero goal, not the held one.
+            await until(lambda: rig.sent[-1] == (0.0,) * 6)
             await until(lambda: rig.goals[-1] == (0.0,) * 6)
-            assert rig.station.neutrals_sent == 1 and not rig.station.driving
+            assert not rig.station.driving
     asyncio.run(body())
 
 
