@@ -142,7 +142,10 @@ class StationSettings:
                    v['lights_executor'], joy)
 
 
-_UNIT = re.compile(r' \[([^\]]*)\]')
+#: ``ParamSpec.descriptor``'s text: the description, `` [units]`` when it has units, then
+#: `` (each element in [low, high])`` for a bounded array (rclpy's ranges are scalar only).
+_UNIT = re.compile(r' \[([^\]]*)\](?= \(each element in |$)')
+_ELEMENT_RANGE = re.compile(r' \(each element in \[([^,\]]*), ([^\]]*)\]\)$')
 _TYPE_NAMES = {ParameterType.PARAMETER_BOOL: 'bool', ParameterType.PARAMETER_INTEGER: 'int',
                ParameterType.PARAMETER_DOUBLE: 'double',
                ParameterType.PARAMETER_STRING: 'string',
@@ -157,13 +160,23 @@ def describe(name: str, value: Any, d: ParameterDescriptor) -> dict[str, Any]:
     """One parameter as the page lists it: value, type, description, unit, range."""
     unit = _UNIT.search(d.description)
     low = high = None
-    if d.floating_point_range:
+    element = _ELEMENT_RANGE.search(d.description)
+    if element:
+        low, high = _number(element.group(1)), _number(element.group(2))
+    elif d.floating_point_range:
         low, high = d.floating_point_range[0].from_value, d.floating_point_range[0].to_value
     elif d.integer_range:
         low, high = d.integer_range[0].from_value, d.integer_range[0].to_value
     return {'name': name, 'value': _json_value(value), 'type': _TYPE_NAMES.get(d.type, '?'),
             'description': d.description, 'unit': unit.group(1) if unit else '',
             'low': _finite(low), 'high': _finite(high), 'read_only': d.read_only}
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:   # 'None': that side is open
+        return None
 
 
 def _finite(x: float | None) -> float | None:
@@ -257,6 +270,7 @@ class SurfaceStationNode(EnbarrNode):
         self.neutrals_sent = 0
         self.driving = False   # between an input taken and the neutral that ends it
         self._param_clients: dict[str, AsyncParameterClient] = {}
+        self.create_periodic(1.0, self._report)
 
     def _apply(self, settings: StationSettings) -> None:
         self.settings = settings
@@ -312,6 +326,20 @@ class SurfaceStationNode(EnbarrNode):
             self.server.stop()
         self._param_clients.clear()   # their service clients go with the node
         super().destroy_node()
+
+    def diagnostic_status(self) -> tuple[int, str, dict[str, Any]]:
+        """Return (level, message, values) for ``/diagnostics``: pages, commands, failsafes."""
+        server = self.server
+        values: dict[str, Any] = {'commands_sent': self.commands_sent,
+                                  'neutrals_sent': self.neutrals_sent}
+        if server is not None:   # never the token: /diagnostics is recorded and shared
+            values.update(pages=server.pages, input_timeouts=server.lease.timeouts,
+                          refused_inputs=server.lease.refused, bad_inputs=server.bad_inputs,
+                          address=f'{server.host}:{server.port}')
+        return 0, 'a page drives' if self.driving else 'no page drives', values
+
+    def _report(self) -> None:
+        self.publish_diagnostics(*self.diagnostic_status())
 
     # -- StationBackend ---------------------------------------------------------------------
     def hello(self) -> dict[str, Any]:

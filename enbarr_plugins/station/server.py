@@ -101,6 +101,11 @@ class StationServer:
         self._error: BaseException | None = None
         self._sockets: set[web.WebSocketResponse] = set()
 
+    @property
+    def pages(self) -> int:
+        """Return how many pages are connected (driving or watching)."""
+        return len(self._sockets)
+
     # -- the application ---------------------------------------------------------------------
     def app(self) -> web.Application:
         """Build the aiohttp application (the tests run it on their own loop too)."""

@@ -29,6 +29,7 @@ from enbarr_plugins.station.server import CLOSE_INPUT_TIMEOUT
 pytestmark = pytest.mark.node
 
 
+
 def station(context: Any, **params: Any) -> SurfaceStationNode:
     values = {'port': 0, **params}
     return SurfaceStationNode(context=context, parameter_overrides=[
@@ -161,6 +162,10 @@ def test_a_page_that_stops_sending_is_cut_off_and_the_goal_falls_to_zero(rig):
             await until(lambda: rig.goals[-1] == (0.0,) * 6)
             assert rig.station.neutrals_sent == 1
             assert rig.station.commands_sent == sent   # the held command was never repeated
+            level, message, values = rig.station.diagnostic_status()
+            assert (level, message) == (0, 'no page drives')
+            assert (values['input_timeouts'], values['neutrals_sent']) == (1, 1)
+
     asyncio.run(body())
 
 
