@@ -29,7 +29,6 @@ from enbarr_plugins.station.server import CLOSE_INPUT_TIMEOUT
 pytestmark = pytest.mark.node
 
 
-
 def station(context: Any, **params: Any) -> SurfaceStationNode:
     values = {'port': 0, **params}
     return SurfaceStationNode(context=context, parameter_overrides=[
@@ -165,7 +164,6 @@ def test_a_page_that_stops_sending_is_cut_off_and_the_goal_falls_to_zero(rig):
             level, message, values = rig.station.diagnostic_status()
             assert (level, message) == (0, 'no page drives')
             assert (values['input_timeouts'], values['neutrals_sent']) == (1, 1)
-
     asyncio.run(body())
 
 
