@@ -16,84 +16,47 @@ from __future__ import annotations
 from collections.abc import Iterator
 import os
 from pathlib import Path
-import shutil
-import tempfile
-import threading
 from typing import Any
 import urllib.error
 import urllib.request
 
 import pytest
 
-from support.waiting import poll_until, spin_until
+from support.browser import chromium, Composed, missing
+from support.waiting import poll_until
 
 pytestmark = pytest.mark.e2e
 
-CHROMIUM = '/usr/bin/chromium'
-CHROMEDRIVER = '/usr/bin/chromedriver'
 TOKEN = 'browser-test-token'
-FLAGS = ('--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-         '--disable-background-networking', '--disable-component-update', '--disable-sync',
-         '--window-size=1400,1000')
 
-if not (os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)):
-    pytest.skip("the browser tests need Debian's chromium and chromium-driver "
-                f'({CHROMIUM}, {CHROMEDRIVER}); as root: apt-get install chromium '
-                'chromium-driver (./dev test does it)', allow_module_level=True)
+if missing():
+    pytest.skip(missing(), allow_module_level=True)
 
 from selenium import webdriver  # noqa: E402 - after the skip: absent without the browser
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.common.keys import Keys  # noqa: E402
 
 
-class Vessel:
-    """The composed simulation on its thread, and a probe in its own context."""
+class Vessel(Composed):
+    """The composed Saucer simulation and what the probe saw."""
 
     def __init__(self) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        from rclpy.signals import SignalHandlerOptions
-
-        from enbarr_core.bringup.compose import composed
-        from enbarr_core.bringup.profile import load_profile
         from enbarr_interfaces import topics
-
-        profile = load_profile('saucer_station_sim', [
+        super().__init__('saucer_station_sim', [
             'station.port=0', f'station.token={TOKEN}', 'station.input_timeout=0.5'])
-        self._composed = composed(profile)
-        self.c = self._composed.__enter__()
-        self.c.start()
-        self.station = self.c.node('station')
-        self.dp = self.c.node('dp_control')
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, name='vessel', daemon=True)
-        self._thread.start()
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
-        self.probe = Node('station_probe', context=self.ctx)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.ex.add_node(self.probe)
+        self.station = self.node('station')
+        self.dp = self.node('dp_control')
         self.joys: list[Any] = []
         self.connected: list[bool] = []
         self.forces: list[Any] = []
         self.odometry: Any = None
-        for spec, sink in ((topics.JOY, self.joys.append),
-                           (topics.JOY_CONNECTED, lambda m: self.connected.append(m.data)),
-                           (topics.FORCE_COMMAND, self.forces.append),
-                           (topics.SIM_ODOMETRY, self._on_odometry)):
-            self.probe.create_subscription(spec.msg_type, spec.name, sink, spec.qos)
+        self.sink(topics.JOY, self.joys.append)
+        self.sink(topics.JOY_CONNECTED, lambda m: self.connected.append(m.data))
+        self.sink(topics.FORCE_COMMAND, self.forces.append)
+        self.sink(topics.SIM_ODOMETRY, self._on_odometry)
 
     def _on_odometry(self, msg: Any) -> None:
         self.odometry = msg
-
-    def _spin(self) -> None:
-        while not self._stop.is_set() and self.c.context.ok():
-            self.c.executor.spin_once(timeout_sec=0.05)
-
-    def spin_until(self, condition: Any, timeout: float = 20.0) -> bool:
-        return spin_until(self.ex, condition, timeout)
 
     @property
     def url(self) -> str:
@@ -102,15 +65,6 @@ class Vessel:
     def pose(self) -> tuple[float, float]:
         p = self.odometry.pose.pose.position
         return p.x, p.y
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-        self._composed.__exit__(None, None, None)
-        self.ex.shutdown()
-        self.probe.destroy_node()
-        import rclpy
-        rclpy.try_shutdown(context=self.ctx)
 
 
 @pytest.fixture(scope='module')
@@ -125,20 +79,8 @@ def vessel() -> Iterator[Vessel]:
 
 @pytest.fixture
 def browser() -> Iterator[webdriver.Chrome]:
-    profile_dir = tempfile.mkdtemp(prefix='enbarr-chromium-')
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in (*FLAGS, f'--user-data-dir={profile_dir}'):
-        options.add_argument(flag)
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
-    try:
+    with chromium() as driver:
         yield driver
-    finally:
-        try:
-            driver.quit()
-        finally:
-            shutil.rmtree(profile_dir, ignore_errors=True)
 
 
 def text(driver: webdriver.Chrome, element_id: str) -> str:
@@ -258,25 +200,13 @@ def _assert_failsafe(vessel: Vessel, neutrals_before: int) -> None:
 
 @pytest.mark.parametrize('how', ['quit', 'navigate away'])
 def test_closing_the_page_trips_the_failsafe(vessel, how):
-    profile_dir = tempfile.mkdtemp(prefix='enbarr-chromium-')
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in (*FLAGS, f'--user-data-dir={profile_dir}'):
-        options.add_argument(flag)
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
-    try:
+    with chromium() as driver:
         before = _drive(vessel, driver)
         if how == 'quit':
             driver.quit()   # w still held: the page just goes
         else:
             driver.get('about:blank')
         _assert_failsafe(vessel, before)
-    finally:
-        try:
-            driver.quit()
-        finally:
-            shutil.rmtree(profile_dir, ignore_errors=True)
 
 
 def test_a_frozen_page_trips_the_failsafe(vessel, browser):
