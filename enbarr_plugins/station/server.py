@@ -47,6 +47,8 @@ TOKEN_COOKIE = 'enbarr_station_token'
 #: WebSocket close code when the page's input stopped for longer than input_timeout.
 CLOSE_INPUT_TIMEOUT = 4000
 _WATCH = web.AppKey('watch', asyncio.Task)
+#: How long a close waits for the page's answer [s].
+CLOSE_WAIT = 1.0
 
 
 class StationBackend(Protocol):
@@ -100,6 +102,7 @@ class StationServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._sockets: set[web.WebSocketResponse] = set()
+        self._closing: set[asyncio.Future[bool]] = set()
 
     @property
     def pages(self) -> int:
@@ -171,7 +174,8 @@ class StationServer:
         return web.json_response(await self.backend.set_param(node, name, value))
 
     async def _ws(self, request: web.Request) -> web.StreamResponse:
-        ws = web.WebSocketResponse(heartbeat=None, max_msg_size=64 * 1024)
+        # A page on a lost network never answers a close: wait for it a second, not ten.
+        ws = web.WebSocketResponse(timeout=CLOSE_WAIT, heartbeat=None, max_msg_size=64 * 1024)
         await ws.prepare(request)
         self._sockets.add(ws)
         sender = asyncio.ensure_future(self._send_telemetry(ws))
@@ -229,7 +233,11 @@ class StationServer:
                          'commands stop')
                 self.backend.command(None)
                 if isinstance(holder, web.WebSocketResponse):
-                    await holder.close(code=CLOSE_INPUT_TIMEOUT, message=b'input timeout')
+                    # Not awaited here: the next page's lease is watched meanwhile.
+                    task = asyncio.ensure_future(
+                        holder.close(code=CLOSE_INPUT_TIMEOUT, message=b'input timeout'))
+                    self._closing.add(task)
+                    task.add_done_callback(self._closing.discard)
             await asyncio.sleep(period)
 
     async def _on_startup(self, app: web.Application) -> None:
@@ -237,8 +245,8 @@ class StationServer:
 
     async def _on_shutdown(self, app: web.Application) -> None:
         app[_WATCH].cancel()
-        for ws in list(self._sockets):
-            await ws.close(code=1001, message=b'station stopped')
+        await asyncio.gather(*(ws.close(code=1001, message=b'station stopped')
+                               for ws in list(self._sockets)), return_exceptions=True)
 
     # -- the thread ------------------------------------------------------------------------
     def start(self, timeout: float = 10.0) -> None:
