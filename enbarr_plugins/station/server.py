@@ -262,15 +262,19 @@ class StationServer:
         loop = self._loop = asyncio.new_event_loop()
         asyncio.set_event_loop(loop)
         try:
-            self._runner = web.AppRunner(self.app(), handle_signals=False, access_log=None)
-            loop.run_until_complete(self._runner.setup())
-            # A socket of our own: port 0 picks a free port, and the bound one is then known.
+            # A socket of our own, bound before the application starts (a port in use is
+            # refused with nothing to undo): port 0 picks a free one, which is then known.
             family = socket.AF_INET6 if ':' in self.host else socket.AF_INET
             sock = socket.create_server((self.host, self.port), family=family)
             self.port = sock.getsockname()[1]
+            self._runner = web.AppRunner(self.app(), handle_signals=False, access_log=None)
+            loop.run_until_complete(self._runner.setup())
             loop.run_until_complete(web.SockSite(self._runner, sock).start())
         except BaseException as err:  # noqa: BLE001 - handed to start()'s caller
             self._error = err
+            if self._runner is not None:
+                loop.run_until_complete(self._runner.cleanup())
+            loop.close()
             self._ready.set()
             return
         self._ready.set()

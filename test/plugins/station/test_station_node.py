@@ -214,3 +214,17 @@ def test_off_loopback_the_node_makes_a_token(context):
 def test_bad_settings_are_refused_naming_the_parameter(context, params, words):
     with pytest.raises(ConfigurationError, match=words):
         station(context, **params)
+
+
+def test_a_port_in_use_is_refused_at_start_naming_it(context, executor):
+    import socket
+    taken = socket.create_server(('127.0.0.1', 0))
+    try:
+        port = taken.getsockname()[1]
+        node = station(context, port=port)
+        executor.add_node(node)
+        with pytest.raises(ConfigurationError, match=f'cannot serve on 127.0.0.1:{port}'):
+            node.start()
+        assert node.server is None and not node.started
+    finally:
+        taken.close()
