@@ -228,3 +228,42 @@ def test_a_port_in_use_is_refused_at_start_naming_it(context, executor):
         assert node.server is None and not node.started
     finally:
         taken.close()
+
+
+def test_the_telemetry_carries_the_latest_of_each_topic(context, executor, spin):
+    """What the page shows, from the messages as the vessel's nodes publish them."""
+    import math
+
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from enbarr_interfaces.links import LinkBus
+    from enbarr_interfaces.obstacles import Obstacle, SEGMENT, to_cloud
+    from support.nodes import add, probe
+
+    node = add(executor, station(context, command='twist'))
+    source = probe(context, executor, 'source')
+    pubs = {spec.name: source.create_topic_publisher(spec) for spec in (
+        topics.OBSERVER_ODOMETRY, topics.AZIMUTH_COMMANDS, topics.OBSTACLES, topics.MODE)}
+    LinkBus.of(context).connect()
+    odom = Odometry()
+    odom.pose.pose.position.x, odom.pose.pose.position.y = 1.5, -2.0
+    convert.yaw_to_quaternion(math.radians(30.0), odom.pose.pose.orientation)
+    odom.twist.twist.linear.x, odom.twist.twist.angular.z = 0.25, -0.1
+    pubs[topics.OBSERVER_ODOMETRY.name].publish(odom)
+    pubs[topics.AZIMUTH_COMMANDS.name].publish(JointState(
+        name=['az_bow', 'az_port_aft'], position=[0.5, -1.0], effort=[1.2, -0.3]))
+    pubs[topics.OBSTACLES.name].publish(to_cloud(
+        [Obstacle(1, SEGMENT, 3.0, 1.0, 0.2, 4.0, 1.5)], 1, topics.WORLD_FRAME))
+    pubs[topics.MODE.name].publish(String(data='automatic'))
+    assert spin(executor, lambda: 'mode' in node.telemetry())
+    t = node.telemetry()
+    assert t['estimate'] == pytest.approx(
+        {'x': 1.5, 'y': -2.0, 'z': 0.0, 'yaw': math.radians(30.0), 'u': 0.25, 'v': 0.0,
+         'w': 0.0, 'r': -0.1})
+    assert t['azimuths'] == [{'name': 'az_bow', 'angle': 0.5, 'thrust': 1.2},
+                             {'name': 'az_port_aft', 'angle': -1.0, 'thrust': -0.3}]
+    assert t['obstacles'] == [pytest.approx([3.0, 1.0, 4.0, 1.5, 0.2])]
+    assert t['mode'] == 'automatic' and 'truth' not in t
+    json.dumps(t)   # what the server sends: JSON as it is
