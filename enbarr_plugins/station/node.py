@@ -307,7 +307,13 @@ class SurfaceStationNode(EnbarrNode):
             raise ConfigurationError(f'node {self.get_name()!r}: cannot serve on '
                                      f'{s.host}:{s.port}: {err}', parameter='port') from err
         super().start()
-        self.get_logger().info(f'surface station: open {self.server.url}')
+        url = self.server.url
+        if self._token:
+            # The token goes to the terminal only: the log also goes to /rosout, which a
+            # recorder may keep in a bag that is shared later.
+            print(f'surface station: open {url}', flush=True)
+            url = url.split('?')[0] + ' (with the token printed on standard output)'
+        self.get_logger().info(f'surface station: open {url}')
 
     def stop(self) -> None:
         """Stop serving (a driving page's lease ends: neutral once), then the sources."""

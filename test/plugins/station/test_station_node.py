@@ -267,3 +267,17 @@ def test_the_telemetry_carries_the_latest_of_each_topic(context, executor, spin)
     assert t['obstacles'] == [pytest.approx([3.0, 1.0, 4.0, 1.5, 0.2])]
     assert t['mode'] == 'automatic' and 'truth' not in t
     json.dumps(t)   # what the server sends: JSON as it is
+
+
+def test_the_token_is_printed_but_never_logged(context, executor, capsys):
+    node = station(context, token='s3cret-token')
+    executor.add_node(node)
+    logged: list[str] = []
+    node.get_logger().info = logged.append   # type: ignore[method-assign]
+    node.start()
+    try:
+        url = f'http://127.0.0.1:{node.server.port}/?token=s3cret-token'
+        assert f'surface station: open {url}' in capsys.readouterr().out
+        assert logged and not any('s3cret' in line for line in logged)
+    finally:
+        node.stop()
