@@ -132,6 +132,47 @@ def test_a_key_held_on_the_page_drives_the_simulated_vessel(vessel, browser):
     assert browser.find_element(By.ID, 'input-stale').is_displayed() is False
 
 
+# The W3C Gamepad "standard" mapping, as a browser presents a DualShock 4: buttons[0] the
+# bottom face button (cross), [1] right (circle), [2] left (square), [3] top (triangle);
+# axes[0] left stick x (right +1), axes[1] left stick y (down +1), axes[2] right stick x.
+FAKE_PAD = """
+window.fakePad = {connected: true, id: 'Wireless Controller (STANDARD GAMEPAD)',
+  mapping: 'standard', axes: [0, 0, 0, 0],
+  buttons: Array.from({length: 17}, () => ({pressed: false, value: 0}))};
+navigator.getGamepads = () => [window.fakePad];
+"""
+
+
+def pad(driver: webdriver.Chrome, script: str) -> None:
+    driver.execute_script(script)
+
+
+def test_a_gamepad_drives_and_changes_the_mode_as_the_manual_says(vessel, browser):
+    open_page(browser, vessel)
+    pad(browser, FAKE_PAD)
+    pad(browser, 'window.fakePad.axes[1] = -0.8')      # left stick pushed up
+    # enbarr_ds4 (ds4_driver's order): left_y is axis 1, up = +1: surge ahead.
+    assert vessel.spin_until(lambda: vessel.joys and vessel.joys[-1].axes[1] == pytest.approx(
+        0.8, abs=1e-6))
+    neutrals = vessel.station.neutrals_sent
+    n = len(vessel.joys)
+    # Held still for many input periods: the page keeps sending, the station keeps driving.
+    assert vessel.spin_until(lambda: len(vessel.joys) >= n + 40)
+    assert vessel.station.neutrals_sent == neutrals and vessel.station.driving
+    assert all(j.axes[1] == pytest.approx(0.8, abs=1e-6) for j in vessel.joys[n:])
+    pad(browser, 'window.fakePad.axes[1] = 0')
+    # Triangle: automatic (hold the pose), CS Saucer manual section 3.2.5.
+    pad(browser, 'window.fakePad.buttons[3] = {pressed: true, value: 1}')
+    assert poll_until(lambda: text(browser, 'mode') == 'automatic', 20.0), text(browser, 'mode')
+    assert vessel.dp.mode.value == 'automatic'
+    pad(browser, 'window.fakePad.buttons[3] = {pressed: false, value: 0}')
+    # Cross: back to manual.
+    pad(browser, 'window.fakePad.buttons[0] = {pressed: true, value: 1}')
+    assert poll_until(lambda: text(browser, 'mode') == 'manual', 20.0), text(browser, 'mode')
+    pad(browser, 'window.fakePad.buttons[0] = {pressed: false, value: 0}')
+    assert 'Wireless Controller' in text(browser, 'gamepad')
+
+
 def row(driver: webdriver.Chrome, node: str, name: str) -> Any:
     return driver.find_element(
         By.CSS_SELECTOR, f'tr.param[data-node="{node}"][data-name="{name}"]')
