@@ -132,6 +132,17 @@ def test_a_key_held_on_the_page_drives_the_simulated_vessel(vessel, browser):
     assert browser.find_element(By.ID, 'input-stale').is_displayed() is False
 
 
+def test_an_on_screen_button_held_drives_and_released_stops(vessel, browser):
+    from selenium.webdriver.common.action_chains import ActionChains
+    open_page(browser, vessel)
+    button = browser.find_element(By.CSS_SELECTOR, '.hold[data-axis="sway"][data-dir="1"]')
+    ActionChains(browser).click_and_hold(button).perform()
+    # enbarr_ds4: left_x is axis 0, left = +1: sway to port at the slider's 0.5.
+    assert vessel.spin_until(lambda: vessel.joys and vessel.joys[-1].axes[0] == 0.5)
+    ActionChains(browser).release(button).perform()
+    assert vessel.spin_until(lambda: vessel.joys[-1].axes[0] == 0.0)
+
+
 # The W3C Gamepad "standard" mapping, as a browser presents a DualShock 4: buttons[0] the
 # bottom face button (cross), [1] right (circle), [2] left (square), [3] top (triangle);
 # axes[0] left stick x (right +1), axes[1] left stick y (down +1), axes[2] right stick x.
