@@ -240,7 +240,8 @@ def _assert_failsafe(vessel: Vessel, neutrals_before: int) -> None:
     assert vessel.spin_until(lambda: vessel.forces[-1].wrench.force.x == 0.0
                              and vessel.forces[-1].wrench.force.y == 0.0
                              and vessel.forces[-1].wrench.torque.z == 0.0)
-    assert vessel.joys[-1].axes[1] == 0.0
+    # (joy and joy/connected are two topics: their samples may arrive in either order)
+    assert vessel.spin_until(lambda: vessel.joys[-1].axes[1] == 0.0)
     assert vessel.station.neutrals_sent == neutrals_before + 1 and not vessel.station.driving
     # ...and the station then stays silent: no held command is sent on the page's behalf.
     n = len(vessel.joys)
