@@ -122,7 +122,7 @@ def test_a_key_held_on_the_page_drives_the_simulated_vessel(vessel, browser):
         # w: surge ahead at the page's stick gain: the controller's manual force is ahead...
         assert vessel.spin_until(lambda: any(
             f.wrench.force.x > 0.1 for f in vessel.forces[n_forces:])), 'no surge force'
-        assert vessel.joys[-1].axes[1] > 0.0   # enbarr_ds4: left_y, up = +1
+        assert vessel.spin_until(lambda: vessel.joys[-1].axes[1] > 0.0)  # enbarr_ds4 left_y
         # ...and the simulated vessel moves well beyond what the current alone does.
         assert vessel.spin_until(lambda: abs(vessel.pose()[0] - x0)
                                  + abs(vessel.pose()[1] - y0) > 0.4, 40.0)
@@ -229,7 +229,7 @@ def _drive(vessel: Vessel, browser: webdriver.Chrome) -> int:
     n = len(vessel.forces)
     hold_key(browser, 'w', True)
     assert vessel.spin_until(lambda: any(f.wrench.force.x > 0.1 for f in vessel.forces[n:]))
-    assert vessel.connected[-1] is True and vessel.station.driving
+    assert vessel.spin_until(lambda: vessel.connected[-1] is True) and vessel.station.driving
     return vessel.station.neutrals_sent
 
 
