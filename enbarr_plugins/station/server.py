@@ -103,6 +103,7 @@ class StationServer:
         self._error: BaseException | None = None
         self._sockets: set[web.WebSocketResponse] = set()
         self._closing: set[asyncio.Future[bool]] = set()
+        self._told: set[web.WebSocketResponse] = set()   # watchers told who drives
 
     @property
     def pages(self) -> int:
@@ -188,6 +189,7 @@ class StationServer:
         finally:
             sender.cancel()
             self._sockets.discard(ws)
+            self._told.discard(ws)
             if self.lease.close(ws):
                 self.log('station: the driving page closed: neutral sent, commands stop')
                 self.backend.command(None)
@@ -205,8 +207,11 @@ class StationServer:
             return
         verdict = self.lease.offer(ws, inp, self.clock())
         if verdict == Verdict.TAKEN:
+            self._told.discard(ws)
             self.backend.command(inp)
-        elif verdict == Verdict.NOT_HOLDER:
+        elif verdict == Verdict.NOT_HOLDER and ws not in self._told:
+            # Once per page, not at its input rate: the telemetry shows who drives.
+            self._told.add(ws)
             await ws.send_json({'type': 'error', 'reason': 'another page drives: this one '
                                 'only watches'})
 

@@ -131,7 +131,10 @@ function showStaleness() {
   }
   $('input-stale').hidden = !stale;
   if (t && t.drive) {
-    if (t.drive.holder) setBadge('drive-state', 'driving', '');
+    if (t.drive.holder) {
+      setBadge('drive-state', 'driving', '');
+      if ($('error').textContent.startsWith('another page drives')) setText('error', '');
+    }
     else if (t.drive.taken) setBadge('drive-state', 'watching: another page drives', 'warn');
     else setBadge('drive-state', 'not driving', 'warn');
   }

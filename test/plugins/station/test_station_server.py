@@ -228,6 +228,9 @@ def test_a_second_page_only_watches():
         await until(lambda: len(backend.commands) == 1)
         await b.send_str(send(1, surge=-1.0))
         assert 'another page drives' in (await next_of(b, 'error'))['reason']
+        await b.send_str(send(2, surge=-1.0))
+        await b.send_str('{}')            # an error of its own: the one after the refusal
+        assert 'unknown message' in (await next_of(b, 'error'))['reason']
         assert len(backend.commands) == 1
         await b.close()                      # a watcher leaving sends no neutral
         await asyncio.sleep(0.1)
