@@ -191,9 +191,11 @@ def row(driver: webdriver.Chrome, node: str, name: str) -> Any:
 
 def test_a_gain_edit_is_applied_and_a_refused_one_shows_its_reason(vessel, browser):
     open_page(browser, vessel)
-    browser.find_element(By.ID, 'tab-tune').click()
-    assert poll_until(lambda: len(browser.find_elements(
-        By.CSS_SELECTOR, 'tr.param[data-node="/dp_control"][data-name="kp"]')) == 1, 20.0)
+    browser.find_element(By.ID, 'tab-tune').click()   # (re)loads the table
+    assert poll_until(lambda: browser.find_element(By.ID, 'params').get_attribute(
+        'data-state') == 'ready', 20.0)
+    assert len(browser.find_elements(
+        By.CSS_SELECTOR, 'tr.param[data-node="/dp_control"][data-name="kp"]')) == 1
     kp = list(vessel.dp.get_parameter('kp').value)
     inputs = row(browser, '/dp_control', 'kp').find_elements(By.CSS_SELECTOR, '.editor input')
     assert len(inputs) == 3 and float(inputs[0].get_attribute('value')) == kp[0]
@@ -294,9 +296,10 @@ def test_screenshots_of_the_main_views(vessel, browser, tmp_path):
     hold_key(browser, 'w', False)
     assert browser.save_screenshot(str(out / 'station_drive.png'))
     browser.find_element(By.ID, 'tab-tune').click()
+    assert poll_until(lambda: browser.find_element(By.ID, 'params').get_attribute(
+        'data-state') == 'ready', 20.0)
     browser.find_element(By.ID, 'filter').send_keys('dp_control')
-    assert poll_until(lambda: len(browser.find_elements(By.CSS_SELECTOR, 'tr.param')) > 10,
-                      20.0)
+    assert len(browser.find_elements(By.CSS_SELECTOR, 'tr.param')) > 10
     assert not browser.find_element(By.ID, 'view-drive').is_displayed()
     assert not browser.find_element(
         By.CSS_SELECTOR, 'div.node[data-node="/allocation"]').is_displayed()

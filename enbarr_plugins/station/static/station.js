@@ -297,7 +297,7 @@ function drawMap(t) {
     ctx.beginPath(); ctx.moveTo(px(x), py(y)); ctx.lineTo(px(x2) + 0.01, py(y2)); ctx.stroke();
   }
   ctx.lineWidth = 1;
-  if (t.reference) {
+  if (t.reference && t.mode !== 'manual') {   // in manual the last reference is stale
     ctx.fillStyle = '#2e7d32';
     ctx.beginPath(); ctx.arc(px(t.reference.x), py(t.reference.y), 5, 0, 2 * Math.PI); ctx.fill();
   }
@@ -326,10 +326,17 @@ setInterval(() => {   // shows the loss even when no telemetry comes at all
 }, 250);
 
 // -- tuning ------------------------------------------------------------------------------
+// Only the latest load builds the table (a tab switch may start one while another runs);
+// #params says 'loading' until then, 'ready' after.
+let paramsGeneration = 0;
+
 async function loadParams() {
+  const generation = ++paramsGeneration;
+  const box = $('params');
+  box.dataset.state = 'loading';
   const res = await fetch('/api/params' + (token ? `?token=${encodeURIComponent(token)}` : ''));
   const data = await res.json();
-  const box = $('params');
+  if (generation !== paramsGeneration) return;
   box.textContent = '';
   for (const node of data.nodes) {
     const div = document.createElement('div');
@@ -345,6 +352,7 @@ async function loadParams() {
     box.appendChild(div);
   }
   applyFilter();
+  box.dataset.state = 'ready';
 }
 
 function paramRow(node, p) {
