@@ -15,7 +15,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(include=['enbarr_core*', 'enbarr_plugins*', 'enbarr_interfaces*']),
-    package_data={'': ['py.typed']},
+    # The surface station's page ships inside its package: no build step, no CDN.
+    package_data={'': ['py.typed'], 'enbarr_plugins.station': ['static/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

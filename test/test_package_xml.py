@@ -54,6 +54,8 @@ KEYS = {
     'gpiozero': 'python3-gpiozero',
     'lgpio': 'python3-lgpio',
     'evdev': 'python3-evdev',
+    'aiohttp': 'python3-aiohttp',
+    'selenium': 'python3-selenium',
     'cv2': 'python3-opencv',
     'pytest': 'python3-pytest',
     'websockets': 'python3-websockets',

@@ -18,7 +18,8 @@ Mode rules (buttons named in the profile's ``joy.*`` in the layout of its joysti
 force in manual; the automatic button holds the pose where the vessel is; the guidance button
 follows the path (refused while the guidance node announces no path on
 ``guidance/path_available``); the manual button returns to manual. Every mode change is
-published on ``mode`` (latched) and logged; a refused request is logged with its reason.
+published on ``mode`` (latched) and logged; a refused request is logged with its reason,
+which ``/diagnostics`` also carries (``last_refusal``: the operator station shows it).
 Losing the joystick (loss rule ``timeout``: no ``joy`` sample for ``joy_timeout``; rule
 ``connection``, for drivers that publish only on change: ``joy/connected`` False, or no True
 heartbeat for ``joy_timeout``; see ``control.modes``), the observer dead-reckoning longer
@@ -286,6 +287,7 @@ class DpControlNode(EnbarrNode):
         self.tau = np.zeros(3)
         self.reference = None
         self.refusals = 0
+        self.last_refusal = ''   # '<mode>: <reason>' of the last refused request
         self.bad_references = 0
         self.path_available = False
         self._eta: np.ndarray | None = None
@@ -466,6 +468,7 @@ class DpControlNode(EnbarrNode):
     def _transition(self, t: Transition) -> None:
         if not t.accepted:
             self.refusals += 1
+            self.last_refusal = f'{t.requested.value}: {t.reason}'
             self.get_logger().warn(f'{t.requested.value} mode refused: {t.reason}')
             return
         self._pending = None
@@ -604,6 +607,7 @@ class DpControlNode(EnbarrNode):
             'force_avoidance_min_barrier': 'none' if out is None else out.min_barrier,
             **{f'force_avoidance_{k}': v for k, v in self.force_counts.items()},
             'mode': self.manager.mode.value, 'refusals': self.refusals,
+            'last_refusal': self.last_refusal,
             'joy_rejected': self.manager.rejected_samples,
             'joy_loss_rule': self.manager.loss_rule, 'joy_connected': self.manager.connected,
             'joy_unconnected_samples': self.manager.unconnected_samples,

@@ -61,6 +61,7 @@ BUILTIN: dict[str, str] = {
     'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
     'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
     'foxglove_bridge': 'enbarr_plugins.foxglove.bridge:FoxgloveBridgeNode',
+    'surface_station': 'enbarr_plugins.station.node:SurfaceStationNode',
     # device drivers, each with its emulator (docs/hardware.md)
     'pca9685_thrusters': 'enbarr_plugins.thrusters.pca9685:Pca9685ThrustersNode',
     'pca9685_emulator': 'enbarr_plugins.thrusters.pca9685_emulator:Pca9685EmulatorNode',

@@ -103,6 +103,8 @@ def test_guidance_is_refused_without_a_path(context, executor, spin):
     assert h.node.refusals == 1 and h.node.mode is Mode.MANUAL
     h.joy(joy_msg(*STICKS))
     assert h.modes == ['manual']
+    # The reason reaches /diagnostics, where an operator station reads it.
+    assert h.node.diagnostic_status()[2]['last_refusal'] == 'guidance: no path configured'
 
 
 def test_guidance_with_a_path_is_bumpless_and_follows_it(context, executor, spin):

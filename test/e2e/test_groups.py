@@ -192,6 +192,15 @@ def test_installed_bringup_uses_its_installed_profiles(workspace: Workspace) -> 
             in check.stdout)
 
 
+def test_the_installed_package_carries_the_station_page(workspace: Workspace) -> None:
+    # The surface station serves its page from its package (package_data): no build step,
+    # nothing fetched at run time.
+    from enbarr_plugins.station.server import ASSETS
+    site = next(workspace.install.glob('lib/python3*/site-packages'))
+    static = site / 'enbarr_plugins' / 'station' / 'static'
+    assert sorted(p.name for p in static.iterdir()) == sorted(ASSETS)
+
+
 # -- every wait of the supervisor serves a stop request --------------------------------------
 LONG_DELAY_PROFILE = split_profile({**RESTART_ONCE, 'restart_delay': 3600},
                                    surface=DRIVE_AHEAD)
