@@ -31,6 +31,11 @@ subprotocol, served by the maintained ``foxglove-sdk``) and sees:
   receiver's twist and the joystick topic), with the topic's own type. A message is decoded
   first (bad bytes never reach DDS), then published as an ordinary ROS message, so the
   command receiver's staleness, arbitration and failsafe checks apply to it as to any other.
+  Foxglove's Teleop panel sends an unstamped ``geometry_msgs/Twist``: offered on a topic of
+  ``geometry_msgs/TwistStamped`` (``surface_command/twist``), each one is stamped with the
+  bridge's clock as it arrives (frame ``base_link``), so its age at the receiver is the
+  bridge's latency, and a panel that stops sending leaves the receiver's timeout to zero the
+  goal as for any source.
 
 Why both are off and the server binds to loopback by default: anyone who reaches the port
 could retune or drive the vessel, and the protocol has no authentication. Open them in a
@@ -56,6 +61,7 @@ import foxglove
 from foxglove import Channel, Schema, StatusLevel
 from foxglove.websocket import (Capability, ChannelView, Client, ClientChannel, ServerListener,
                                 WebSocketServer)
+from geometry_msgs.msg import Twist, TwistStamped
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
@@ -71,6 +77,9 @@ from enbarr_core.recording.tf import pose_encoder, tf_message_cdr, TF_MESSAGE
 from enbarr_interfaces import topics
 from enbarr_interfaces.topics import TopicSpec
 from enbarr_plugins.foxglove.parameters import foxglove_name, split_name, to_foxglove, to_ros
+
+#: Foxglove's Teleop panel publishes TWIST; a topic of TWIST_STAMPED takes it stamped.
+TWIST, TWIST_STAMPED = 'geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped'
 
 #: The name the server gives itself in its serverInfo.
 SERVER_NAME = 'enbarr'
@@ -140,6 +149,7 @@ class _ClientPublisher:
     topic: str
     cls: type
     publisher: Any
+    stamp_twist: bool = False   # a Twist from the client, published as a TwistStamped now
 
 
 class _Listener(ServerListener):
@@ -543,14 +553,15 @@ class FoxgloveBridgeNode(EnbarrNode):
         except NameValidationException:  # refused below: no allowed topic has that name
             name = topic
         why = None
-        msgtype = self._topic_type(name) or schema_name
+        msgtype = self._topic_type(name) or self._contract_type(name) or schema_name
+        stamp_twist = (schema_name == TWIST and msgtype == TWIST_STAMPED)
         if not s.allow_client_publish:
             why = 'client publish is off (allow_client_publish is false in the profile)'
         elif name not in self._allowed:
             why = f'not one of client_publish_topics ({", ".join(sorted(self._allowed))})'
         elif encoding != MESSAGE_ENCODING:
             why = f'encoding {encoding!r}, not {MESSAGE_ENCODING!r}'
-        elif schema_name != msgtype:
+        elif schema_name != msgtype and not stamp_twist:
             why = f'it carries {msgtype}, the client offers {schema_name}'
         cls = None
         if why is None:
@@ -567,8 +578,16 @@ class FoxgloveBridgeNode(EnbarrNode):
         qos = spec.qos if spec is not None else topics.COMMAND_QOS
         self._refused_channels.discard(key)
         self._client_pubs[key] = _ClientPublisher(name, cls,
-                                                 self.create_publisher(cls, name, qos))
-        self.get_logger().info(f'a Foxglove client publishes to {name}')
+                                                 self.create_publisher(cls, name, qos),
+                                                 stamp_twist)
+        self.get_logger().info(f'a Foxglove client publishes to {name}'
+                               + (' (Twist, stamped on arrival)' if stamp_twist else ''))
+
+    def _contract_type(self, name: str) -> str | None:
+        """Return the type of the contract's topic (``topics.ALL_TOPICS``) named ``name``."""
+        spec = next((t for t in topics.ALL_TOPICS if self.resolve_topic_name(t.name) == name),
+                    None)
+        return spec.type_name if spec is not None else None
 
     def _topic_type(self, name: str) -> str | None:
         types = dict(self.get_topic_names_and_types()).get(name, [])
@@ -586,13 +605,19 @@ class FoxgloveBridgeNode(EnbarrNode):
         if pub is None:
             self.refused_messages += 1
             return
+        cls = Twist if pub.stamp_twist else pub.cls
         try:
-            msg = deserialize_message(data, pub.cls)
+            msg = deserialize_message(data, cls)
         except Exception as err:  # noqa: BLE001 - rclpy raises plain exceptions on bad CDR
             self.refused_messages += 1
             self._status(StatusLevel.Error, f'client message on {pub.topic} dropped: not a '
-                         f'valid {pub.cls.__name__} ({err})')
+                         f'valid {cls.__name__} ({err})')
             return
+        if pub.stamp_twist:   # the Teleop panel's Twist: stamped as it arrives
+            stamped = TwistStamped(twist=msg)
+            stamped.header.stamp = self.get_clock().now().to_msg()
+            stamped.header.frame_id = topics.BODY_FRAME
+            msg = stamped
         pub.publisher.publish(msg)
         self.client_messages += 1
 

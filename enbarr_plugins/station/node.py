@@ -265,10 +265,12 @@ class SurfaceStationNode(EnbarrNode):
         else:
             self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
             self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
+            self._stop_pub = self.create_topic_publisher(topics.SURFACE_STOP)
         self._lights: bool | None = None
         self.commands_sent = 0
         self.neutrals_sent = 0
         self.driving = False   # between an input taken and the neutral that ends it
+        self.surface_stopped = False   # what this station last set on surface_command/stop
         self._param_clients: dict[str, AsyncParameterClient] = {}
         self.create_periodic(1.0, self._report)
 
@@ -355,7 +357,8 @@ class SurfaceStationNode(EnbarrNode):
                 'input_rate': s.input_rate, 'input_timeout': s.input_timeout,
                 'telemetry_rate': s.telemetry_rate,
                 'modes': [list(m) for m in s.joy.modes] if s.joy else [],
-                'lights_executor': s.lights_executor if s.command == 'twist' else ''}
+                'lights_executor': s.lights_executor if s.command == 'twist' else '',
+                'surface_stop': s.command == 'twist'}
 
     def command(self, inp: DriveInput | None) -> None:
         """Publish the command of ``inp`` (None: the neutral one, once, ending the drive)."""
@@ -387,10 +390,24 @@ class SurfaceStationNode(EnbarrNode):
             self.commands_sent += 1
             self.driving = True
 
+    def surface_stop(self, stop: bool) -> str:
+        """Set or release ``surface_command/stop``; '' when done, else why not.
+
+        The topic is latched; the command receiver holds the goal at zero while it is set,
+        whatever any command source sends.
+        """
+        if self.settings.command != 'twist':
+            return ('no surface stop on a joystick vessel: its operator modes decide (manual '
+                    'with the sticks at rest stops it)')
+        self._stop_pub.publish(Bool(data=stop))
+        self.surface_stopped = stop
+        return ''
+
     def telemetry(self) -> dict[str, Any]:
         """Return the latest state, JSON-ready (see the module docstring)."""
         latest = dict(self._latest)
-        out: dict[str, Any] = {'stamp': self.now_ns() * 1e-9}
+        out: dict[str, Any] = {'stamp': self.now_ns() * 1e-9,
+                               'surface_stop': self.surface_stopped}
         for key in ('estimate', 'truth'):
             msg = latest.get(key)
             if msg is not None:

@@ -63,6 +63,9 @@ class StationBackend(Protocol):
     def command(self, inp: DriveInput | None) -> None:
         """Publish the command of ``inp``; None: publish the neutral command once."""
 
+    def surface_stop(self, stop: bool) -> str:
+        """Set or release the vessel's surface stop; '' when done, else why not."""
+
     async def list_params(self) -> list[dict[str, Any]]:
         """Every declared parameter of every node of the process."""
 
@@ -198,6 +201,17 @@ class StationServer:
     async def _on_message(self, ws: web.WebSocketResponse, text: str) -> None:
         try:
             msg = json.loads(text)
+            if isinstance(msg, dict) and msg.get('type') == 'surface_stop':
+                # From any page, driving or watching: whoever sees trouble may stop the vessel
+                if not isinstance(msg.get('stop'), bool):
+                    raise InputError('surface_stop needs "stop": true or false')
+                reason = self.backend.surface_stop(msg['stop'])
+                if reason:
+                    await ws.send_json({'type': 'error', 'reason': reason})
+                else:
+                    self.log(f'station: surface stop {"set" if msg["stop"] else "released"} '
+                             'from a page')
+                return
             if not isinstance(msg, dict) or msg.get('type') != 'input':
                 raise InputError(f'unknown message {str(msg)[:80]!r}')
             inp = parse_input(msg)

@@ -15,7 +15,7 @@ import struct
 import time
 from typing import Any
 
-from geometry_msgs.msg import TwistStamped
+from geometry_msgs.msg import Twist, TwistStamped, Vector3
 from nav_msgs.msg import Odometry
 import pytest
 from rclpy.executors import SingleThreadedExecutor
@@ -401,6 +401,31 @@ def test_a_client_publishes_to_an_allowed_topic_only(context, executor, bridge):
     client.wait(lambda: len(twists) == 2, 'the second twist')
     assert [t.twist.linear.x for t in twists] == [0.4, 0.1]
     assert node.refused_messages == 2
+
+
+def test_the_teleop_panels_twist_is_stamped_on_arrival(context, executor, bridge):
+    # Foxglove's Teleop panel publishes an unstamped geometry_msgs/Twist; the receiver takes a
+    # TwistStamped and refuses a stale one, so the bridge stamps it as it arrives
+    twists, _ = _listen(context, executor)
+    node, client = bridge(allow_client_publish=True)
+    client.channel('/surface_command/twist')
+    client.send('advertise', channels=[
+        {'id': 5, 'topic': '/surface_command/twist', 'encoding': 'cdr',
+         'schemaName': 'geometry_msgs/msg/Twist'}])
+    before = node.get_clock().now().nanoseconds
+    client.send_binary(_client_message(5, Twist(linear=Vector3(x=0.3))))
+    client.wait(lambda: twists, 'the stamped twist in ROS')
+    after = node.get_clock().now().nanoseconds
+    assert twists[0].twist.linear.x == 0.3 and twists[0].header.frame_id == 'base_link'
+    stamp = twists[0].header.stamp.sec * 1_000_000_000 + twists[0].header.stamp.nanosec
+    assert before <= stamp <= after
+    # only onto a TwistStamped topic: a Twist offered for the joystick's topic is refused
+    client.send('advertise', channels=[
+        {'id': 6, 'topic': '/joy', 'encoding': 'cdr', 'schemaName': 'geometry_msgs/msg/Twist'}])
+    client.send_binary(_client_message(6, Twist()))
+    client.send('getParameters', parameterNames=['/foxglove_bridge.port'], id='after')
+    _values(client, 'after')
+    assert len(twists) == 1 and node.refused_messages == 1
 
 
 def test_with_client_publish_off_nothing_reaches_ros(context, executor, bridge):

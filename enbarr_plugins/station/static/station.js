@@ -158,6 +158,14 @@ function buildControls(hello) {
   $('lights-row').hidden = !rov;
 }
 
+// The vessel's surface stop (surface_command/stop): it holds the goal at zero whatever any
+// command source sends, until released; any page may set it.
+function toggleSurfaceStop() {
+  if (!state.ws || state.ws.readyState !== WebSocket.OPEN) return;
+  const on = !(state.telemetry && state.telemetry.surface_stop);
+  state.ws.send(JSON.stringify({ type: 'surface_stop', stop: on }));
+}
+
 function toggleLights() {
   state.lights = !state.lights;
   setText('lights', `lights (l): ${state.lights ? 'on' : 'off'}`);
@@ -169,6 +177,7 @@ document.addEventListener('keydown', (ev) => {
   if (KEYS[k]) { state.held['key-' + k] = KEYS[k]; ev.preventDefault(); }
   else if (k === ' ') { releaseAll(); ev.preventDefault(); }
   else if (k === 'l' && state.hello && state.hello.command === 'twist') toggleLights();
+  else if (k === 'x' && state.hello && state.hello.surface_stop) toggleSurfaceStop();
   else if (['1', '2', '3'].includes(k) && state.hello && state.hello.modes[+k - 1]) {
     pressMode(state.hello.modes[+k - 1][1]);
   }
@@ -190,6 +199,7 @@ document.querySelectorAll('.hold').forEach((b) => {
 });
 $('stop').addEventListener('click', releaseAll);
 $('lights').addEventListener('click', toggleLights);
+$('surface-stop').addEventListener('click', toggleSurfaceStop);
 $('gain').addEventListener('input', (ev) => {
   state.gain = Number(ev.target.value);
   setText('gain-value', state.gain.toFixed(2));
@@ -208,6 +218,7 @@ function showTelemetry(t) {
   if (t.truth) pushTrail(state.truthTrail, t.truth);
   setText('mode', t.mode || '-');
   setText('active-source', t.active_source || '-');
+  setText('surface-stop', t.surface_stop ? 'RELEASE STOP (x)' : 'STOP VESSEL (x)');
   let refusal = '-';
   let recording = '-';
   for (const [name, st] of Object.entries(t.diagnostics || {})) {
