@@ -12,9 +12,7 @@ import pytest
 
 from support.cli import enbarr
 
-# alone: its rates and its time to neutral are judged against real time, which a second
-# worker's processes on a 2-core machine would stretch
-pytestmark = [pytest.mark.e2e, pytest.mark.alone]
+pytestmark = pytest.mark.e2e
 
 
 @pytest.fixture(scope='module')

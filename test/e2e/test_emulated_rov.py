@@ -18,9 +18,7 @@ from support.cli import ENBARR
 
 from enbarr_core.bringup.profile import load_profile
 
-# alone: its rates and its time to neutral are judged against real time, which a second
-# worker's processes on a 2-core machine would stretch
-pytestmark = [pytest.mark.e2e, pytest.mark.alone]
+pytestmark = pytest.mark.e2e
 
 PROFILE = load_profile('enbarr_rov_emulated')
 VERTICAL = ('vert_front_right', 'vert_front_left', 'vert_rear_right', 'vert_rear_left')

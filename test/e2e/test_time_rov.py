@@ -27,9 +27,7 @@ from support.participant import Participant
 from support.processes import bringup, DRIVE_AHEAD, split_profile
 from support.waiting import wait_until
 
-# alone: its rates and its time to neutral are judged against real time, which a second
-# worker's processes on a 2-core machine would stretch
-pytestmark = [pytest.mark.e2e, pytest.mark.alone]
+pytestmark = pytest.mark.e2e
 
 SPLIT_PROFILE = split_profile({'restart_limit': 0},
                               thruster_control={'parameters': {'command_timeout': 1.0}},

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
@@ -28,10 +27,6 @@ from support.processes import bringup, stop
 from support.waiting import poll_until
 
 from enbarr_interfaces import convert, topics
-
-# alone: its rates and its time to neutral are judged against real time, which a second
-# worker's processes on a 2-core machine would stretch
-pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 PROFILE = """
 include: [saucer_sim]
