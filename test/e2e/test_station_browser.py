@@ -25,7 +25,8 @@ import pytest
 from support.browser import chromium, Composed, missing
 from support.waiting import poll_until
 
-pytestmark = pytest.mark.e2e
+# heavy (setup.cfg): a browser or two vessels take the machine; run after the parallel pass
+pytestmark = [pytest.mark.e2e, pytest.mark.heavy]
 
 TOKEN = 'browser-test-token'
 
