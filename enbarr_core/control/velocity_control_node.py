@@ -409,7 +409,10 @@ class VelocityControlNode(EnbarrNode):
         assert self.modes is not None and self.depth_estimator is not None
         assert self.depth_hold is not None and self.heading_hold is not None
         s = self.settings
-        if convert.all_finite(specific_force) and convert.all_finite(q):
+        # Only once a depth has started the estimator: a vehicle without a depth sensor pays
+        # nothing per IMU sample for it.
+        if self.depth_estimator.started and convert.all_finite(specific_force) \
+                and convert.all_finite(q):
             up = float((quat_to_rotmat(q) @ specific_force)[2]) - G
             self.depth_estimator.predict(up, t)
         fallback = self.modes.check(self.depth_age(t))
@@ -418,7 +421,9 @@ class VelocityControlNode(EnbarrNode):
             self._entered(fallback.mode)
             self._publish_mode()
         mode = self.modes.mode
-        nu_ref, nu_ref_dot = (a.copy() for a in self.reference.step(goal, dt))
+        nu_ref, nu_ref_dot = self.reference.step(goal, dt)
+        if mode in (STABILIZE, DEPTH_HOLD):   # the holds overwrite axes: not the model's own
+            nu_ref, nu_ref_dot = nu_ref.copy(), nu_ref_dot.copy()
         if mode == MANUAL:
             self.output = None
             return np.array(manual_force(tuple(goal.tolist()), s.full_stick,
