@@ -12,9 +12,8 @@ until released.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 import json
-import threading
 from typing import Any
 
 import aiohttp
@@ -22,6 +21,7 @@ from geometry_msgs.msg import TwistStamped
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from support.station import SpinningExecutor, until
 from std_msgs.msg import String
 
 from enbarr_core.control.command_receiver_node import CommandReceiverNode
@@ -64,17 +64,10 @@ class Rig:
             executor.add_node(n)
         for n in (self.receiver, self.station, self.autonomy):
             n.start()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, args=(executor,), daemon=True)
-        self._thread.start()
-
-    def _spin(self, executor: Any) -> None:
-        while not self._stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
+        self.spinner = SpinningExecutor(executor)
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
+        self.spinner.stop()
         self.station.stop()
 
     @property
@@ -89,14 +82,6 @@ def rig(context: Any, executor: Any) -> Iterator[Rig]:
         yield r
     finally:
         r.close()
-
-
-async def until(condition: Callable[[], bool], timeout: float = 15.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, 'condition not met in time'
-        await asyncio.sleep(0.02)
 
 
 async def drive(ws: aiohttp.ClientWebSocketResponse, surge: float, done: asyncio.Event) -> None:

@@ -8,9 +8,8 @@ goal and io requests: what the vessel does, not what the station says it did.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 import json
-import threading
 from typing import Any
 
 import aiohttp
@@ -19,6 +18,7 @@ import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from support.station import SpinningExecutor, until
 
 from enbarr_core.control.command_receiver_node import CommandReceiverNode
 from enbarr_core.framework.errors import ConfigurationError
@@ -61,17 +61,10 @@ class Rig:
             executor.add_node(n)
         self.receiver.start()
         self.station.start()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, args=(executor,), daemon=True)
-        self._thread.start()
-
-    def _spin(self, executor: Any) -> None:
-        while not self._stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
+        self.spinner = SpinningExecutor(executor)
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
+        self.spinner.stop()
         self.station.stop()
 
     @property
@@ -86,14 +79,6 @@ def rig(context: Any, executor: Any) -> Iterator[Rig]:
         yield r
     finally:
         r.close()
-
-
-async def until(condition: Callable[[], bool], timeout: float = 15.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, 'condition not met in time'
-        await asyncio.sleep(0.02)
 
 
 class Page:
