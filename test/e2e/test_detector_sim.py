@@ -15,7 +15,8 @@ from support.cli import ENBARR
 
 from enbarr_interfaces.detections import from_cloud
 
-pytestmark = pytest.mark.e2e
+# alone (setup.cfg): judged against real time, the emulators starve beside another worker
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 DURATION = 15.0
 TOPICS = ['/detections', '/camera/camera_info', '/diagnostics']   # not the images

@@ -18,7 +18,8 @@ from support.cli import ENBARR
 
 from enbarr_core.bringup.profile import load_profile
 
-pytestmark = pytest.mark.e2e
+# alone (setup.cfg): judged against real time, the emulators starve beside another worker
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 PROFILE = load_profile('enbarr_rov_emulated')
 VERTICAL = ('vert_front_right', 'vert_front_left', 'vert_rear_right', 'vert_rear_left')

@@ -23,7 +23,8 @@ from support.cli import ENBARR
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.world.model import Circle
 
-pytestmark = pytest.mark.e2e
+# alone (setup.cfg): judged against real time, the emulators starve beside another worker
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 PROFILE = load_profile('saucer_emulated')
 # The run ends in guidance: bringup stops while the chain drives the azimuths, and the board

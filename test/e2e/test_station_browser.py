@@ -25,8 +25,8 @@ import pytest
 from support.browser import chromium, Composed, missing
 from support.waiting import poll_until
 
-# heavy (setup.cfg): a browser or two vessels take the machine; run after the parallel pass
-pytestmark = [pytest.mark.e2e, pytest.mark.heavy]
+# alone (setup.cfg): a browser or two vessels take the machine; run after the parallel pass
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 TOKEN = 'browser-test-token'
 

@@ -33,8 +33,8 @@ from support.processes import Output, stop
 
 from enbarr_core.bringup.profile import resolve_profile
 
-# heavy (setup.cfg): a browser or two vessels take the machine; run after the parallel pass
-pytestmark = [pytest.mark.e2e, pytest.mark.heavy]
+# alone (setup.cfg): a browser or two vessels take the machine; run after the parallel pass
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 #: The private /30 of the tether (RFC 1918): the vessel's end and the operator's end.
 VESSEL_IP, OPERATOR_IP, PREFIX = '10.200.0.1', '10.200.0.2', 30
