@@ -15,6 +15,7 @@ LSM9DS1-class IMU at 100 Hz).
 
 from __future__ import annotations
 
+from functools import cache
 import math
 
 import numpy as np
@@ -39,6 +40,8 @@ DEPTH_STD = 20.0 / (997.0 * 9.80665)   # 20 Pa of fresh water [m]
 HEADING_STD = math.radians(0.3)
 ACCEL_STD = 0.02
 G = 9.80665
+FAIL_AT = 20.0          # [s] a thruster dies, after the dive and the turn
+DETECTION_DELAY = 0.5   # [s] until the allocator is told (the thruster monitor's latency)
 
 
 # -- the loops alone ----------------------------------------------------------------------
@@ -113,9 +116,11 @@ def plant(scale: float, light: float) -> RigidBodyModel:
         'd_quad': [d * scale for d in v['vehicle.d_quad']]}))
 
 
-def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0):
+def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0,
+                  dead: str | None = None, tell: bool = True):
     """Pilot: full stick down for 4 s, then centred (hold); a yaw turn of 2 s at 10 s; step
-    disturbances at 40 and 50 s."""
+    disturbances at 40 and 50 s. ``dead`` stops at ``FAIL_AT`` whatever it is told; the
+    allocator is told ``DETECTION_DELAY`` later (never when ``tell`` is False)."""
     rng = np.random.default_rng(seed)
     model = plant(scale, light)
     settings = VelocityControlNodeSettings.from_params({
@@ -123,7 +128,9 @@ def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0):
         'kd': [0.0] * 6, 'derivative_filter': 0.02, 'goal_timeout': 1.0, 'max_gap': 0.5,
         'max_future': 0.01, 'velocity_topic': ''})
     control = VelocityController(settings.controller)
-    allocator = ThrustAllocator(sim_thrusters())
+    thrusters = sim_thrusters()
+    allocator = ThrustAllocator(thrusters)
+    index = [th.name for th in thrusters].index(dead) if dead else -1
     depth_hold, heading_hold = DepthHold(DEPTH), HeadingHold(HEADING)
     estimator = DepthEstimator(DepthEstimatorSettings(0.05, 0.002, 0.1, 0.5))
     state = RigidBodyState.at_rest((0.0, 0.0, -0.3), yaw=0.4)
@@ -151,8 +158,12 @@ def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0):
         measured = np.array([math.nan, math.nan, estimator.vertical_velocity,
                              *state.nu[3:6].tolist()])
         out = control.step(nu_d, measured, dt, roll=roll, pitch=pitch)
+        if tell and dead and t >= FAIL_AT + DETECTION_DELAY and not allocator.failed:
+            allocator.fail(dead)
         thrust = allocator.allocate(out.tau)
         tau = thrust.tau_delivered
+        if dead and t >= FAIL_AT:   # the hardware, whatever the allocator assumed
+            tau = tau - allocator.B[:, index] * thrust.thrust[index]
         nu_before = state.nu.copy()
         # step disturbances the model does not know: a yaw moment from 40 s (a tether pulled
         # sideways), 3 N down from 50 s (a sample picked up)
@@ -163,23 +174,120 @@ def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0):
     return log
 
 
-@pytest.mark.sim
-@pytest.mark.parametrize('scale, light', [(1.0, 0.0), (1.3, 2.0)])
-def test_the_rov_dives_and_holds_depth_and_heading_in_a_current(scale, light):
-    log = dive_and_hold(scale, light, seed=11)
+def settled_errors(log) -> tuple[float, float, np.ndarray]:
+    """(depth error RMS [m], max heading error [deg], the heading targets) while settled:
+    from 30 s (the dive, the turn and a failure at ``FAIL_AT`` long past) to the first step,
+    and from 5 s after each step."""
     t = np.array([r[0] for r in log])
     depth = np.array([r[1] for r in log])
     yaw = np.array([r[2] for r in log])
     depth_target = np.array([math.nan if r[3] is None else -r[3] for r in log])
     heading_target = np.array([math.nan if r[4] is None else r[4] for r in log])
     assert 1.5 < depth_target[-1] < 2.5     # the dive went to about 2 m and was held there
-    # settled: before the steps, and from 5 s after each
     settled = ((t > 30.0) & (t < 40.0)) | ((t > 45.0) & (t < 50.0)) | (t > 55.0)
     depth_err = depth[settled] - depth_target[settled]
     heading_err = np.degrees(np.abs([ssa(a - b) for a, b in zip(yaw[settled],
                                                                   heading_target[settled])]))
-    rms = float(np.sqrt(np.mean(depth_err ** 2)))
+    return float(np.sqrt(np.mean(depth_err ** 2))), float(heading_err.max()), heading_target
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize('scale, light', [(1.0, 0.0), (1.3, 2.0)])
+def test_the_rov_dives_and_holds_depth_and_heading_in_a_current(scale, light):
+    rms, heading, heading_target = settled_errors(dive_and_hold(scale, light, seed=11))
     assert rms <= 0.02, f'depth error RMS {rms:.4f} m'
-    assert float(heading_err.max()) <= 1.0, f'heading error {heading_err.max():.2f} deg'
+    assert heading <= 1.0, f'heading error {heading:.2f} deg'
     # the turn happened (the heading target moved by the turn, about 1 rad)
     assert abs(ssa(heading_target[-1] - 0.4)) > 0.5
+
+
+def after_failure(log) -> tuple[float, float]:
+    """(depth error RMS [m] from ``FAIL_AT`` to the first step, max heading error [deg] from
+    ``FAIL_AT`` to the end, the yaw step included): what a lost thruster shows."""
+    rows = [r for r in log if r[0] >= FAIL_AT]     # both holds engaged long before
+    t = np.array([r[0] for r in rows])
+    depth_err = np.array([r[1] + r[3] for r in rows])    # depth minus target (target is -z)
+    heading_err = np.degrees(np.abs([ssa(r[2] - r[4]) for r in rows]))
+    return (float(np.sqrt(np.mean(depth_err[t < 40.0] ** 2))), float(heading_err.max()))
+
+
+@cache
+def nominal_after_failure() -> tuple[float, float]:
+    """``after_failure`` of the plant 30 % off on eight thrusters (deterministic)."""
+    return after_failure(dive_and_hold(1.3, 2.0, seed=11))
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize('dead', ['vert_front_left', 'front_right'])
+def test_one_of_eight_thrusters_dies_in_depth_hold(dead):
+    """The plant 30 % off and 2 N light; a thruster dies at 20 s, the allocator is told half a
+    second later: depth and heading stay within twice their nominal errors."""
+    nominal = nominal_after_failure()
+    failed = after_failure(dive_and_hold(1.3, 2.0, seed=11, dead=dead))
+    print(f'\n{dead}: depth RMS {failed[0] * 1e3:.1f} mm (nominal {nominal[0] * 1e3:.1f}), '
+          f'heading max {failed[1]:.2f} deg (nominal {nominal[1]:.2f})')
+    assert failed[0] <= 2.0 * nominal[0], (failed, nominal)
+    assert failed[1] <= 2.0 * nominal[1], (failed, nominal)
+
+
+@pytest.mark.sim
+def test_a_dead_vertical_thruster_never_told_misses_the_bound():
+    """Without telling the allocator, the hold alone (its integral) does not keep the depth
+    within twice nominal: what the bound above is there to catch."""
+    nominal = nominal_after_failure()
+    untold = after_failure(dive_and_hold(1.3, 2.0, seed=11, seconds=40.0,
+                                         dead='vert_front_left', tell=False))
+    print(f'\nuntold: depth RMS {untold[0] * 1e3:.1f} mm (nominal {nominal[0] * 1e3:.1f})')
+    assert untold[0] > 2.0 * nominal[0], (untold, nominal)
+
+
+def stabilize_under_step(level_gain: float | None = None, seconds: float = 30.0):
+    """Stabilize (no depth sensor): sticks centred, roll and pitch levelled, the heading held;
+    from 10 s a payload hung off-centre pulls 2 N m in roll and -2 N m in pitch. The plant is
+    30 % off the controller's model. ``level_gain`` replaces the profile's (None: keep it).
+    Returns rows (t, roll, pitch, heading error) [s, rad, rad, rad]."""
+    rng = np.random.default_rng(5)
+    model = plant(1.3, 2.0)
+    params = {**vehicle_parameters(), 'kd': [0.0] * 6, 'derivative_filter': 0.02,
+              'goal_timeout': 1.0, 'max_gap': 0.5, 'max_future': 0.01, 'velocity_topic': ''}
+    if level_gain is not None:
+        params['level_gain'] = level_gain
+    control = VelocityController(VelocityControlNodeSettings.from_params(params).controller)
+    allocator = ThrustAllocator(sim_thrusters())
+    heading_hold = HeadingHold(HEADING)
+    state = RigidBodyState.at_rest((0.0, 0.0, -1.0), yaw=-0.7)
+    dt = 0.01
+    log = []
+    for k in range(int(seconds / dt)):
+        t = k * dt
+        roll, pitch, yaw = quat_to_euler(state.q)
+        psi = yaw + HEADING_STD * rng.standard_normal()
+        r_goal = heading_hold.step(0.0, psi, float(state.nu[5]), dt)
+        nu_d = np.array([0.0, 0.0, 0.0, 0.0, 0.0, r_goal])
+        # stabilize measures no linear velocity: the linear axes are the model's feed-forward
+        measured = np.array([math.nan, math.nan, math.nan, *state.nu[3:6].tolist()])
+        out = control.step(nu_d, measured, dt, roll=roll, pitch=pitch)
+        tau = allocator.allocate(out.tau).tau_delivered
+        ext = [0.0, 0.0, 0.0, 2.0, -2.0, 0.0] if t >= 10.0 else [0.0] * 6
+        state = model.step(state, tau, dt, tau_ext=ext)
+        target = heading_hold.target
+        log.append((t, roll, pitch, 0.0 if target is None else ssa(yaw - target)))
+    return np.array(log)
+
+
+@pytest.mark.sim
+def test_stabilize_levels_against_a_step_moment():
+    """5 s after the step, roll and pitch are back within 1 deg of level and the heading
+    within 1 deg; without the leveling term the vehicle hangs at the payload's angle."""
+    log = stabilize_under_step()
+    after = log[log[:, 0] >= 15.0]
+    tilt = np.degrees(np.abs(after[:, 1:3])).max()
+    heading = np.degrees(np.abs(after[:, 3])).max()
+    peak = np.degrees(np.abs(log[log[:, 0] >= 10.0][:, 1:3])).max()
+    print(f'\nstabilize: peak tilt {peak:.2f} deg, then at most {tilt:.2f} deg; '
+          f'heading at most {heading:.2f} deg')
+    assert tilt <= 1.0 and heading <= 1.0, (tilt, heading)
+    unlevelled = stabilize_under_step(level_gain=0.0)
+    hang = np.degrees(np.abs(unlevelled[unlevelled[:, 0] >= 15.0][:, 1:3])).max()
+    print(f'without leveling: {hang:.2f} deg')
+    assert hang > 2.0 * tilt
