@@ -7,11 +7,21 @@ little light or heavy, a current).
 
 Depth (ArduSub's ALT_HOLD: a position loop over a climb-rate loop, the throttle stick
 commanding the climb rate). With the stick outside ``deadband`` the vehicle climbs or dives at
-stick x ``max_climb`` and the target is not held; when the stick comes back to the centre the
-target is taken where the vehicle is then, and held: w_goal = clamp(k (z_target - z), +-
-``max_climb``). z is up (odom ENU: z = -depth). The heave goal is the world's vertical
-velocity, handed to the body's heave axis: the leveling of the velocity loop keeps the two
-within cos(tilt) of each other.
+stick x ``max_climb`` and the target is not held. When the stick comes back to the centre, or
+the mode is entered while the vehicle moves, the vehicle is first brought to a stop from the
+climb rate it had (the stick's, or on entering the measured vertical velocity w0), as
+ArduSub's ALT_HOLD brings the vehicle to its stopping point before holding it; then the target
+is taken where the vehicle is, and held: w_goal = clamp(k (z_target - z), +- ``max_climb``).
+The stop is the critically damped run-down w_goal(t) = w0 (1 + t/T) exp(-t/T), T =
+``stop_time``: its acceleration (``goal_accel``, which the velocity loop feeds forward through
+the vehicle's inertia) starts at zero, peaks at |w0| / (e T) and dies out, so the thrust has
+no step; the vehicle travels 2 w0 T meanwhile. After ``STOP_SPAN`` T (the goal down to 4 % of
+w0) the target is taken where the vehicle is and held. Taking the target at the release
+instant instead steps the goal from the climb rate to zero: the velocity loop's proportional
+term steps the thrust by k_p w0, and the vehicle still overshoots the target by its stopping
+distance. z is up (odom ENU: z = -depth). The heave goal is the world's vertical velocity,
+handed to the body's heave axis: the leveling of the velocity loop keeps the two within
+cos(tilt) of each other.
 
 Heading (ArduSub's STABILIZE and ALT_HOLD yaw): the yaw stick commands a yaw rate; when it
 comes back to the centre the vehicle first lets its yaw rate die out (the "rate-zero phase",
@@ -27,6 +37,12 @@ from dataclasses import dataclass
 import math
 
 from enbarr_core.framework.kinematics import ssa
+
+#: [m/s] A climb rate below this needs no stop: the depth is taken at once.
+STOPPED = 0.005
+#: A stop hands over to the hold after this many ``stop_time``: its goal is down to 4 % of w0,
+#: and what is left of the run-down (w0 T 7 e^-5, under 5 % of its travel) the hold takes up.
+STOP_SPAN = 5.0
 
 
 def _check_positive(**values: float) -> None:
@@ -44,10 +60,11 @@ class DepthHoldSettings:
     deadband: float    # |stick| at or below this is centred (0..1)
     integral_gain: float = 0.0    # k_i: climb rate per metre-second of error [1/s^2]
     integral_limit: float = 0.0   # |k_i integral| at most this [m/s]
+    stop_time: float = 0.4        # T of the stop's run-down [s]
 
     def validate(self) -> None:
         """Raise ``ValueError('field: reason')`` naming the first bad field."""
-        _check_positive(gain=self.gain, max_climb=self.max_climb)
+        _check_positive(gain=self.gain, max_climb=self.max_climb, stop_time=self.stop_time)
         for name in ('integral_gain', 'integral_limit'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -67,27 +84,58 @@ class DepthHold:
         # (a sample picked up, a vehicle trimmed light) needs beyond the velocity loop's own
         # integral. Kept while the stick drives: the load is still there at the next hold.
         self.integral = 0.0
+        #: d(w_goal)/dt of the last step [m/s^2]: the stop's, for the velocity loop's inertia
+        #: feed-forward (0 while the stick drives or the depth is held).
+        self.goal_accel = 0.0
+        self._stop: tuple[float, float] | None = None   # (w0 [m/s], time into the stop [s])
+        self._driving: float | None = None    # the stick's goal at the previous step [m/s]
 
     def engage(self, z: float) -> None:
-        """Hold ``z`` from now (entering the mode: bumpless, the vehicle is already there)."""
-        self.target = z
+        """Hold ``z`` from now (the vehicle is known to be still, there)."""
+        self.target, self._stop, self._driving = z, None, None
 
-    def step(self, stick: float, z: float, dt: float = 0.0) -> float:
+    def release(self) -> None:
+        """Forget the target: entering the mode, the next steps stop the vehicle, then hold."""
+        self.target, self._stop, self._driving = None, None, None
+
+    @property
+    def stopping(self) -> bool:
+        """Whether the vehicle is being brought to a stop (no target yet)."""
+        return self._stop is not None
+
+    def step(self, stick: float, z: float, dt: float = 0.0, w: float = math.nan) -> float:
         """Return the vertical velocity goal [m/s, up] for heave ``stick`` (-1..1) at ``z``.
 
-        ``dt`` [s] since the previous step integrates the error (0: no integration).
+        ``dt`` [s] since the previous step integrates the error and runs a stop (0: no
+        integration and no stop, the depth taken at once); ``w`` [m/s, up]: the measured
+        vertical velocity, where a stop starts on entering the mode (NaN: unknown, none).
         """
         s = self.settings
+        self.goal_accel = 0.0
         if not math.isfinite(stick):
             stick = 0.0
         stick = max(-1.0, min(1.0, stick))
         if abs(stick) > s.deadband:
-            self.target = None
-            return stick * s.max_climb
+            self.target, self._stop = None, None
+            self._driving = stick * s.max_climb
+            return self._driving
+        timed = dt > 0.0 and math.isfinite(dt)
         if self.target is None:
-            self.target = z
+            if self._stop is None:
+                w0 = self._driving if self._driving is not None else w
+                self._driving = None
+                if timed and math.isfinite(w0) and abs(w0) >= STOPPED:
+                    self._stop = (max(-s.max_climb, min(s.max_climb, w0)), 0.0)
+            if self._stop is not None and timed:
+                w0, t = self._stop
+                x = (t + dt) / s.stop_time
+                if x < STOP_SPAN:
+                    self._stop = (w0, t + dt)
+                    self.goal_accel = -w0 * x * math.exp(-x) / s.stop_time
+                    return w0 * (1.0 + x) * math.exp(-x)
+            self.target, self._stop = z, None
         error = self.target - z
-        if dt > 0.0 and math.isfinite(dt):
+        if timed:
             self.integral = max(-s.integral_limit, min(
                 s.integral_limit, self.integral + s.integral_gain * error * dt))
         return max(-s.max_climb, min(s.max_climb, s.gain * error + self.integral))

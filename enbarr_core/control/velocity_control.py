@@ -26,7 +26,11 @@ integral is stored as its contribution (sum of k_i e dt, not k_i times sum of e 
 k_i does not step the output (bumpless); a new k_p or k_d acts at once on e and y_dot_f.
 
 A measured velocity entry that is NaN means "not measured" (e.g. no DVL): that DOF gets the
-feed-forward only, its integral and derivative states are held at zero.
+feed-forward only, its integral and derivative states are held at zero. With
+``freeze_lost_integral`` set (the ROV's pilot modes, where a depth hold that loses its depth
+falls back to stabilize) a DOF that loses its measurement keeps its integral instead, frozen:
+the steady force it learnt (a vehicle trimmed light) is still needed, and dropping it steps the
+output by as much. Its k_p e goes: a reaction to an error that can no longer be measured.
 """
 
 from __future__ import annotations
@@ -93,6 +97,8 @@ class VelocityController:
         self._y_prev = np.full(6, np.nan)        # last measured nu (NaN: none)
         self._y_dot = np.zeros(6)                # filtered d(nu)/dt
         self._prev_all_measured = False
+        #: Keep a DOF's integral, frozen, when its measurement goes (module docstring).
+        self.freeze_lost_integral = False
         self.settings = settings
 
     @property
@@ -206,7 +212,7 @@ class VelocityController:
                                      self._i_lim[w])
             u = base + integral
         if not all_measured:
-            integral[unmeasured] = 0.0
+            integral[unmeasured] = i_old[unmeasured] if self.freeze_lost_integral else 0.0
             u = base + integral
         tau = np.minimum(np.maximum(u, self._tau_lo), self._tau_max)
 

@@ -111,6 +111,9 @@ SPECS = [
               'limit', 'm/s', 1e-3, 10.0),
     ParamSpec('depth_hold.deadband', 0.05, 'Heave stick fraction that counts as centred', '',
               0.0, 0.99),
+    ParamSpec('depth_hold.stop_time', 0.4, 'On release or entering depth_hold the climb-rate '
+              'goal runs down to zero, critically damped with this time constant, before the '
+              'depth is taken (the vehicle travels 2 x climb rate x this)', 's', 0.02, 10.0),
     ParamSpec('heading_hold.gain', 2.0, 'Yaw rate per radian of heading error', '1/s', 1e-3,
               100.0),
     ParamSpec('heading_hold.max_rate', 0.6, "Yaw rate at full yaw stick, and the hold's "
@@ -174,7 +177,8 @@ class VelocityControlNodeSettings:
                                  f'{", ".join(MODES)}')
             depth = DepthHoldSettings(
                 v['depth_hold.gain'], v['depth_hold.max_climb'], v['depth_hold.deadband'],
-                v['depth_hold.integral_gain'], v['depth_hold.integral_limit'])
+                v['depth_hold.integral_gain'], v['depth_hold.integral_limit'],
+                v['depth_hold.stop_time'])
             heading = HeadingHoldSettings(
                 v['heading_hold.gain'], v['heading_hold.max_rate'],
                 v['heading_hold.deadband'], v['heading_hold.settle_rate'],
@@ -261,6 +265,8 @@ class VelocityControlNode(EnbarrNode):
         self.settings = settings
         if self.controller is None:
             self.controller = VelocityController(settings.controller)
+            # a depth hold that falls back to stabilize keeps the heave force it had learnt
+            self.controller.freeze_lost_integral = True
         else:
             self.controller.settings = settings.controller
         reference = VelocityReference(settings.reference_time_constant, settings.max_accel)
@@ -343,7 +349,7 @@ class VelocityControlNode(EnbarrNode):
     def _entered(self, mode: str) -> None:
         """Start a mode from where the vehicle is (bumpless): the holds take their targets."""
         assert self.depth_hold is not None and self.heading_hold is not None
-        self.depth_hold.target = None
+        self.depth_hold.release()
         self.heading_hold.target = None
         if mode != MANUAL and self.controller is not None and self._was_manual:
             self.controller.reset()
@@ -434,8 +440,9 @@ class VelocityControlNode(EnbarrNode):
             nu_ref_dot[5] = 0.0
         if mode == DEPTH_HOLD:
             z = -self.depth_estimator.depth
-            nu_ref[2] = self.depth_hold.step(goal[2] / s.depth_hold.max_climb, z, dt)
-            nu_ref_dot[2] = 0.0
+            nu_ref[2] = self.depth_hold.step(goal[2] / s.depth_hold.max_climb, z, dt,
+                                             self.depth_estimator.vertical_velocity)
+            nu_ref_dot[2] = self.depth_hold.goal_accel   # a stop's deceleration, else 0
             nu = nu.copy()
             nu[2] = self.depth_estimator.vertical_velocity  # level: body heave ~ world w
         if mode in (STABILIZE, DEPTH_HOLD):

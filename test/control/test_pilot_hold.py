@@ -25,7 +25,7 @@ from support.rov import sim_parameters, sim_thrusters, vehicle_parameters
 from enbarr_core.allocation.fixed import ThrustAllocator
 from enbarr_core.control.pilot_hold import (
     DepthHold, DepthHoldSettings, HeadingHold, HeadingHoldSettings)
-from enbarr_core.control.velocity_control import VelocityController
+from enbarr_core.control.velocity_control import VelocityController, VelocityReference
 from enbarr_core.control.velocity_control_node import VelocityControlNodeSettings
 from enbarr_core.estimation.depth_estimator import DepthEstimator, DepthEstimatorSettings
 from enbarr_core.framework.kinematics import quat_to_euler, quat_to_rotmat, ssa
@@ -41,6 +41,7 @@ HEADING_STD = math.radians(0.3)
 ACCEL_STD = 0.02
 G = 9.80665
 FAIL_AT = 20.0          # [s] a thruster dies, after the dive and the turn
+ENGAGE, STALE = 8.0, 30.0   # [s] depth hold entered mid-dive; its depth lost
 DETECTION_DELAY = 0.5   # [s] until the allocator is told (the thruster monitor's latency)
 
 
@@ -118,8 +119,8 @@ def plant(scale: float, light: float) -> RigidBodyModel:
 
 def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0,
                   dead: str | None = None, tell: bool = True):
-    """Pilot: full stick down for 4 s, then centred (hold); a yaw turn of 2 s at 10 s; step
-    disturbances at 40 and 50 s. ``dead`` stops at ``FAIL_AT`` whatever it is told; the
+    """Pilot: full stick down for 3.2 s, then centred (stop, hold); a yaw turn of 2 s at 10 s;
+    step disturbances at 40 and 50 s. ``dead`` stops at ``FAIL_AT`` whatever it is told; the
     allocator is told ``DETECTION_DELAY`` later (never when ``tell`` is False)."""
     rng = np.random.default_rng(seed)
     model = plant(scale, light)
@@ -150,14 +151,16 @@ def dive_and_hold(scale: float, light: float, seed: int, seconds: float = 70.0,
                              stamp)
         psi = yaw + HEADING_STD * rng.standard_normal()
         # the pilot
-        heave_stick = -1.0 if 1.0 <= t < 5.0 else 0.0
+        heave_stick = -1.0 if 1.0 <= t < 4.2 else 0.0   # 1.6 m, and 0.4 m of stop
         yaw_stick = 0.5 if 10.0 <= t < 12.0 else 0.0
         w_goal = depth_hold.step(heave_stick, -estimator.depth, dt)
         r_goal = heading_hold.step(yaw_stick, psi, float(state.nu[5]), dt)
         nu_d = np.array([0.0, 0.0, w_goal, 0.0, 0.0, r_goal])
         measured = np.array([math.nan, math.nan, estimator.vertical_velocity,
                              *state.nu[3:6].tolist()])
-        out = control.step(nu_d, measured, dt, roll=roll, pitch=pitch)
+        # the stop's deceleration fed forward, as the node does
+        accel = np.array([0.0, 0.0, depth_hold.goal_accel, 0.0, 0.0, 0.0])
+        out = control.step(nu_d, measured, dt, nu_d_dot=accel, roll=roll, pitch=pitch)
         if tell and dead and t >= FAIL_AT + DETECTION_DELAY and not allocator.failed:
             allocator.fail(dead)
         thrust = allocator.allocate(out.tau)
@@ -291,3 +294,94 @@ def test_stabilize_levels_against_a_step_moment():
     hang = np.degrees(np.abs(unlevelled[unlevelled[:, 0] >= 15.0][:, 1:3])).max()
     print(f'without leveling: {hang:.2f} deg')
     assert hang > 2.0 * tilt
+
+
+def engage_mid_dive(scale: float, light: float, stop: bool = True, freeze: bool = True):
+    """The node's pilot modes around the heave axis, as ``velocity_control_node._pilot`` runs
+    them: stabilize diving at 0.3 m/s (the goal through the reference model, heave not
+    measured: feed-forward only), depth hold entered at 8 s with the stick centred, the depth
+    going stale at 30 s (the fallback to stabilize). ``stop`` False: the target taken at the
+    instant of entry (as before the stop existed); ``freeze`` False: the heave integral
+    dropped when the fallback loses the measured heave.
+    Returns rows (t, depth [m], tau_z [N], depth target [m] or NaN)."""
+    rng = np.random.default_rng(3)
+    model = plant(scale, light)
+    s = VelocityControlNodeSettings.from_params({
+        **vehicle_parameters(), 'kd': [0.0] * 6, 'derivative_filter': 0.02,
+        'goal_timeout': 1.0, 'max_gap': 0.5, 'max_future': 0.01, 'velocity_topic': ''})
+    control = VelocityController(s.controller)
+    control.freeze_lost_integral = freeze
+    reference = VelocityReference(s.reference_time_constant, s.max_accel)
+    allocator = ThrustAllocator(sim_thrusters())
+    hold = DepthHold(DEPTH)
+    estimator = DepthEstimator(DepthEstimatorSettings(0.05, 0.002, 0.1, 0.5))
+    state = RigidBodyState.at_rest((0.0, 0.0, -0.3))
+    dt, nu_dot, log = 0.01, np.zeros(6), []
+    for k in range(int((STALE + 6.0) / dt)):
+        t = k * dt
+        stamp = int(round(t * 1e9))
+        f = model.specific_force(state, nu_dot)
+        estimator.predict(float((quat_to_rotmat(state.q) @ f)[2]) - G
+                          + ACCEL_STD * rng.standard_normal(), stamp)
+        if k % 5 == 0:
+            estimator.update(-state.p[2] + DEPTH_STD * rng.standard_normal(), DEPTH_STD ** 2,
+                             stamp)
+        goal = np.array([0.0, 0.0, -0.3 if t < ENGAGE else 0.0, 0.0, 0.0, 0.0])
+        nu_ref, nu_ref_dot = reference.step(goal, dt)
+        nu_ref, nu_ref_dot = nu_ref.copy(), nu_ref_dot.copy()
+        measured = np.array([math.nan, math.nan, math.nan, *state.nu[3:6].tolist()])
+        if ENGAGE <= t < STALE:                                  # depth hold
+            if k == round(ENGAGE / dt):
+                hold.release()                                   # the node's _entered
+            w = estimator.vertical_velocity if stop else math.nan
+            nu_ref[2] = hold.step(0.0, -estimator.depth, dt, w)
+            nu_ref_dot[2] = hold.goal_accel
+            measured[2] = estimator.vertical_velocity
+        if t >= ENGAGE:   # the reference carries on from the hold's goal (and after it)
+            reference.nu_ref, reference.nu_ref_dot = nu_ref, nu_ref_dot
+        out = control.step(nu_ref, measured, dt, nu_d_dot=nu_ref_dot)
+        before = state.nu.copy()
+        state = model.step(state, allocator.allocate(out.tau).tau_delivered, dt)
+        nu_dot = (state.nu - before) / dt
+        log.append((t, -state.p[2], float(out.tau[2]),
+                    math.nan if hold.target is None else -hold.target))
+    return np.array(log)
+
+
+def around(log: np.ndarray, t: float) -> float:
+    """The largest change of tau_z from one step to the next within 0.3 s of ``t`` [N]."""
+    w = (log[:, 0] >= t - 0.3) & (log[:, 0] <= t + 0.3)
+    return float(np.abs(np.diff(log[w, 2])).max())
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize('scale, light', [(1.0, 0.0), (1.3, 2.0)])
+def test_depth_hold_entered_mid_dive_is_bumpless(scale, light):
+    """Entered while diving at 0.3 m/s: no step in the heave force, the vehicle stopped and
+    then held where it stopped (no overshoot past the target); the depth lost at 30 s falls
+    back to stabilize keeping the heave integral the hold had learnt. Taking the target at the
+    instant of entry, as before, steps the force by the velocity loop's k_p w and overshoots;
+    dropping the integral steps the force by what it carried."""
+    log = engage_mid_dive(scale, light)
+    entry, fallback = around(log, ENGAGE), around(log, STALE)
+    held = log[(log[:, 0] > STALE - 4.0) & (log[:, 0] < STALE)]
+    target = held[-1, 3]
+    overshoot = float(log[(log[:, 0] >= ENGAGE) & (log[:, 0] < STALE), 1].max() - target)
+    print(f'\nplant {scale}: entry step {entry:.2f} N, overshoot {overshoot * 1e3:.1f} mm, '
+          f'target {target:.3f} m (entered at {log[round(ENGAGE / 0.01), 1]:.3f} m), '
+          f'fallback step {fallback:.2f} N')
+    assert entry < (1.0 if scale == 1.0 else 4.0), entry
+    assert overshoot < 0.03, overshoot
+    assert float(np.abs(held[:, 1] - target).max()) < 0.03
+    assert fallback < (1.0 if scale == 1.0 else 2.0), fallback
+    old = engage_mid_dive(scale, light, stop=False, freeze=False)
+    old_target = old[(old[:, 0] > ENGAGE + 4.0) & (old[:, 0] < STALE)][-1, 3]
+    old_overshoot = float(old[(old[:, 0] >= ENGAGE) & (old[:, 0] < STALE), 1].max()
+                          - old_target)
+    print(f'before: entry step {around(old, ENGAGE):.2f} N, overshoot '
+          f'{old_overshoot * 1e3:.1f} mm, fallback step {around(old, STALE):.2f} N')
+    assert around(old, ENGAGE) > 2.0 * entry and old_overshoot > 2.0 * overshoot
+    if light:     # the integral carries the 2 N the model does not know
+        dropped = around(engage_mid_dive(scale, light, freeze=False), STALE)
+        print(f'integral dropped at the fallback: {dropped:.2f} N')
+        assert dropped > 1.5 * fallback

@@ -115,15 +115,19 @@ def test_depth_hold_holds_where_it_was_engaged_and_pushes_back_down(rov, spin):
     tau = rov.run(1.0)
     assert tau[2] < -1.0
     # back in velocity mode the heave reference goes on from the hold's goal (no step) down
-    # to the zero goal, and then the same rise gives no heave force (heave not measured)
+    # to the zero goal, and then the same rise gets no reaction (heave not measured): the
+    # force left is the heave integral the hold had learnt, frozen
     held = float(rov.node.reference.nu_ref[2])
+    learnt = float(rov.node.output.integral[2])
+    assert learnt < -0.1
     assert held < -0.1
     rov.request('velocity')
     assert spin(rov.executor, lambda: rov.modes and rov.modes[-1] == 'velocity', TIMEOUT)
     rov.run(0.01)
     assert rov.node.reference.nu_ref[2] == pytest.approx(held, abs=0.01)   # 0.5 m/s^2 x 10 ms
     tau = rov.run(3.0)
-    assert abs(tau[2]) < 0.05
+    assert tau[2] == pytest.approx(learnt, abs=0.05)
+    assert rov.run(1.0)[2] == pytest.approx(tau[2], abs=0.05)
 
 
 def test_a_depth_gone_stale_falls_back_to_stabilize_with_the_reason(rov, spin):
@@ -156,3 +160,29 @@ def test_manual_maps_the_goal_to_forces(rov, spin):
     tau = rov.run(0.2)
     np.testing.assert_allclose(tau, [0.5 * TAU_MAX[0], -TAU_MAX[1], 0.0, 0.0, 0.0,
                                      0.5 * TAU_MAX[5]], atol=1e-9)
+
+
+def test_entering_depth_hold_while_diving_stops_the_vehicle_without_a_step(rov, spin):
+    """Diving at 0.3 m/s in velocity mode, the pilot centres the stick and asks for depth hold:
+    the hold first runs the climb rate down from the measured one (its deceleration fed
+    forward), so the heave force carries on from where it was; the depth is taken once the
+    run-down is over."""
+    rov.goal([0.0, 0.0, -0.3, 0.0, 0.0, 0.0])
+    for _ in range(40):            # 4 s: the estimator learns the 0.3 m/s descent
+        rov.depth += 0.03
+        rov.run(0.1)
+    assert rov.node.depth_estimator.vertical_velocity == pytest.approx(-0.3, abs=0.03)
+    before = rov.taus[-1][2]
+    rov.goal([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    rov.request('depth_hold')
+    assert spin(rov.executor, lambda: rov.modes and rov.modes[-1] == 'depth_hold', TIMEOUT)
+    rov.depth += 0.003
+    after = rov.run(0.01)[2]
+    assert rov.node.depth_hold.stopping and rov.node.depth_hold.target is None
+    # taking the depth at once steps it by k_p w = 20 x 0.3 = 6 N; here only the model's
+    # feed-forward at the estimated rate differs from the reference's
+    assert abs(after - before) < 2.0, (before, after)
+    assert rov.node.reference.nu_ref_dot[2] > 0.0     # braking the descent, fed forward
+    for _ in range(30):            # the run-down (5 stop_time = 2 s) ends: the depth is taken
+        rov.run(0.1)
+    assert not rov.node.depth_hold.stopping and rov.node.depth_hold.target is not None
