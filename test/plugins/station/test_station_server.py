@@ -34,6 +34,7 @@ class FakeBackend:
         self.watching: list[bool] = []
         self.frame: CameraFrame | None = None
         self.boxes: list[Boxes] = []
+        self.camera_calls = 0
 
     def hello(self) -> dict[str, Any]:
         return {'command': 'joy', 'input_rate': 20.0, 'input_timeout': TIMEOUT, 'modes': []}
@@ -56,6 +57,7 @@ class FakeBackend:
         self.watching.append(watch)
 
     def camera(self) -> tuple[CameraFrame | None, list[Boxes]]:
+        self.camera_calls += 1
         return self.frame, list(self.boxes)
 
     async def list_params(self) -> list[dict[str, Any]]:
@@ -327,7 +329,10 @@ def test_the_camera_is_watched_only_while_a_page_is_on_it():
         assert frame == bytes([0, 0, 0, 7, 0, 0, 0, 9]) + b'\xff\xd8jpeg'
         assert await a.receive_json() == {'type': 'detections', 'stamp': [7, 9],
                                           'boxes': [[2, 0.5, 10.0, 20.0, 30.0, 40.0]]}
-        # Neither is sent again while it is the latest: the next message is the next image.
+        # Neither is sent again while it is the latest: after a few more rounds of the two
+        # senders, the next message is the next image.
+        calls = backend.camera_calls
+        await until(lambda: backend.camera_calls >= calls + 4)
         backend.frame = CameraFrame(8, 0, b'next')
         assert await a.receive_bytes() == bytes([0, 0, 0, 8, 0, 0, 0, 0]) + b'next'
         await a.close()
