@@ -261,12 +261,22 @@ function showRecorder(diags) {
   const name = Object.keys(diags).find((n) => n.endsWith('recorder'));
   if (!name) { setText('rec-state', 'no recorder'); return; }
   const v = diags[name].values || {};
-  const mb = (b) => (b === undefined || b === 'unknown') ? '-' : (Number(b) / 1048576).toFixed(1);
   setText('rec-state', v.recording === 'true' ? 'recording' : diags[name].message);
   setText('rec-bag', v.bag || '-');
-  setText('rec-size', mb(v.bag_bytes));
-  setText('rec-free', mb(v.free_bytes));
+  setText('rec-size', size(v.bag_bytes));
+  setText('rec-free', size(v.free_bytes));
   setText('rec-refusal', v.last_control_refusal || '-');
+}
+
+// Bytes in the largest unit that keeps a number >= 1: a bag of a few seconds is some kB.
+function size(bytes) {
+  if (bytes === undefined || bytes === 'unknown') return '-';
+  let x = Number(bytes);
+  for (const unit of ['B', 'kB', 'MB', 'GB']) {
+    if (x < 1024 || unit === 'GB') return `${x.toFixed(unit === 'B' ? 0 : 1)} ${unit}`;
+    x /= 1024;
+  }
+  return '-';
 }
 
 // -- camera ------------------------------------------------------------------------------
