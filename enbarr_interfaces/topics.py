@@ -167,6 +167,11 @@ SIM_ODOMETRY = TopicSpec(
 SIM_THRUST = TopicSpec(
     'sim/thrust', JointState, SENSOR_QOS, 'N (effort)', BODY_FRAME,
     'Thrust each simulated thruster produces, applied by the simulator.', fast=True)
+RECORDER_CONTROL = TopicSpec(
+    'recorder/control', String, COMMAND_QOS, 'start | stop', '',
+    'Start or stop the recorder (enbarr_core.recording.recorder_node): stop closes the bag, '
+    'start opens a new one beside it. Not latched: a restarted recorder must not replay an '
+    'old word. Refusals and the state are on /diagnostics.')
 DIAGNOSTICS = TopicSpec(
     '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
     'Counters and states of nodes (rejected commands, failsafe, timeouts).')
@@ -303,7 +308,8 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
     TRAJECTORY_REQUEST, PILOT_MODE, PILOT_MODE_REASON, IO_REQUEST, IO_STATE,
     FORCE_COMMAND, THRUSTER_COMMANDS, THRUSTER_OUTPUT, THRUSTER_SENSORS, SIM_IMU, SIM_ODOMETRY,
-    SIM_THRUST, DIAGNOSTICS, MOCAP_POSE, JOY, JOY_CONNECTED, OBSERVER_ODOMETRY, OBSERVER_BIAS,
+    SIM_THRUST, DIAGNOSTICS, RECORDER_CONTROL, MOCAP_POSE, JOY, JOY_CONNECTED,
+    OBSERVER_ODOMETRY, OBSERVER_BIAS,
     OBSERVER_AGE, MODE,
     GUIDANCE_REFERENCE, GUIDANCE_AVOIDANCE, CONTROL_AVOIDANCE, GUIDANCE_PATH_AVAILABLE,
     AZIMUTH_COMMANDS,

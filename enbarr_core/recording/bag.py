@@ -245,6 +245,15 @@ class BagWriter:
         for t, data in checked:  # a file is open: they go in now (and are kept)
             self.write(topic, msgtype, t, data, exact=True)
 
+    def latched_messages(self) -> dict[str, tuple[str, int, tuple[tuple[int, bytes], ...]]]:
+        """Each latched topic's type, depth and kept ``(log time, CDR)`` messages.
+
+        What a bag opened after this one needs to start with the same latched state
+        (``latch(topic, type, depth, messages)``): a recorder stopped and started again.
+        """
+        return {topic: (msgtype, kept.maxlen or 1, tuple(kept))
+                for topic, (msgtype, kept) in self._latched.items()}
+
     def knows_type(self, msgtype: str) -> bool:
         """Whether the Jazzy typestore has a definition of ``msgtype`` (``pkg/msg/Type``)."""
         return msgtype in self.typestore.types

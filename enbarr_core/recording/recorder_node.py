@@ -43,6 +43,16 @@ start, and the free space is checked again at every chunk and flush. When the st
 or falls below the margin the recorder stops queueing, keeps the bag as last flushed, says so on
 ``/diagnostics`` (ERROR) and the log, and reports a problem, so that bringup exits non-zero
 (``EXIT_PROBLEMS``) naming it at the end; the vehicle runs on.
+
+Start and stop (``recorder/control``, std_msgs/String, ``CONTROL_WORDS``): the recorder
+records from its start, into ``path``. ``stop`` closes the bag (complete and readable, as at
+the end of a run); ``start`` opens a new bag beside it in the same directory (``path`` with
+``_1``, ``_2`` ... appended: the first free name), which starts with the latched topics' last
+messages and the frame tree, as every file of a split bag does. A word that does not apply
+(``start`` while recording, ``stop`` while stopped, after a storage failure, an unknown word)
+changes nothing: the reason is logged and kept in ``/diagnostics`` (``last_control_refusal``).
+The status on ``/diagnostics`` (1 Hz) says whether it records, the bag (the open one, or the
+last one closed), its size on disk and the free space there (``shutil.disk_usage``).
 """
 
 from __future__ import annotations
@@ -50,6 +60,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import importlib
+from pathlib import Path
 import queue
 import threading
 import time
@@ -59,6 +70,7 @@ from rclpy.clock import JumpThreshold
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosbags.typesys import get_typestore, Stores
+from std_msgs.msg import String
 
 from enbarr_interfaces import topics
 from enbarr_interfaces.links import LinkPublisher
@@ -138,6 +150,29 @@ DRAIN_SECONDS = 0.02
 QUIET_SECONDS = 0.3
 #: A selected topic not in the graph this long after the start is warned about [s].
 MISSING_WARN_SECONDS = 5.0
+#: What ``recorder/control`` takes: close the bag, or open a new one beside it.
+CONTROL_WORDS = ('start', 'stop')
+
+
+def next_bag_path(base: str | Path, taken: Any = None) -> Path:
+    """Return the first of ``base_1``, ``base_2`` ... that does not exist (``taken``: a test's).
+
+    ``taken(path)`` says whether a path exists (default: the file system).
+    """
+    base = Path(base)
+    exists = taken if taken is not None else (lambda p: p.exists())
+    n = 1
+    while exists(base.with_name(f'{base.name}_{n}')):
+        n += 1
+    return base.with_name(f'{base.name}_{n}')
+
+
+def bag_bytes(path: str | Path) -> int:
+    """Bytes the bag directory's files take on disk now (0: none yet)."""
+    try:
+        return sum(f.stat().st_size for f in Path(path).iterdir() if f.is_file())
+    except OSError:
+        return 0
 
 
 def qos_of(profile: QoSProfile) -> Qos:
@@ -196,6 +231,13 @@ class RecorderNode(EnbarrNode, Recorder):
         self.overflow = 0           # messages dropped because the queue was full
         self.recording = True       # False once the storage failed: nothing is queued then
         self.failure: str | None = None
+        self.paused = False         # stopped through recorder/control: nothing is queued
+        self.bag = Path(self.settings.path)  # the open bag, or the last one closed
+        self.last_control_refusal = ''
+        self._opened = False        # the first bag was opened (start may run again)
+        self._steps: list[Any] = []  # every _control step, replayed into a new bag
+        # The closed bag's latched topics -> (type, depth, messages): the next bag's start.
+        self._carry: dict[str, tuple[str, int, tuple[tuple[int, bytes], ...]]] = {}
         self._overflow_seen = 0
         self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
@@ -223,6 +265,7 @@ class RecorderNode(EnbarrNode, Recorder):
         self.link_bus.add_tap(self._on_link_publisher)
         self.create_periodic(1.0, self._discover)
         self.create_periodic(1.0, self._report)
+        self.create_topic_subscription(topics.RECORDER_CONTROL, self._on_control)
 
     def _choose_stamp(self) -> None:
         clock = self.get_clock()
@@ -236,9 +279,69 @@ class RecorderNode(EnbarrNode, Recorder):
 
         How the writer learns a topic's offered QoS or that it is latched: before the topic's
         first message (the subscription is made after), without sharing the writer between
-        threads. Never dropped: these are few, one per topic.
+        threads. Never dropped: these are few, one per topic. Kept, so that a bag opened by
+        ``start`` learns them too.
         """
+        self._steps.append(step)
         self._queue.put((None, 0, step))
+
+    def _lifecycle(self, step: Any) -> None:
+        """Run ``step()`` on the writer thread, in order with the messages queued."""
+        self._queue.put((None, 1, step))
+
+    # -- start and stop (recorder/control) ----------------------------------------------------
+    def _on_control(self, msg: String) -> None:
+        reason = self.control(msg.data)
+        if reason:
+            self.last_control_refusal = reason
+            self.get_logger().warn(f'recorder/control {msg.data!r} refused: {reason}')
+        self._report()
+
+    def control(self, word: str) -> str:
+        """Apply one ``recorder/control`` word; '' when done, else why not (nothing changed)."""
+        if word not in CONTROL_WORDS:
+            return f'unknown word {word!r}: one of {", ".join(CONTROL_WORDS)}'
+        if not self.recording:
+            return f'recording failed, it cannot be controlled: {self.failure}'
+        if not self._opened:
+            return 'the recorder has not started yet'
+        if word == 'stop':
+            if self.paused:
+                return f'not recording (the last bag, {self.bag}, is closed)'
+            self.paused = True   # from now on nothing is queued; what is queued goes in
+            self._lifecycle(self._close_bag)
+            self.get_logger().info(f'recording stopped: {self.bag} closed')
+            return ''
+        if not self.paused:
+            return f'already recording to {self.bag}'
+        s = self.settings
+        path = next_bag_path(s.path)
+        try:
+            writer = BagWriter(path, s.flush_seconds, round(s.min_free_space * MB),
+                               split_size=round(s.split_size * MB),
+                               split_seconds=s.split_seconds)
+        except RecorderError as err:
+            return str(err)
+        self._lifecycle(lambda: self._open_bag(writer))
+        self.bag = path
+        self.paused = False
+        self.get_logger().info(f'recording started: {path}')
+        return ''
+
+    def _close_bag(self) -> None:
+        """Writer thread: close the open bag; keep its latched state for the next one."""
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            self._carry = writer.latched_messages()
+            self._guarded(writer.close)
+
+    def _open_bag(self, writer: BagWriter) -> None:
+        """Writer thread: what every topic offered and the latched messages, then record."""
+        for step in list(self._steps):   # one made meanwhile also comes through the queue
+            step(writer)
+        for topic, (msgtype, depth, messages) in self._carry.items():
+            writer.latch(topic, msgtype, depth, messages)
+        self.writer = writer
 
     def _put(self, item: tuple[tuple[str, str, Any], int, Any]) -> None:
         """Queue one message for the writer; called on the publishers' threads, never waits.
@@ -246,7 +349,7 @@ class RecorderNode(EnbarrNode, Recorder):
         SimpleQueue.qsize and put are single C calls: two threads may both pass the check,
         so the bound can be passed by a message per publishing thread, never more.
         """
-        if not self.recording:
+        if not self.recording or self.paused:
             return
         self._last_received = time.monotonic()
         if self._queue.qsize() >= self.settings.max_queued:
@@ -294,7 +397,8 @@ class RecorderNode(EnbarrNode, Recorder):
         is a problem of the run, not a stop: the vehicle runs on unrecorded.
         """
         super().start()
-        if self.writer is None and self.recording:  # the first start (sources may restart)
+        if not self._opened and self.recording:  # the first start (sources may restart)
+            self._opened = True
             s = self.settings
             self._started_at = time.monotonic()
             try:
@@ -433,22 +537,26 @@ class RecorderNode(EnbarrNode, Recorder):
         # GIL hand-off against the chain's thread) for nearly every message, which costs the
         # writer more CPU per message than draining in batches (docs/benchmarks.md): every
         # DRAIN_SECONDS it takes what has come.
-        writer = self.writer
-        assert writer is not None  # started by start() once the bag is open
+        # self.writer changes only here (``_close_bag``, ``_open_bag``): None while stopped.
         get = self._queue.get_nowait
         while True:
             try:
                 item = get()
             except queue.Empty:
-                if self.recording:
-                    self._guarded(writer.maybe_flush)
+                if self.recording and self.writer is not None:
+                    self._guarded(self.writer.maybe_flush)
                 time.sleep(DRAIN_SECONDS)
                 continue
             if item is _STOP:
                 break
+            writer = self.writer
             if self.recording:
                 try:
-                    if item[0] is None:  # a step for the writer itself (``_control``)
+                    if item[0] is None and item[1]:  # start or stop (``_lifecycle``)
+                        item[2]()
+                    elif writer is None:
+                        continue  # stopped: a step is kept for the next bag (``_steps``)
+                    elif item[0] is None:  # a step for the writer itself (``_control``)
                         item[2](writer)
                     else:
                         self._write(writer, item)
@@ -459,8 +567,8 @@ class RecorderNode(EnbarrNode, Recorder):
                     self.get_logger().error(str(err), throttle_duration_sec=5.0)
                 except Exception as err:  # noqa: BLE001 - recording must fail alone
                     self._stop_recording(f'{self.settings.path}: recording stopped by {err!r}')
-        if self.recording:
-            self._guarded(writer.close)
+        if self.recording and self.writer is not None:
+            self._guarded(self.writer.close)
 
     def _write(self, writer: BagWriter, item: tuple[tuple[str, str, Any], int, Any]) -> None:
         (name, type_name, encode), stamp, msg = item
@@ -517,12 +625,22 @@ class RecorderNode(EnbarrNode, Recorder):
             free = f'{free_bytes(self.settings.path) / MB:.1f}'
         except OSError as err:
             free = f'unknown ({err.strerror})'
+        try:
+            free_b: int | str = free_bytes(self.bag)
+        except OSError:
+            free_b = 'unknown'
+        active = self.recording and self._opened and not self.paused
         values = {'path': self.settings.path, 'written': self.written,
                   'dropped': self.dropped, 'overflow': self.overflow,
-                  'queued': self._queue.qsize(), 'free_space': free}
+                  'queued': self._queue.qsize(), 'free_space': free,
+                  'recording': 'true' if active else 'false', 'bag': str(self.bag),
+                  'bag_bytes': bag_bytes(self.bag), 'free_bytes': free_b,
+                  'last_control_refusal': self.last_control_refusal}
         overflowed, self._overflow_seen = self.overflow > self._overflow_seen, self.overflow
         if not self.recording:
             self.publish_diagnostics(2, f'not recording: {self.failure}', values)
+        elif self.paused:
+            self.publish_diagnostics(0, 'stopped (recorder/control)', values)
         elif overflowed:
             self.publish_diagnostics(1, 'recording, but the writer falls behind: messages '
                                      'dropped (overflow)', values)

@@ -10,14 +10,20 @@ the same machine; on another address (``host``) the URL carries the token every 
   as the CS Saucer) publishes ``joy`` in the profile's ``joy.layout`` with ``joy/connected``,
   as the DualShock 4 driver does (left stick surge and sway, right stick yaw, triangle
   automatic, square guidance, cross manual: the manual's section 3.2.5, named in the profile);
-  ``command: twist`` (the ROV) publishes the velocity goal on ``surface_command/twist`` and the
-  lights on ``surface_command/io``. When the page stops sending (closed, frozen, network lost)
+  ``command: twist`` (the ROV) publishes the velocity goal on ``surface_command/twist``, and
+  the lights and the manipulator's steps on ``surface_command/io`` (executors
+  ``lights_executor`` and ``manipulator_executor``, as the keyboard teleop sends them); their
+  state comes back from ``io_state``. When the page stops sending (closed, frozen, network lost)
   the station publishes one neutral command (sticks at rest and ``joy/connected`` False, or a
   zero twist) and then nothing (``station.protocol``).
 - See: the estimate (or the simulator's truth) on a map with the guidance reference and the
   obstacles, velocities, the azimuths or thruster commands, the mode, why a mode change was
   refused, and every node's ``/diagnostics`` (the recorder's among them). The subscriptions
   only keep the latest message; the server's thread samples them at ``telemetry_rate``.
+  The camera (``camera/image_raw/compressed``) with the boxes of ``detections``: subscribed
+  only while a page watches, the latest JPEG sent at ``camera_rate``.
+- Record: ``start`` and ``stop`` on ``recorder/control``; the recorder's state (recording, the
+  bag, its size, the free space) comes back on its ``/diagnostics``.
 - Tune: every declared parameter of every node of this process, read and set through the
   standard parameter services (what ``ros2 param set`` calls), so the node's own validation
   decides and its refusal reason is shown.
@@ -26,6 +32,7 @@ the same machine; on another address (``host``) the URL carries the token every 
 from __future__ import annotations
 
 import asyncio
+import collections
 from collections.abc import Mapping
 import concurrent.futures
 from dataclasses import dataclass
@@ -39,18 +46,21 @@ from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterDescriptor, P
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Joy
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 
 from enbarr_core.control.joy_layouts import AXIS_CONTROLS, BUTTON_CONTROLS, get_layout, LAYOUTS
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
-from enbarr_interfaces import convert, topics
+from enbarr_interfaces import convert, detections, topics
 from enbarr_interfaces.obstacles import from_cloud, ObstacleEncodingError
-from enbarr_plugins.station.protocol import DriveInput, joy_axes_buttons, twist_of
+from enbarr_plugins.station.protocol import (
+    Boxes, CameraFrame, DriveInput, joy_axes_buttons, twist_of)
 from enbarr_plugins.station.server import is_loopback, StationServer
 
 COMMANDS = ('joy', 'twist')
+#: Detections messages kept for the page: a detector answers an image after it was sent.
+KEPT_DETECTIONS = 8
 #: Bound on one parameter service answer [s]: a node that does not answer is shown as such.
 SERVICE_TIMEOUT = 3.0
 
@@ -73,6 +83,11 @@ SPECS = [
               5.0),
     ParamSpec('max_angular', 0.5, 'Yaw rate goal at full stick (twist)', 'rad/s', 0.0, 5.0),
     ParamSpec('lights_executor', 'gpio_12', 'Executor of the lights (twist)'),
+    ParamSpec('manipulator_executor', 'manipulator', 'Executor of the manipulator (twist)'),
+    ParamSpec('manipulator_step', 50, 'Steps per press of a manipulator button (twist)',
+              'steps', 1, 100000),
+    ParamSpec('camera_rate', 5.0, 'Rate of the camera images sent to a watching page (the '
+              'latest one each time)', 'Hz', 0.5, 30.0, read_only=True),
     ParamSpec('joy.layout', '', 'Joystick layout to publish in (command joy): '
               + ', '.join(LAYOUTS), read_only=True),
     *(ParamSpec(f'joy.{c}', '', f'Axis name of {c} in joy.layout', read_only=True)
@@ -107,6 +122,9 @@ class StationSettings:
     max_angular: float       # [rad/s]
     lights_executor: str
     joy: JoyOutput | None    # command joy only
+    manipulator_executor: str = 'manipulator'
+    manipulator_step: int = 50   # [steps] per button press
+    camera_rate: float = 5.0     # [Hz]
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> StationSettings:
@@ -139,7 +157,8 @@ class StationSettings:
             joy = JoyOutput(layout.rest, tuple(axes), layout.buttons, tuple(modes))
         return cls(v['host'], v['port'], v['token'], v['command'], v['input_rate'],
                    v['input_timeout'], v['telemetry_rate'], v['max_linear'], v['max_angular'],
-                   v['lights_executor'], joy)
+                   v['lights_executor'], joy, v['manipulator_executor'],
+                   v['manipulator_step'], v['camera_rate'])
 
 
 #: ``ParamSpec.descriptor``'s text: the description, `` [units]`` when it has units, then
@@ -259,6 +278,14 @@ class SurfaceStationNode(EnbarrNode):
                           ('goal', topics.TRAJECTORY_REQUEST)):
             self.create_topic_subscription(spec, self._keeper(key))
         self.create_topic_subscription(topics.DIAGNOSTICS, self._on_diagnostics)
+        self._record_pub = self.create_topic_publisher(topics.RECORDER_CONTROL)
+        # The camera: subscribed on the executor's thread (``_camera_subscriptions``) while
+        # the server says a page watches; the callbacks only keep the latest.
+        self._camera_wanted = False
+        self._camera_subs: list[Any] = []
+        self._image: Any = None
+        self._detections: collections.deque[Any] = collections.deque(maxlen=KEPT_DETECTIONS)
+        self._io_state: dict[str, Any] = {}
         if s.command == 'joy':
             self._joy_pub = self.create_topic_publisher(topics.JOY)
             self._connected_pub = self.create_topic_publisher(topics.JOY_CONNECTED)
@@ -266,6 +293,7 @@ class SurfaceStationNode(EnbarrNode):
             self._twist_pub = self.create_topic_publisher(topics.SURFACE_TWIST)
             self._io_pub = self.create_topic_publisher(topics.SURFACE_IO)
             self._stop_pub = self.create_topic_publisher(topics.SURFACE_STOP)
+            self.create_topic_subscription(topics.IO_STATE, self._on_io_state)
         self._lights: bool | None = None
         self.commands_sent = 0
         self.neutrals_sent = 0
@@ -273,6 +301,31 @@ class SurfaceStationNode(EnbarrNode):
         self.surface_stopped = False   # what this station last set on surface_command/stop
         self._param_clients: dict[str, AsyncParameterClient] = {}
         self.create_periodic(1.0, self._report)
+        self.create_periodic(0.2, self._camera_subscriptions)
+
+    def _on_io_state(self, msg: ParameterMsg) -> None:
+        s = self.settings
+        if msg.name in (s.lights_executor, s.manipulator_executor):
+            self._io_state[msg.name] = convert.parameter_value_to_python(msg.value)
+
+    def _camera_subscriptions(self) -> None:
+        """Subscribe to the camera while a page watches, and only then (executor thread)."""
+        if self._camera_wanted and not self._camera_subs:
+            self._camera_subs = [
+                self.create_topic_subscription(topics.CAMERA_COMPRESSED, self._on_image),
+                self.create_topic_subscription(topics.DETECTIONS, self._on_detections)]
+        elif not self._camera_wanted and self._camera_subs:
+            for sub in self._camera_subs:
+                self.destroy_subscription(sub)
+            self._camera_subs = []
+            self._image = None
+            self._detections.clear()
+
+    def _on_image(self, msg: Any) -> None:
+        self._image = msg
+
+    def _on_detections(self, msg: Any) -> None:
+        self._detections.append(msg)
 
     def _apply(self, settings: StationSettings) -> None:
         self.settings = settings
@@ -301,7 +354,8 @@ class SurfaceStationNode(EnbarrNode):
                 self._param_clients[name] = AsyncParameterClient(self, name)
         s = self.settings
         self.server = StationServer(self, s.host, s.port, self._token, s.telemetry_rate,
-                                    s.input_timeout, log=self.get_logger().warn)
+                                    s.input_timeout, s.camera_rate,
+                                    log=self.get_logger().warn)
         try:
             self.server.start()
         except OSError as err:
@@ -358,6 +412,8 @@ class SurfaceStationNode(EnbarrNode):
                 'telemetry_rate': s.telemetry_rate,
                 'modes': [list(m) for m in s.joy.modes] if s.joy else [],
                 'lights_executor': s.lights_executor if s.command == 'twist' else '',
+                'manipulator_executor': s.manipulator_executor if s.command == 'twist' else '',
+                'camera_rate': s.camera_rate,
                 'surface_stop': s.command == 'twist'}
 
     def command(self, inp: DriveInput | None) -> None:
@@ -403,6 +459,48 @@ class SurfaceStationNode(EnbarrNode):
         self.surface_stopped = stop
         return ''
 
+    def manipulator(self, direction: int) -> str:
+        """Ask the manipulator for ``direction`` x ``manipulator_step`` steps; '' or why not.
+
+        The same io request the keyboard teleop sends (``surface_command/io``, int steps), so
+        the command receiver's checks and the stepper's end stops apply.
+        """
+        s = self.settings
+        if s.command != 'twist':
+            return 'no manipulator on a joystick vessel'
+        self._io_pub.publish(ParameterMsg(
+            name=s.manipulator_executor,
+            value=convert.python_to_parameter_value(int(direction) * s.manipulator_step)))
+        return ''
+
+    def record(self, action: str) -> str:
+        """Publish ``action`` on ``recorder/control``; '' when sent, else why not."""
+        if self._record_pub.get_subscription_count() == 0:
+            return 'no recorder runs (bringup --record, or a profile with record:)'
+        self._record_pub.publish(String(data=action))
+        return ''
+
+    def camera_watch(self, watch: bool) -> None:
+        """Whether a page watches the camera (the executor subscribes within 0.2 s)."""
+        self._camera_wanted = watch
+
+    def camera(self) -> tuple[CameraFrame | None, list[Boxes]]:
+        """Return the latest JPEG and the kept detections (called on the server's thread)."""
+        msg = self._image
+        frame = None
+        if msg is not None:
+            frame = CameraFrame(msg.header.stamp.sec, msg.header.stamp.nanosec, bytes(msg.data))
+        out = []
+        for d in list(self._detections):
+            try:
+                rows = detections.from_cloud(d)
+            except detections.DetectionEncodingError:
+                continue
+            out.append(Boxes(d.header.stamp.sec, d.header.stamp.nanosec, tuple(
+                (int(r['class_id']), float(r['score']), float(r['x_min']), float(r['y_min']),
+                 float(r['x_max']), float(r['y_max'])) for r in rows)))
+        return frame, out
+
     def telemetry(self) -> dict[str, Any]:
         """Return the latest state, JSON-ready (see the module docstring)."""
         latest = dict(self._latest)
@@ -441,6 +539,10 @@ class SurfaceStationNode(EnbarrNode):
             except ObstacleEncodingError:
                 out['obstacles'] = []
         out['diagnostics'] = dict(self._diagnostics)
+        if self.settings.command == 'twist':
+            s, io = self.settings, dict(self._io_state)
+            out['io'] = {'lights': io.get(s.lights_executor),
+                         'manipulator': io.get(s.manipulator_executor)}
         return out
 
     async def list_params(self) -> list[dict[str, Any]]:

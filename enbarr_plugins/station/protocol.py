@@ -16,6 +16,20 @@ keyboard onto them). The vessel turns that into its own command (``joy_axes_butt
 ``twist_of``) and answers in every telemetry message with the last ``seq`` and ``t`` it took,
 so the page can tell when its own input no longer gets through.
 
+Besides the input, a page may send ``{"type": "surface_stop", "stop": true}`` (any page),
+``{"type": "manipulator", "direction": 1}`` (or -1: the driving page only; the station moves
+the manipulator ``manipulator_step`` steps that way) and ``{"type": "record", "action":
+"start"}`` (or ``"stop"``: any page; the recorder's ``recorder/control``).
+
+The camera has a WebSocket of its own (``/camera``), so that its frames never queue in front of
+the telemetry and the acknowledgements. The station sends the latest JPEG at ``camera_rate``
+as one binary message (``frame_message``: the image's stamp, then the JPEG), and each
+detections message as text ``{"type": "detections", "stamp": [sec, nanosec], "boxes":
+[[class_id, score, x_min, y_min, x_max, y_max], ...]}`` in the image's pixels. The stamp is
+the image's header stamp (the detector copies it), so the page draws on an image only the
+boxes found in that image. Binary frames, not a multipart MJPEG stream: an ``<img>`` showing
+MJPEG gives the page no stamp for the frame it shows, so boxes could not be matched to it.
+
 The failsafe rule (``DriveLease``): one page drives at a time. While its inputs keep coming,
 each accepted one is published; when they stop for longer than ``input_timeout`` (a frozen tab,
 a lost network) or its WebSocket closes, the lease ends: the station publishes one neutral
@@ -29,6 +43,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import struct
 from typing import Any
 
 #: The page's axis names, in the order ``DriveInput.axes`` keeps them.
@@ -193,3 +208,36 @@ def twist_of(inp: DriveInput | None, max_linear: float,
     surge, sway, heave, yaw = inp.axes
     return (surge * max_linear, sway * max_linear, heave * max_linear, 0.0, 0.0,
             yaw * max_angular)
+
+
+#: Binary camera frame header: the image stamp's sec and nanosec, unsigned 32-bit big-endian.
+FRAME_HEADER = struct.Struct('>II')
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One compressed camera image, as the page gets it."""
+
+    sec: int
+    nanosec: int
+    jpeg: bytes
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """The detections of one image: ``(class_id, score, x_min, y_min, x_max, y_max)`` rows."""
+
+    sec: int
+    nanosec: int
+    rows: tuple[tuple[float, ...], ...]
+
+
+def frame_message(frame: CameraFrame) -> bytes:
+    """Return the binary WebSocket message of ``frame``: ``FRAME_HEADER``, then the JPEG."""
+    return FRAME_HEADER.pack(frame.sec, frame.nanosec) + frame.jpeg
+
+
+def boxes_message(boxes: Boxes) -> dict[str, Any]:
+    """Return the text WebSocket message of ``boxes`` (JSON-ready)."""
+    return {'type': 'detections', 'stamp': [boxes.sec, boxes.nanosec],
+            'boxes': [list(r) for r in boxes.rows]}

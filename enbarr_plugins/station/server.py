@@ -7,7 +7,9 @@ commands go through a ``StationBackend`` (the node, or a fake in the tests).
 
 Routes: ``/`` (the page), ``/static/<asset>`` (only the files of ``ASSETS``, looked up by name,
 so no request can reach another file), ``/ws`` (telemetry out, input in; see
-``station.protocol``), ``GET /api/params`` and ``POST /api/param`` (tuning).
+``station.protocol``), ``/camera`` (the camera's frames and detections, binary and text
+WebSocket messages; the backend subscribes to the camera only while a page watches),
+``GET /api/params`` and ``POST /api/param`` (tuning).
 
 Security: bound to loopback by default. On any other address a token is required (the node
 makes one when none is given): on every request, as ``?token=`` (the URL printed at start),
@@ -34,7 +36,8 @@ from urllib.parse import urlsplit
 from aiohttp import web, WSMsgType
 
 from enbarr_plugins.station.protocol import (
-    DriveInput, DriveLease, InputError, parse_input, Verdict)
+    boxes_message, Boxes, CameraFrame, DriveInput, DriveLease, frame_message, InputError,
+    parse_input, Verdict)
 
 STATIC_DIR = Path(__file__).with_name('static')
 #: Every file the server hands out: name -> content type. Nothing else is served.
@@ -66,6 +69,18 @@ class StationBackend(Protocol):
     def surface_stop(self, stop: bool) -> str:
         """Set or release the vessel's surface stop; '' when done, else why not."""
 
+    def manipulator(self, direction: int) -> str:
+        """Move the manipulator one step amount in ``direction`` (1, -1); '' or why not."""
+
+    def record(self, action: str) -> str:
+        """Ask the recorder to ``start`` or ``stop``; '' when asked, else why not."""
+
+    def camera_watch(self, watch: bool) -> None:
+        """Take that a page started (True) or the last one stopped (False) watching."""
+
+    def camera(self) -> tuple[CameraFrame | None, list[Boxes]]:
+        """Return the latest camera frame and the latest detections (oldest first)."""
+
     async def list_params(self) -> list[dict[str, Any]]:
         """Every declared parameter of every node of the process."""
 
@@ -87,7 +102,7 @@ class StationServer:
     """The aiohttp application on its own thread (see the module docstring)."""
 
     def __init__(self, backend: StationBackend, host: str, port: int, token: str,
-                 telemetry_rate: float, input_timeout: float,
+                 telemetry_rate: float, input_timeout: float, camera_rate: float = 5.0,
                  clock: Callable[[], float] = time.monotonic,
                  log: Callable[[str], None] = print) -> None:
         if not is_loopback(host) and not token:
@@ -95,6 +110,9 @@ class StationServer:
         self.backend = backend
         self.host, self.port, self.token = host, port, token
         self.period = 1.0 / telemetry_rate
+        self.camera_period = 1.0 / camera_rate
+        self._watchers: set[web.WebSocketResponse] = set()   # pages on /camera
+        self.frames_sent = 0
         self.lease = DriveLease(input_timeout)
         self.clock = clock
         self.log = log
@@ -120,6 +138,7 @@ class StationServer:
         app.router.add_get('/', self._index)
         app.router.add_get('/static/{name}', self._static)
         app.router.add_get('/ws', self._ws)
+        app.router.add_get('/camera', self._camera)
         app.router.add_get('/api/params', self._params)
         app.router.add_post('/api/param', self._set_param)
         app.on_startup.append(self._on_startup)
@@ -212,6 +231,26 @@ class StationServer:
                     self.log(f'station: surface stop {"set" if msg["stop"] else "released"} '
                              'from a page')
                 return
+            if isinstance(msg, dict) and msg.get('type') == 'record':
+                # From any page: recording commands nothing on the vessel
+                if msg.get('action') not in ('start', 'stop'):
+                    raise InputError('record needs "action": "start" or "stop"')
+                reason = self.backend.record(msg['action'])
+                if reason:
+                    await ws.send_json({'type': 'error', 'reason': f'record: {reason}'})
+                return
+            if isinstance(msg, dict) and msg.get('type') == 'manipulator':
+                direction = msg.get('direction')
+                if direction not in (1, -1) or isinstance(direction, bool):
+                    raise InputError('manipulator needs "direction": 1 or -1')
+                if self.lease.holder is not ws:
+                    # An actuator: only the page that drives moves it
+                    reason = 'only the driving page moves the manipulator'
+                else:
+                    reason = self.backend.manipulator(direction)
+                if reason:
+                    await ws.send_json({'type': 'error', 'reason': reason})
+                return
             if not isinstance(msg, dict) or msg.get('type') != 'input':
                 raise InputError(f'unknown message {str(msg)[:80]!r}')
             inp = parse_input(msg)
@@ -241,6 +280,42 @@ class StationServer:
                 'ended': self.lease.ended, 'timeouts': self.lease.timeouts}
             await ws.send_json({'type': 'telemetry', **data})
             await asyncio.sleep(self.period)
+
+    async def _camera(self, request: web.Request) -> web.StreamResponse:
+        ws = web.WebSocketResponse(timeout=CLOSE_WAIT, heartbeat=None, max_msg_size=4096)
+        await ws.prepare(request)
+        self._watchers.add(ws)
+        if len(self._watchers) == 1:
+            self.backend.camera_watch(True)
+        sender = asyncio.ensure_future(self._send_camera(ws))
+        try:
+            async for _ in ws:   # the page only watches: what it says is ignored
+                pass
+        finally:
+            sender.cancel()
+            self._watchers.discard(ws)
+            if not self._watchers:
+                self.backend.camera_watch(False)
+        return ws
+
+    async def _send_camera(self, ws: web.WebSocketResponse) -> None:
+        """At ``camera_period``: the latest frame if new, and detections not sent yet."""
+        last: tuple[int, int] | None = None
+        told: set[tuple[int, int]] = set()
+        while not ws.closed:
+            frame, detections = self.backend.camera()
+            if frame is not None and (frame.sec, frame.nanosec) != last:
+                last = (frame.sec, frame.nanosec)
+                await ws.send_bytes(frame_message(frame))
+                self.frames_sent += 1
+            stamps = set()
+            for boxes in detections:
+                stamp = (boxes.sec, boxes.nanosec)
+                stamps.add(stamp)
+                if stamp not in told:
+                    await ws.send_json(boxes_message(boxes))
+            told = stamps   # only those the backend still keeps can come again
+            await asyncio.sleep(self.camera_period)
 
     async def _watch(self) -> None:
         """End the lease of a page whose inputs stopped: neutral once, then silence."""

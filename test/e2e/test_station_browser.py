@@ -16,6 +16,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 import os
 from pathlib import Path
+import shutil
+import tempfile
 from typing import Any
 import urllib.error
 import urllib.request
@@ -43,8 +45,10 @@ class Vessel(Composed):
 
     def __init__(self) -> None:
         from enbarr_interfaces import topics
+        self.bags = tempfile.mkdtemp(prefix='enbarr-station-bags-')
         super().__init__('saucer_station_sim', [
-            'station.port=0', f'station.token={TOKEN}', 'station.input_timeout=0.5'])
+            'station.port=0', f'station.token={TOKEN}', 'station.input_timeout=0.5'],
+            record=os.path.join(self.bags, 'bag'))
         self.station = self.node('station')
         self.dp = self.node('dp_control')
         self.joys: list[Any] = []
@@ -66,6 +70,12 @@ class Vessel(Composed):
     def pose(self) -> tuple[float, float]:
         p = self.odometry.pose.pose.position
         return p.x, p.y
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            shutil.rmtree(self.bags, ignore_errors=True)
 
 
 @pytest.fixture(scope='module')
@@ -111,6 +121,66 @@ def test_the_page_loads_and_its_telemetry_follows_the_vessel(vessel, browser):
     assert text(browser, 'mode') == 'manual'
     assert 'az_bow' in browser.find_element(By.ID, 'actuators').text
     assert '/dp_control' in browser.find_element(By.ID, 'diagnostics').text
+    _the_record_buttons_stop_and_start_the_recorder(vessel, browser)
+    _the_camera_shows_an_image_with_its_own_boxes(vessel, browser)
+
+
+def _the_record_buttons_stop_and_start_the_recorder(vessel: Vessel,
+                                                    browser: webdriver.Chrome) -> None:
+    assert poll_until(lambda: text(browser, 'rec-state') == 'recording', 20.0)
+    assert text(browser, 'rec-free').split()[1] in ('kB', 'MB', 'GB')
+    browser.find_element(By.ID, 'rec-stop').click()
+    assert poll_until(lambda: text(browser, 'rec-state') == 'stopped (recorder/control)', 20.0)
+    assert poll_until(lambda: text(browser, 'rec-size') not in ('-', '0 B'), 20.0)
+    browser.find_element(By.ID, 'rec-stop').click()    # a stop while stopped: why not
+    assert poll_until(lambda: text(browser, 'rec-refusal').startswith('not recording'), 20.0)
+    browser.find_element(By.ID, 'rec-start').click()
+    assert poll_until(lambda: text(browser, 'rec-state') == 'recording'
+                      and text(browser, 'rec-bag').endswith('bag_1'), 20.0)
+
+
+def _the_camera_shows_an_image_with_its_own_boxes(vessel: Vessel,
+                                                  browser: webdriver.Chrome) -> None:
+    import cv2
+    import numpy as np
+    from sensor_msgs.msg import CompressedImage
+
+    from enbarr_interfaces import convert, detections, topics
+
+    ok, jpeg = cv2.imencode('.jpg', np.full((120, 160, 3), 40, np.uint8))
+    assert ok
+    images = vessel.probe.create_publisher(CompressedImage, topics.CAMERA_COMPRESSED.name,
+                                           topics.CAMERA_COMPRESSED.qos)
+    boxes = vessel.probe.create_publisher(detections.PointCloud2, topics.DETECTIONS.name,
+                                          topics.DETECTIONS.qos)
+
+    def image(stamp_ns: int) -> CompressedImage:
+        msg = CompressedImage(format='jpeg', data=jpeg.tobytes())
+        convert.ns_to_stamp(stamp_ns, msg.header.stamp)
+        return msg
+
+    def shown() -> list[str]:
+        return browser.execute_script(
+            "const c = document.getElementById('camera');"
+            "return [c.dataset.stamp || '', c.dataset.boxes || '']")
+
+    first = 7 * 10**9 + 5
+    cloud = detections.to_cloud([(0, 0.9, 20.0, 30.0, 100.0, 90.0)], first,
+                                topics.CAMERA_OPTICAL_FRAME)
+    assert not vessel.station._camera_subs       # nobody watches: not subscribed
+    browser.find_element(By.ID, 'camera-toggle').click()
+    assert vessel.spin_until(lambda: (images.publish(image(first)), boxes.publish(cloud),
+                                      shown() == ['7.5', '1'])[2], 30.0), shown()
+    # The box's left edge (x = 20) in the box colour (#00e676) over the image's dark grey.
+    r, g, b, _ = browser.execute_script(
+        "return Array.from(document.getElementById('camera').getContext('2d')"
+        ".getImageData(20, 60, 1, 1).data)")
+    assert g > 150 and r < 100, (r, g, b)
+    # The next image has no detections of its own: the last boxes are not drawn on it.
+    assert vessel.spin_until(lambda: (images.publish(image(first + 1)),
+                                      shown() == ['7.6', '0'])[1], 30.0), shown()
+    browser.find_element(By.ID, 'camera-toggle').click()
+    assert vessel.spin_until(lambda: not vessel.station._camera_subs, 20.0)
 
 
 def test_a_key_held_on_the_page_drives_the_simulated_vessel(vessel, browser):

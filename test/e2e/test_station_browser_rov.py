@@ -81,6 +81,13 @@ def test_the_page_drives_the_rov_and_closing_it_stops_it(rov):
         key(driver, 'l', True)
         assert rov.spin_until(lambda: any(m.name == 'gpio_12' and m.value.bool_value
                                           for m in rov.io))
+        # The manipulator: manipulator_step (50) steps, the keyboard teleop's io request;
+        # the page shows the lights' and the stepper's state from io_state.
+        driver.find_element(By.ID, 'manipulator-plus').click()
+        assert rov.spin_until(lambda: any(m.name == 'manipulator'
+                                          and m.value.integer_value == 50 for m in rov.io))
+        assert poll_until(lambda: driver.find_element(By.ID, 'manipulator-state').text == '50'
+                          and driver.find_element(By.ID, 'lights-state').text == 'on', 20.0)
         neutrals = rov.station.neutrals_sent
         driver.quit()   # w still held
         assert rov.spin_until(lambda: rov.station.neutrals_sent == neutrals + 1)

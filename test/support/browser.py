@@ -58,17 +58,23 @@ def chromium() -> Iterator[Any]:
 class Composed:
     """A profile composed on a thread, and a probe (``sink(topic_spec, callback)``)."""
 
-    def __init__(self, profile: str, overrides: Sequence[str]) -> None:
+    def __init__(self, profile: str, overrides: Sequence[str], record: str | None = None) -> None:
+        """Compose ``profile`` with ``overrides``; ``record``: a bag path, as ``--record``."""
+        from dataclasses import replace
+
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
 
-        from enbarr_core.bringup.compose import composed
-        from enbarr_core.bringup.profile import load_profile
+        from enbarr_core.bringup.compose import add_recorder, composed
+        from enbarr_core.bringup.profile import load_profile, RecordSpec
 
-        self._composed = composed(load_profile(profile, list(overrides)))
+        loaded = load_profile(profile, list(overrides))
+        if record is not None:
+            loaded = add_recorder(replace(loaded, record=RecordSpec(path=record)))
+        self._composed = composed(loaded)
         self.c = self._composed.__enter__()
         try:
             self.c.start()

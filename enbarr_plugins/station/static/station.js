@@ -17,7 +17,7 @@ const token = new URLSearchParams(location.search).get('token');
 const state = {
   ws: null, hello: null, seq: 0, sendTimer: null, held: {}, holdButtons: {}, pressed: {},
   lights: false, lastTelemetry: 0, telemetry: null, trail: [], truthTrail: [], path: null,
-  gain: 0.5,
+  gain: 0.5, camera: null, image: null, boxes: new Map(),
 };
 
 function fmt(x, digits) { return (x === undefined || x === null) ? '-' : Number(x).toFixed(digits); }
@@ -166,6 +166,18 @@ function toggleSurfaceStop() {
   state.ws.send(JSON.stringify({ type: 'surface_stop', stop: on }));
 }
 
+// The manipulator: the driving page asks for manipulator_step steps one way or the other, the
+// same io request the keyboard teleop sends.
+function manipulator(direction) {
+  if (!state.ws || state.ws.readyState !== WebSocket.OPEN) return;
+  state.ws.send(JSON.stringify({ type: 'manipulator', direction }));
+}
+
+function record(action) {
+  if (!state.ws || state.ws.readyState !== WebSocket.OPEN) return;
+  state.ws.send(JSON.stringify({ type: 'record', action }));
+}
+
 function toggleLights() {
   state.lights = !state.lights;
   setText('lights', `lights (l): ${state.lights ? 'on' : 'off'}`);
@@ -178,6 +190,8 @@ document.addEventListener('keydown', (ev) => {
   else if (k === ' ') { releaseAll(); ev.preventDefault(); }
   else if (k === 'l' && state.hello && state.hello.command === 'twist') toggleLights();
   else if (k === 'x' && state.hello && state.hello.surface_stop) toggleSurfaceStop();
+  else if (k === 'm' && state.hello && state.hello.command === 'twist') manipulator(1);
+  else if (k === 'n' && state.hello && state.hello.command === 'twist') manipulator(-1);
   else if (['1', '2', '3'].includes(k) && state.hello && state.hello.modes[+k - 1]) {
     pressMode(state.hello.modes[+k - 1][1]);
   }
@@ -200,6 +214,11 @@ document.querySelectorAll('.hold').forEach((b) => {
 $('stop').addEventListener('click', releaseAll);
 $('lights').addEventListener('click', toggleLights);
 $('surface-stop').addEventListener('click', toggleSurfaceStop);
+$('manipulator-plus').addEventListener('click', () => manipulator(1));
+$('manipulator-minus').addEventListener('click', () => manipulator(-1));
+$('rec-start').addEventListener('click', () => record('start'));
+$('rec-stop').addEventListener('click', () => record('stop'));
+$('camera-toggle').addEventListener('click', toggleCamera);
 $('gain').addEventListener('input', (ev) => {
   state.gain = Number(ev.target.value);
   setText('gain-value', state.gain.toFixed(2));
@@ -227,9 +246,100 @@ function showTelemetry(t) {
   }
   setText('refusal', refusal);
   setText('recording', recording);
+  showRecorder(t.diagnostics || {});
+  if (t.io) {
+    setText('lights-state', t.io.lights === null ? '-' : (t.io.lights ? 'on' : 'off'));
+    setText('manipulator-state', t.io.manipulator === null ? '-' : fmt(t.io.manipulator, 0));
+  }
   showActuators(t);
   showDiagnostics(t.diagnostics || {});
   drawMap(t);
+}
+
+// The recorder's own status (its /diagnostics values): recording or not, the bag, its size.
+function showRecorder(diags) {
+  const name = Object.keys(diags).find((n) => n.endsWith('recorder'));
+  if (!name) { setText('rec-state', 'no recorder'); return; }
+  const v = diags[name].values || {};
+  setText('rec-state', v.recording === 'true' ? 'recording' : diags[name].message);
+  setText('rec-bag', v.bag || '-');
+  setText('rec-size', size(v.bag_bytes));
+  setText('rec-free', size(v.free_bytes));
+  setText('rec-refusal', v.last_control_refusal || '-');
+}
+
+// Bytes in the largest unit that keeps a number >= 1: a bag of a few seconds is some kB.
+function size(bytes) {
+  if (bytes === undefined || bytes === 'unknown') return '-';
+  let x = Number(bytes);
+  for (const unit of ['B', 'kB', 'MB', 'GB']) {
+    if (x < 1024 || unit === 'GB') return `${x.toFixed(unit === 'B' ? 0 : 1)} ${unit}`;
+    x /= 1024;
+  }
+  return '-';
+}
+
+// -- camera ------------------------------------------------------------------------------
+// Its own WebSocket (/camera): binary messages are frames (sec, nanosec as big-endian
+// uint32, then the JPEG), text ones the detections of an image, by the image's stamp. Only
+// the boxes of the image shown are drawn on it.
+function toggleCamera() {
+  if (state.camera) {
+    state.camera.close();
+    return;
+  }
+  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  const ws = new WebSocket(`${proto}//${location.host}/camera` + (token ? `?token=${encodeURIComponent(token)}` : ''));
+  ws.binaryType = 'arraybuffer';
+  state.camera = ws;
+  setText('camera-toggle', 'stop watching');
+  setText('camera-state', 'waiting for an image');
+  ws.onmessage = (ev) => {
+    if (typeof ev.data === 'string') {
+      const msg = JSON.parse(ev.data);
+      if (msg.type !== 'detections') return;
+      const key = msg.stamp.join('.');
+      state.boxes.set(key, msg.boxes);
+      while (state.boxes.size > 32) state.boxes.delete(state.boxes.keys().next().value);
+      if (state.image && state.image.key === key) drawCamera();
+      return;
+    }
+    const view = new DataView(ev.data);
+    const key = `${view.getUint32(0)}.${view.getUint32(4)}`;
+    createImageBitmap(new Blob([ev.data.slice(8)], { type: 'image/jpeg' })).then((bitmap) => {
+      if (state.image) state.image.bitmap.close();
+      state.image = { key, bitmap };
+      drawCamera();
+    }).catch((err) => setText('camera-state', 'bad image: ' + err));
+  };
+  ws.onclose = () => {
+    state.camera = null;
+    setText('camera-toggle', 'watch');
+    setText('camera-state', 'not watching');
+    $('camera').hidden = true;
+  };
+}
+
+function drawCamera() {
+  const canvas = $('camera');
+  const { key, bitmap } = state.image;
+  if (canvas.width !== bitmap.width) canvas.width = bitmap.width;
+  if (canvas.height !== bitmap.height) canvas.height = bitmap.height;
+  canvas.hidden = false;
+  const ctx = canvas.getContext('2d');
+  ctx.drawImage(bitmap, 0, 0);
+  const boxes = state.boxes.get(key) || [];
+  ctx.strokeStyle = '#00e676';
+  ctx.fillStyle = '#00e676';
+  ctx.lineWidth = 2;
+  ctx.font = '12px sans-serif';
+  for (const [cls, score, x0, y0, x1, y1] of boxes) {
+    ctx.strokeRect(x0, y0, x1 - x0, y1 - y0);
+    ctx.fillText(`${cls} ${score.toFixed(2)}`, x0 + 2, Math.max(12, y0 - 3));
+  }
+  canvas.dataset.stamp = key;        // what is shown, for a reader of the page (the tests)
+  canvas.dataset.boxes = String(boxes.length);
+  setText('camera-state', `${bitmap.width}x${bitmap.height}, ${boxes.length} boxes`);
 }
 
 function pushTrail(trail, p) {

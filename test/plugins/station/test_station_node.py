@@ -38,7 +38,7 @@ def station(context: Any, **params: Any) -> SurfaceStationNode:
 class Rig:
     """Station (twist) + command receiver on a spinning executor, and a probe."""
 
-    def __init__(self, context: Any, executor: Any) -> None:
+    def __init__(self, context: Any, executor: Any, *others: Any) -> None:
         self.receiver = CommandReceiverNode(context=context, parameter_overrides=[
             Parameter('timeout', value=0.5)])
         self.station = station(context, command='twist', max_linear=0.4, max_angular=0.3,
@@ -57,10 +57,12 @@ class Rig:
             topics.TRAJECTORY_REQUEST.qos)
         self.probe.create_subscription(ParameterMsg, topics.IO_REQUEST.name, self.io.append,
                                        topics.IO_REQUEST.qos)
-        for n in (self.receiver, self.station, self.probe):
+        for n in (self.receiver, self.station, self.probe, *others):
             executor.add_node(n)
         self.receiver.start()
         self.station.start()
+        for n in others:
+            n.start()
         self.spinner = SpinningExecutor(executor)
 
     def close(self) -> None:
@@ -266,3 +268,113 @@ def test_the_token_is_printed_but_never_logged(context, executor, capsys):
         assert logged and not any('s3cret' in line for line in logged)
     finally:
         node.stop()
+
+
+def test_the_driving_page_moves_the_manipulator_through_the_receiver(rig):
+    async def body() -> None:
+        async with aiohttp.ClientSession() as session:
+            ws = await session.ws_connect(rig.ws_url)
+            hello = await ws.receive_json()
+            assert hello['manipulator_executor'] == 'manipulator'
+            page = Page(ws)
+            await until(lambda: rig.station.driving)
+            await ws.send_str(json.dumps({'type': 'manipulator', 'direction': -1}))
+            # manipulator_step 50 steps, closing: the keyboard teleop's int32 request
+            await until(lambda: any(m.name == 'manipulator' for m in rig.io))
+            (request,) = [m for m in rig.io if m.name == 'manipulator']
+            assert convert.parameter_value_to_python(request.value) == -50
+            page.task.cancel()
+            await ws.close()
+    asyncio.run(body())
+
+
+def test_the_telemetry_shows_the_lights_and_the_manipulator_state(context, executor, spin):
+    from support.nodes import add, probe
+
+    from enbarr_interfaces.links import LinkBus
+
+    node = add(executor, station(context, command='twist'))
+    source = probe(context, executor, 'stepper')
+    pub = source.create_topic_publisher(topics.IO_STATE)
+    LinkBus.of(context).connect()
+    assert node.telemetry()['io'] == {'lights': None, 'manipulator': None}
+    for name, value in (('manipulator', 120), ('gpio_12', True), ('gpio_13', False)):
+        pub.publish(ParameterMsg(name=name, value=convert.python_to_parameter_value(value)))
+    assert spin(executor, lambda: node.telemetry()['io'] == {'lights': True,
+                                                             'manipulator': 120})
+
+
+def test_the_record_buttons_start_and_stop_the_recorder(context, executor, tmp_path):
+    from enbarr_core.recording.recorder_node import RecorderNode
+
+    rec = RecorderNode(context=context, parameter_overrides=[
+        Parameter('path', value=str(tmp_path / 'bag'))])
+    r = Rig(context, executor, rec)
+    try:
+        async def body() -> None:
+            async with aiohttp.ClientSession() as session:
+                ws = await session.ws_connect(r.ws_url)
+                await ws.receive_json()
+                await until(lambda: r.station.record('stop') == '')
+                await until(lambda: rec.paused)
+                await ws.send_str(json.dumps({'type': 'record', 'action': 'start'}))
+                await until(lambda: not rec.paused and rec.bag == tmp_path / 'bag_1')
+                # The page sees the recorder's own state in the telemetry.
+                while True:
+                    msg = await ws.receive_json()
+                    values = msg.get('diagnostics', {}).get('/recorder', {}).get('values', {})
+                    if values.get('bag') == str(tmp_path / 'bag_1'):
+                        break
+                assert values['recording'] == 'true' and int(values['free_bytes']) > 0
+                await ws.close()
+        asyncio.run(body())
+    finally:
+        r.close()
+
+
+def test_without_a_recorder_the_record_button_says_so(context):
+    node = station(context)
+    try:
+        assert node.record('start') == ('no recorder runs (bringup --record, or a profile with '
+                                        'record:)')
+    finally:
+        node.destroy_node()
+
+
+def test_the_camera_is_subscribed_while_a_page_watches(rig):
+    from sensor_msgs.msg import CompressedImage
+
+    from enbarr_interfaces import detections
+
+    image_pub = rig.probe.create_publisher(CompressedImage, topics.CAMERA_COMPRESSED.name,
+                                           topics.CAMERA_COMPRESSED.qos)
+    boxes_pub = rig.probe.create_publisher(detections.PointCloud2, topics.DETECTIONS.name,
+                                           topics.DETECTIONS.qos)
+    stamp_ns = 5 * 10**9 + 6
+    image = CompressedImage(format='jpeg', data=b'\xff\xd8 a jpeg')
+    convert.ns_to_stamp(stamp_ns, image.header.stamp)
+    cloud = detections.to_cloud([(3, 0.75, 10.0, 20.0, 50.0, 60.0)], stamp_ns,
+                                topics.CAMERA_OPTICAL_FRAME)
+
+    async def body() -> None:
+        assert not rig.station._camera_subs     # nobody watches: no subscription
+        async with aiohttp.ClientSession() as session:
+            ws = await session.ws_connect(rig.ws_url[:-len('ws')] + 'camera')
+            await until(lambda: len(rig.station._camera_subs) == 2)
+            got: dict[str, Any] = {}
+
+            async def receive() -> None:
+                while len(got) < 2:
+                    msg = await ws.receive()
+                    key = 'frame' if msg.type == aiohttp.WSMsgType.BINARY else 'boxes'
+                    got[key] = msg.data
+            reader = asyncio.ensure_future(receive())
+            await until(lambda: (image_pub.publish(image), boxes_pub.publish(cloud),
+                                 reader.done())[2])
+            assert got['frame'] == bytes([0, 0, 0, 5, 0, 0, 0, 6]) + b'\xff\xd8 a jpeg'
+            assert json.loads(got['boxes']) == {
+                'type': 'detections', 'stamp': [5, 6],
+                'boxes': [[3, 0.75, 10.0, 20.0, 50.0, 60.0]]}
+            await ws.close()
+            await until(lambda: not rig.station._camera_subs)
+    asyncio.run(body())

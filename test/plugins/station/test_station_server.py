@@ -16,7 +16,7 @@ import aiohttp
 from aiohttp.test_utils import TestClient, TestServer
 import pytest
 
-from enbarr_plugins.station.protocol import DriveInput
+from enbarr_plugins.station.protocol import Boxes, CameraFrame, DriveInput
 from enbarr_plugins.station.server import CLOSE_INPUT_TIMEOUT, StationServer
 
 pytestmark = pytest.mark.unit
@@ -28,6 +28,13 @@ class FakeBackend:
     def __init__(self) -> None:
         self.commands: list[DriveInput | None] = []
         self.set_calls: list[tuple[str, str, Any]] = []
+        self.manipulator_calls: list[int] = []
+        self.record_calls: list[str] = []
+        self.record_reason = ''
+        self.watching: list[bool] = []
+        self.frame: CameraFrame | None = None
+        self.boxes: list[Boxes] = []
+        self.camera_calls = 0
 
     def hello(self) -> dict[str, Any]:
         return {'command': 'joy', 'input_rate': 20.0, 'input_timeout': TIMEOUT, 'modes': []}
@@ -37,6 +44,21 @@ class FakeBackend:
 
     def command(self, inp: DriveInput | None) -> None:
         self.commands.append(inp)
+
+    def manipulator(self, direction: int) -> str:
+        self.manipulator_calls.append(direction)
+        return ''
+
+    def record(self, action: str) -> str:
+        self.record_calls.append(action)
+        return self.record_reason
+
+    def camera_watch(self, watch: bool) -> None:
+        self.watching.append(watch)
+
+    def camera(self) -> tuple[CameraFrame | None, list[Boxes]]:
+        self.camera_calls += 1
+        return self.frame, list(self.boxes)
 
     async def list_params(self) -> list[dict[str, Any]]:
         return [{'node': '/dp_control', 'params': [{'name': 'kp', 'value': [1.0, 2.0, 3.0]}]}]
@@ -120,7 +142,7 @@ def test_no_path_reaches_a_file_outside_the_assets(path):
 
 def test_a_token_is_required_on_every_request_and_the_websocket():
     async def body(client: TestClient, *_: Any) -> None:
-        for path in ('/', '/static/station.js', '/api/params', '/ws'):
+        for path in ('/', '/static/station.js', '/api/params', '/ws', '/camera'):
             assert (await client.get(path)).status == 401, path
             assert (await client.get(path + '?token=wrong')).status == 401, path
         assert (await client.post('/api/param', json={})).status == 401
@@ -253,4 +275,69 @@ def test_the_tuning_api_passes_through_to_the_backend():
         assert (await client.post('/api/param', data='nope')).status == 400
         assert (await client.post('/api/param', json={'node': 1, 'name': 'kp',
                                                       'value': 1})).status == 400
+    run(body)
+
+
+def test_only_the_driving_page_moves_the_manipulator():
+    async def body(client: TestClient, backend: FakeBackend, clock: Clock) -> None:
+        a = await client.ws_connect('/ws')
+        b = await client.ws_connect('/ws')
+        await a.receive_json()
+        await b.receive_json()
+        await a.send_str(send(1))
+        await until(lambda: len(backend.commands) == 1)
+        await a.send_str(json.dumps({'type': 'manipulator', 'direction': -1}))
+        await until(lambda: backend.manipulator_calls == [-1])
+        await b.send_str(json.dumps({'type': 'manipulator', 'direction': 1}))
+        assert (await next_of(b, 'error'))['reason'] == ('only the driving page moves the '
+                                                         'manipulator')
+        for bad in (2, True, '1', None):
+            await a.send_str(json.dumps({'type': 'manipulator', 'direction': bad}))
+            assert 'direction' in (await next_of(a, 'error'))['reason']
+        assert backend.manipulator_calls == [-1]
+        await a.close()
+        await b.close()
+    run(body)
+
+
+def test_any_page_starts_and_stops_the_recorder_and_sees_why_not():
+    async def body(client: TestClient, backend: FakeBackend, clock: Clock) -> None:
+        ws = await client.ws_connect('/ws')
+        await ws.receive_json()
+        await ws.send_str(json.dumps({'type': 'record', 'action': 'stop'}))
+        await ws.send_str(json.dumps({'type': 'record', 'action': 'start'}))
+        await until(lambda: backend.record_calls == ['stop', 'start'])
+        await ws.send_str(json.dumps({'type': 'record', 'action': 'pause'}))
+        assert 'start' in (await next_of(ws, 'error'))['reason']
+        backend.record_reason = 'no recorder runs'
+        await ws.send_str(json.dumps({'type': 'record', 'action': 'start'}))
+        assert (await next_of(ws, 'error'))['reason'] == 'record: no recorder runs'
+        assert backend.commands == []     # recording commands nothing on the vessel
+        await ws.close()
+    run(body)
+
+
+def test_the_camera_is_watched_only_while_a_page_is_on_it():
+    async def body(client: TestClient, backend: FakeBackend, clock: Clock) -> None:
+        backend.frame = CameraFrame(7, 9, b'\xff\xd8jpeg')
+        backend.boxes = [Boxes(7, 9, ((2, 0.5, 10.0, 20.0, 30.0, 40.0),))]
+        a = await client.ws_connect('/camera')
+        b = await client.ws_connect('/camera')
+        await until(lambda: backend.watching == [True])   # once, for the first page
+        frame = await a.receive_bytes()
+        # sec 7 and nanosec 9 as big-endian uint32, then the JPEG as it came
+        assert frame == bytes([0, 0, 0, 7, 0, 0, 0, 9]) + b'\xff\xd8jpeg'
+        assert await a.receive_json() == {'type': 'detections', 'stamp': [7, 9],
+                                          'boxes': [[2, 0.5, 10.0, 20.0, 30.0, 40.0]]}
+        # Neither is sent again while it is the latest: after a few more rounds of the two
+        # senders, the next message is the next image.
+        calls = backend.camera_calls
+        await until(lambda: backend.camera_calls >= calls + 4)
+        backend.frame = CameraFrame(8, 0, b'next')
+        assert await a.receive_bytes() == bytes([0, 0, 0, 8, 0, 0, 0, 0]) + b'next'
+        await a.close()
+        await asyncio.sleep(0.1)
+        assert backend.watching == [True]                 # b still watches
+        await b.close()
+        await until(lambda: backend.watching == [True, False])
     run(body)
