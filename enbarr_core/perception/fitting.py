@@ -132,6 +132,32 @@ def kasa(points: Vector) -> tuple[float, float, float] | None:
         sxz += x * z
         syz += y * z
         sz += z
+    return _kasa_solve(n, mx, my, sxx, sxy, syy, sxz, syz, sz)
+
+
+def kasa_from_sums(n: int, ox: float, oy: float, sums: Sequence[float]
+                   ) -> tuple[float, float, float] | None:
+    """Return :func:`kasa`'s circle from the sums of its n points p - o about o = (ox, oy).
+
+    ``sums``: of x, y, x^2, x y, y^2, x^3, x^2 y, x y^2, y^3 (:func:`cluster_sums`). The
+    centred sums kasa takes follow from them (u = x - mean x, v = y - mean y):
+    sum u^3 = S_xxx - 3 m_x S_xx + 2 n m_x^3 and its kin.
+    """
+    if n < 3:
+        return None
+    sx, sy, sxx, sxy, syy, sxxx, sxxy, sxyy, syyy = sums
+    mx, my = sx / n, sy / n
+    cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my
+    uuu = sxxx - 3.0 * mx * sxx + 2.0 * n * mx * mx * mx
+    uuv = sxxy - 2.0 * mx * sxy - my * sxx + 2.0 * n * mx * mx * my
+    uvv = sxyy - 2.0 * my * sxy - mx * syy + 2.0 * n * mx * my * my
+    vvv = syyy - 3.0 * my * syy + 2.0 * n * my * my * my
+    return _kasa_solve(n, ox + mx, oy + my, cxx, cxy, cyy, uuu + uvv, uuv + vvv, cxx + cyy)
+
+
+def _kasa_solve(n: int, mx: float, my: float, sxx: float, sxy: float, syy: float, sxz: float,
+                syz: float, sz: float) -> tuple[float, float, float] | None:
+    """Kasa's circle from the sums about the mean (mx, my); z = x^2 + y^2 there."""
     # [x y 1] [D E F]^T = -(x^2 + y^2) in least squares; the centred sums of x and y are 0
     sol = _solve([[sxx, sxy, 0.0], [sxy, syy, 0.0], [0.0, 0.0, float(n)]], [-sxz, -syz, -sz])
     if sol is None:
@@ -209,11 +235,11 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
     return x[0], x[1], x[2], jtj, cost
 
 
-def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
-    """Whether the centre lies beyond the points' middle, seen from the sensor."""
-    mx, my = (points.sum(axis=0) / len(points)).tolist()
-    sx, sy = sensor.tolist()
-    return bool((cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0)
+def _behind(cx: float, cy: float, mean: tuple[float, float], sensor: tuple[float, float]
+            ) -> bool:
+    """Whether the centre lies beyond the points' ``mean``, seen from the ``sensor``."""
+    (mx, my), (sx, sy) = mean, sensor
+    return (cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0
 
 
 def fallback_circle(points: Vector, sensor: Vector, sigma: float,
@@ -261,15 +287,25 @@ def _circle_cov(jtj: list[list[float]], e2: float, n: int,
 def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
                max_radius: float) -> CircleFit:
     """Fit a circle to ``points`` seen from ``sensor`` (2,) with range noise ``sigma`` [m]."""
+    mx, my = (points.sum(axis=0) / len(points)).tolist()
+    return _fit_circle(points, kasa(points) if len(points) >= 3 else None, (mx, my), sensor,
+                       sigma, min_radius, max_radius)
+
+
+def _fit_circle(points: Vector, start: tuple[float, float, float] | None,
+                mean: tuple[float, float], sensor: Vector, sigma: float, min_radius: float,
+                max_radius: float) -> CircleFit:
+    """:func:`fit_circle` from Kasa's circle ``start`` and the points' ``mean``."""
     n = len(points)
-    start = kasa(points) if n >= 3 else None
+    sx, sy = sensor.tolist()
+    sxy = (sx, sy)
     if start is not None:
         fit = refine_circle(points, *start)
         if fit is not None:
             cx, cy, radius, jtj, e2 = fit
-            if radius < min_radius and _behind(cx, cy, points, sensor):
+            if radius < min_radius and _behind(cx, cy, mean, sxy):
                 pass   # too small: refit below with the radius held at the minimum
-            elif min_radius <= radius <= max_radius and _behind(cx, cy, points, sensor):
+            elif min_radius <= radius <= max_radius and _behind(cx, cy, mean, sxy):
                 return CircleFit(cx, cy, radius, _circle_cov(jtj, e2, n, sigma),
                                  math.sqrt(e2 / n))
             else:
@@ -279,7 +315,7 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
         # behind the points (started there, so it stays on the far side).
         guess = fallback_circle(points, sensor, sigma, min_radius, min_radius)
         held = refine_circle(points, guess.x, guess.y, min_radius, fixed_radius=True)
-        if held is not None and _behind(held[0], held[1], points, sensor):
+        if held is not None and _behind(held[0], held[1], mean, sxy):
             cx, cy, _, jtj, e2 = held
             # The radius was assumed, not measured: the centre is not known better than it.
             xx, xy, yy = _circle_cov(jtj, e2, n, sigma)
@@ -415,7 +451,7 @@ class ClusterSums:
     count: NDArray[np.intp]   # (K,) points in each cluster
     origin: Vector            # (K, 2) each cluster's first point [m]
     last: Vector              # (K, 2) each cluster's last point minus its first [m]
-    sums: Vector              # (K, 5) sums of x, y, x^2, x y, y^2 about the origin
+    sums: Vector              # (K, 9) of x, y, x^2, x y, y^2, x^3, x^2 y, x y^2, y^3
     low: Vector               # (K, 2) the smallest x and y of each cluster [m]
     high: Vector              # (K, 2) the largest x and y of each cluster [m]
     chord: Vector             # (K,) largest distance of a point from its cluster's chord [m]
@@ -432,7 +468,9 @@ def cluster_sums(points: Vector, start: NDArray[np.intp]) -> ClusterSums:
     origin = points[start]
     rel = points - np.repeat(origin, count, axis=0)
     x, y = rel[:, 0], rel[:, 1]
-    sums = np.add.reduceat(np.stack((x, y, x * x, x * y, y * y)), start, axis=1).T
+    xx, xy, yy = x * x, x * y, y * y
+    sums = np.add.reduceat(np.stack((x, y, xx, xy, yy, xx * x, xx * y, xy * y, yy * y)), start,
+                           axis=1).T
     last = rel[start + count - 1]
     # |(p - a) x (b - a)|, the chord's length times the distance from it
     lx, ly = np.repeat(last, count, axis=0).T
@@ -456,8 +494,9 @@ def fit_clusters(points: Vector, start: NDArray[np.intp], sensors: Vector,
     """
     c = cluster_sums(points, start)
     count = c.count.tolist()
-    lines = [line_from_sums(n, ox, oy, *row) for n, (ox, oy), row
-             in zip(count, c.origin.tolist(), c.sums.tolist())]
+    sums = c.sums.tolist()
+    lines = [line_from_sums(n, ox, oy, *row[:5]) for n, (ox, oy), row
+             in zip(count, c.origin.tolist(), sums)]
     # every cluster's points projected on its own line, the ends of a straight segment
     along = np.array([d for _, d, _ in lines]).repeat(count, axis=0)
     rel = points - np.repeat(c.origin, count, axis=0)
@@ -472,7 +511,10 @@ def fit_clusters(points: Vector, start: NDArray[np.intp], sensors: Vector,
         if n >= 3:
             extent = max(extent, xhi - xlo, yhi - ylo)
         if extent <= 2.0 * s.max_radius:
-            circle = fit_circle(points[a:a + n], sensors[k], sigma, s.min_radius, s.max_radius)
+            row = sums[k]
+            mean = (ox + row[0] / n, oy + row[1] / n)
+            circle = _fit_circle(points[a:a + n], kasa_from_sums(n, ox, oy, row), mean,
+                                 sensors[k], sigma, s.min_radius, s.max_radius)
             if n < 4 or extent < s.min_segment_length:
                 shapes.append(circle)
                 continue

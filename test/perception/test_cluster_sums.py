@@ -17,7 +17,8 @@ import pytest
 from support.lidar_scene import Circle, NOISE_FRACTIONS, NOISE_LIMITS, Wall, cast
 
 from enbarr_core.perception.fitting import (CircleFit, cluster_sums, fit_cluster, fit_clusters,
-                                            fit_segment, FitSettings, SegmentFit)
+                                            fit_segment, FitSettings, kasa, kasa_from_sums,
+                                            SegmentFit)
 from enbarr_core.perception.scan_geometry import RangeNoise, scan_points
 from enbarr_core.perception.segmentation import BreakpointSettings, clusters
 
@@ -100,7 +101,8 @@ def test_the_sums_extents_and_chords_are_each_clusters_own():
         p = points[a:a + n]
         rel = p - p[0]
         x, y = rel[:, 0], rel[:, 1]
-        want = [x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum()]
+        want = [x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum(),
+                (x ** 3).sum(), (x * x * y).sum(), (x * y * y).sum(), (y ** 3).sum()]
         np.testing.assert_allclose(got.sums[k], want, rtol=1e-12, atol=1e-9)
         np.testing.assert_array_equal(got.origin[k], p[0])
         np.testing.assert_allclose(got.last[k], p[-1] - p[0], atol=1e-12)
@@ -165,3 +167,18 @@ def test_a_wall_bent_by_more_than_the_split_distance_is_cut_and_less_is_not(arm,
     # the hairpin's ends are 0.3 m apart, but it is 3 m long: segments (a wall), not a circle
     # of 0.15 m; only its extent along y says so
     assert max(s.length for s in got[pieces:]) == pytest.approx(3.0, abs=0.01)
+
+
+@pytest.mark.parametrize('seed', range(6))
+def test_kasas_circle_from_the_sums_is_kasas_circle_from_the_points(seed):
+    # a buoy's arc far out in the basin (large coordinates, small spread: the sums about the
+    # first point must not lose the digits kasa keeps by centring)
+    rng = np.random.default_rng(seed)
+    centre, r = rng.uniform(-15.0, 15.0, 2), rng.uniform(0.1, 0.9)
+    a = rng.uniform(-1.2, 1.2) + np.linspace(0.0, rng.uniform(0.6, 2.5), int(rng.integers(3, 30)))
+    pts = centre + r * np.column_stack((np.cos(a), np.sin(a)))
+    pts += 0.01 * rng.standard_normal(pts.shape)
+    c = cluster_sums(pts, np.zeros(1, dtype=np.intp))
+    got = kasa_from_sums(len(pts), *c.origin[0].tolist(), c.sums[0].tolist())
+    assert got == pytest.approx(kasa(pts), rel=1e-9, abs=1e-9)
+    assert kasa_from_sums(2, 0.0, 0.0, c.sums[0].tolist()) is None
