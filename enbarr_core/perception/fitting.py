@@ -464,7 +464,9 @@ def cluster_sums(points: Vector, start: NDArray[np.intp]) -> ClusterSums:
     distance from the line through a cluster's first and last point (split and merge's first
     test), infinite where those two points coincide (no chord: :func:`split` decides).
     """
-    count = np.diff(start, append=len(points))
+    count = np.empty_like(start)   # np.diff's wrapper costs more than this subtraction
+    count[:-1] = start[1:] - start[:-1]
+    count[-1] = len(points) - start[-1]
     origin = points[start]
     rel = points - np.repeat(origin, count, axis=0)
     x, y = rel[:, 0], rel[:, 1]
