@@ -19,7 +19,10 @@ extraction algorithms using 2D laser rangefinder"), so an L-shaped wall is two s
 
 :func:`fit_cluster` decides: a cluster longer than a circle may be is segments; a short one a
 circle; in between, a circle when its residual is clearly smaller than the line's (per degree
-of freedom, ``circle_ratio``), else segments. Walls stay segments.
+of freedom, ``circle_ratio``), else segments. Walls stay segments. A scan's clusters go
+through :func:`fit_clusters`: the same decisions, but the lines, Kasa's circles, extents and
+chord tests of all clusters come from one pass of sums (:func:`cluster_sums`), and a wall
+straight within the split distance of its chord is not split.
 """
 
 from __future__ import annotations
