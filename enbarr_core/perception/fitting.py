@@ -19,11 +19,15 @@ extraction algorithms using 2D laser rangefinder"), so an L-shaped wall is two s
 
 :func:`fit_cluster` decides: a cluster longer than a circle may be is segments; a short one a
 circle; in between, a circle when its residual is clearly smaller than the line's (per degree
-of freedom, ``circle_ratio``), else segments. Walls stay segments.
+of freedom, ``circle_ratio``), else segments. Walls stay segments. A scan's clusters go
+through :func:`fit_clusters`: the same decisions, but the lines, Kasa's circles, extents and
+chord tests of all clusters come from one pass of sums (:func:`cluster_sums`), and a wall
+straight within the split distance of its chord is not split.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
@@ -131,6 +135,32 @@ def kasa(points: Vector) -> tuple[float, float, float] | None:
         sxz += x * z
         syz += y * z
         sz += z
+    return _kasa_solve(n, mx, my, sxx, sxy, syy, sxz, syz, sz)
+
+
+def kasa_from_sums(n: int, ox: float, oy: float, sums: Sequence[float]
+                   ) -> tuple[float, float, float] | None:
+    """Return :func:`kasa`'s circle from the sums of its n points p - o about o = (ox, oy).
+
+    ``sums``: of x, y, x^2, x y, y^2, x^3, x^2 y, x y^2, y^3 (:func:`cluster_sums`). The
+    centred sums kasa takes follow from them (u = x - mean x, v = y - mean y):
+    sum u^3 = S_xxx - 3 m_x S_xx + 2 n m_x^3 and its kin.
+    """
+    if n < 3:
+        return None
+    sx, sy, sxx, sxy, syy, sxxx, sxxy, sxyy, syyy = sums
+    mx, my = sx / n, sy / n
+    cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my
+    uuu = sxxx - 3.0 * mx * sxx + 2.0 * n * mx * mx * mx
+    uuv = sxxy - 2.0 * mx * sxy - my * sxx + 2.0 * n * mx * mx * my
+    uvv = sxyy - 2.0 * my * sxy - mx * syy + 2.0 * n * mx * my * my
+    vvv = syyy - 3.0 * my * syy + 2.0 * n * my * my * my
+    return _kasa_solve(n, ox + mx, oy + my, cxx, cxy, cyy, uuu + uvv, uuv + vvv, cxx + cyy)
+
+
+def _kasa_solve(n: int, mx: float, my: float, sxx: float, sxy: float, syy: float, sxz: float,
+                syz: float, sz: float) -> tuple[float, float, float] | None:
+    """Kasa's circle from the sums about the mean (mx, my); z = x^2 + y^2 there."""
     # [x y 1] [D E F]^T = -(x^2 + y^2) in least squares; the centred sums of x and y are 0
     sol = _solve([[sxx, sxy, 0.0], [sxy, syy, 0.0], [0.0, 0.0, float(n)]], [-sxz, -syz, -sz])
     if sol is None:
@@ -208,11 +238,11 @@ def refine_circle(points: Vector, cx: float, cy: float, radius: float,
     return x[0], x[1], x[2], jtj, cost
 
 
-def _behind(cx: float, cy: float, points: Vector, sensor: Vector) -> bool:
-    """Whether the centre lies beyond the points' middle, seen from the sensor."""
-    mx, my = (points.sum(axis=0) / len(points)).tolist()
-    sx, sy = sensor.tolist()
-    return bool((cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0)
+def _behind(cx: float, cy: float, mean: tuple[float, float], sensor: tuple[float, float]
+            ) -> bool:
+    """Whether the centre lies beyond the points' ``mean``, seen from the ``sensor``."""
+    (mx, my), (sx, sy) = mean, sensor
+    return (cx - mx) * (mx - sx) + (cy - my) * (my - sy) > 0.0
 
 
 def fallback_circle(points: Vector, sensor: Vector, sigma: float,
@@ -260,15 +290,25 @@ def _circle_cov(jtj: list[list[float]], e2: float, n: int,
 def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
                max_radius: float) -> CircleFit:
     """Fit a circle to ``points`` seen from ``sensor`` (2,) with range noise ``sigma`` [m]."""
+    mx, my = (points.sum(axis=0) / len(points)).tolist()
+    return _fit_circle(points, kasa(points) if len(points) >= 3 else None, (mx, my), sensor,
+                       sigma, min_radius, max_radius)
+
+
+def _fit_circle(points: Vector, start: tuple[float, float, float] | None,
+                mean: tuple[float, float], sensor: Vector, sigma: float, min_radius: float,
+                max_radius: float) -> CircleFit:
+    """:func:`fit_circle` from Kasa's circle ``start`` and the points' ``mean``."""
     n = len(points)
-    start = kasa(points) if n >= 3 else None
+    sx, sy = sensor.tolist()
+    sxy = (sx, sy)
     if start is not None:
         fit = refine_circle(points, *start)
         if fit is not None:
             cx, cy, radius, jtj, e2 = fit
-            if radius < min_radius and _behind(cx, cy, points, sensor):
+            if radius < min_radius and _behind(cx, cy, mean, sxy):
                 pass   # too small: refit below with the radius held at the minimum
-            elif min_radius <= radius <= max_radius and _behind(cx, cy, points, sensor):
+            elif min_radius <= radius <= max_radius and _behind(cx, cy, mean, sxy):
                 return CircleFit(cx, cy, radius, _circle_cov(jtj, e2, n, sigma),
                                  math.sqrt(e2 / n))
             else:
@@ -278,7 +318,7 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
         # behind the points (started there, so it stays on the far side).
         guess = fallback_circle(points, sensor, sigma, min_radius, min_radius)
         held = refine_circle(points, guess.x, guess.y, min_radius, fixed_radius=True)
-        if held is not None and _behind(held[0], held[1], points, sensor):
+        if held is not None and _behind(held[0], held[1], mean, sxy):
             cx, cy, _, jtj, e2 = held
             # The radius was assumed, not measured: the centre is not known better than it.
             xx, xy, yy = _circle_cov(jtj, e2, n, sigma)
@@ -291,21 +331,33 @@ def fit_circle(points: Vector, sensor: Vector, sigma: float, min_radius: float,
 def fit_line(points: Vector) -> tuple[tuple[float, float], tuple[float, float], float]:
     """Total least squares line: (a point on it, unit direction, sum of squared distances).
 
-    From the points' sums about the first point, two numpy calls: a scan fits several lines
-    to clusters of tens of points, where each numpy call costs more than its arithmetic. The
-    sum of squared distances is n^T C n of the centred scatter C and the line's normal n.
+    From the points' sums about the first point (:func:`line_from_sums`), two numpy calls: a
+    scan fits several lines to clusters of tens of points, where each numpy call costs more
+    than its arithmetic.
     """
-    n = len(points)
     o = points[0]
     p = points - o
     sx, sy = p.sum(axis=0).tolist()
     (sxx, sxy), (_, syy) = (p.T @ p).tolist()
+    ox, oy = o.tolist()
+    return line_from_sums(len(points), ox, oy, sx, sy, sxx, sxy, syy)
+
+
+def line_from_sums(n: int, ox: float, oy: float, sx: float, sy: float, sxx: float,
+                   sxy: float, syy: float
+                   ) -> tuple[tuple[float, float], tuple[float, float], float]:
+    """Return the total least squares line of :func:`fit_line` from its points' sums.
+
+    The sums are over the n points p - o about a point o = (``ox``, ``oy``) (a cluster's first:
+    small numbers, so the centred scatter below loses no digits): of x, y, x^2, x y, y^2. The
+    line runs through the mean along the principal axis of the centred scatter C; its sum of
+    squared distances is n^T C n with n the line's normal.
+    """
     mx, my = sx / n, sy / n
     cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my     # centred scatter
     theta = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)                   # the principal axis
     c, s = math.cos(theta), math.sin(theta)
     ss = s * s * cxx - 2.0 * s * c * cxy + c * c * cyy
-    ox, oy = o.tolist()
     return (ox + mx, oy + my), (c, s), max(ss, 0.0)
 
 
@@ -386,3 +438,103 @@ def fit_cluster(points: Vector, sensor: Vector, sigma: float,
 def _segments(points: Vector, sigma: float, s: FitSettings) -> list[CircleFit | SegmentFit]:
     ranges = split(points, s.split_distance + 3.0 * sigma)
     return [fit_segment(points[a:b]) for a, b in ranges if b - a >= 2]
+
+
+# -- every cluster of a scan at once ---------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class ClusterSums:
+    """Sums over the points of every cluster of a scan, from one pass over all of them.
+
+    The clusters lie one after the other in one array of points (ring order within each);
+    cluster k holds ``count[k]`` points from ``start[k]``. The sums are about its first point
+    (``origin[k]``), as :func:`line_from_sums` takes them. Arrays fresh per scan: ``eq=False``.
+    """
+
+    start: NDArray[np.intp]   # (K,) position of each cluster's first point
+    count: NDArray[np.intp]   # (K,) points in each cluster
+    origin: Vector            # (K, 2) each cluster's first point [m]
+    last: Vector              # (K, 2) each cluster's last point minus its first [m]
+    sums: Vector              # (K, 9) of x, y, x^2, x y, y^2, x^3, x^2 y, x y^2, y^3
+    low: Vector               # (K, 2) the smallest x and y of each cluster [m]
+    high: Vector              # (K, 2) the largest x and y of each cluster [m]
+    chord: Vector             # (K,) largest distance of a point from its cluster's chord [m]
+
+
+def cluster_sums(points: Vector, start: NDArray[np.intp]) -> ClusterSums:
+    """Sum every cluster of ``points`` (N, 2) at once; cluster k runs from ``start[k]``.
+
+    ``start`` begins with 0 and increases strictly (no empty cluster). ``chord`` is the
+    distance from the line through a cluster's first and last point (split and merge's first
+    test), infinite where those two points coincide (no chord: :func:`split` decides).
+    """
+    count = np.empty_like(start)   # np.diff's wrapper costs more than this subtraction
+    count[:-1] = start[1:] - start[:-1]
+    count[-1] = len(points) - start[-1]
+    origin = points[start]
+    rel = points - np.repeat(origin, count, axis=0)
+    x, y = rel[:, 0], rel[:, 1]
+    xx, xy, yy = x * x, x * y, y * y
+    sums = np.add.reduceat(np.stack((x, y, xx, xy, yy, xx * x, xx * y, xy * y, yy * y)), start,
+                           axis=1).T
+    last = rel[start + count - 1]
+    # |(p - a) x (b - a)|, the chord's length times the distance from it
+    lx, ly = np.repeat(last, count, axis=0).T
+    cross = np.maximum.reduceat(np.abs(x * ly - y * lx), start)
+    norm = np.hypot(last[:, 0], last[:, 1])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        chord = np.where(norm > 0.0, cross / norm, math.inf)
+    return ClusterSums(start, count, origin, last, sums, np.minimum.reduceat(points, start),
+                       np.maximum.reduceat(points, start), chord)
+
+
+def fit_clusters(points: Vector, start: NDArray[np.intp], sensors: Vector,
+                 sigmas: Sequence[float], s: FitSettings) -> list[CircleFit | SegmentFit]:
+    """Return the shapes of :func:`fit_cluster` for every cluster of a scan, from one sum pass.
+
+    ``points``, ``start`` as :func:`cluster_sums`; ``sensors`` (K, 2) and ``sigmas`` (K) each
+    cluster's as :func:`fit_cluster` takes them. The same decisions on the same numbers, but
+    the lines, extents and straightness of all clusters come from :class:`ClusterSums` (a few
+    numpy calls per scan, not a dozen per cluster): a wall the chord test finds straight is
+    one segment without :func:`split`; only a bent one, and circles, are fitted one by one.
+    """
+    c = cluster_sums(points, start)
+    count = c.count.tolist()
+    sums = c.sums.tolist()
+    lines = [line_from_sums(n, ox, oy, *row[:5]) for n, (ox, oy), row
+             in zip(count, c.origin.tolist(), sums)]
+    # every cluster's points projected on its own line, the ends of a straight segment
+    along = np.array([d for _, d, _ in lines]).repeat(count, axis=0)
+    rel = points - np.repeat(c.origin, count, axis=0)
+    t = rel[:, 0] * along[:, 0] + rel[:, 1] * along[:, 1]
+    t_lo, t_hi = np.minimum.reduceat(t, start).tolist(), np.maximum.reduceat(t, start).tolist()
+    shapes: list[CircleFit | SegmentFit] = []
+    rows = zip(count, start.tolist(), c.origin.tolist(), c.last.tolist(), c.low.tolist(),
+               c.high.tolist(), c.chord.tolist(), lines, t_lo, t_hi, sigmas)
+    for k, (n, a, (ox, oy), (lx, ly), (xlo, ylo), (xhi, yhi), chord, line, lo, hi,
+            sigma) in enumerate(rows):
+        extent = math.hypot(lx, ly)
+        if n >= 3:
+            extent = max(extent, xhi - xlo, yhi - ylo)
+        if extent <= 2.0 * s.max_radius:
+            row = sums[k]
+            mean = (ox + row[0] / n, oy + row[1] / n)
+            circle = _fit_circle(points[a:a + n], kasa_from_sums(n, ox, oy, row), mean,
+                                 sensors[k], sigma, s.min_radius, s.max_radius)
+            if n < 4 or extent < s.min_segment_length:
+                shapes.append(circle)
+                continue
+            line_s2 = line[2] / (n - 2)
+            circle_s2 = n * circle.rms * circle.rms / (n - 3)
+            if not circle.fallback and circle_s2 < s.circle_ratio ** 2 * line_s2:
+                shapes.append(circle)
+                continue
+        if n >= 3 and not chord <= s.split_distance + 3.0 * sigma:
+            shapes += _segments(points[a:a + n], sigma, s)   # bent: split and merge
+        elif n >= 2:
+            # straight (split would keep it whole): the segment of fit_segment, from the sums
+            (mx, my), (dx, dy), ss = line
+            base = (mx - ox) * dx + (my - oy) * dy
+            lo, hi = lo - base, hi - base
+            shapes.append(SegmentFit(mx + lo * dx, my + lo * dy, mx + hi * dx, my + hi * dy,
+                                     math.sqrt(ss / n), n))
+    return shapes

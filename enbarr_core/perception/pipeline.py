@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from enbarr_interfaces.obstacles import Obstacle
 
-from enbarr_core.perception.fitting import CircleFit, fit_cluster, FitSettings, SegmentFit
+from enbarr_core.perception.fitting import CircleFit, fit_clusters, FitSettings, SegmentFit
 from enbarr_core.perception.scan_geometry import (PoseHistory, ray_offsets_ns, scan_points,
                                                   SWEEPS, to_world)
 from enbarr_core.perception.segmentation import BreakpointSettings, clusters
@@ -107,30 +107,38 @@ class ScanObstacles:
         if len(scan.r) == 0:
             ray_times = np.array([stamp_ns], dtype=np.int64)
         else:
-            ray_times = stamp_ns + ray_offsets_ns(scan.index, angle_min, angle_increment,
-                                                  time_increment, scan_time, s.sweep)
+            offsets = ray_offsets_ns(scan.index, angle_min, angle_increment, time_increment,
+                                     scan_time, s.sweep)
+            # every ray at the stamp (no time_increment, at_stamp): one pose serves them all
+            ray_times = stamp_ns + (offsets if offsets.any() else offsets[:1])
         eta = poses.at(ray_times, s.pose_tolerance_ns)
         if eta is None:
             return None
         if len(scan.r) == 0:
             return [], 0, 0
         world = to_world(mount.to_base(scan.laser), eta)
+        pieces = [c for c in clusters(scan, s.breakpoints) if len(c) >= s.min_cluster_points]
+        if not pieces:
+            return [], len(scan.r), 0
         # Where the lidar was and its range noise, at each kept cluster's middle ray only: in
         # floats, the few clusters of a scan cost less than arrays over all its rays.
         tx, ty = float(mount.translation[0]), float(mount.translation[1])
         noise = s.breakpoints.noise
-        shapes: list[CircleFit | SegmentFit] = []
-        kept = 0
-        for c in clusters(scan, s.breakpoints):
-            if len(c) < s.min_cluster_points:
-                continue
-            kept += 1
+        last = len(eta) - 1
+        sensors, sigmas, start, n = [], [], [], 0
+        for c in pieces:
             mid = int(c[len(c) // 2])
-            x, y, psi = eta[mid].tolist()
+            x, y, psi = eta[min(mid, last)].tolist()
             cos, sin = math.cos(psi), math.sin(psi)
-            sensor = np.array((x + cos * tx - sin * ty, y + sin * tx + cos * ty))
-            shapes += fit_cluster(world[c], sensor, noise.sigma_at(float(scan.r[mid])), s.fit)
-        return shapes, len(scan.r), kept
+            sensors.append((x + cos * tx - sin * ty, y + sin * tx + cos * ty))
+            sigmas.append(noise.sigma_at(float(scan.r[mid])))
+            start.append(n)
+            n += len(c)
+        # the clusters one after the other (ring order within each) for one pass of sums
+        ordered = world[pieces[0] if len(pieces) == 1 else np.concatenate(pieces)]
+        shapes = fit_clusters(ordered, np.array(start, dtype=np.intp), np.array(sensors),
+                              sigmas, s.fit)
+        return shapes, len(scan.r), len(pieces)
 
     def process(self, ranges: Vector, angle_min: float, angle_increment: float,
                 time_increment: float, stamp_ns: int, mount: LidarMount,

@@ -72,17 +72,27 @@ def clusters(scan: ScanPoints, s: BreakpointSettings) -> list[NDArray[np.intp]]:
         return []
     if n == 1:
         return [np.zeros(1, dtype=np.intp)]
-    gap = np.diff(scan.index)
-    d = np.hypot(*np.diff(scan.laser, axis=0).T)
+    gap = scan.index[1:] - scan.index[:-1]
+    step = scan.laser[1:] - scan.laser[:-1]
+    d = np.hypot(step[:, 0], step[:, 1])
     cut = np.flatnonzero(_breaks(scan.r[:-1], gap, d, scan.angle_increment, s)) + 1
     # slices of one arange: np.split makes the same views at a higher cost per piece
     every = np.arange(n, dtype=np.intp)
     bounds = [0, *cut.tolist(), n]
     pieces = [every[a:b] for a, b in zip(bounds, bounds[1:])]
     if scan.full_circle and len(pieces) > 1:
-        seam_gap = np.array([scan.rays - scan.index[-1] + scan.index[0]])
-        seam_d = np.array([math.dist(scan.laser[-1], scan.laser[0])])
-        if not _breaks(scan.r[-1:], seam_gap, seam_d, scan.angle_increment, s)[0]:
+        seam_gap = scan.rays - int(scan.index[-1]) + int(scan.index[0])
+        (x0, y0), (x1, y1) = scan.laser[0].tolist(), scan.laser[-1].tolist()
+        if not _break(float(scan.r[-1]), seam_gap, math.hypot(x0 - x1, y0 - y1),
+                      scan.angle_increment, s):
             pieces[0] = np.concatenate((pieces[-1], pieces[0]))
             pieces.pop()
     return pieces
+
+
+def _break(r_prev: float, gap: int, d: float, increment: float, s: BreakpointSettings) -> bool:
+    """:func:`_breaks` for one pair, in floats (the seam of a full circle)."""
+    dphi = gap * abs(increment)
+    if gap > s.max_gap + 1 or not dphi < s.lam:
+        return True
+    return d > r_prev * math.sin(dphi) / math.sin(s.lam - dphi) + 3.0 * s.noise.sigma_at(r_prev)

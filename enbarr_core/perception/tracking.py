@@ -246,7 +246,14 @@ def assign(cost: Vector, gate: float) -> list[tuple[int, int]]:
     """Return the (row, column) pairs of least total cost, pairs above ``gate`` ruled out."""
     if cost.size == 0:
         return []
-    c = np.where(cost <= gate, cost, _RULED_OUT)
+    inside = cost <= gate
+    if (inside.sum(axis=0) <= 1).all() and (inside.sum(axis=1) <= 1).all():
+        # Obstacles apart (the usual scan): no track has two measurements in its gate and no
+        # measurement two tracks, so the best assignment takes every pair in a gate and the
+        # solver has nothing to decide.
+        rows, cols = np.nonzero(inside)
+        return list(zip(rows.tolist(), cols.tolist()))
+    c = np.where(inside, cost, _RULED_OUT)
     rows, cols = linear_sum_assignment(c)
     return [(int(i), int(j)) for i, j in zip(rows, cols) if cost[i, j] <= gate]
 

@@ -228,3 +228,14 @@ def test_the_centre_covariance_is_s2_times_the_inverse_of_jtj():
     s2 = max(float(e @ e) / (len(pts) - 3), 0.01 ** 2)
     cov = s2 * np.linalg.inv(jac.T @ jac)
     assert fit.cov == pytest.approx((cov[0, 0], cov[0, 1], cov[1, 1]), rel=1e-6)
+
+
+@pytest.mark.parametrize(('cx', 'cy'), [(0.0, 4.0), (0.0, -4.0), (4.0, 0.0), (-4.0, 0.0)])
+def test_a_buoy_on_any_bearing_is_fitted_behind_its_arc(cx, cy):
+    # Abeam (x the same as the sensor's) only the y half of "behind the points" can tell
+    # the fitted centre from a centre in front of them; the sensor away from the origin.
+    sensor = np.array((3.0, -2.0))
+    pts = half_arc(cx, cy, 0.4, 12, 0.01, 2) + sensor
+    fit = fit_circle(pts, sensor, 0.01, 0.05, 1.0)
+    assert not fit.fallback
+    assert math.dist((fit.x, fit.y), (cx + 3.0, cy - 2.0)) < 0.05

@@ -14,8 +14,8 @@ import pytest
 from support.lidar_scene import Circle, NOISE_FRACTIONS, NOISE_LIMITS, Wall, cast
 
 from enbarr_core.perception.scan_geometry import RangeNoise, scan_points
-from enbarr_core.perception.segmentation import (BreakpointSettings, breakpoint_distance,
-                                                  clusters)
+from enbarr_core.perception.segmentation import (_break, BreakpointSettings,
+                                                  breakpoint_distance, clusters)
 
 LAM = math.radians(10.0)
 INC = 2.0 * math.pi / 360
@@ -121,3 +121,18 @@ def test_settings_refuse_a_lambda_beyond_a_right_angle():
         BreakpointSettings(2.0, 2, SETTINGS.noise).validate()
     with pytest.raises(ValueError, match='^fractions:'):
         BreakpointSettings(LAM, 2, RangeNoise((3.0,), (0.01,))).validate()
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_the_seams_pair_is_judged_by_the_papers_bound(seed):
+    # The seam of a full circle is one pair, judged in floats: just inside the paper's bound
+    # (3 sigma_r included) it joins, just beyond it breaks, and a gap of more than max_gap
+    # rays always breaks.
+    rng = np.random.default_rng(seed)
+    for r in rng.uniform(0.3, 11.0, 20).tolist():
+        for apart in (1, 2, 3):
+            bound = d_max(r, apart)
+            joins = apart <= 3   # max_gap 2: up to two rays missing between them
+            assert _break(r, apart, 0.999 * bound, INC, SETTINGS) is not joins
+            assert _break(r, apart, 1.001 * bound, INC, SETTINGS) is True
+        assert _break(r, 4, 0.0, INC, SETTINGS) is True

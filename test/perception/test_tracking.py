@@ -5,6 +5,7 @@ the assignment on hand-placed measurements.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -200,3 +201,29 @@ def test_a_track_filters_as_filterpy_does_with_numpys_inverse():
             t.update(dataclasses.replace(z, x=2.0 + 0.03 * k, y=-1.0 - 0.01 * k), k, 0.3)
     assert ours.kf.x == pytest.approx(ref.kf.x, abs=1e-12)
     assert ours.kf.P == pytest.approx(ref.kf.P, abs=1e-12)
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_assign_is_the_least_cost_set_of_pairs_in_the_gates(seed):
+    # Against every assignment tried (itertools): the most pairs within the gate, and of
+    # those the least total cost; apart obstacles (one candidate each) and crowded ones.
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        rows, cols = rng.integers(1, 5, 2).tolist()
+        cost = rng.uniform(0.0, 12.0, (rows, cols))
+        if rng.uniform() < 0.5:   # apart: at most one pair in a gate per row and column
+            cost[:] = 50.0
+            for i, j in zip(rng.permutation(rows), rng.permutation(cols)):
+                cost[i, j] = rng.uniform(0.0, 12.0)
+        # each way of pairing min(rows, cols) rows and columns, pairs beyond the gate dropped
+        best = max((len(pairs), -sum(cost[i, j] for i, j in pairs))
+                   for perm in itertools.permutations(range(max(rows, cols)), min(rows, cols))
+                   for pairs in [[(i, j) for i, j in (zip(range(rows), perm) if rows <= cols
+                                                      else zip(perm, range(cols)))
+                                  if cost[i, j] <= 9.0]])
+        got = assign(cost, 9.0)
+        assert got == sorted(got)
+        assert len({i for i, _ in got}) == len(got) == len({j for _, j in got})
+        assert all(cost[i, j] <= 9.0 for i, j in got)
+        assert len(got) == best[0]
+        assert sum(cost[i, j] for i, j in got) == pytest.approx(-best[1], abs=1e-9)
