@@ -236,7 +236,7 @@ class Supervisor:
         return self._verdict(tuple(tripped), tuple(cleared))
 
     def clear(self, o: Observation, now: float) -> tuple[Verdict, str]:
-        """The operator clears the latched failsafes whose condition no longer holds.
+        """Clear (the operator) the latched failsafes whose condition no longer holds.
 
         Return the verdict and what was done (which cleared, which still hold and why).
         """
