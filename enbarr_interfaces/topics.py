@@ -303,6 +303,21 @@ BATTERY = TopicSpec(
     'battery', BatteryState, SENSOR_QOS, 'V, A (negative while discharging), 0..1', '',
     'Battery voltage, current and state of charge from the power monitor (ina219_battery '
     'driver); unmeasured fields NaN.')
+FAILSAFE_ACTION = TopicSpec(
+    'failsafe/action', String, LATCHED_QOS, 'action name', '',
+    'The action the failsafes ask for (latched): none, warn, stabilize, manual, surface or '
+    'neutral: the most severe of the active ones (control.failsafes). The velocity loop '
+    'applies it.')
+FAILSAFE_ACTIVE = TopicSpec(
+    'failsafe/active', String, LATCHED_QOS, 'text', '',
+    'The active failsafes (latched), each with its action, the time it tripped [s of the '
+    'node clock] and why; "none" when none is.')
+HULL_PRESSURE = TopicSpec(
+    'hull/pressure', FluidPressure, SENSOR_QOS, 'Pa', '',
+    'Air pressure inside the electronics enclosure (a rising one: a seal letting water in).')
+HULL_TEMPERATURE = TopicSpec(
+    'hull/temperature', Temperature, SENSOR_QOS, 'degC', '',
+    'Air temperature inside the electronics enclosure.')
 
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     IMU_RAW, IMU_MAG, IMU, SURFACE_TWIST, SURFACE_STOP, SURFACE_ACTIVE_SOURCE, SURFACE_IO,
@@ -316,4 +331,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     ALLOCATION_DELIVERED,
     PWM_DUTY, SIM_AZIMUTH_COMMAND, SCAN, OBSTACLES, OBSTACLES_FUSED, OBSTACLE_MARKERS,
     CAMERA_IMAGE, CAMERA_COMPRESSED, CAMERA_INFO, VESSEL_CLAIMS, DETECTIONS, DETECTION_IMAGE,
-    PRESSURE, PRESSURE_TEMPERATURE, DEPTH, LEAK, BATTERY)
+    PRESSURE, PRESSURE_TEMPERATURE, DEPTH, LEAK, BATTERY, FAILSAFE_ACTION, FAILSAFE_ACTIVE,
+    HULL_PRESSURE, HULL_TEMPERATURE)

@@ -36,6 +36,7 @@ CHECKS: dict[str, str] = {
     'fxos8700': 'enbarr_plugins.imu.check:check_fxos8700',
     'ms5837': 'enbarr_plugins.pressure.check:check_ms5837',
     'ina219': 'enbarr_plugins.power.check:check_ina219',
+    'bmp280': 'enbarr_plugins.hull.check:check_bmp280',
     'arduino': 'enbarr_plugins.arduino.check:check_device',
     'rplidar': 'enbarr_plugins.lidar.check:check_device',
     'camera': 'enbarr_plugins.camera.check:check_device',

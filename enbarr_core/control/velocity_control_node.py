@@ -40,6 +40,8 @@ from enbarr_interfaces.topics import TopicSpec
 
 from enbarr_core.control.pilot_hold import (
     DepthHold, DepthHoldSettings, HeadingHold, HeadingHoldSettings)
+from enbarr_core.control.failsafes import MANUAL as FS_MANUAL, NEUTRAL, NONE, SURFACE
+from enbarr_core.control.failsafes import STABILIZE as FS_STABILIZE
 from enbarr_core.control.pilot_modes import (
     DEPTH_HOLD, EXECUTOR, MANUAL, manual_force, manual_problem, MODES, PilotModes, STABILIZE)
 from enbarr_core.control.velocity_control import (
@@ -55,6 +57,8 @@ from enbarr_core.models.rigid_body_params import VEHICLE_SPECS
 from enbarr_core.framework.stamps import (
     SAME_CLOCK_MAX_FUTURE, StampGate, StampPolicy, StampVerdict)
 
+#: The failsafe actions that take the pilot mode from the pilot.
+FORCING = (NEUTRAL, SURFACE, FS_STABILIZE, FS_MANUAL)
 #: Window of the diagnostics report [s].
 REPORT_PERIOD = 1.0
 #: Standard gravity [m/s^2]: the specific force minus this is the vertical acceleration (the
@@ -124,6 +128,8 @@ SPECS = [
               'below this', 'rad/s', 1e-4, 10.0),
     ParamSpec('heading_hold.settle_time', 0.5, '... or this long after the stick centred',
               's', 1e-3, 10.0),
+    ParamSpec('failsafe.climb_rate', 0.25, 'Climb rate of the surface failsafe action',
+              'm/s', 0.01, 2.0),
     ParamSpec('depth_estimator.accel_noise', 0.05, 'Vertical acceleration noise (std)',
               'm/s^2', 1e-6, 10.0),
     ParamSpec('depth_estimator.bias_walk', 0.002, 'Accelerometer bias random walk',
@@ -150,6 +156,7 @@ class VelocityControlNodeSettings:
     depth_hold: DepthHoldSettings = DepthHoldSettings(1.0, 0.5, 0.05, 0.3, 0.2)
     heading_hold: HeadingHoldSettings = HeadingHoldSettings(2.0, 0.6, 0.05, 0.05, 0.5)
     depth_estimator: DepthEstimatorSettings = DepthEstimatorSettings(0.05, 0.002, 0.1, 0.5)
+    climb_rate: float = 0.25                    # [m/s] of the surface failsafe action
 
     @classmethod
     def from_params(cls, v: Mapping[str, Any]) -> VelocityControlNodeSettings:
@@ -195,7 +202,8 @@ class VelocityControlNodeSettings:
             pilot = {'pilot_mode': v['pilot.mode'],
                      'full_stick': floats('pilot.full_stick', v['pilot.full_stick'], 6),
                      'depth_timeout': v['pilot.depth_timeout'], 'depth_hold': depth,
-                     'heading_hold': heading, 'depth_estimator': estimator}
+                     'heading_hold': heading, 'depth_estimator': estimator,
+                     'climb_rate': v['failsafe.climb_rate']}
         return cls(controller=controller,
                    reference_time_constant=floats(
                        'reference_time_constant', v['reference_time_constant'], 6),
@@ -241,6 +249,10 @@ class VelocityControlNode(EnbarrNode):
         self._depth_ns: int | None = None    # stamp of the last depth taken
         self.last_reason = ''
         self._was_manual = False
+        # The failsafes' action (control.failsafe_node): only a change costs anything here.
+        self.failsafe = NONE
+        self._neutral = False
+        self._surface_goal: np.ndarray | None = None
         self.bind_settings(SPECS, self._build, self._apply)
         self._pub = self.create_topic_publisher(topics.FORCE_COMMAND)
         self._mode_pub = self.create_topic_publisher(topics.PILOT_MODE)
@@ -249,6 +261,7 @@ class VelocityControlNode(EnbarrNode):
         self.create_topic_subscription(topics.IMU, self._on_imu)
         self.create_topic_subscription(topics.DEPTH, self._on_depth)
         self.create_topic_subscription(topics.IO_REQUEST, self._on_io)
+        self.create_topic_subscription(topics.FAILSAFE_ACTION, self._on_failsafe)
 
     def start(self) -> None:
         """Start, and say the pilot mode (latched: a console that joins later learns it)."""
@@ -334,6 +347,10 @@ class VelocityControlNode(EnbarrNode):
             return   # another executor's request
         assert self.modes is not None
         mode = msg.value.string_value
+        if self.failsafe in FORCING:
+            self._say(f'{mode!r} refused: failsafe {self.failsafe} active', warn=True)
+            self._publish_mode()
+            return
         before = self.modes.mode
         # The depth's age on the loop's time line (the IMU's stamps), as the fallback sees it
         now = self._last_ns if self._last_ns is not None else self.now_ns()
@@ -344,6 +361,37 @@ class VelocityControlNode(EnbarrNode):
         elif out.changed:
             self.get_logger().info(f'pilot mode {before} -> {out.mode}')
             self._entered(out.mode)
+        self._publish_mode()
+
+    def _on_failsafe(self, msg: String) -> None:
+        """Apply the failsafes' action: force a mode and goal, or neutral thrusters."""
+        action = msg.data
+        if action == self.failsafe:
+            return
+        assert self.modes is not None
+        self.failsafe = action
+        self._neutral = action == NEUTRAL
+        self._surface_goal = None
+        mode = self.modes.mode
+        if action == SURFACE:
+            # Depth hold climbs at a set rate from the depth sensor; without a fresh depth,
+            # stabilize climbs on the feed-forward. The heading is held either way.
+            now = self._last_ns if self._last_ns is not None else self.now_ns()
+            depth_ok = self.modes.depth_problem(self.depth_age(now)) is None
+            mode = DEPTH_HOLD if depth_ok else STABILIZE
+            goal = np.zeros(6)
+            goal[2] = self.settings.climb_rate   # depth hold: the climb rate it asks for
+            self._surface_goal = goal
+        elif action == FS_STABILIZE and mode == DEPTH_HOLD:
+            mode = STABILIZE
+        elif action == FS_MANUAL and manual_problem(self.settings.controller.tau_max) is None:
+            mode = MANUAL
+        if mode != self.modes.mode:
+            before, self.modes.mode = self.modes.mode, mode
+            self._say(f'{before} -> {mode}: failsafe {action}', warn=True)
+            self._entered(mode)
+        else:
+            self._say(f'failsafe {action}', warn=action != NONE)
         self._publish_mode()
 
     def _entered(self, mode: str) -> None:
@@ -401,8 +449,13 @@ class VelocityControlNode(EnbarrNode):
         roll, pitch, yaw = quat_to_euler(q)
         nu = np.concatenate((self._linear, omega))
         dt = (t - last) * 1e-9
+        if self._surface_goal is not None:
+            goal = self._surface_goal
         tau = self._pilot(t, dt, goal, nu, q, roll, pitch, yaw,
                           convert.vector3_to_array(msg.linear_acceleration))
+        if self._neutral:   # thrusters neutral from the next sample on (ArduSub's disarm)
+            self.controller.reset()
+            tau = np.zeros(6)
         w = new(WrenchStamped)
         w.header.stamp = msg.header.stamp
         w.header.frame_id = topics.BODY_FRAME

@@ -20,7 +20,7 @@ from support.layering import imports_in
 
 PACKAGE = Path(enbarr_plugins.__file__).parent
 DRIVERS = ['imu/lsm9ds1', 'imu/fxos8700', 'thrusters/pca9685', 'io/gpio_lights', 'io/stepper',
-           'io/leak', 'power/ina219']
+           'io/leak', 'power/ina219', 'hull/bmp280']
 EMULATORS = {
     'imu/lsm9ds1_emulator': ['imu.lsm9ds1', 'imu.lsm9ds1_protocol'],
     'imu/fxos8700_emulator': ['imu.fxos8700', 'imu.fxos8700_protocol'],
@@ -28,9 +28,10 @@ EMULATORS = {
                           'imu.fxos8700_protocol'],
     'thrusters/pca9685_emulator': ['thrusters.pca9685', 'thrusters.pca9685_protocol'],
     'power/ina219_emulator': ['power.ina219', 'power.ina219_protocol'],
+    'hull/bmp280_emulator': ['hull.bmp280', 'hull.bmp280_protocol'],
 }
 PROTOCOLS = ['imu/lsm9ds1_protocol', 'imu/fxos8700_protocol', 'thrusters/pca9685_protocol',
-             'power/ina219_protocol']
+             'power/ina219_protocol', 'hull/bmp280_protocol']
 
 
 def imports(module: str) -> set[str]:

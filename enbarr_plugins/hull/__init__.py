@@ -1,0 +1,1 @@
+"""Inside the hull: the enclosure's air pressure and temperature (BMP280), driver and emulator."""
