@@ -131,6 +131,7 @@ class FailsafeNode(EnbarrNode):
         self._attitude_report_at: float | None = None
         self._attitude_samples: int | None = None
         self.verdict = Verdict(NONE, ())
+        self.clears = 0   # operator clears taken
         self._published: tuple[str, str] | None = None
         self._action_pub = self.create_topic_publisher(topics.FAILSAFE_ACTION)
         self._active_pub = self.create_topic_publisher(topics.FAILSAFE_ACTIVE)
@@ -227,6 +228,7 @@ class FailsafeNode(EnbarrNode):
                                    "the only request is 'clear'")
             return
         self.verdict, said = self.supervisor.clear(self.observe(), self._now())
+        self.clears += 1
         self.get_logger().warn(f'operator clear: {said}')
         self._publish()
 
@@ -274,6 +276,6 @@ class FailsafeNode(EnbarrNode):
                  'hull_pressure': self._pressure is not None,
                  'hull_temperature': self._temperature is not None}
         self.publish_diagnostics(level, message, {
-            'action': v.action, **{f'heard.{k}': h for k, h in heard.items()},
+            'action': v.action, 'clears': self.clears, **{f'heard.{k}': h for k, h in heard.items()},
             **{f'active.{t.name}': f'{t.action} since {t.since:.2f} s' for t in v.active}})
 

@@ -384,8 +384,9 @@ class VelocityControlNode(EnbarrNode):
             before, self.modes.mode = self.modes.mode, mode
             self._say(f'{before} -> {mode}: failsafe {action}', warn=True)
             self._entered(mode)
-        else:
-            self._say(f'failsafe {action}', warn=action != NONE)
+        else:   # one call site, one severity (rclpy's logger refuses a change)
+            self._say(f'failsafe {action}' if action != NONE
+                      else 'failsafe cleared: the pilot modes are the pilot\'s again', warn=True)
         self._publish_mode()
 
     def _entered(self, mode: str) -> None:

@@ -1,0 +1,156 @@
+"""Node tests: the failsafe supervisor fed by hand on simulated time (the leak, the pilot
+input and the attitude filter's report), its latched topics and the operator's clear."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistStamped
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
+from support.nodes import add, probe, TIMEOUT
+
+from enbarr_core.control.failsafe_node import EXECUTOR, FailsafeNode
+from enbarr_core.framework.errors import EnbarrError
+from enbarr_core.tools.scenario import simulated_time
+from enbarr_interfaces import topics
+from enbarr_interfaces.links import LinkBus
+
+pytestmark = pytest.mark.node
+
+
+class Rig:
+    """The failsafe node on a simulated clock, with a probe publishing its inputs."""
+
+    def __init__(self, context: Any, executor: Any, spin: Any, **params: Any) -> None:
+        self.executor, self.spin = executor, spin
+        self.node = add(executor, FailsafeNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()]))
+        self.set_time = simulated_time([self.node.get_clock()])
+        self.t = 1.0
+        self.set_time(int(self.t * 1e9))
+        p = probe(context, executor, 'topside')
+        self.twist_pub = p.create_topic_publisher(topics.SURFACE_TWIST)
+        self.leak_pub = p.create_topic_publisher(topics.LEAK)
+        self.diag_pub = p.create_publisher(DiagnosticArray, topics.DIAGNOSTICS.name,
+                                           topics.DIAGNOSTICS.qos)
+        self.io_pub = p.create_topic_publisher(topics.IO_REQUEST)
+        self.actions: list[str] = []
+        self.active: list[str] = []
+        p.create_topic_subscription(topics.FAILSAFE_ACTION, lambda m: self.actions.append(m.data))
+        p.create_topic_subscription(topics.FAILSAFE_ACTIVE, lambda m: self.active.append(m.data))
+        LinkBus.of(context).connect()
+        self.node.start()
+        self.report(0)   # the attitude filter is alive from the start
+
+    def at(self, t: float) -> None:
+        """Move the clock to ``t`` [s] and run the checks once."""
+        self.t = t
+        self.set_time(int(t * 1e9))
+        self.node.check()
+
+    def twist(self) -> None:
+        self.twist_pub.publish(TwistStamped())
+        n = self.node
+        assert self.spin(self.executor, lambda: n._pilot_at == self.t, TIMEOUT)
+
+    def leak(self, wet: bool) -> None:
+        self.leak_pub.publish(Bool(data=wet))
+        assert self.spin(self.executor, lambda: self.node._leak is wet, TIMEOUT)
+
+    def report(self, samples: int, level: int = 0) -> None:
+        status = DiagnosticStatus(level=bytes([level]), name='/filtering', message='m',
+                                  hardware_id='filtering',
+                                  values=[KeyValue(key='samples', value=str(samples))])
+        self.diag_pub.publish(DiagnosticArray(status=[status]))
+        assert self.spin(self.executor, lambda: self.node._attitude_report_at == self.t,
+                         TIMEOUT)
+
+    def clear(self) -> None:
+        value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value='clear')
+        before = self.node.clears
+        self.io_pub.publish(ParameterMsg(name=EXECUTOR, value=value))
+        assert self.spin(self.executor, lambda: self.node.clears > before, TIMEOUT)
+
+    def last(self) -> tuple[str, str]:
+        assert self.spin(self.executor, lambda: self.actions and self.active, TIMEOUT)
+        return self.actions[-1], self.active[-1]
+
+    def wait(self, action: str, active: str) -> None:
+        """Spin until both latched topics say ``action`` and ``active`` (a prefix)."""
+        self.spin(self.executor, lambda: self.actions and self.active and (
+            self.actions[-1], self.active[-1][:len(active)]) == (action, active), TIMEOUT)
+        assert (self.actions[-1], self.active[-1][:len(active)]) == (action, active), \
+            (self.actions[-1:], self.active[-1:])
+
+
+@pytest.fixture
+def rig(context, executor, spin) -> Rig:
+    return Rig(context, executor, spin)
+
+
+def test_starts_with_no_failsafe_and_says_so_latched(rig):
+    assert rig.last() == ('none', 'none')
+
+
+def test_a_leak_surfaces_at_once_and_latches_until_cleared_dry(rig):
+    rig.at(2.0)
+    rig.twist()
+    rig.leak(True)   # acted on when it arrives, not at the next check
+    rig.wait('surface', 'leak: surface since 2.00 s (leak detected)')
+    rig.clear()      # still wet: nothing changes
+    assert rig.node.verdict.action == 'surface'
+    rig.leak(False)
+    rig.at(3.0)
+    assert rig.node.verdict.action == 'surface'   # latched
+    rig.clear()
+    rig.wait('none', 'none')
+
+
+def test_pilot_input_lost_for_its_timeout_goes_neutral_and_clears_when_it_returns(rig):
+    rig.at(2.0)
+    rig.twist()
+    rig.report(100)
+    rig.at(4.0)
+    rig.report(300)   # the attitude filter alive: only the pilot input is missing
+    rig.at(5.0)
+    assert rig.node.verdict.action == 'none'   # 3.0 s: at the limit
+    rig.at(5.2)
+    rig.wait('neutral', 'pilot_input: neutral since 5.20 s (no pilot input for 3.2 s (limit '
+                        '3 s))')
+    rig.twist()
+    rig.at(5.3)
+    rig.wait('none', 'none')
+
+
+def test_the_attitude_filter_without_imu_samples_goes_neutral(rig):
+    for t in (1.5, 2.5, 3.5):
+        rig.at(t)
+        rig.twist()
+        rig.report(100)   # from 1.5 s on the count stands still: no IMU samples
+        rig.at(t)
+    assert rig.node.verdict.action == 'none'   # 2.0 s since the last sample counted
+    rig.at(3.6)
+    rig.wait('neutral', 'attitude: neutral since 3.60 s (attitude filter has no IMU samples '
+                        'for 2.1 s')
+
+
+def test_the_attitude_filter_silent_trips_too(rig):
+    rig.at(1.5)
+    rig.twist()
+    rig.at(3.1)
+    rig.twist()
+    rig.at(3.2)
+    assert rig.node.verdict.active[0].reason.startswith(
+        'no report from the attitude filter (filtering) for 2.2 s')
+
+
+def test_a_bad_action_is_refused_at_start_naming_the_parameter(context):
+    with pytest.raises(EnbarrError, match="leak.action: 'neutral' is not one of disabled, "
+                                          'warn, surface'):
+        FailsafeNode(context=context, parameter_overrides=[
+            Parameter('leak.action', value='neutral')])
