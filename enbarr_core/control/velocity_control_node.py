@@ -386,7 +386,7 @@ class VelocityControlNode(EnbarrNode):
             self._entered(mode)
         else:   # one call site, one severity (rclpy's logger refuses a change)
             self._say(f'failsafe {action}' if action != NONE
-                      else 'failsafe cleared: the pilot modes are the pilot\'s again', warn=True)
+                      else 'failsafe cleared: the pilot has the modes again', warn=True)
         self._publish_mode()
 
     def _entered(self, mode: str) -> None:
