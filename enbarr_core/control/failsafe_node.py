@@ -276,6 +276,7 @@ class FailsafeNode(EnbarrNode):
                  'hull_pressure': self._pressure is not None,
                  'hull_temperature': self._temperature is not None}
         self.publish_diagnostics(level, message, {
-            'action': v.action, 'clears': self.clears, **{f'heard.{k}': h for k, h in heard.items()},
+            'action': v.action, 'clears': self.clears,
+            **{f'heard.{k}': h for k, h in heard.items()},
             **{f'active.{t.name}': f'{t.action} since {t.since:.2f} s' for t in v.active}})
 
