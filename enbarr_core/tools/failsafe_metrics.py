@@ -7,7 +7,8 @@ the bag's record times (every node of a scenario runs on the runner's clock):
 - ``failsafe_event_s``: when the event happened, from the start of the run: the first
   ``/leak`` true for a leak; the first ``/battery`` voltage below the tripped failsafe's
   threshold for a battery failsafe; the last ``/surface_command/twist`` for a lost pilot
-  input or link; otherwise the trip itself (``/failsafe/active``).
+  input or link; otherwise the trip itself (``/failsafe/active``). The failsafe is the one
+  whose action acted (a battery's critical, not its earlier low warning).
 - ``failsafe_action_s``: from the event to the acting action on ``/failsafe/action``.
 - ``failsafe_safe_s``: from the event to the safe state of that action: for ``surface``, the
   vehicle rising (``/sim/odometry``, over ``SPEED_SPAN``) at ``SAFE_CLIMB_FRACTION`` of the
@@ -60,9 +61,15 @@ def failsafe_figures(msgs: Messages, profile: Any, t0_ns: int) -> dict[str, Any]
     if acting is None:
         return {}
     t_action, action = acting
-    active = [(t, m.data) for t, m in msgs.get('/failsafe/active', []) if m.data != 'none']
-    name = active[0][1].split(':', 1)[0] if active else ''
-    t_event = active[0][0] if active else t_action
+    # The failsafe that asked for the action: on /failsafe/active as 'name: action since ...'
+    # entries joined by '; ' (control.failsafes.describe), the first with that action.
+    name, t_event = '', t_action
+    for t, m in msgs.get('/failsafe/active', []):
+        entries = [e.split(': ', 1) for e in m.data.split('; ') if ': ' in e]
+        found = next((n for n, rest in entries if rest.startswith(action + ' ')), None)
+        if found is not None:
+            name, t_event = found, t
+            break
     if name == 'leak':
         t_event = next((t for t, m in msgs.get('/leak', []) if m.data), t_event)
     elif name.startswith('battery'):
