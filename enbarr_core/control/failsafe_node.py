@@ -16,7 +16,8 @@ What it reads, all low-rate:
   ``hull/temperature`` (no driver publishes these yet: the failsafes are ready for one);
 - the attitude filter's ``/diagnostics`` report (node ``attitude.node``): its level, and its
   ``samples`` count, which stands still when its IMU stops. So the attitude failsafe reacts
-  within a report period (1 s) plus ``attitude.timeout``, at no per-sample cost.
+  within a report period (1 s) plus ``attitude.timeout``, at no per-sample cost; a filter
+  that stops reporting trips after ``SILENT_REPORTS`` report periods.
 
 Ages count on the node's clock from the last message received (from the node's start when
 none was). The operator clears latched failsafes (leak, battery) with an ``io_request`` to
@@ -49,6 +50,9 @@ from enbarr_interfaces import convert, topics
 #: The executor name of an operator's clear on ``io_request`` (string_value ``clear``).
 EXECUTOR = 'failsafe'
 REPORT_PERIOD = 1.0
+#: The attitude filter reports once a second (REPORT_PERIOD); a report late on a loaded
+#: executor is not a silent filter: silence is this many periods without one.
+SILENT_REPORTS = 3
 
 #: name -> (default action, default threshold; NaN for a failsafe without one).
 DEFAULTS: dict[str, tuple[str, float]] = {
@@ -238,7 +242,7 @@ class FailsafeNode(EnbarrNode):
         now = self._now()
         problem = self._attitude_problem
         report_at = self._attitude_report_at
-        if report_at is None or now - report_at > 2.0 * REPORT_PERIOD:
+        if report_at is None or now - report_at > SILENT_REPORTS * REPORT_PERIOD:
             problem = f'no report from the attitude filter ({self.settings.attitude_node})'
         return Observation(
             pilot_input_age=now - self._pilot_at, surface_link_age=now - self._link_at,

@@ -56,7 +56,7 @@ class Rig:
     def twist(self) -> None:
         self.twist_pub.publish(TwistStamped())
         n = self.node
-        assert self.spin(self.executor, lambda: n._pilot_at == self.t, TIMEOUT)
+        assert self.spin(self.executor, lambda: abs(n._pilot_at - self.t) < 1e-6, TIMEOUT)
 
     def leak(self, wet: bool) -> None:
         self.leak_pub.publish(Bool(data=wet))
@@ -67,8 +67,9 @@ class Rig:
                                   hardware_id='filtering',
                                   values=[KeyValue(key='samples', value=str(samples))])
         self.diag_pub.publish(DiagnosticArray(status=[status]))
-        assert self.spin(self.executor, lambda: self.node._attitude_report_at == self.t,
-                         TIMEOUT)
+        n = self.node
+        assert self.spin(self.executor, lambda: n._attitude_report_at is not None
+                         and abs(n._attitude_report_at - self.t) < 1e-6, TIMEOUT)
 
     def clear(self) -> None:
         value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value='clear')
@@ -139,14 +140,18 @@ def test_the_attitude_filter_without_imu_samples_goes_neutral(rig):
                         'for 2.1 s')
 
 
-def test_the_attitude_filter_silent_trips_too(rig):
+def test_the_attitude_filter_silent_trips_too_but_not_on_one_late_report(rig):
     rig.at(1.5)
     rig.twist()
-    rig.at(3.1)
+    rig.at(3.5)
     rig.twist()
-    rig.at(3.2)
+    rig.at(3.9)   # its one report at 1.0 s: two late, on a loaded machine, is not silence
+    assert rig.node.verdict.active == ()
+    rig.at(4.1)
+    rig.twist()
+    rig.at(4.1)
     assert rig.node.verdict.active[0].reason.startswith(
-        'no report from the attitude filter (filtering) for 2.2 s')
+        'no report from the attitude filter (filtering) for 3.1 s')
 
 
 def test_a_bad_action_is_refused_at_start_naming_the_parameter(context):
