@@ -127,6 +127,7 @@ class FailsafeNode(EnbarrNode):
         self._leak: bool | None = None
         self._voltage: float | None = None
         self._mode = ''
+        self._left_depth_hold_at: float | None = None
         self._depth_at: float | None = None
         self._pressure: float | None = None
         self._temperature: float | None = None
@@ -193,6 +194,8 @@ class FailsafeNode(EnbarrNode):
         self._depth_at = self._now()
 
     def _on_mode(self, msg: String) -> None:
+        if self._mode == DEPTH_HOLD and msg.data != DEPTH_HOLD:
+            self._left_depth_hold_at = self._now()
         self._mode = msg.data
 
     def _on_pressure(self, msg: FluidPressure) -> None:
@@ -244,9 +247,16 @@ class FailsafeNode(EnbarrNode):
         report_at = self._attitude_report_at
         if report_at is None or now - report_at > SILENT_REPORTS * REPORT_PERIOD:
             problem = f'no report from the attitude filter ({self.settings.attitude_node})'
+        # The velocity loop leaves depth hold itself when the depth goes stale (on its own
+        # timeout, as short as this one): a mode that left depth hold when the depth was
+        # already older than the depth failsafe's timeout still counts as in it.
+        left = self._left_depth_hold_at
+        limit = self.settings.failsafes.failsafes['depth'].threshold
+        depth_hold = self._mode == DEPTH_HOLD or (left is not None and (
+            self._depth_at is None or left - self._depth_at > limit))
         return Observation(
             pilot_input_age=now - self._pilot_at, surface_link_age=now - self._link_at,
-            leak=self._leak, battery_voltage=self._voltage, depth_hold=self._mode == DEPTH_HOLD,
+            leak=self._leak, battery_voltage=self._voltage, depth_hold=depth_hold,
             depth_age=None if self._depth_at is None else now - self._depth_at,
             attitude_problem=problem, attitude_age=now - self._attitude_ok_at,
             pressure=self._pressure, temperature=self._temperature)

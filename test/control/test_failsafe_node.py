@@ -7,11 +7,11 @@ from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import TwistStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.parameter import Parameter
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from support.nodes import add, probe, TIMEOUT
 
 from enbarr_core.control.failsafe_node import EXECUTOR, FailsafeNode
@@ -152,6 +152,45 @@ def test_the_attitude_filter_silent_trips_too_but_not_on_one_late_report(rig):
     rig.at(4.1)
     assert rig.node.verdict.active[0].reason.startswith(
         'no report from the attitude filter (filtering) for 3.1 s')
+
+
+def _depth_rig(rig):
+    """Publishers of the loop's mode and of a depth, a depth at the start, and depth hold."""
+    mode_pub = probe(rig.node.context, rig.executor, 'loop').create_topic_publisher(
+        topics.PILOT_MODE)
+    depth_pub = probe(rig.node.context, rig.executor, 'depth').create_topic_publisher(
+        topics.DEPTH)
+    n = rig.node
+    depth_pub.publish(PoseWithCovarianceStamped())
+    assert rig.spin(rig.executor, lambda: n._depth_at is not None, TIMEOUT)
+    mode_pub.publish(String(data='depth_hold'))
+    assert rig.spin(rig.executor, lambda: n._mode == 'depth_hold', TIMEOUT)
+    return mode_pub
+
+
+def _leave(rig, mode_pub, t: float, mode: str) -> None:
+    """The loop publishes ``mode`` at ``t`` [s], before this node's next check."""
+    rig.t = t
+    rig.set_time(int(t * 1e9))
+    mode_pub.publish(String(data=mode))
+    assert rig.spin(rig.executor, lambda: rig.node._mode == mode, TIMEOUT)
+
+
+def test_a_depth_lost_in_depth_hold_is_reported_after_the_loop_fell_back_itself(rig):
+    mode_pub = _depth_rig(rig)
+    _leave(rig, mode_pub, 1.75, 'stabilize')   # the loop's own fallback came first
+    rig.twist()   # (the node's own 10 Hz check may run while this spins: at 1.75 s)
+    rig.at(1.8)
+    rig.wait('stabilize', 'depth: stabilize since 1.')
+    assert rig.active[-1].endswith(' s (depth 0.8 s old (limit 0.5 s))'), rig.active[-1]
+
+
+def test_leaving_depth_hold_by_choice_then_losing_the_depth_trips_nothing(rig):
+    mode_pub = _depth_rig(rig)
+    _leave(rig, mode_pub, 1.2, 'velocity')     # the depth 0.2 s old: the pilot's choice
+    rig.twist()
+    rig.at(2.5)
+    assert rig.node.verdict.active == ()
 
 
 def test_a_bad_action_is_refused_at_start_naming_the_parameter(context):
