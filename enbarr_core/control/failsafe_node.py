@@ -16,7 +16,8 @@ What it reads, all low-rate:
   ``hull/temperature`` (no driver publishes these yet: the failsafes are ready for one);
 - the attitude filter's ``/diagnostics`` report (node ``attitude.node``): its level, and its
   ``samples`` count, which stands still when its IMU stops. So the attitude failsafe reacts
-  within a report period (1 s) plus ``attitude.timeout``, at no per-sample cost.
+  within a report period (1 s) plus ``attitude.timeout``, at no per-sample cost; a filter
+  that stops reporting trips after ``SILENT_REPORTS`` report periods.
 
 Ages count on the node's clock from the last message received (from the node's start when
 none was). The operator clears latched failsafes (leak, battery) with an ``io_request`` to
@@ -49,6 +50,9 @@ from enbarr_interfaces import convert, topics
 #: The executor name of an operator's clear on ``io_request`` (string_value ``clear``).
 EXECUTOR = 'failsafe'
 REPORT_PERIOD = 1.0
+#: The attitude filter reports once a second (REPORT_PERIOD); a report late on a loaded
+#: executor is not a silent filter: silence is this many periods without one.
+SILENT_REPORTS = 3
 
 #: name -> (default action, default threshold; NaN for a failsafe without one).
 DEFAULTS: dict[str, tuple[str, float]] = {
@@ -123,6 +127,7 @@ class FailsafeNode(EnbarrNode):
         self._leak: bool | None = None
         self._voltage: float | None = None
         self._mode = ''
+        self._left_depth_hold_at: float | None = None
         self._depth_at: float | None = None
         self._pressure: float | None = None
         self._temperature: float | None = None
@@ -131,6 +136,7 @@ class FailsafeNode(EnbarrNode):
         self._attitude_report_at: float | None = None
         self._attitude_samples: int | None = None
         self.verdict = Verdict(NONE, ())
+        self.clears = 0   # operator clears taken
         self._published: tuple[str, str] | None = None
         self._action_pub = self.create_topic_publisher(topics.FAILSAFE_ACTION)
         self._active_pub = self.create_topic_publisher(topics.FAILSAFE_ACTIVE)
@@ -188,6 +194,8 @@ class FailsafeNode(EnbarrNode):
         self._depth_at = self._now()
 
     def _on_mode(self, msg: String) -> None:
+        if self._mode == DEPTH_HOLD and msg.data != DEPTH_HOLD:
+            self._left_depth_hold_at = self._now()
         self._mode = msg.data
 
     def _on_pressure(self, msg: FluidPressure) -> None:
@@ -227,6 +235,7 @@ class FailsafeNode(EnbarrNode):
                                    "the only request is 'clear'")
             return
         self.verdict, said = self.supervisor.clear(self.observe(), self._now())
+        self.clears += 1
         self.get_logger().warn(f'operator clear: {said}')
         self._publish()
 
@@ -236,11 +245,18 @@ class FailsafeNode(EnbarrNode):
         now = self._now()
         problem = self._attitude_problem
         report_at = self._attitude_report_at
-        if report_at is None or now - report_at > 2.0 * REPORT_PERIOD:
+        if report_at is None or now - report_at > SILENT_REPORTS * REPORT_PERIOD:
             problem = f'no report from the attitude filter ({self.settings.attitude_node})'
+        # The velocity loop leaves depth hold itself when the depth goes stale (on its own
+        # timeout, as short as this one): a mode that left depth hold when the depth was
+        # already older than the depth failsafe's timeout still counts as in it.
+        left = self._left_depth_hold_at
+        limit = self.settings.failsafes.failsafes['depth'].threshold
+        depth_hold = self._mode == DEPTH_HOLD or (left is not None and (
+            self._depth_at is None or left - self._depth_at > limit))
         return Observation(
             pilot_input_age=now - self._pilot_at, surface_link_age=now - self._link_at,
-            leak=self._leak, battery_voltage=self._voltage, depth_hold=self._mode == DEPTH_HOLD,
+            leak=self._leak, battery_voltage=self._voltage, depth_hold=depth_hold,
             depth_age=None if self._depth_at is None else now - self._depth_at,
             attitude_problem=problem, attitude_age=now - self._attitude_ok_at,
             pressure=self._pressure, temperature=self._temperature)
@@ -274,6 +290,7 @@ class FailsafeNode(EnbarrNode):
                  'hull_pressure': self._pressure is not None,
                  'hull_temperature': self._temperature is not None}
         self.publish_diagnostics(level, message, {
-            'action': v.action, **{f'heard.{k}': h for k, h in heard.items()},
+            'action': v.action, 'clears': self.clears,
+            **{f'heard.{k}': h for k, h in heard.items()},
             **{f'active.{t.name}': f'{t.action} since {t.since:.2f} s' for t in v.active}})
 

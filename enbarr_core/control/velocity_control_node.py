@@ -9,6 +9,12 @@ odometry), surge, sway and heave run on the feed-forward alone. A velocity goal 
 than ``goal_timeout`` before the IMU sample counts as zero.
 Every gain is a parameter; a new value acts on the next sample without a jump in tau.
 
+The failsafes' action (``failsafe/action``, ``control.failsafe_node``) is applied here when it
+changes: ``surface`` forces depth hold (stabilize without a fresh depth) with a climb of
+``failsafe.climb_rate`` as the goal, ``stabilize`` and ``manual`` force those modes, ``neutral``
+puts out zero force from the next sample; while one of these acts, pilot mode requests are
+refused with the reason. Per sample it costs two attribute tests.
+
 Time policy (``framework.stamps``): ``imu/data`` and ``trajectory_request`` stamps pass one
 gate each before they are used: a stamp more than ``max_future`` ahead of the node's clock, or
 not later than the last accepted one of its input, is refused and counted. So one early IMU
@@ -390,8 +396,9 @@ class VelocityControlNode(EnbarrNode):
             before, self.modes.mode = self.modes.mode, mode
             self._say(f'{before} -> {mode}: failsafe {action}', warn=True)
             self._entered(mode)
-        else:
-            self._say(f'failsafe {action}', warn=action != NONE)
+        else:   # one call site, one severity (rclpy's logger refuses a change)
+            self._say(f'failsafe {action}' if action != NONE
+                      else 'failsafe cleared: the pilot has the modes again', warn=True)
         self._publish_mode()
 
     def _entered(self, mode: str) -> None:

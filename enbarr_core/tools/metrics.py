@@ -81,6 +81,8 @@ from enbarr_core.recording.bag import read_bag
 from enbarr_core.tools.scenario import T0_NS
 from enbarr_core.tools.avoidance_metrics import (AVOIDANCE_FIGURES, avoidance_figures,
                                                  avoids, draw_world)
+from enbarr_core.tools.failsafe_metrics import (FAILSAFE_FIGURES, FAILSAFE_FLAGS,
+                                                failsafe_figures, has_failsafes)
 from enbarr_core.tools.vision_metrics import sees, VISION_FIGURES, vision_figures
 
 #: The topics ``compute_metrics`` reads (``enbarr scenario`` records these by default).
@@ -114,6 +116,8 @@ FIGURES: dict[str, Figure] = {
     'all_waypoints_visited': Figure(_PATH, boolean=True),
     **{name: Figure() for name in AVOIDANCE_FIGURES},
     **{name: Figure() for name in VISION_FIGURES},
+    **{name: Figure() for name in FAILSAFE_FIGURES},
+    **{name: Figure(boolean=True) for name in FAILSAFE_FLAGS},
 }
 
 
@@ -299,6 +303,8 @@ def compute_metrics(bag: Path, spec: Any, profile: Any,
                                      cross_track=_guidance_cross_track(t, eta, modes, profile)))
     if sees(profile):
         out.update(vision_figures(msgs, profile, t, eta, WORLD_EPOCH_S))
+    if has_failsafes(profile):
+        out.update(failsafe_figures(msgs, profile, T0_NS))
     return out
 
 

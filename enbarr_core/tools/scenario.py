@@ -21,7 +21,8 @@ machine computes it; stamps, timers, watchdogs and recorded times are all simula
 The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
 plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``; with the collision avoidance
 ``avoidance_metrics.AVOIDANCE_TOPICS``, with a simulated camera and a detector
-``vision_metrics.VISION_TOPICS``), plus the topics the scenario lists in its ``record``
+``vision_metrics.VISION_TOPICS``, with the ROV's failsafes
+``failsafe_metrics.FAILSAFE_TOPICS``), plus the topics the scenario lists in its ``record``
 section (its ``path`` is replaced by the output directory), or every topic with
 ``--record-all`` (several times slower: the recorder serializes each message of every 100 Hz
 topic). The metrics are computed from that bag (their definitions:
@@ -147,6 +148,7 @@ def resolve(name: str) -> str:
 def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> tuple[str, ...]:
     """Return the topics a scenario records, sorted (empty: every topic, ``--record-all``)."""
     from enbarr_core.tools.avoidance_metrics import AVOIDANCE_TOPICS, avoids
+    from enbarr_core.tools.failsafe_metrics import FAILSAFE_TOPICS, has_failsafes
     from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
     from enbarr_core.tools.vision_metrics import sees, VISION_TOPICS
     if record_all:
@@ -154,8 +156,9 @@ def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> 
     listed = profile.record.topics if profile.record is not None else ()
     avoiding = AVOIDANCE_TOPICS if avoids(profile) else ()
     seeing = VISION_TOPICS if sees(profile) else ()
+    failsafes = FAILSAFE_TOPICS if has_failsafes(profile) else ()
     return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *seeing,
-                         *listed}))
+                         *failsafes, *listed}))
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),

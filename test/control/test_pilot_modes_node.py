@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped, WrenchStamped
+from std_msgs.msg import String
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from support.nodes import add, probe, TIMEOUT
@@ -186,3 +187,65 @@ def test_entering_depth_hold_while_diving_stops_the_vehicle_without_a_step(rov, 
     for _ in range(30):            # the run-down (5 stop_time = 2 s) ends: the depth is taken
         rov.run(0.1)
     assert not rov.node.depth_hold.stopping and rov.node.depth_hold.target is not None
+
+
+# -- the failsafes' action (control.failsafe_node publishes it) -------------------------------
+def _failsafe(rov, context, executor, spin, action: str) -> None:
+    pub = getattr(rov, 'failsafe_pub', None)
+    if pub is None:
+        pub = rov.failsafe_pub = probe(context, executor, 'failsafe').create_topic_publisher(
+            topics.FAILSAFE_ACTION)
+    pub.publish(String(data=action))
+    assert spin(executor, lambda: rov.node.failsafe == action, TIMEOUT)
+
+
+def test_surface_climbs_in_depth_hold_with_the_heading_held_and_refuses_the_pilot(
+        rov, context, executor, spin):
+    rov.run(0.5)
+    rov.goal([0.0, 0.0, -0.3, 0.0, 0.0, 0.0])   # the pilot dives
+    rov.run(0.5)
+    _failsafe(rov, context, executor, spin, 'surface')
+    assert rov.node.modes.mode == 'depth_hold'
+    assert spin(executor, lambda: rov.reasons and 'failsafe surface' in rov.reasons[-1], TIMEOUT)
+    assert rov.reasons[-1] == 'velocity -> depth_hold: failsafe surface'
+    rov.run(1.0)
+    # depth hold asks for the climb rate (0.25 m/s up) whatever the pilot's dive goal
+    assert rov.node.depth_hold.target is None
+    assert rov.node.reference.nu_ref[2] == pytest.approx(0.25, abs=0.01)
+    assert rov.taus[-1][2] > 1.0   # heave force up
+    assert rov.node.heading_hold.target == pytest.approx(0.0, abs=0.01)
+    rov.request('velocity')
+    assert spin(executor, lambda: "'velocity' refused: failsafe surface active"
+                in rov.reasons[-1], TIMEOUT)
+    assert rov.node.modes.mode == 'depth_hold'
+    _failsafe(rov, context, executor, spin, 'none')   # cleared: the pilot has the vehicle back
+    rov.request('velocity')
+    assert spin(executor, lambda: rov.node.modes.mode == 'velocity', TIMEOUT)
+
+
+def test_surface_without_a_depth_climbs_in_stabilize(rov, context, executor, spin):
+    rov.run(0.5, depth=False)
+    _failsafe(rov, context, executor, spin, 'surface')
+    assert rov.node.modes.mode == 'stabilize'
+    rov.run(3.0, depth=False)   # the reference model's ramp to the climb rate
+    assert rov.node.reference.nu_ref[2] == pytest.approx(0.25, abs=0.01)
+
+
+def test_neutral_puts_out_zero_force_from_the_next_sample(rov, context, executor, spin):
+    rov.goal([0.3, 0.0, 0.0, 0.0, 0.0, 0.2])
+    tau = rov.run(1.0)
+    assert abs(tau[0]) > 1.0
+    _failsafe(rov, context, executor, spin, 'neutral')
+    n = len(rov.taus)
+    rov.run(0.02)
+    assert all(not t.any() for t in rov.taus[n:]) and len(rov.taus) > n
+    _failsafe(rov, context, executor, spin, 'none')
+    assert rov.run(0.5)[0] > 1.0
+
+
+def test_stabilize_takes_depth_hold_to_stabilize(rov, context, executor, spin):
+    rov.run(0.5)
+    rov.request('depth_hold')
+    assert spin(executor, lambda: rov.node.modes.mode == 'depth_hold', TIMEOUT)
+    _failsafe(rov, context, executor, spin, 'stabilize')
+    assert rov.node.modes.mode == 'stabilize'

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import pytest
 
 from enbarr_core.framework.errors import ProfileError
+from enbarr_core.tools.failsafe_metrics import FAILSAFE_FIGURES, FAILSAFE_FLAGS
 from enbarr_core.tools.metrics import figures_of
 from enbarr_core.tools.scenario import scenario_spec
 from enbarr_core.tools.avoidance_metrics import AVOIDANCE_FIGURES
@@ -73,10 +74,10 @@ def test_a_figure_of_another_kind_is_refused_with_its_own_kinds_list() -> None:
     assert 'cross_track_rms_m' in message and 'settled' not in message
     run = error({'cross_track_rms_m': {'max': 0.05}}, kind='run')
     # every kind's figures, then the collision avoidance's (a run may avoid too), then the
-    # camera's
+    # camera's, then the failsafes'
     assert run.endswith('its figures: ' + ', '.join(
         ('mode_changes', 'thrust_saturation_s', 'final_speed_mps', *AVOIDANCE_FIGURES,
-         *VISION_FIGURES)))
+         *VISION_FIGURES, *FAILSAFE_FIGURES, *FAILSAFE_FLAGS)))
 
 
 def test_the_scenario_section_requires_its_targets() -> None:
