@@ -56,7 +56,7 @@ class GamepadSettings:
         ('velocity', 'circle'), ('lights', 'options'), ('manipulator_open', 'r1'),
         ('manipulator_close', 'l1'), ('tilt_up', 'dpad_up'), ('tilt_down', 'dpad_down'),
         ('tilt_centre', 'r3'))
-    lights_executor: str = 'lights'
+    lights_executor: str = 'gpio_12'          # gpio_lights on pin 12 (enbarr_rov.yaml)
     manipulator_executor: str = 'manipulator'
     manipulator_step: int = 50            # [steps] per press
     tilt_executor: str = 'camera_tilt'
@@ -142,7 +142,7 @@ class GamepadMapper:
                       if spec]
         self._full = dict(settings.full_stick)
         self._buttons = [(c, layout.button(name)) for c, name in settings.buttons if name]
-        self._nu = (0.0,) * 6
+        self._nu: tuple[float, ...] = (0.0,) * 6
         self._last_joy: float | None = None       # arrival of the last sample [s]
         self._heartbeat: float | None = None      # last True of joy/connected [s]
         self._disconnected = False                # the driver said False

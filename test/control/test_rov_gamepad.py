@@ -94,7 +94,7 @@ def test_a_stick_resting_in_the_dead_band_commands_nothing():
     ('circle', IoRequest('pilot_mode', 'velocity')),
     ('r1', IoRequest('manipulator', 50)),
     ('l1', IoRequest('manipulator', -50)),
-    ('options', IoRequest('lights', True)),
+    ('options', IoRequest('gpio_12', True)),
     ('dpad_up', IoRequest('camera_tilt', 10.0)),
     ('dpad_down', IoRequest('camera_tilt', -10.0)),
     ('r3', IoRequest('camera_tilt', 0.0)),
@@ -108,8 +108,8 @@ def test_each_button_sends_its_request_once_on_the_press_edge(name, request_):
 
 def test_lights_toggle_and_tilt_steps_are_clamped_and_centred():
     pad = connected()
-    assert press(pad, 'options', 0.1) == [IoRequest('lights', True)]
-    assert press(pad, 'options', 0.2) == [IoRequest('lights', False)]
+    assert press(pad, 'options', 0.1) == [IoRequest('gpio_12', True)]
+    assert press(pad, 'options', 0.2) == [IoRequest('gpio_12', False)]
     tilts = [press(pad, 'dpad_up', 0.3 + 0.1 * i)[0].value for i in range(6)]
     assert tilts == [10.0, 20.0, 30.0, 40.0, 45.0, 45.0]
     assert press(pad, 'r3', 1.0) == [IoRequest('camera_tilt', 0.0)]
@@ -120,7 +120,7 @@ def test_lights_toggle_and_tilt_steps_are_clamped_and_centred():
 def test_two_buttons_pressed_together_send_both():
     pad = connected()
     assert pad.on_joy(axes(), buttons('cross', 'options'), 0.1) == [
-        IoRequest('pilot_mode', 'depth_hold'), IoRequest('lights', True)]
+        IoRequest('pilot_mode', 'depth_hold'), IoRequest('gpio_12', True)]
 
 
 def test_nothing_is_sent_before_a_sample_and_the_first_sample_fires_no_button():
