@@ -85,6 +85,10 @@ class GamepadSettings:
                                  f'{", ".join(STICK_DOFS)}')
             if not (math.isfinite(speed) and speed >= 0.0):
                 raise ValueError(f'full_stick.{control}: {speed} must be finite and >= 0')
+        speeds = dict(self.full_stick)
+        for control, spec in self.sticks:
+            if spec and control not in speeds:
+                raise ValueError(f'full_stick.{control}: needed for sticks.{control}')
         for control, name in self.buttons:
             if control not in BUTTON_CONTROLS:
                 raise ValueError(f'buttons: {control!r} is not one of '
@@ -138,9 +142,10 @@ class GamepadMapper:
         layout = settings.validate()
         self.settings = settings
         self.on_change = layout.publishes_on_change
-        self._axes = [(STICK_DOFS[c], *layout.axis(spec)) for c, spec in settings.sticks
-                      if spec]
-        self._full = dict(settings.full_stick)
+        full = dict(settings.full_stick)
+        # (dof, axis index, sign, full-stick speed) of each stick in use
+        self._axes = [(STICK_DOFS[c], *layout.axis(spec), full[c])
+                      for c, spec in settings.sticks if spec]
         self._buttons = [(c, layout.button(name)) for c, name in settings.buttons if name]
         self._nu: tuple[float, ...] = (0.0,) * 6
         self._last_joy: float | None = None       # arrival of the last sample [s]
@@ -173,10 +178,9 @@ class GamepadMapper:
             self._pressed = None   # back from a stale gap: arm again
         self._last_joy = now
         nu = [0.0] * 6
-        for dof, index, sign in self._axes:
+        for dof, index, sign, full in self._axes:
             value = axes[index] if index < len(axes) else 0.0
-            control = next(c for c, d in STICK_DOFS.items() if d == dof)
-            nu[dof] = sign * dead_band(value, self.settings.deadzone) * self._full[control]
+            nu[dof] = sign * dead_band(value, self.settings.deadzone) * full
         self._nu = tuple(nu)
         pressed = {c: (index < len(buttons) and bool(buttons[index]))
                    for c, index in self._buttons}

@@ -181,6 +181,7 @@ def test_a_driver_that_publishes_on_change_is_judged_by_its_heartbeat():
     ({'tilt_min': 5.0}, 'tilt_min'),
     ({'joy_timeout': 0.0}, 'joy_timeout'),
     ({'full_stick': (('yaw', -1.0),)}, 'full_stick.yaw'),
+    ({'full_stick': (('yaw', 1.0),)}, 'full_stick.surge: needed for sticks.surge'),
 ])
 def test_bad_settings_are_refused_naming_the_setting(change, message):
     with pytest.raises(ValueError, match=message):
