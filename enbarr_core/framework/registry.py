@@ -63,6 +63,7 @@ BUILTIN: dict[str, str] = {
     'sim_arduino': 'enbarr_plugins.arduino.sim:SimArduinoNode',
     'scripted_joy': 'enbarr_plugins.joystick.scripted:ScriptedJoyNode',
     'keyboard_teleop': 'enbarr_plugins.operator.keyboard:KeyboardTeleopNode',
+    'rov_gamepad': 'enbarr_plugins.operator.gamepad:RovGamepadNode',
     'foxglove_bridge': 'enbarr_plugins.foxglove.bridge:FoxgloveBridgeNode',
     'surface_station': 'enbarr_plugins.station.node:SurfaceStationNode',
     # device drivers, each with its emulator (docs/hardware.md)

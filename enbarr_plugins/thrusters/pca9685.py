@@ -46,6 +46,16 @@ What the driver does:
   its own: if the Pi dies without a stop path the ESCs keep their last command; wire the
   PCA9685's OE pin or the ESC power through a kill switch.
 
+Camera tilt servo (``servo.*``, optional: ``servo.channel`` -1 is none): a hobby servo on a
+spare channel (``servo.py``: pulse for an angle, the angle rate-limited toward its goal). An
+``io_request`` addressed to ``servo.executor`` (``camera_tilt``) with a number sets the goal
+angle [deg] (clamped; anything else is refused and counted); a timer moves the angle at
+``servo.rate`` deg/s while it is on its way, and the writer thread writes the servo's channel
+alone (4 bytes) when its counts change, so the thrusters' block stays one transfer. The servo
+starts centred, holds its angle through a thruster fault or neutral (it is no thruster: a
+camera that swings back on every fault would hide what went wrong), and is written again
+with the chip's first block after a reconnect.
+
 Pulse calibration per thruster (``pca9685.pulse.<name>.*``, microseconds): ``neutral``,
 ``min`` (full reverse), ``max`` (full forward), ``dead_band`` (half-width of the ESC's
 dead band around neutral; a non-zero command starts just outside it, so a small command
@@ -64,15 +74,18 @@ import time
 from typing import Any
 
 import numpy as np
+from rcl_interfaces.msg import Parameter
 
 from enbarr_core.framework.errors import DeviceError
 from enbarr_core.framework.params import ParamSpec, SettingsBinding
+from enbarr_interfaces import convert, topics
 from enbarr_plugins import emulation
 from enbarr_plugins.thrusters.common import MAX_FUTURE_SPEC, ThrusterDriver
 from enbarr_plugins.thrusters.pca9685_protocol import (
     AI, CHANNELS, counts_for, channel_bytes, DEFAULT_ADDRESS, frequency_of, FULL, COUNTS,
     led_register, LED0_ON_L, MODE1, MODE2, OSCILLATOR, OUTDRV, PRE_SCALE, prescale_for,
     pulse_of, RESTART, SLEEP, WAKE_DELAY)
+from enbarr_plugins.thrusters.servo import ServoSettings, ServoSlew
 from enbarr_plugins.transport.i2c import MAX_BLOCK, I2cDevice, open_i2c
 
 class Pca9685:
@@ -264,7 +277,26 @@ SPECS = [
     ParamSpec('verify_period', 1.0, 'How often MODE1 is read back to catch a reset chip', 's',
               0.05, 60.0),
     MAX_FUTURE_SPEC,
+    ParamSpec('servo.channel', -1, 'PCA9685 channel of the camera tilt servo (-1: none)', '',
+              -1, CHANNELS - 1, read_only=True),
+    ParamSpec('servo.min_pulse', 1100.0, 'Servo pulse width at servo.min_angle', 'us', 0.0,
+              1e5, read_only=True),
+    ParamSpec('servo.centre_pulse', 1500.0, 'Servo pulse width at 0 deg (the centre)', 'us',
+              0.0, 1e5, read_only=True),
+    ParamSpec('servo.max_pulse', 1900.0, 'Servo pulse width at servo.max_angle', 'us', 0.0,
+              1e5, read_only=True),
+    ParamSpec('servo.min_angle', -45.0, 'Lowest servo angle (camera down)', 'deg', -180.0, 0.0,
+              read_only=True),
+    ParamSpec('servo.max_angle', 45.0, 'Highest servo angle (camera up)', 'deg', 0.0, 180.0,
+              read_only=True),
+    ParamSpec('servo.rate', 60.0, 'Fastest servo motion toward a new angle', 'deg/s', 1.0,
+              1000.0),
+    ParamSpec('servo.executor', 'camera_tilt', 'io_request name of the servo (an angle [deg])',
+              read_only=True),
 ]
+
+#: How often the servo's angle moves while on its way to a goal [Hz].
+SERVO_UPDATE_RATE = 25.0
 
 
 @dataclass(frozen=True)
@@ -282,6 +314,7 @@ class Pca9685Settings:
     channels: tuple[int, ...]
     pulses: tuple[Pulse, ...]
     prescale: int
+    servo: ServoSettings
 
     @classmethod
     def build(cls, names: Sequence[str], v: Mapping[str, Any]) -> Pca9685Settings:
@@ -292,16 +325,29 @@ class Pca9685Settings:
         prescale = prescale_for(v['frequency'], v['oscillator'])
         period_us = 1e6 / frequency_of(prescale, v['oscillator'])
         channels, pulses = pulses_from_params(names, v, period_us)
+        servo = ServoSettings(
+            channel=v['servo.channel'], min_pulse=v['servo.min_pulse'],
+            centre_pulse=v['servo.centre_pulse'], max_pulse=v['servo.max_pulse'],
+            min_angle=v['servo.min_angle'], max_angle=v['servo.max_angle'],
+            rate=v['servo.rate'], executor=v['servo.executor'].strip())
+        servo.validate(period_us)
+        if servo.channel in channels:
+            raise ValueError(f'servo.channel: {servo.channel} is already a thruster channel '
+                             f'({dict(zip(names, channels))})')
         return cls(bus=bus, address=v['address'], frequency=v['frequency'],
                    oscillator=v['oscillator'], write_rate=v['write_rate'],
                    arming_time=v['arming_time'],
                    verify_period=v['verify_period'], max_future=v['max_future'],
-                   channels=channels, pulses=pulses, prescale=prescale)
+                   channels=channels, pulses=pulses, prescale=prescale, servo=servo)
 
     def counts(self, command: np.ndarray) -> dict[int, int]:
         """Channel -> counts of a normalized command (one entry per thruster)."""
         return {ch: counts_for(p.width(float(c)), self.prescale, self.oscillator)
                 for ch, p, c in zip(self.channels, self.pulses, command)}
+
+    def servo_counts(self, angle: float) -> int:
+        """Return the counts of the servo's pulse at ``angle`` [deg]."""
+        return counts_for(self.servo.pulse(angle), self.prescale, self.oscillator)
 
 
 def bus_number(text: str) -> int:
@@ -346,9 +392,21 @@ class Pca9685ThrustersNode(ThrusterDriver):
         self.held_arming = 0
         self.written: bytes = b''                  # last channel block written
         self.subscribe_commands()
+        self.servo = ServoSlew(self.settings.servo)
+        self.servo_refused = 0
+        self._servo_pending: int | None = None     # servo counts for the writer
+        self._servo_counts = self.settings.servo_counts(0.0)   # last handed to the writer
+        if self.settings.servo.channel >= 0:
+            self.create_topic_subscription(topics.IO_REQUEST, self._on_io_request)
+            self._servo_timer = self.create_timer(1.0 / SERVO_UPDATE_RATE, self._move_servo)
+            self._servo_timer.cancel()             # runs only while the servo is on its way
+            self._servo_last_ns = 0
 
     def _apply(self, settings: Pca9685Settings) -> None:
         self.settings = settings
+        servo = getattr(self, 'servo', None)
+        if servo is not None:   # servo.rate is live
+            servo.settings = settings.servo
         self.commands.set_max_future(settings.max_future)
 
     # -- device ------------------------------------------------------------------------------
@@ -357,8 +415,11 @@ class Pca9685ThrustersNode(ThrusterDriver):
         s = self.settings
         device, self._owns_bus = open_device(s.bus, s.address)
         chip = Pca9685(device, s.oscillator)
+        counts: dict[int, int] = s.counts(np.zeros(len(self.names)))
+        if s.servo.channel >= 0:
+            counts[s.servo.channel] = self._servo_counts
         try:
-            chip.open(s.frequency, s.counts(np.zeros(len(self.names))))
+            chip.open(s.frequency, counts)
         except DeviceError:
             if self._owns_bus:
                 chip.close()
@@ -405,13 +466,17 @@ class Pca9685ThrustersNode(ThrusterDriver):
         try:
             while True:
                 with self._cond:
-                    while self._pending is None and not self._stop:
+                    while (self._pending is None and self._servo_pending is None
+                           and not self._stop):
                         timeout = next_verify - time.monotonic()
                         if timeout <= 0.0:
                             break
                         self._cond.wait(timeout)
                     cmd, self._pending = self._pending, None
+                    servo, self._servo_pending = self._servo_pending, None
                     stop = self._stop
+                if servo is not None:
+                    chip.write({self.settings.servo.channel: servo})
                 if cmd is not None:
                     # One write per PWM period at most (the ESC reads one pulse per period),
                     # and at most write_rate: the bus is shared with the IMU.
@@ -436,7 +501,11 @@ class Pca9685ThrustersNode(ThrusterDriver):
         if np.any(cmd) and time.monotonic_ns() < self._armed_ns:
             self.held_arming += 1
             cmd = np.zeros(len(self.names))
-        self.written = chip.write(self.settings.counts(cmd))
+        counts: dict[int, int | None] = dict(self.settings.counts(cmd))
+        servo = self.settings.servo.channel
+        if servo >= 0 and min(counts) < servo < max(counts):
+            counts[servo] = self._servo_counts   # inside the block: keep its pulse
+        self.written = chip.write(counts)
         self.applied = cmd
         self.publish_output(cmd, self.now_ns())
 
@@ -444,6 +513,33 @@ class Pca9685ThrustersNode(ThrusterDriver):
         with self._cond:
             self._pending = cmd
             self._cond.notify()
+
+    # -- camera tilt servo ---------------------------------------------------------------------
+    def _on_io_request(self, msg: Parameter) -> None:
+        if msg.name != self.settings.servo.executor:
+            return
+        value = convert.parameter_value_to_python(msg.value)
+        reason = self.servo.request(value)
+        if reason:
+            self.servo_refused += 1
+            self.get_logger().warn(f'{msg.name}: refused {value!r}: {reason}')
+            return
+        if self._servo_timer.is_canceled():
+            self._servo_last_ns = self.now_ns()
+            self._servo_timer.reset()
+
+    def _move_servo(self) -> None:
+        now = self.now_ns()
+        angle = self.servo.step((now - self._servo_last_ns) * 1e-9)
+        self._servo_last_ns = now
+        counts = self.settings.servo_counts(angle)
+        if counts != self._servo_counts:
+            self._servo_counts = counts
+            with self._cond:
+                self._servo_pending = counts
+                self._cond.notify()
+        if angle == self.servo.goal:
+            self._servo_timer.cancel()
 
     def supervise(self) -> None:
         """Run the command watchdog; turn a writer failure into a device fault."""
@@ -469,6 +565,8 @@ class Pca9685ThrustersNode(ThrusterDriver):
     def status_values(self) -> dict[str, Any]:
         """Return the driver counters."""
         chip = self.chip
-        return {**super().status_values(), 'armed': self.armed,
+        servo = ({'servo_angle': round(self.servo.angle, 2), 'servo_refused': self.servo_refused}
+                 if self.settings.servo.channel >= 0 else {})
+        return {**super().status_values(), **servo, 'armed': self.armed,
                 'held_arming': self.held_arming, 'writes': chip.writes if chip else 0,
                 'i2c_errors': chip.device.errors if chip else 0}

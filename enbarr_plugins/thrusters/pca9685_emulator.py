@@ -35,6 +35,9 @@ the pulse stops for ``signal_timeout`` (the forum: "3-10 seconds"), and maps the
 linearly outside the dead band to the thruster's ``max_forward``/``max_reverse`` (the common
 ``thrusters`` parameters; a linear stand-in for the T200's curve).
 
+A servo on another channel (``servo.channel``, the camera tilt) is decoded the same way and
+shown in the node's report (``servo_pulse_us``); a servo makes no thrust.
+
 ``Pca9685EmulatorNode``, once started, attaches the chip at ``address`` on the shared emulated
 bus ``emulated:<name>`` (the IMU emulator sits on the same one), and at ``rate`` publishes the
 thrust the ESCs produce on ``sim/thrust`` (for ``rov_simulator``) and the pulse of every
@@ -326,6 +329,8 @@ SPECS = [
               read_only=True),
     ParamSpec('esc.signal_timeout', 3.0, 'No pulse this long disarms an ESC', 's', 0.0, 60.0,
               read_only=True),
+    ParamSpec('servo.channel', -1, 'Channel of a servo whose pulse the report shows (-1: none)',
+              '', -1, CHANNELS - 1, read_only=True),
 ]
 
 
@@ -339,6 +344,7 @@ class EmulatorSettings:
     rate: float
     channels: tuple[int, ...]
     escs: tuple[EscSpec, ...]
+    servo_channel: int = -1
 
 
 class Pca9685EmulatorNode(EnbarrNode):
@@ -390,8 +396,10 @@ class Pca9685EmulatorNode(EnbarrNode):
                              v['esc.arming_time'], v['esc.signal_timeout'], t.max_forward,
                              t.max_reverse, v[f'pca9685.pulse.{t.name}.reversed'])
                      for t in self.thrusters)
+        if v['servo.channel'] in channels:
+            raise ValueError(f'servo.channel: {v["servo.channel"]} is a thruster channel')
         return EmulatorSettings(v['name'], v['address'], v['oscillator'], v['rate'], channels,
-                                escs)
+                                escs, v['servo.channel'])
 
     def tick(self) -> None:
         """Decode the pulses, run the ESCs, publish thrust and pulses (the bridge's source)."""
@@ -411,16 +419,23 @@ class Pca9685EmulatorNode(EnbarrNode):
         pulses.header.frame_id = topics.BODY_FRAME
         self._pulse_pub.publish(pulses)
 
+    def servo_pulse(self) -> float:
+        """Pulse width [us] on the servo's channel (0: no pulse, NaN: no servo)."""
+        channel = self.settings.servo_channel
+        return self.chip.pulse_us(channel) if channel >= 0 else float('nan')
+
     def _report(self) -> None:
         if not self.started:
             return
         c = self.chip
+        servo = ({'servo_pulse_us': f'{self.servo_pulse():.0f}'}
+                 if self.settings.servo_channel >= 0 else {})
         self.publish_diagnostics(0, 'emulating a PCA9685', {
             'bus': f'emulated:{self.settings.name}', 'address': f'0x{self.settings.address:02x}',
             'transfers': c.transfers, 'bytes': c.bytes, 'prescale': c.prescale,
             'prescale_blocked': c.prescale_blocked, 'early_restart': c.early_restart,
             'armed': sum(e.armed for e in self.escs), 'beeps': sum(e.beeps for e in self.escs),
-            'pulses_us': ' '.join(f'{p:.0f}' for p in self.pulses)})
+            'pulses_us': ' '.join(f'{p:.0f}' for p in self.pulses), **servo})
 
     def destroy_node(self) -> None:
         """Publish the outputs once more, unplug the chip, withdraw the bus if it is empty.

@@ -19,9 +19,10 @@ from enbarr_interfaces.links import LinkPublisher
 
 #: What a test needs to build a profile at all: the keyboard's terminal (not stdin under pytest).
 OVERRIDES = {'enbarr_teleop': ['keyboard.device=/dev/tty'],
-             'enbarr_rov_topside': ['keyboard.device=/dev/tty']}
+             'enbarr_rov_topside_keyboard': ['keyboard.device=/dev/tty']}
 RUNNABLE = ('enbarr_sim', 'enbarr_teleop', 'enbarr_rov', 'enbarr_rov_emulated',
-            'enbarr_rov_topside', 'saucer', 'saucer_sim', 'saucer_emulated', 'skiff_sim')
+            'enbarr_rov_topside', 'enbarr_rov_topside_keyboard', 'enbarr_rov_pad_sim', 'saucer',
+            'saucer_sim', 'saucer_emulated', 'skiff_sim')
 
 
 @pytest.mark.parametrize('name', RUNNABLE)

@@ -3,7 +3,7 @@ veth pair (a private /30, nothing routed out: the traffic never leaves the names
 
 The simulated ROV (``enbarr_sim`` without its scripted station) runs in one namespace and
 records its bag there; the topside (``enbarr_rov_topside`` with a scripted source in place of
-the keyboard, which needs a person) in the other. Judged from the vessel's bag and a probe of
+the gamepad, which needs a person) in the other. Judged from the vessel's bag and a probe of
 its ``/diagnostics`` in its namespace: discovery across works and the operator's commands
 drive the vessel; a cut link (``ip link set DEV down``) ends in the command-loss failsafe
 within the receiver's timeout, the vessel comes to rest; when the link returns the commands
@@ -135,7 +135,7 @@ def write_profiles(tmp: Path, domain: str, discovery: str) -> tuple[Path, Path]:
     operator.write_text(yaml.safe_dump({
         'profile': 'topside', 'include': [str(resolve_profile('enbarr_rov_topside'))],
         'environment': {**operator_env, 'ROS_DOMAIN_ID': domain},
-        'nodes': {'keyboard': {'enabled': False},
+        'nodes': {'joystick': {'enabled': False}, 'gamepad': {'enabled': False},
                   'station': {'plugin': 'scripted_commands', 'group': 'operator',
                               'parameters': {'script': [f'0.0 twist {SURGE} 0 0 0 0 0']}}}}))
     return vessel, operator

@@ -12,13 +12,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+from rcl_interfaces.msg import Parameter
 from sensor_msgs.msg import JointState
 from support.devices import diagnostics_of, pass_time
 from support.nodes import TIMEOUT, add, probe
 from support.rov import layout_overrides, sim_parameters
 
 from enbarr_core.framework.errors import ConfigurationError, DeviceError
-from enbarr_interfaces import topics
+from enbarr_interfaces import convert, topics
 from enbarr_interfaces.links import LinkBus
 from enbarr_plugins import emulation
 from enbarr_plugins.thrusters.pca9685 import Pca9685ThrustersNode
@@ -357,3 +358,66 @@ def test_emulator_reports_what_it_received(rig):
     values = {kv.key: kv.value for kv in seen[-1].values}
     assert int(values['transfers']) > 5 and values['prescale'] == str(PRESCALE)
     assert np.isfinite(float(values['bytes']))
+
+
+# -- the camera tilt servo on a spare channel ----------------------------------------------
+# Data sheet numbers typed in (NXP PCA9685 Rev. 4): LEDn_ON_L = 0x06 + 4 n (table 4), so
+# channel 8's four registers start at 0x26; 4096 counts a period; PRE_SCALE =
+# round(25 MHz / (4096 f)) - 1 (equation 1): 121 at 50 Hz. One count is 122 / 25 MHz =
+# 4.88 us, so 1500 us is 307 counts (0x133), 1900 us 389 (0x185), 1100 us 225 (0xe1).
+SERVO = {'servo.channel': 8, 'servo.rate': 90.0}
+LED8_ON_L = 0x26
+
+
+def servo_writes(rig: Rig) -> list[bytes]:
+    return [data for op, addr, reg, data in list(rig.bus.log)
+            if op == 'write' and addr == ADDRESS and reg == LED8_ON_L]
+
+
+def test_the_servo_starts_centred_with_the_thrusters_first_block(context, executor, spin):
+    rig = Rig(context, executor, spin, **SERVO)
+    writes = [(reg, data) for op, addr, reg, data in rig.bus.log if op == 'write']
+    # Channels 0..8 while asleep: 36 bytes, in blocks of at most 32 (one SMBus block).
+    assert writes[3] == (0x06, expected_block([0.0] * 8))
+    assert writes[4] == (LED8_ON_L, bytes([0x00, 0x00, 0x33, 0x01]))
+    assert bytes(rig.chip.regs[LED8_ON_L:LED8_ON_L + 4]) == bytes([0x00, 0x00, 0x33, 0x01])
+
+
+def test_a_tilt_request_moves_the_servo_at_its_rate_to_the_exact_pulse(context, executor, spin):
+    rig = Rig(context, executor, spin, **SERVO)
+    io = rig.probe.create_topic_publisher(topics.IO_REQUEST)
+    io.publish(Parameter(name='camera_tilt', value=convert.python_to_parameter_value(45.0)))
+    assert rig.until(lambda: servo_writes(rig)
+                     and servo_writes(rig)[-1] == bytes([0x00, 0x00, 0x85, 0x01]))
+    assert rig.chip.pulse_us(8) == pytest.approx(389 * 122 / 25.0)
+    # On its way (servo.py's rate limit, its unit tests): rising, each written alone.
+    ramp = [(w[3] << 8) | w[2] for w in servo_writes(rig)]
+    assert ramp == sorted(ramp) and all(len(w) == 4 for w in servo_writes(rig))
+    io.publish(Parameter(name='camera_tilt', value=convert.python_to_parameter_value(-90)))
+    assert rig.until(lambda: servo_writes(rig)[-1] == bytes([0x00, 0x00, 0xe1, 0x00]))
+    assert rig.node.servo.angle == -45.0   # clamped to servo.min_angle
+    # The thrusters' block is still channels 0..7 alone.
+    rig.command(CMD)
+    assert rig.until(lambda: rig.wrote(expected_block(CMD)))
+
+
+def test_a_tilt_request_of_the_wrong_type_is_refused(context, executor, spin):
+    rig = Rig(context, executor, spin, **SERVO)
+    io = rig.probe.create_topic_publisher(topics.IO_REQUEST)
+    io.publish(Parameter(name='camera_tilt', value=convert.python_to_parameter_value(True)))
+    assert rig.until(lambda: rig.node.servo_refused == 1)
+    assert rig.node.servo.goal == 0.0
+    assert servo_writes(rig) == [bytes([0x00, 0x00, 0x33, 0x01])]   # the first block's, alone
+
+
+def test_the_emulator_reports_the_servo_pulse(context, executor, spin):
+    rig = Rig(context, executor, spin, emulator=False, start=False, **SERVO)
+    emulator = rig.start_emulator(**{'servo.channel': 8})
+    rig.node.start()
+    assert rig.until(lambda: emulator.servo_pulse() == pytest.approx(307 * 122 / 25.0))
+    io = rig.probe.create_topic_publisher(topics.IO_REQUEST)
+    io.publish(Parameter(name='camera_tilt', value=convert.python_to_parameter_value(45.0)))
+    assert rig.until(lambda: emulator.servo_pulse() == pytest.approx(389 * 122 / 25.0))
+    seen = diagnostics_of(rig.probe, 'pca9685_emulator')
+    assert rig.until(lambda: any(kv.key == 'servo_pulse_us' and kv.value == '1898'
+                                 for d in seen for kv in d.values))
