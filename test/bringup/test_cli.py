@@ -29,7 +29,7 @@ def write(path: Path, text: str) -> str:
 def test_check_enbarr_sim_ok(tmp_path: Path) -> None:
     r = enbarr('bringup', '--profile', 'enbarr_sim', '--check', cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.strip() == f'{SIM}: ok (16 nodes in 1 group(s))'
+    assert r.stdout.strip() == f'{SIM}: ok (17 nodes in 1 group(s))'
     assert 'Traceback' not in r.stderr
 
 
@@ -37,7 +37,7 @@ def test_check_with_set_override(tmp_path: Path) -> None:
     r = enbarr('bringup', '--profile', SIM, '--check', '--set',
                'control_loop.kp=[1,2,3,4,5,6]', '--set', 'imu.gyro_noise=0.01', cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.rstrip().endswith(': ok (16 nodes in 1 group(s))')
+    assert r.stdout.rstrip().endswith(': ok (17 nodes in 1 group(s))')
 
 
 def test_bad_profile_file_one_line_error(tmp_path: Path) -> None:

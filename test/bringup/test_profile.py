@@ -47,7 +47,7 @@ def test_enbarr_sim_nodes_and_plugins(sim: profiles.Profile) -> None:
     assert sim.node_names() == [
         'command_receiver', 'filtering', 'control_loop', 'thruster_converter', 'frames',
         'simulator', 'imu', 'thruster_control', 'thruster_monitor', 'manipulator', 'lights',
-        'depth', 'leak', 'battery', 'failsafe', 'surface']
+        'depth', 'leak', 'battery', 'hull', 'failsafe', 'surface']
     plugins = {n.name: n.plugin for n in sim.nodes}
     assert plugins == {
         'command_receiver': 'command_receiver', 'filtering': 'attitude_filter',
@@ -55,7 +55,7 @@ def test_enbarr_sim_nodes_and_plugins(sim: profiles.Profile) -> None:
         'frames': 'frame_publisher', 'simulator': 'rov_simulator', 'imu': 'sim_imu',
         'thruster_control': 'sim_thrusters', 'thruster_monitor': 'thruster_monitor',
         'manipulator': 'sim_stepper', 'lights': 'sim_gpio', 'depth': 'sim_depth',
-        'leak': 'sim_leak', 'battery': 'sim_battery', 'failsafe': 'failsafe',
+        'leak': 'sim_leak', 'battery': 'sim_battery', 'hull': 'sim_hull', 'failsafe': 'failsafe',
         'surface': 'scripted_commands'}
 
 
@@ -247,7 +247,7 @@ def test_include_chain_of_installed_profiles(grandchild) -> None:
     child, prof = grandchild
     assert prof.files == (CORE, SIM, child)
     assert prof.name == 'enbarr_sim'  # not overridden: the included name stays
-    assert 'surface' not in prof.node_names() and len(prof.nodes) == 15
+    assert 'surface' not in prof.node_names() and len(prof.nodes) == 16
 
 
 def test_grandchild_overrides_a_core_parameter(grandchild) -> None:

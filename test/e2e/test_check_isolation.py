@@ -65,7 +65,7 @@ def audited_check(profile: str, *extra: str) -> tuple[subprocess.CompletedProces
 
 @pytest.mark.parametrize('profile, devices', [
     ('saucer', ('arduino', 'lidar', 'camera', 'mocap', 'joystick')),
-    ('enbarr_rov', ('imu', 'thruster_control', 'depth', 'leak', 'battery')),
+    ('enbarr_rov', ('imu', 'thruster_control', 'depth', 'leak', 'battery', 'hull')),
 ])
 def test_a_check_of_a_hardware_profile_opens_no_device_and_no_socket(profile, devices):
     result, seen = audited_check(profile)
