@@ -13,9 +13,11 @@ the same machine; on another address (``host``) the URL carries the token every 
   ``command: twist`` (the ROV) publishes the velocity goal on ``surface_command/twist``, and
   the lights and the manipulator's steps on ``surface_command/io`` (executors
   ``lights_executor`` and ``manipulator_executor``, as the keyboard teleop sends them); their
-  state comes back from ``io_state``. When the page stops sending (closed, frozen, network lost)
-  the station publishes one neutral command (sticks at rest and ``joy/connected`` False, or a
-  zero twist) and then nothing (``station.protocol``).
+  state comes back from ``io_state``. A gamepad's buttons on the ROV are the ROV pilot's pad
+  (``control.rov_gamepad``, docs/rov_gamepad.png): a press sends its io request once (pilot
+  modes, manipulator, camera tilt; options toggles the page's lights). When the page stops
+  sending (closed, frozen, network lost) the station publishes one neutral command (sticks at
+  rest and ``joy/connected`` False, or a zero twist) and then nothing (``station.protocol``).
 - See: the estimate (or the simulator's truth) on a map with the guidance reference and the
   obstacles, velocities, the azimuths or thruster commands, the mode, why a mode change was
   refused, and every node's ``/diagnostics`` (the recorder's among them). The subscriptions
@@ -49,6 +51,7 @@ from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 
 from enbarr_core.control.joy_layouts import AXIS_CONTROLS, BUTTON_CONTROLS, get_layout, LAYOUTS
+from enbarr_core.control.rov_gamepad import GamepadMapper, GamepadSettings
 from enbarr_core.framework.errors import ConfigurationError
 from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
@@ -295,6 +298,13 @@ class SurfaceStationNode(EnbarrNode):
             self._stop_pub = self.create_topic_publisher(topics.SURFACE_STOP)
             self.create_topic_subscription(topics.IO_STATE, self._on_io_state)
         self._lights: bool | None = None
+        # The ROV pilot's pad for the buttons a page reports (twist vessels): the page's own
+        # lights toggle stays the one lights state, so the pad's lights control is unused.
+        pad = GamepadSettings(
+            buttons=tuple((c, '' if c == 'lights' else b) for c, b in GamepadSettings().buttons),
+            manipulator_executor=s.manipulator_executor, manipulator_step=s.manipulator_step)
+        self._pad = GamepadMapper(pad)
+        self._pad_buttons = get_layout(pad.layout).buttons
         self.commands_sent = 0
         self.neutrals_sent = 0
         self.driving = False   # between an input taken and the neutral that ends it
@@ -434,6 +444,7 @@ class SurfaceStationNode(EnbarrNode):
             twist.header.frame_id = topics.BODY_FRAME
             convert.set_twist(twist.twist, twist_of(inp, s.max_linear, s.max_angular))
             self._twist_pub.publish(twist)
+            self._pad_requests(inp, now * 1e-9)
             if inp is not None and inp.lights != self._lights:
                 self._lights = inp.lights
                 self._io_pub.publish(ParameterMsg(
@@ -445,6 +456,17 @@ class SurfaceStationNode(EnbarrNode):
         else:
             self.commands_sent += 1
             self.driving = True
+
+    def _pad_requests(self, inp: DriveInput | None, now: float) -> None:
+        """Publish the io requests of the buttons ``inp`` newly holds (the ROV's pad)."""
+        if inp is None:     # the drive ended: the next page's first input arms, fires nothing
+            self._pad.on_connection(False, now)
+            return
+        self._pad.on_connection(True, now)
+        held = set(inp.buttons)
+        for request in self._pad.on_joy((), [int(b in held) for b in self._pad_buttons], now):
+            self._io_pub.publish(ParameterMsg(
+                name=request.executor, value=convert.python_to_parameter_value(request.value)))
 
     def surface_stop(self, stop: bool) -> str:
         """Set or release ``surface_command/stop``; '' when done, else why not.

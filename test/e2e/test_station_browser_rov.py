@@ -59,6 +59,15 @@ def rov() -> Iterator[Rov]:
         r.close()
 
 
+# The W3C Gamepad "standard" mapping of a DualShock 4 (test_station_browser.py's).
+FAKE_PAD = """
+window.fakePad = {connected: true, id: 'Wireless Controller (STANDARD GAMEPAD)',
+  mapping: 'standard', axes: [0, 0, 0, 0],
+  buttons: Array.from({length: 17}, () => ({pressed: false, value: 0}))};
+navigator.getGamepads = () => [window.fakePad];
+"""
+
+
 def key(driver: Any, name: str, down: bool) -> None:
     kind = 'keydown' if down else 'keyup'
     driver.execute_script(
@@ -88,6 +97,23 @@ def test_the_page_drives_the_rov_and_closing_it_stops_it(rov):
                                           and m.value.integer_value == 50 for m in rov.io))
         assert poll_until(lambda: driver.find_element(By.ID, 'manipulator-state').text == '50'
                           and driver.find_element(By.ID, 'lights-state').text == 'on', 20.0)
+        # A gamepad is the ROV pilot's pad (docs/rov_gamepad.png): right stick surge, left stick
+        # heave (the W3C standard mapping: axes[3] right y, axes[1] left y, up -1); cross
+        # asks for depth hold, options toggles the lights.
+        key(driver, 'w', False)
+        driver.execute_script(FAKE_PAD)
+        driver.execute_script('window.fakePad.axes[3] = -0.5; window.fakePad.axes[1] = -0.25')
+        assert rov.spin_until(lambda: rov.goals and rov.goals[-1][:3] == pytest.approx(
+            (0.2, 0.0, 0.1)))
+        driver.execute_script('window.fakePad.buttons[0] = {pressed: true, value: 1}; '
+                              'window.fakePad.buttons[9] = {pressed: true, value: 1}')
+        assert rov.spin_until(lambda: any(m.name == 'pilot_mode'
+                                          and m.value.string_value == 'depth_hold'
+                                          for m in rov.io))
+        assert rov.spin_until(lambda: [m.value.bool_value for m in rov.io
+                                       if m.name == 'gpio_12'][-1] is False)
+        driver.execute_script('window.fakePad.axes[1] = 0')
+        key(driver, 'w', True)
         neutrals = rov.station.neutrals_sent
         driver.quit()   # w still held
         assert rov.spin_until(lambda: rov.station.neutrals_sent == neutrals + 1)

@@ -17,7 +17,7 @@ const token = new URLSearchParams(location.search).get('token');
 const state = {
   ws: null, hello: null, seq: 0, sendTimer: null, held: {}, holdButtons: {}, pressed: {},
   lights: false, lastTelemetry: 0, telemetry: null, trail: [], truthTrail: [], path: null,
-  gain: 0.5, camera: null, image: null, boxes: new Map(),
+  gain: 0.5, camera: null, image: null, boxes: new Map(), padOptions: false,
 };
 
 function fmt(x, digits) { return (x === undefined || x === null) ? '-' : Number(x).toFixed(digits); }
@@ -90,12 +90,24 @@ function currentInput() {
   if (pad) {
     setBadge('gamepad', pad.id.slice(0, 30), '');
     const a = pad.axes;
-    // Browser: stick up/left reads -1; REP-103: surge ahead, sway port, yaw ccw are +.
-    axes.surge += -(a[1] || 0);
-    axes.sway += -(a[0] || 0);
-    axes.yaw += -(a[2] || 0);
     const b = pad.buttons;
-    if (b.length > 7) axes.heave += (b[7].value || 0) - (b[6].value || 0);
+    // Browser: stick up/left reads -1; REP-103: surge ahead, sway port, yaw ccw are +.
+    if (state.hello && state.hello.command === 'twist') {
+      // The ROV pilot's pad (docs/rov_gamepad.png, control/rov_gamepad.py): right stick
+      // surge and sway, left stick heave and yaw; options toggles the lights.
+      axes.surge += -(a[3] || 0);
+      axes.sway += -(a[2] || 0);
+      axes.heave += -(a[1] || 0);
+      axes.yaw += -(a[0] || 0);
+      const options = b.length > 9 && b[9].pressed;
+      if (options && !state.padOptions) toggleLights();
+      state.padOptions = options;
+    } else {
+      axes.surge += -(a[1] || 0);
+      axes.sway += -(a[0] || 0);
+      axes.yaw += -(a[2] || 0);
+      if (b.length > 7) axes.heave += (b[7].value || 0) - (b[6].value || 0);
+    }
     b.forEach((btn, i) => { if (btn.pressed && PAD_BUTTONS[i]) buttons.add(PAD_BUTTONS[i]); });
   } else {
     setBadge('gamepad', 'no gamepad', 'warn');

@@ -91,6 +91,7 @@ class Page:
         self.seq = 0
         self.axes = {'surge': 0.0, 'yaw': 0.0}
         self.lights = False
+        self.buttons: list[str] = []
         self.task = asyncio.ensure_future(self._run())
 
     async def _run(self) -> None:
@@ -98,7 +99,7 @@ class Page:
             self.seq += 1
             await self.ws.send_str(json.dumps({
                 'type': 'input', 'seq': self.seq, 't': 50.0 * self.seq, 'axes': self.axes,
-                'buttons': [], 'lights': self.lights}))
+                'buttons': self.buttons, 'lights': self.lights}))
             await asyncio.sleep(0.05)
 
 
@@ -283,6 +284,39 @@ def test_the_driving_page_moves_the_manipulator_through_the_receiver(rig):
             await until(lambda: any(m.name == 'manipulator' for m in rig.io))
             (request,) = [m for m in rig.io if m.name == 'manipulator']
             assert convert.parameter_value_to_python(request.value) == -50
+            page.task.cancel()
+            await ws.close()
+    asyncio.run(body())
+
+
+def test_a_gamepad_button_on_the_rov_is_the_pilots_pad_one_request_a_press(rig):
+    async def body() -> None:
+        def requests(name: str) -> list[Any]:
+            return [convert.parameter_value_to_python(m.value) for m in rig.io
+                    if m.name == name]
+
+        async with aiohttp.ClientSession() as session:
+            ws = await session.ws_connect(rig.ws_url)
+            await ws.receive_json()
+            page = Page(ws)
+            page.buttons = ['cross']           # held from the first input: arms, no request
+            await until(lambda: rig.station.commands_sent >= 3)
+            assert requests('pilot_mode') == []
+            page.buttons = []
+            await until(lambda: rig.station.commands_sent >= 6)
+            page.buttons = ['cross']           # docs/rov_gamepad.png: cross is depth hold
+            await until(lambda: requests('pilot_mode') == ['depth_hold'])
+            page.buttons = ['cross', 'r1', 'dpad_up']   # cross still held: no second request
+            await until(lambda: requests('manipulator') == [50]
+                        and requests('camera_tilt') == [10.0])
+            page.buttons = ['triangle', 'options']      # options: the page's own lights
+            await until(lambda: requests('pilot_mode') == ['depth_hold', 'stabilize'])
+            n = rig.station.commands_sent
+            await until(lambda: rig.station.commands_sent >= n + 3)
+            assert requests('pilot_mode') == ['depth_hold', 'stabilize']
+            # the lights stay the page's switch (its first input's state, off): the pad's
+            # options toggles that switch in the page, the station sends no lights of its own
+            assert requests('gpio_12') == [False] and requests('lights') == []
             page.task.cancel()
             await ws.close()
     asyncio.run(body())
