@@ -19,8 +19,10 @@ the same machine; on another address (``host``) the URL carries the token every 
   sending (closed, frozen, network lost) the station publishes one neutral command (sticks at
   rest and ``joy/connected`` False, or a zero twist) and then nothing (``station.protocol``).
 - See: the estimate (or the simulator's truth) on a map with the guidance reference and the
-  obstacles, velocities, the azimuths or thruster commands, the mode, why a mode change was
-  refused, and every node's ``/diagnostics`` (the recorder's among them). The subscriptions
+  obstacles, velocities, the azimuths or thruster commands, the mode (the DP controller's, or
+  the ROV's pilot mode), why a mode change was refused (``pilot_mode/reason`` on the ROV), the
+  ROV's active failsafes (``failsafe/active``), and every node's ``/diagnostics`` (the
+  recorder's among them). The subscriptions
   only keep the latest message; the server's thread samples them at ``telemetry_rate``.
   The camera (``camera/image_raw/compressed``) with the boxes of ``detections``: subscribed
   only while a page watches, the latest JPEG sent at ``camera_rate``.
@@ -278,7 +280,10 @@ class SurfaceStationNode(EnbarrNode):
                           ('reference', topics.GUIDANCE_REFERENCE),
                           ('obstacles', topics.OBSTACLES),
                           ('active_source', topics.SURFACE_ACTIVE_SOURCE),
-                          ('goal', topics.TRAJECTORY_REQUEST)):
+                          ('goal', topics.TRAJECTORY_REQUEST),
+                          ('pilot_mode', topics.PILOT_MODE),
+                          ('pilot_reason', topics.PILOT_MODE_REASON),
+                          ('failsafe', topics.FAILSAFE_ACTIVE)):
             self.create_topic_subscription(spec, self._keeper(key))
         self.create_topic_subscription(topics.DIAGNOSTICS, self._on_diagnostics)
         self._record_pub = self.create_topic_publisher(topics.RECORDER_CONTROL)
@@ -537,7 +542,7 @@ class SurfaceStationNode(EnbarrNode):
                 out[key] = {'x': p.x, 'y': p.y, 'z': p.z, 'yaw': float(eta[2]),
                             'u': t.linear.x, 'v': t.linear.y, 'w': t.linear.z,
                             'r': t.angular.z}
-        for key in ('mode', 'active_source'):
+        for key in ('mode', 'active_source', 'pilot_mode', 'pilot_reason', 'failsafe'):
             if key in latest:
                 out[key] = latest[key].data
         if 'azimuths' in latest:

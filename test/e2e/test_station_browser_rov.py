@@ -110,6 +110,9 @@ def test_the_page_drives_the_rov_and_closing_it_stops_it(rov):
         assert rov.spin_until(lambda: any(m.name == 'pilot_mode'
                                           and m.value.string_value == 'depth_hold'
                                           for m in rov.io))
+        # the vessel took it (enbarr_sim's simulated Bar30 gives the depth): the page says so
+        assert poll_until(lambda: driver.find_element(By.ID, 'mode').text == 'depth_hold',
+                          20.0), driver.find_element(By.ID, 'refusal').text
         assert rov.spin_until(lambda: [m.value.bool_value for m in rov.io
                                        if m.name == 'gpio_12'][-1] is False)
         driver.execute_script('window.fakePad.axes[1] = 0')

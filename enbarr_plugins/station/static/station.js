@@ -247,7 +247,8 @@ function showTelemetry(t) {
   }
   if (t.estimate) pushTrail(state.trail, t.estimate);
   if (t.truth) pushTrail(state.truthTrail, t.truth);
-  setText('mode', t.mode || '-');
+  setText('mode', t.mode || t.pilot_mode || '-');
+  setText('failsafe', t.failsafe || '-');
   setText('active-source', t.active_source || '-');
   setText('surface-stop', t.surface_stop ? 'RELEASE STOP (x)' : 'STOP VESSEL (x)');
   let refusal = '-';
@@ -256,6 +257,7 @@ function showTelemetry(t) {
     if (st.values && st.values.last_refusal) refusal = st.values.last_refusal;
     if (name.endsWith('recorder')) recording = st.message;
   }
+  if (t.pilot_reason) refusal = t.pilot_reason;   // the ROV's pilot modes
   setText('refusal', refusal);
   setText('recording', recording);
   showRecorder(t.diagnostics || {});

@@ -257,6 +257,29 @@ def test_the_telemetry_carries_the_latest_of_each_topic(context, executor, spin)
     json.dumps(t)   # what the server sends: JSON as it is
 
 
+def test_the_telemetry_carries_the_rovs_pilot_mode_refusal_and_failsafes(context, executor,
+                                                                         spin):
+    from std_msgs.msg import String
+
+    from enbarr_interfaces.links import LinkBus
+    from support.nodes import add, probe
+
+    node = add(executor, station(context, command='twist'))
+    source = probe(context, executor, 'source')
+    specs = (topics.PILOT_MODE, topics.PILOT_MODE_REASON, topics.FAILSAFE_ACTIVE)
+    pubs = {spec.name: source.create_topic_publisher(spec) for spec in specs}
+    LinkBus.of(context).connect()
+    pubs[topics.PILOT_MODE.name].publish(String(data='stabilize'))
+    pubs[topics.PILOT_MODE_REASON.name].publish(String(
+        data='depth_hold refused: no depth sensor heard'))
+    pubs[topics.FAILSAFE_ACTIVE.name].publish(String(data='leak: surface since 12.0 s'))
+    assert spin(executor, lambda: 'failsafe' in node.telemetry()
+                and 'pilot_reason' in node.telemetry() and 'pilot_mode' in node.telemetry())
+    t = node.telemetry()
+    assert (t['pilot_mode'], t['pilot_reason'], t['failsafe']) == (
+        'stabilize', 'depth_hold refused: no depth sensor heard', 'leak: surface since 12.0 s')
+
+
 def test_the_token_is_printed_but_never_logged(context, executor, capsys):
     node = station(context, token='s3cret-token')
     executor.add_node(node)
