@@ -141,7 +141,7 @@ def test_attribution_of_profiles() -> None:
     assert not simulated.honest and 'mocap' in simulated.note
     assert [n for n, _ in simulated.nodes] == ['simulator']
     rov = bp.attribute(load_profile('enbarr_sim'))   # sim_gpio, sim_stepper: not fed by it
-    assert not rov.honest and '(imu, thruster_control, depth, battery)' in rov.note
+    assert not rov.honest and '(imu, thruster_control, depth, battery, hull)' in rov.note
     real = bp.attribute(load_profile('enbarr_rov'))
     assert real.nodes == () and not real.honest
 
