@@ -474,13 +474,17 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     against the course over ground: line of sight steers by course); speed over ground against
     the commanded speed; the observer's bias estimate against the injected disturbance; each
     azimuth's commanded angle and thrust. ``msgs``: the bag as ``read_bag`` returned it, when
-    the caller has read it already.
+    the caller has read it already. An ROV's run has its own plot (``tools.rov_plot``).
     """
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
+    from enbarr_core.tools.rov_plot import is_rov, plot_rov_run
+
     msgs = read_bag(bag) if msgs is None else msgs
+    if is_rov(profile):
+        return plot_rov_run(msgs, profile, png, verdict)
     t, eta = _series(msgs['/sim/odometry'])
     t0 = t[0]
     ref_msgs = msgs.get('/guidance/reference', [])

@@ -150,6 +150,7 @@ def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> 
     from enbarr_core.tools.avoidance_metrics import AVOIDANCE_TOPICS, avoids
     from enbarr_core.tools.failsafe_metrics import FAILSAFE_TOPICS, has_failsafes
     from enbarr_core.tools.metrics import METRIC_TOPICS, PLOT_TOPICS
+    from enbarr_core.tools.rov_plot import is_rov, ROV_PLOT_TOPICS
     from enbarr_core.tools.vision_metrics import sees, VISION_TOPICS
     if record_all:
         return ()
@@ -157,8 +158,8 @@ def record_topics(profile: Any, plot: bool = True, record_all: bool = False) -> 
     avoiding = AVOIDANCE_TOPICS if avoids(profile) else ()
     seeing = VISION_TOPICS if sees(profile) else ()
     failsafes = FAILSAFE_TOPICS if has_failsafes(profile) else ()
-    return tuple(sorted({*METRIC_TOPICS, *(PLOT_TOPICS if plot else ()), *avoiding, *seeing,
-                         *failsafes, *listed}))
+    plotted = (ROV_PLOT_TOPICS if is_rov(profile) else PLOT_TOPICS) if plot else ()
+    return tuple(sorted({*METRIC_TOPICS, *plotted, *avoiding, *seeing, *failsafes, *listed}))
 
 
 def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, ...] = (),
