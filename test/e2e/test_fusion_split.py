@@ -18,7 +18,8 @@ from support.cli import ENBARR
 from enbarr_interfaces.avoidance import from_msg as avoidance_from_msg
 from enbarr_interfaces.obstacles import cloud_stamp_ns, from_cloud
 
-pytestmark = pytest.mark.e2e
+# alone (setup.cfg): judged against real time (the camera's frames across two processes)
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 PROFILE = 'saucer_fusion_split_sim'
 DURATION = 20.0
