@@ -517,15 +517,21 @@ def plot_run(bag: Path, spec: Any, profile: Any, png: Path,
     cmds = msgs.get('/azimuth_commands', [])
     _azimuth_panels(fig.add_subplot(grid[4, 1], sharex=ax),
                     fig.add_subplot(grid[5, 1], sharex=ax), t0, cmds, profile)
-    if verdict is not None:
-        failed = verdict['failed']
-        fig.suptitle(f'{profile.name}: ' + ('PASS, every target met' if not failed
-                                            else f'FAIL: {", ".join(failed)}'),
-                     color='tab:green' if not failed else 'tab:red', fontsize=14,
-                     fontweight='bold')
+    verdict_title(fig, profile.name, verdict)
     fig.savefig(png, dpi=100)
     plt.close(fig)
     return png
+
+
+def verdict_title(fig: Any, name: str, verdict: dict[str, Any] | None) -> None:
+    """Title a run's figure with its verdict (green PASS, red FAIL and what failed)."""
+    if verdict is None:
+        return
+    failed = verdict['failed']
+    fig.suptitle(f'{name}: ' + ('PASS, every target met' if not failed
+                                else f'FAIL: {", ".join(failed)}'),
+                 color='tab:green' if not failed else 'tab:red', fontsize=14,
+                 fontweight='bold')
 
 
 def _path_panel(ax: Any, plt: Any, t: np.ndarray, eta: np.ndarray, ref_t: np.ndarray,

@@ -48,7 +48,7 @@ def plot_rov_run(msgs: dict[str, list[tuple[int, Any]]], profile: Any, png: Path
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from enbarr_core.tools.metrics import _verdict_panel, NO_DATA
+    from enbarr_core.tools.metrics import _verdict_panel, NO_DATA, verdict_title
 
     odom = msgs['/sim/odometry']
     t = np.array([_t(m) for _, m in odom])
@@ -128,12 +128,7 @@ def plot_rov_run(msgs: dict[str, list[tuple[int, Any]]], profile: Any, png: Path
     thr_ax.set_ylabel('thruster command (-1..1)')
     thr_ax.set_xlabel('time [s]')
     thr_ax.grid(True, alpha=0.3)
-    if verdict is not None:
-        failed = verdict['failed']
-        fig.suptitle(f'{profile.name}: ' + ('PASS, every target met' if not failed
-                                            else f'FAIL: {", ".join(failed)}'),
-                     color='tab:green' if not failed else 'tab:red', fontsize=14,
-                     fontweight='bold')
+    verdict_title(fig, profile.name, verdict)
     fig.savefig(png, dpi=100)
     plt.close(fig)
     return png
