@@ -28,11 +28,12 @@ executor ``failsafe`` with the string ``clear``; the outcome goes to the log and
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import QoSProfile
 from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
 from rcl_interfaces.msg import Parameter
 from sensor_msgs.msg import BatteryState, FluidPressure, Temperature
@@ -53,6 +54,13 @@ REPORT_PERIOD = 1.0
 #: The attitude filter reports once a second (REPORT_PERIOD); a report late on a loaded
 #: executor is not a silent filter: silence is this many periods without one.
 SILENT_REPORTS = 3
+#: ``/diagnostics`` as this node reads it: every node of a process reports on the same tick,
+#: one DiagnosticArray each, so a reader that keeps the last 10 (the topic's own depth) lost
+#: the attitude filter's report behind the others' whenever its executor was busy, and a
+#: filter that was reporting looked silent (the emulated ROV went neutral mid-run).
+DIAGNOSTICS_IN = replace(topics.DIAGNOSTICS, qos=QoSProfile(
+    history=topics.COMMAND_QOS.history, depth=200, reliability=topics.COMMAND_QOS.reliability,
+    durability=topics.COMMAND_QOS.durability))
 
 #: name -> (default action, default threshold; NaN for a failsafe without one).
 DEFAULTS: dict[str, tuple[str, float]] = {
@@ -149,7 +157,7 @@ class FailsafeNode(EnbarrNode):
         self.create_topic_subscription(topics.PILOT_MODE, self._on_mode)
         self.create_topic_subscription(topics.HULL_PRESSURE, self._on_pressure)
         self.create_topic_subscription(topics.HULL_TEMPERATURE, self._on_temperature)
-        self.create_topic_subscription(topics.DIAGNOSTICS, self._on_diagnostics)
+        self.create_topic_subscription(DIAGNOSTICS_IN, self._on_diagnostics)
         self.create_topic_subscription(topics.IO_REQUEST, self._on_io)
 
     def _apply(self, settings: FailsafeNodeSettings) -> None:
@@ -245,7 +253,9 @@ class FailsafeNode(EnbarrNode):
         now = self._now()
         problem = self._attitude_problem
         report_at = self._attitude_report_at
-        if report_at is None or now - report_at > SILENT_REPORTS * REPORT_PERIOD:
+        # Never heard is not silent (as every input here): a filter still starting, on a
+        # loaded start, tripped neutral before its first report.
+        if report_at is not None and now - report_at > SILENT_REPORTS * REPORT_PERIOD:
             problem = f'no report from the attitude filter ({self.settings.attitude_node})'
         # The velocity loop leaves depth hold itself when the depth goes stale (on its own
         # timeout, as short as this one): a mode that left depth hold when the depth was
