@@ -36,6 +36,12 @@ from visualization_msgs.msg import MarkerArray
 COMMAND_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE)
+#: ``/diagnostics``: every node of a process reports on the same tick, one DiagnosticArray
+#: each, so a reader that kept the last 10 lost reports behind the others' whenever its
+#: executor was busy (the failsafe node took a reporting attitude filter for a silent one).
+DIAGNOSTICS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE)
 #: High-rate streams: the newest sample matters, late ones are worthless.
 SENSOR_QOS = qos_profile_sensor_data
 #: States that a late joiner must still learn (the operator mode): the last one is kept.
@@ -173,7 +179,7 @@ RECORDER_CONTROL = TopicSpec(
     'start opens a new one beside it. Not latched: a restarted recorder must not replay an '
     'old word. Refusals and the state are on /diagnostics.')
 DIAGNOSTICS = TopicSpec(
-    '/diagnostics', DiagnosticArray, COMMAND_QOS, '', '',
+    '/diagnostics', DiagnosticArray, DIAGNOSTICS_QOS, '', '',
     'Counters and states of nodes (rejected commands, failsafe, timeouts).')
 
 # -- 3-DOF surface vessels: motion capture, observer, guidance, DP control, azimuths, PWM --

@@ -28,12 +28,11 @@ executor ``failsafe`` with the string ``clear``; the outcome goes to the log and
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import math
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import QoSProfile
 from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
 from rcl_interfaces.msg import Parameter
 from sensor_msgs.msg import BatteryState, FluidPressure, Temperature
@@ -54,13 +53,6 @@ REPORT_PERIOD = 1.0
 #: The attitude filter reports once a second (REPORT_PERIOD); a report late on a loaded
 #: executor is not a silent filter: silence is this many periods without one.
 SILENT_REPORTS = 3
-#: ``/diagnostics`` as this node reads it: every node of a process reports on the same tick,
-#: one DiagnosticArray each, so a reader that keeps the last 10 (the topic's own depth) lost
-#: the attitude filter's report behind the others' whenever its executor was busy, and a
-#: filter that was reporting looked silent (the emulated ROV went neutral mid-run).
-DIAGNOSTICS_IN = replace(topics.DIAGNOSTICS, qos=QoSProfile(
-    history=topics.COMMAND_QOS.history, depth=200, reliability=topics.COMMAND_QOS.reliability,
-    durability=topics.COMMAND_QOS.durability))
 
 #: name -> (default action, default threshold; NaN for a failsafe without one).
 DEFAULTS: dict[str, tuple[str, float]] = {
@@ -157,7 +149,7 @@ class FailsafeNode(EnbarrNode):
         self.create_topic_subscription(topics.PILOT_MODE, self._on_mode)
         self.create_topic_subscription(topics.HULL_PRESSURE, self._on_pressure)
         self.create_topic_subscription(topics.HULL_TEMPERATURE, self._on_temperature)
-        self.create_topic_subscription(DIAGNOSTICS_IN, self._on_diagnostics)
+        self.create_topic_subscription(topics.DIAGNOSTICS, self._on_diagnostics)
         self.create_topic_subscription(topics.IO_REQUEST, self._on_io)
 
     def _apply(self, settings: FailsafeNodeSettings) -> None:

@@ -45,10 +45,8 @@ class Listener(Participant):
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.node.create_subscription(topics.THRUSTER_OUTPUT.msg_type, topics.THRUSTER_OUTPUT.name,
                                       self._on_output, topics.THRUSTER_OUTPUT.qos)
-        # every node reports on the same tick: the topic's 10-deep queue loses reports
-        from enbarr_core.control.failsafe_node import DIAGNOSTICS_IN
         self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name,
-                                      self._on_diagnostics, DIAGNOSTICS_IN.qos)
+                                      self._on_diagnostics, topics.DIAGNOSTICS.qos)
         self.imu_pub = self.node.create_publisher(topics.IMU_RAW.msg_type, topics.IMU_RAW.name,
                                                   topics.IMU_RAW.qos)
         self.spin_in_background()
