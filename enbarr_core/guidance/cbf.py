@@ -68,7 +68,9 @@ An infeasible QP (moving obstacles closing in from all sides, faster than v_max)
 raises: the output is the safest command, zero velocity at the present p_d, with a reason.
 
 Speed: obstacles are numpy rows (:func:`obstacle_rows`), their geometry a loop over floats,
-and the QP is only solved when v_nom violates a constraint (then it is exactly its solution).
+and the QP is only solved when v_nom violates a constraint (then it is exactly its solution):
+in floats when the projection of v_nom on one violated barrier meets every constraint (the
+usual case of one obstacle in the way), by daqp otherwise (:func:`_solve_qp`).
 """
 
 from __future__ import annotations
@@ -76,7 +78,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import math
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import daqp
 import numpy as np
@@ -255,36 +257,113 @@ def _constraints(px: float, py: float, rows: Sequence[Sequence[float]], margin: 
 
 
 def solve_qp(v_nom: Vector, n: Vector, b: Vector, max_speed: float) -> QpResult:
-    """Solve min |v - v_nom|^2 s.t. n v >= b and the speed polygon by daqp (module doc)."""
+    """Solve min |v - v_nom|^2 s.t. n v >= b and the speed polygon (module doc, :func:`_solve_qp`).
+
+    The rows of ``n`` are unit normals, as :func:`constraints` gives them.
+    """
     cons = [(float(nx), float(ny), float(bi), 0.0) for (nx, ny), bi in zip(n.tolist(),
                                                                              b.tolist())]
-    return _solve_qp(float(v_nom[0]), float(v_nom[1]), cons, max_speed)
+    a = _solve_qp(float(v_nom[0]), float(v_nom[1]), cons, max_speed)
+    return QpResult(np.array((a.vx, a.vy)), a.feasible, a.solved,
+                    np.array(a.binding, dtype=bool).reshape(len(cons)))
 
 
-def _solve_qp(vx: float, vy: float, cons: list[tuple[float, float, float, float]],
-              max_speed: float) -> QpResult:
+class _Answer(NamedTuple):
+    """:class:`QpResult` in Python floats and bools, as the filter's step uses it."""
+
+    vx: float
+    vy: float
+    feasible: bool
+    solved: bool
+    binding: tuple[bool, ...]
+
+    @property
+    def active(self) -> int:
+        """How many obstacle constraints bind at v."""
+        return sum(self.binding)
+
+
+class _DaqpRows:
+    """daqp's arrays for k obstacle rows, kept between solves (the speed polygon's rows stay).
+
+    Building five small arrays per solve cost more than the solve (docs/benchmarks.md).
+    """
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.A = np.empty((k + _HALF, 2))
+        self.A[k:] = _DIRECTIONS
+        self.upper = np.full(k + _HALF, _INF)
+        self.lower = np.empty(k + _HALF)
+        self.sense = np.zeros(k + _HALF, dtype=np.int32)
+        self.f = np.empty(2)
+        self.limit = math.nan
+
+    def solve(self, vx: float, vy: float, cons: Sequence[tuple[float, float, float, float]],
+              limit: float) -> tuple[float, float, int]:
+        """Return daqp's (vx, vy, exitflag) of the QP."""
+        k = self.k
+        if limit != self.limit:
+            self.upper[k:] = limit
+            self.lower[k:] = -limit
+            self.limit = limit
+        for j, (nx, ny, bi, _) in enumerate(cons):
+            self.A[j, 0] = nx
+            self.A[j, 1] = ny
+            self.lower[j] = bi
+        self.f[0] = -vx
+        self.f[1] = -vy
+        x, _, exitflag, _ = daqp.solve(_H, self.f, self.A, self.upper, self.lower, self.sense)
+        return float(x[0]), float(x[1]), int(exitflag)
+
+
+_DAQP: dict[int, _DaqpRows] = {}
+
+
+def _daqp_rows(k: int) -> _DaqpRows:
+    """The kept arrays for k obstacle rows (one set per k, made on first use)."""
+    rows = _DAQP.get(k)
+    if rows is None:
+        rows = _DAQP[k] = _DaqpRows(k)
+    return rows
+
+
+def _within(vx: float, vy: float, limit: float) -> bool:
+    """Whether (vx, vy) lies in the speed polygon (the inscribed circle is tested first)."""
+    return math.hypot(vx, vy) <= limit or all(abs(cx * vx + cy * vy) <= limit
+                                              for cx, cy in _DIRECTION_PAIRS)
+
+
+def _solve_qp(vx: float, vy: float, cons: Sequence[tuple[float, float, float, float]],
+              max_speed: float) -> _Answer:
     """:func:`solve_qp` of v_nom = (vx, vy) and the rows (nx, ny, b, B) of _constraints.
 
-    The test of v_nom against every constraint, which most steps end with, is done in floats;
-    numpy and daqp only when a QP is to be solved.
+    In floats, which most steps end with: the test of v_nom against every constraint, and,
+    when v_nom is inside the speed polygon, the projections of v_nom on each violated
+    barrier's half-plane, v_nom + (b_i - n_i^T v_nom) n_i: each is the optimum of the QP with
+    that constraint alone, so one that meets every other constraint and the polygon too is the
+    optimum of the whole QP (a relaxation's optimum that is feasible; the closed form of the
+    single-constraint CBF QP, Ames et al. 2019, sec. III). Otherwise daqp solves it.
     """
     limit = max_speed * _INSCRIBED
     k = len(cons)
-    if math.hypot(vx, vy) <= limit or all(abs(cx * vx + cy * vy) <= limit
-                                          for cx, cy in _DIRECTION_PAIRS):
-        if all(nx * vx + ny * vy >= bi for nx, ny, bi, _ in cons):
-            return QpResult(np.array((vx, vy)), True, False, np.zeros(k, dtype=bool))
-    lower = [bi for _, _, bi, _ in cons]
-    A = np.array([(nx, ny) for nx, ny, _, _ in cons] + _DIRECTION_ROWS)
-    x, _, exitflag, _ = daqp.solve(_H, np.array((-vx, -vy)), A,
-                                   np.array([_INF] * k + [limit] * _HALF),
-                                   np.array(lower + [-limit] * _HALF),
-                                   np.zeros(k + _HALF, dtype=np.int32))
-    vx, vy = float(x[0]), float(x[1])
-    if exitflag != 1 or not (math.isfinite(vx) and math.isfinite(vy)):
-        return QpResult(np.zeros(2), False, True, np.zeros(k, dtype=bool))
-    binding = np.array([nx * vx + ny * vy - bi <= 1e-9 for nx, ny, bi, _ in cons], dtype=bool)
-    return QpResult(np.array((vx, vy)), True, True, binding)
+    if _within(vx, vy, limit):
+        violated = [j for j, (nx, ny, bi, _) in enumerate(cons) if nx * vx + ny * vy < bi]
+        if not violated:
+            return _Answer(vx, vy, True, False, (False,) * k)
+        for i in violated:
+            nx, ny, bi, _ = cons[i]
+            t = bi - (nx * vx + ny * vy)
+            wx, wy = vx + t * nx, vy + t * ny
+            if _within(wx, wy, limit) and all(cx * wx + cy * wy >= ci for j, (cx, cy, ci, _)
+                                              in enumerate(cons) if j != i):
+                return _Answer(wx, wy, True, True, tuple(
+                    cx * wx + cy * wy - ci <= 1e-9 for cx, cy, ci, _ in cons))
+    wx, wy, exitflag = _daqp_rows(k).solve(vx, vy, cons, limit)
+    if exitflag != 1 or not (math.isfinite(wx) and math.isfinite(wy)):
+        return _Answer(0.0, 0.0, False, True, (False,) * k)
+    return _Answer(wx, wy, True, True, tuple(cx * wx + cy * wy - ci <= 1e-9
+                                             for cx, cy, ci, _ in cons))
 
 
 class SafetyFilter:
@@ -338,13 +417,15 @@ class SafetyFilter:
             raise ValueError(f'dt must be finite and > 0, got {dt!r}')
         s = self.settings
         own_position = nominal.position_mask[0] and nominal.position_mask[1]
-        psi_d = float(nominal.eta_d[2])
-        psi_v = psi_d if own_position else float(eta_hat[2])
+        # one conversion per array, then floats (each numpy index is a call of its own)
+        eta_d = nominal.eta_d.tolist()
+        psi_d = eta_d[2]
+        source = eta_d if own_position else eta_hat.tolist()
+        psi_v = psi_d if own_position else source[2]
         c, sn = math.cos(psi_v), math.sin(psi_v)
-        u, w = float(nominal.nu_d[0]), float(nominal.nu_d[1])
+        u, w, r_d = nominal.nu_d.tolist()
         v_ff = (c * u - sn * w, sn * u + c * w)                  # R(psi_v) nu_d[:2]
-        source = nominal.eta_d if own_position else eta_hat
-        target = (float(source[0]), float(source[1]))
+        target = (source[0], source[1])
         if not self.engaged and self._last is not None and self._last[2] != own_position:
             # The position reference jumps (LOS -> hold at the last waypoint): go on from
             # where the reference was, with its velocity, and let the pull take p_d there
@@ -373,22 +454,22 @@ class SafetyFilter:
             self.infeasible_count += 1
             reason = 'infeasible: no velocity keeps every obstacle out; stopped'
         if not self.engaged:  # engaging: the feed-forward starts from the law's
-            r_d = float(nominal.nu_d[2])
-            ax = float(nominal.nu_d_dot[0]) - r_d * w
-            ay = float(nominal.nu_d_dot[1]) + r_d * u
+            a_x, a_y, _ = nominal.nu_d_dot.tolist()
+            ax = a_x - r_d * w
+            ay = a_y + r_d * u
             self.a_ff = (c * ax - sn * ay, sn * ax + c * ay)
             self.v = v_ff
-        qv = (float(qp.v[0]), float(qp.v[1]))
+        qv = (qp.vx, qp.vy)
         gain = min(1.0, dt / s.accel_time if s.accel_time > 0.0 else 1.0)
         self.a_ff = (self.a_ff[0] + gain * ((qv[0] - self.v[0]) / dt - self.a_ff[0]),
                      self.a_ff[1] + gain * ((qv[1] - self.v[1]) / dt - self.a_ff[1]))
         self.engaged, self.p_d, self.v = True, p, qv
         self._last = (p, qv, own_position)
-        return CbfOutput(self._reference(psi_d, psi_v, nominal), True, qp.solved, qp.active,
-                         not qp.feasible, min_b, reason)
+        return CbfOutput(self._reference(psi_d, psi_v, r_d, nominal), True, qp.solved,
+                         qp.active, not qp.feasible, min_b, reason)
 
-    def _pass(self, qp: QpResult, v_nom: tuple[float, float],
-              cons: list[tuple[float, float, float, float]]) -> QpResult:
+    def _pass(self, qp: _Answer, v_nom: tuple[float, float],
+              cons: list[tuple[float, float, float, float]]) -> _Answer:
         """Slide along the blocking obstacle instead of stopping in front of it.
 
         The QP alone stops p_d where an obstacle lies across v_nom (the local minimum of a CBF
@@ -400,7 +481,7 @@ class SafetyFilter:
         lost speed (just engaged) adds nothing, so the reference stays continuous.
         """
         speed_nom = math.hypot(*v_nom)
-        vx, vy = float(qp.v[0]), float(qp.v[1])
+        vx, vy = qp.vx, qp.vy
         lost = speed_nom - math.hypot(vx, vy)
         if lost <= 0.0:
             return qp
@@ -412,16 +493,15 @@ class SafetyFilter:
         again = _solve_qp(vx + push * tx, vy + push * ty, cons, self.settings.max_speed)
         if not again.feasible:
             return qp
-        binding = np.array([nx * again.v[0] + ny * again.v[1] - b <= 1e-9
-                            for nx, ny, b, _ in cons], dtype=bool)
-        return QpResult(again.v, True, True, binding)
+        binding = tuple(nx * again.vx + ny * again.vy - b <= 1e-9 for nx, ny, b, _ in cons)
+        return _Answer(again.vx, again.vy, True, True, binding)
 
-    def _reference(self, psi_d: float, psi_v: float, nominal: Reference) -> Reference:
+    def _reference(self, psi_d: float, psi_v: float, r_d: float,
+                   nominal: Reference) -> Reference:
         """Build the engaged reference: p_d, the law's heading, v* in its body frame."""
         c, sn = math.cos(psi_v), math.sin(psi_v)
         vx, vy = self.v
         ax, ay = self.a_ff
-        r_d = float(nominal.nu_d[2])
         # nu_d = R(psi_v)^T v; nu_d_dot = R^T a + r_d [[-s, c], [-c, -s]] v  (d/dt R^T)
         nu_d = (c * vx + sn * vy, -sn * vx + c * vy, r_d)
         nu_d_dot = (c * ax + sn * ay + r_d * (-sn * vx + c * vy),

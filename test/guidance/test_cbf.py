@@ -91,6 +91,38 @@ def test_qp_answer_equals_quadprogs(moving):
     assert infeasible > 5                     # and both solvers saw infeasible ones
 
 
+def test_closed_form_of_one_violated_barrier_equals_daqps_answer(monkeypatch):
+    """A projection on one violated barrier is daqp's answer wherever it is used."""
+    from enbarr_core.guidance import cbf
+    rng = np.random.default_rng(19)
+    daqp_calls = []
+    solve = cbf._DaqpRows.solve
+
+    def counted(self, *args):
+        daqp_calls.append(args)
+        return solve(self, *args)
+
+    monkeypatch.setattr(cbf._DaqpRows, 'solve', counted)
+    closed = 0
+    for _ in range(1500):
+        p, obs, v_nom = random_instance(rng, moving=True)
+        n, b, _ = constraints(p, obs, SETTINGS)
+        cons = [(float(nx), float(ny), float(bi), 0.0) for (nx, ny), bi in zip(n, b)]
+        before = len(daqp_calls)
+        ours = cbf._solve_qp(float(v_nom[0]), float(v_nom[1]), cons, SETTINGS.max_speed)
+        if not ours.solved or len(daqp_calls) > before:
+            continue
+        closed += 1
+        limit = SETTINGS.max_speed * math.cos(math.pi / 16)
+        vx, vy, flag = cbf._daqp_rows(len(cons)).solve(float(v_nom[0]), float(v_nom[1]),
+                                                       cons, limit)
+        assert flag == 1
+        assert (ours.vx, ours.vy) == pytest.approx((vx, vy), abs=1e-9)
+        assert ours.active >= 1
+    assert closed > 100                 # the closed form answered many
+    assert len(daqp_calls) > 100        # and daqp the rest
+
+
 def test_returned_velocity_meets_the_barrier_condition_and_the_speed_limit():
     rng = np.random.default_rng(3)
     checked = 0
