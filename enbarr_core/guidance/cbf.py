@@ -321,7 +321,7 @@ _DAQP: dict[int, _DaqpRows] = {}
 
 
 def _daqp_rows(k: int) -> _DaqpRows:
-    """The kept arrays for k obstacle rows (one set per k, made on first use)."""
+    """Return the kept arrays for k obstacle rows (one set per k, made on first use)."""
     rows = _DAQP.get(k)
     if rows is None:
         rows = _DAQP[k] = _DaqpRows(k)
