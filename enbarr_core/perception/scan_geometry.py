@@ -14,6 +14,7 @@ World: ENU ``odom``; pose eta = [x, y, psi] of ``base_link`` (Fossen 2021, ch. 2
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 import math
 
@@ -124,47 +125,47 @@ class PoseHistory:
     each time asked (the heading unwrapped, so across +-pi too). A time is posed only when a
     pose lies within ``tolerance`` of it: between poses further apart the vessel's path is
     not known well enough, and a scan older or newer than the history is not posed at all.
+
+    The poses are kept as Python numbers (``add`` runs once per estimate, on the control
+    chain's thread, where numpy's per-call cost would be the whole cost); ``at`` makes arrays
+    of the few poses around the times asked.
     """
 
     def __init__(self, capacity: int = 256) -> None:
         if capacity < 2:
             raise ValueError(f'capacity: {capacity} must be at least 2')
         self.capacity = capacity
-        self._t = np.zeros(2 * capacity, dtype=np.int64)
-        self._eta = np.zeros((2 * capacity, 3))   # x, y, psi unwrapped
-        self._n = 0
+        self._t: list[int] = []
+        self._eta: list[tuple[float, float, float]] = []   # x, y, psi unwrapped
 
     def __len__(self) -> int:
-        return self._n
+        return len(self._t)
 
     def clear(self) -> None:
         """Forget every pose."""
-        self._n = 0
+        self._t.clear()
+        self._eta.clear()
 
     def snapshot(self) -> PoseHistory:
         """Return a copy of the poses held (to read while this one takes new ones)."""
         out = PoseHistory(self.capacity)
-        n = self._n
-        out._t[:n] = self._t[:n]
-        out._eta[:n] = self._eta[:n]
-        out._n = n
+        out._t = self._t[:]
+        out._eta = self._eta[:]
         return out
 
     def add(self, stamp_ns: int, x: float, y: float, psi: float) -> bool:
         """Append a pose [m, m, rad] stamped ``stamp_ns``; False (ignored) when not newer."""
-        n = self._n
-        if n and stamp_ns <= self._t[n - 1]:
+        t = self._t
+        if t and stamp_ns <= t[-1]:
             return False
-        if n == len(self._t):   # full: keep the newest ``capacity`` (amortised copy)
-            keep = self.capacity
-            self._t[:keep] = self._t[n - keep:n]
-            self._eta[:keep] = self._eta[n - keep:n]
-            n = keep
-        if n:
-            psi = float(self._eta[n - 1, 2]) + ssa(psi - float(self._eta[n - 1, 2]))
-        self._t[n] = stamp_ns
-        self._eta[n] = (x, y, psi)
-        self._n = n + 1
+        if len(t) == 2 * self.capacity:   # keep the newest ``capacity`` (amortised)
+            del t[:self.capacity]
+            del self._eta[:self.capacity]
+        if t:
+            last = self._eta[-1][2]
+            psi = last + ssa(psi - last)
+        t.append(int(stamp_ns))
+        self._eta.append((float(x), float(y), float(psi)))
         return True
 
     def at(self, stamps_ns: NDArray[np.int64], tolerance_ns: int) -> Vector | None:
@@ -173,20 +174,25 @@ class PoseHistory:
         None when any time has no pose within ``tolerance_ns`` (see the class docstring).
         Within the tolerance beyond the first or last pose, that pose is held.
         """
-        n = self._n
-        if n == 0:
+        if not self._t:
             return None
-        t = self._t[:n]
         q = np.asarray(stamps_ns, dtype=np.int64)
-        right = np.searchsorted(t, q).clip(0, n - 1)
-        left = (right - 1).clip(0, n - 1)
+        if len(q) == 0:
+            return np.empty((0, 3))
+        # only the poses around the times asked: the one before the first, after the last
+        lo = max(bisect.bisect_left(self._t, int(q.min())) - 1, 0)
+        hi = min(bisect.bisect_right(self._t, int(q.max())) + 1, len(self._t))
+        t = np.array(self._t[lo:hi], dtype=np.int64)
+        n = len(t)
+        right = np.minimum(np.searchsorted(t, q), n - 1)
+        left = np.maximum(right - 1, 0)
         near = np.minimum(np.abs(q - t[left]), np.abs(t[right] - q))
-        if len(q) and int(near.max()) > tolerance_ns:
+        if int(near.max()) > tolerance_ns:
             return None
         base = t[0]
         rel = (t - base).astype(float)
         qr = (q - base).astype(float)
-        eta = self._eta[:n]
+        eta = np.array(self._eta[lo:hi])
         out = np.empty((len(q), 3))
         for k in range(3):
             out[:, k] = np.interp(qr, rel, eta[:, k])

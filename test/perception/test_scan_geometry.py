@@ -66,6 +66,26 @@ def test_the_history_keeps_its_newest_poses():
     assert h.at(np.array([2 * MS]), 0) is None
 
 
+def test_poses_between_the_history_s_poses_are_its_interpolation():
+    """``at`` reads only the poses around the times asked: the same as over all of them."""
+    rng = np.random.default_rng(4)
+    h = PoseHistory(capacity=64)
+    stamps = np.cumsum(rng.integers(15 * MS, 25 * MS, 100))
+    poses = rng.uniform(-1.0, 1.0, (100, 3))
+    for t, (x, y, psi) in zip(stamps.tolist(), poses.tolist()):
+        h.add(t, x, y, psi)
+    kept = stamps[len(stamps) - len(h):]
+    rows = poses[len(stamps) - len(h):]
+    psi = np.unwrap(poses[:, 2])[len(stamps) - len(h):]
+    for _ in range(50):
+        q = np.sort(rng.integers(int(kept[10]), int(kept[-10]), 30))
+        eta = h.at(q, 30 * MS)
+        assert eta is not None
+        np.testing.assert_allclose(eta[:, 0], np.interp(q, kept, rows[:, 0]), atol=1e-12)
+        np.testing.assert_allclose(eta[:, 1], np.interp(q, kept, rows[:, 1]), atol=1e-12)
+        np.testing.assert_allclose(eta[:, 2], np.interp(q, kept, psi), atol=1e-12)
+
+
 def measure(ranges, time_increment, mount, poses, stamp=0, scan_time=0.0,
             sweep='clockwise_from_zero'):
     from enbarr_core.perception.fitting import FitSettings
