@@ -122,16 +122,18 @@ class ScanObstacles:
             return [], len(scan.r), 0
         # Where the lidar was and its range noise, at each kept cluster's middle ray only: in
         # floats, the few clusters of a scan cost less than arrays over all its rays.
-        tx, ty = float(mount.translation[0]), float(mount.translation[1])
+        tx, ty = mount.translation[:2].tolist()
         noise = s.breakpoints.noise
         last = len(eta) - 1
+        mids = [int(c[len(c) // 2]) for c in pieces]
+        # one read of the poses and ranges at the middle rays (an index each costs a call)
+        poses_at = eta[[min(m, last) for m in mids]].tolist()
+        ranges_at = scan.r[mids].tolist()
         sensors, sigmas, start, n = [], [], [], 0
-        for c in pieces:
-            mid = int(c[len(c) // 2])
-            x, y, psi = eta[min(mid, last)].tolist()
+        for c, (x, y, psi), r in zip(pieces, poses_at, ranges_at):
             cos, sin = math.cos(psi), math.sin(psi)
             sensors.append((x + cos * tx - sin * ty, y + sin * tx + cos * ty))
-            sigmas.append(noise.sigma_at(float(scan.r[mid])))
+            sigmas.append(noise.sigma_at(r))
             start.append(n)
             n += len(c)
         # the clusters one after the other (ring order within each) for one pass of sums

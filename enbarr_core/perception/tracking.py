@@ -98,9 +98,9 @@ class CircleTrack:
         """Squared Mahalanobis distance of measurement ``z`` from the prediction."""
         # In floats: every track meets every measurement of a scan, and two small arrays per
         # pair cost more than the arithmetic.
-        x, y = self.kf.x[0, 0], self.kf.x[1, 0]
+        (x,), (y,) = self.kf.x[:2].tolist()
         (p00, p01), (p10, p11) = self.kf.P[:2, :2].tolist()
-        nu0, nu1 = z.x - float(x), z.y - float(y)
+        nu0, nu1 = z.x - x, z.y - y
         s00, s01, s10, s11 = p00 + z.cov[0], p01 + z.cov[1], p10 + z.cov[1], p11 + z.cov[2]
         det = s00 * s11 - s01 * s10
         if not det > 0.0:
@@ -119,12 +119,11 @@ class CircleTrack:
 
     def obstacle(self) -> Obstacle:
         """Return the track as an obstacle."""
-        x, p = self.kf.x[:, 0], self.kf.P
-        return Obstacle(self.id, CIRCLE, float(x[0]), float(x[1]), float(self.radius),
-                        vx=float(x[2]), vy=float(x[3]),
-                        position_cov=(float(p[0, 0]), float(p[0, 1]), float(p[1, 1])),
-                        velocity_cov=(float(p[2, 2]), float(p[2, 3]), float(p[3, 3])),
-                        stamp_ns=self.stamp_ns)
+        (x,), (y,), (vx,), (vy,) = self.kf.x.tolist()   # one conversion, not ten reads
+        p = self.kf.P.tolist()
+        return Obstacle(self.id, CIRCLE, x, y, float(self.radius), vx=vx, vy=vy,
+                        position_cov=(p[0][0], p[0][1], p[1][1]),
+                        velocity_cov=(p[2][2], p[2][3], p[3][3]), stamp_ns=self.stamp_ns)
 
 
 class SegmentTrack:
@@ -220,20 +219,25 @@ def inverse_2x2(s: Vector) -> Vector:
 
 
 def motion(dt: float, q: float) -> tuple[Vector, Vector]:
-    """Return F and Q of the constant-velocity model over ``dt`` [s] (module docstring)."""
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
-    g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
-    return f, (g @ g.T) * (q * q)
+    """Return F and Q of the constant-velocity model over ``dt`` [s] (module docstring).
+
+    Q = G G^T q^2 written out (G = [dt^2/2 I; dt I]): one array each, not numpy's products.
+    """
+    f = np.array([[1.0, 0.0, dt, 0.0], [0.0, 1.0, 0.0, dt], [0.0, 0.0, 1.0, 0.0],
+                  [0.0, 0.0, 0.0, 1.0]])
+    q2 = q * q
+    a, b, c = 0.25 * dt ** 4 * q2, 0.5 * dt ** 3 * q2, dt * dt * q2
+    return f, np.array([[a, 0.0, b, 0.0], [0.0, a, 0.0, b], [b, 0.0, c, 0.0],
+                        [0.0, b, 0.0, c]])
 
 
 def front_of(z: SegmentFit, t: CircleTrack) -> CircleFit | None:
     """Segment ``z`` read as the visible front of circle track ``t``, or None when too long."""
     if z.length > 2.0 * t.radius + 3.0 * z.rms:
         return None
-    c = t.kf.x[:2, 0]
-    qx, qy = closest_on_segment(float(c[0]), float(c[1]), z.x1, z.y1, z.x2, z.y2)
-    dx, dy = float(c[0]) - qx, float(c[1]) - qy
+    (cx,), (cy,) = t.kf.x[:2].tolist()
+    qx, qy = closest_on_segment(cx, cy, z.x1, z.y1, z.x2, z.y2)
+    dx, dy = cx - qx, cy - qy
     d = math.hypot(dx, dy)
     if d <= 0.0:
         return None
