@@ -137,8 +137,17 @@ def obstacle_rows(obstacles: Iterable[ObstacleLike], age: float = 0.0) -> Vector
     ``age`` is the time from the obstacles' stamp to the time of the estimate the filter
     runs on: each obstacle is carried along its velocity for that long (constant velocity).
     """
-    rows = [(o.x, o.y, *o.end, o.radius, o.vx, o.vy) for o in obstacles]
-    return moved(np.array(rows, dtype=float).reshape(-1, 7), age)
+    return moved(np.array(obstacle_lists(obstacles), dtype=float).reshape(-1, 7), age)
+
+
+def obstacle_lists(obstacles: Iterable[ObstacleLike]) -> list[list[float]]:
+    """Return the rows of :func:`obstacle_rows` (at age 0) as lists of floats for the step.
+
+    Without the array: a caller that hands the step the same obstacles at every estimate
+    converts them once per scan, and numpy's calls would be most of that conversion.
+    """
+    return [[float(o.x), float(o.y), *map(float, o.end), float(o.radius), float(o.vx),
+             float(o.vy)] for o in obstacles]
 
 
 def moved(rows: Vector, age: float) -> Vector:

@@ -58,7 +58,7 @@ from enbarr_core.framework.node import EnbarrNode
 from enbarr_core.framework.params import ParamSpec
 from enbarr_core.framework.stamps import StampGate, StampPolicy
 from enbarr_core.guidance.cbf import (
-    blind_reason, CbfOutput, CbfSettings, obstacle_rows, SafetyFilter)
+    blind_reason, CbfOutput, CbfSettings, obstacle_lists, SafetyFilter)
 from enbarr_core.guidance import avoidance_params
 from enbarr_core.guidance.guidance import GoToWaypoint, HoldPose, LosPath, Reference
 
@@ -250,7 +250,7 @@ class GuidanceNode(EnbarrNode):
         self.filter: SafetyFilter | None = None
         # (rows, stamp of their scan): one object, swapped whole, because the obstacles
         # arrive on another thread than the estimates that read them.
-        # The obstacles as rows of floats (obstacle_rows' tolist()): the filter reads them as
+        # The obstacles as rows of floats (cbf.obstacle_lists): the filter reads them as
         # floats at every estimate, and they change only once a scan.
         self._obstacles: tuple[list[list[float]], int | None] = ([], None)
         self._measurement_age: float | None = None
@@ -401,7 +401,7 @@ class GuidanceNode(EnbarrNode):
             self.counts['obstacles_refused'] += 1
             self.get_logger().warn(str(err), throttle_duration_sec=1.0)
             return
-        self._obstacles = (obstacle_rows(obstacles).tolist(), cloud_stamp_ns(msg))
+        self._obstacles = (obstacle_lists(obstacles), cloud_stamp_ns(msg))
 
     def _on_measurement_age(self, msg: Float64) -> None:
         self._measurement_age = float(msg.data)

@@ -179,6 +179,9 @@ class PoseHistory:
         q = np.asarray(stamps_ns, dtype=np.int64)
         if len(q) == 0:
             return np.empty((0, 3))
+        if len(q) == 1:   # one time (a scan taken at its stamp, a camera frame): in floats
+            pose = self._at_one(int(q[0]), tolerance_ns)
+            return None if pose is None else np.array((pose,))
         # only the poses around the times asked: the one before the first, after the last
         lo = max(bisect.bisect_left(self._t, int(q.min())) - 1, 0)
         hi = min(bisect.bisect_right(self._t, int(q.max())) + 1, len(self._t))
@@ -197,6 +200,26 @@ class PoseHistory:
         for k in range(3):
             out[:, k] = np.interp(qr, rel, eta[:, k])
         return out
+
+
+    def _at_one(self, stamp_ns: int, tolerance_ns: int) -> tuple[float, float, float] | None:
+        """Return :meth:`at` of one time as floats (the same interpolation as np.interp)."""
+        t = self._t
+        n = len(t)
+        right = min(bisect.bisect_left(t, stamp_ns), n - 1)
+        left = max(right - 1, 0)
+        if min(abs(stamp_ns - t[left]), abs(t[right] - stamp_ns)) > tolerance_ns:
+            return None
+        if stamp_ns <= t[0]:
+            return self._eta[0]
+        if stamp_ns >= t[-1]:
+            return self._eta[-1]
+        # np.interp's formula, on times relative to the first pose as at() has them
+        base = t[0]
+        x0, x1 = float(t[left] - base), float(t[right] - base)
+        w = (float(stamp_ns - base) - x0) / (x1 - x0)
+        return tuple(a + w * (b - a) for a, b in  # type: ignore[return-value]
+                     zip(self._eta[left], self._eta[right]))
 
 
 def to_world(points: Vector, eta: Vector) -> Vector:

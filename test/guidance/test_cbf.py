@@ -285,6 +285,15 @@ def test_engage_at_starts_at_rest_and_returns_to_the_law():
     assert not out.engaged
 
 
+def test_obstacle_lists_are_the_rows_at_age_zero():
+    from enbarr_core.guidance.cbf import obstacle_lists
+    from enbarr_interfaces.obstacles import CIRCLE, Obstacle, SEGMENT
+    obstacles = [Obstacle(1, CIRCLE, 1.0, 2.0, 0.3, vx=0.1, vy=-0.2),
+                 Obstacle(2, SEGMENT, -1.0, 0.5, 0.0, 3.0, 0.5)]
+    assert obstacle_lists(obstacles) == obstacle_rows(obstacles).tolist()
+    assert obstacle_lists(obstacles)[0][2:4] == [1.0, 2.0]   # a circle's second end: its centre
+
+
 def test_obstacle_rows_are_moved_on_by_their_age():
     class Segment:
         x, y, radius, vx, vy = 1.0, 2.0, 0.3, 0.5, -0.25

@@ -86,6 +86,24 @@ def test_poses_between_the_history_s_poses_are_its_interpolation():
         np.testing.assert_allclose(eta[:, 2], np.interp(q, kept, psi), atol=1e-12)
 
 
+def test_one_time_is_posed_as_in_an_array_of_times():
+    """The single-time path in floats gives the array path's pose and refusals."""
+    rng = np.random.default_rng(2)
+    h = PoseHistory(capacity=64)
+    stamps = np.cumsum(rng.integers(15 * MS, 25 * MS, 100))
+    for t, (x, y, psi) in zip(stamps.tolist(), rng.uniform(-3.0, 3.0, (100, 3)).tolist()):
+        h.add(t, x, y, psi)
+    refused = 0
+    for q in rng.integers(int(stamps[0]) - 50 * MS, int(stamps[-1]) + 50 * MS, 2000).tolist():
+        one, two = h.at(np.array([q]), 12 * MS), h.at(np.array([q, q]), 12 * MS)
+        assert (one is None) == (two is None)
+        if one is None:
+            refused += 1
+            continue
+        np.testing.assert_allclose(one[0], two[0], rtol=0.0, atol=1e-12)
+    assert 20 < refused < 500      # both ways refused some: gaps, and beyond the history
+
+
 def measure(ranges, time_increment, mount, poses, stamp=0, scan_time=0.0,
             sweep='clockwise_from_zero'):
     from enbarr_core.perception.fitting import FitSettings
