@@ -22,6 +22,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/params', glob('params/*.yaml')),
         ('share/' + package_name + '/params/scenarios', glob('params/scenarios/*.yaml')),
+        ('share/' + package_name + '/params/bench', glob('params/bench/*.yaml')),
         # The Arduino board's firmware: the emulator compiles link.c for the host.
         ('share/' + package_name + '/firmware', ['firmware/Makefile']),
         ('share/' + package_name + '/firmware/enbarr_arduino',

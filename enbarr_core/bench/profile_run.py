@@ -45,7 +45,9 @@ import shutil
 import signal
 import subprocess
 import sys
+import statistics
 import tempfile
+import threading
 import time
 from typing import Any, NamedTuple
 
@@ -277,16 +279,18 @@ def _running(err_path: Path) -> int:
 
 
 def run_once(profile: str, sets: list[str], warmup: float, seconds: float,
-             bag: Path | None, workdir: Path, processes: int = 1) -> Run:
+             bag: Path | None, workdir: Path, processes: int = 1,
+             domain: str | None = None) -> Run:
     """Run ``enbarr bringup`` for the profile, measure the window, stop it with SIGINT.
 
     The window opens ``warmup`` seconds after the start, and not before each of the
-    ``processes`` (one per group) has logged that its nodes run.
+    ``processes`` (one per group) has logged that its nodes run. ``domain``: the
+    ROS_DOMAIN_ID to run in (default :func:`bench_domain`).
     """
     # The copy of enbarr that this bench runs (a source tree or the installed one).
     package_root = str(Path(__file__).resolve().parents[2])
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-           'ROS_DOMAIN_ID': bench_domain(), 'PYTHONUNBUFFERED': '1',
+           'ROS_DOMAIN_ID': domain or bench_domain(), 'PYTHONUNBUFFERED': '1',
            'PYTHONPATH': os.pathsep.join(p for p in (package_root,
                                                      os.environ.get('PYTHONPATH')) if p)}
     env.pop('ROS_LOCALHOST_ONLY', None)
@@ -468,6 +472,88 @@ def measure(profile: str, sets: list[str], warmup: float, seconds: float,
                 result['cpu_us_per_recorded_message'] = None
                 result['writer_cpu_us_per_recorded_message'] = None
         shutil.rmtree(work / 'bag', ignore_errors=True)
+    result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
+                        f'{platform.python_version()}'
+    return result
+
+
+# -- a profile against a baseline -------------------------------------------------------------
+
+def other_domain(domain: str) -> str:
+    """Return a second ROS_DOMAIN_ID beside ``domain`` (both valid for Fast DDS: 0..232)."""
+    d = int(domain)
+    return str(d - 1 if d > 100 else d + 1)
+
+
+def difference(run: Run, base: Run) -> dict[str, float]:
+    """Return the shares of a core by which ``run`` exceeds ``base``: whole, and per thread."""
+    out = {'cpu_core_fraction': round(run.cpu / run.wall - base.cpu / base.wall, 4)}
+    names = {name for _, name in run.per_thread} | {name for _, name in base.per_thread}
+    for name in sorted(names):
+        a = sum(c for (_, n), c in run.per_thread.items() if n == name) / run.wall
+        b = sum(c for (_, n), c in base.per_thread.items() if n == name) / base.wall
+        if abs(a - b) >= 0.001:
+            out[name] = round(a - b, 4)
+    return out
+
+
+def summarize_pairs(differences: list[float]) -> dict[str, Any]:
+    """Return the mean, median, spread and Pi 4 estimate of the pairs' differences."""
+    mean = statistics.fmean(differences)
+    return {'pairs': len(differences), 'mean': round(mean, 4),
+            'median': round(statistics.median(differences), 4),
+            'min': round(min(differences), 4), 'max': round(max(differences), 4),
+            'stdev': round(statistics.stdev(differences), 4) if len(differences) > 1 else None,
+            'pi4_core_fraction_estimate': round(mean * PI4_FACTOR, 3)}
+
+
+def compare(profile: str, baseline: str, sets: list[str], warmup: float, seconds: float,
+            pairs: int) -> dict[str, Any]:
+    """Measure ``profile`` against ``baseline`` in ``pairs`` pairs of runs; the JSON dict.
+
+    The two runs of a pair go at the same time, each in its own ROS domain, so that what
+    the machine does meanwhile (other work, a shared host's neighbours) weighs on both; on
+    a machine with fewer than two cores they would take turns, and the pairs are refused.
+    ``sets`` apply to both. The difference of each pair, and their mean and spread, are
+    what ``profile`` costs beyond ``baseline``.
+    """
+    from enbarr_core.bringup.profile import load_profile
+    if (os.cpu_count() or 1) < 2:
+        raise EnbarrError('--against runs the two profiles at once: it needs two cores')
+    profiles = [load_profile(p, sets) for p in (profile, baseline)]   # bad ones: one line
+    processes = [_processes(p, record=False) for p in profiles]
+    domains = [bench_domain()]
+    domains.append(other_domain(domains[0]))
+    result: dict[str, Any] = {'profile': profiles[0].name, 'against': profiles[1].name,
+                              'warmup': warmup, 'seconds': seconds}
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix='enbarr-bench-') as tmp:
+        work = Path(tmp)
+        for _ in range(pairs):
+            runs: list[Run | None] = [None, None]
+            errors: list[BaseException] = []
+
+            def one(k: int) -> None:
+                try:
+                    runs[k] = run_once((profile, baseline)[k], sets, warmup, seconds, None,
+                                       work, processes[k], domains[k])
+                except BaseException as err:   # noqa: BLE001  # raised below, on this thread
+                    errors.append(err)
+
+            threads = [threading.Thread(target=one, args=(k,)) for k in (0, 1)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            if errors:
+                raise errors[0]
+            run, base = runs
+            assert run is not None and base is not None
+            rows.append({'profile': _share(run.cpu, run.wall),
+                         'against': _share(base.cpu, base.wall),
+                         'difference': difference(run, base)})
+    result['runs'] = rows
+    result['difference'] = summarize_pairs([r['difference']['cpu_core_fraction'] for r in rows])
     result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
                         f'{platform.python_version()}'
     return result

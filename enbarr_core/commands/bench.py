@@ -19,6 +19,8 @@ IDLE_SECONDS = 10.0
 #: The chain rate a run takes [Hz] (the simulator and sensors refuse far less).
 MAX_RATE = 10_000.0
 PERCEPTION_SCANS = 500
+PAIRS = 4
+MAX_PAIRS = 50
 VISION_FRAMES = 200
 
 EPILOG = """\
@@ -33,6 +35,11 @@ threads, per process, RSS at start and end. --record runs it twice back to back,
 and with a bag: cpu_us_per_recorded_message = the CPU difference / messages recorded in
 the window; writer_cpu_us_per_recorded_message = the writer thread alone. --idle: the
 profile's fixed cost instead (its nodes composed and spun, no source started).
+
+--profile NAME --against BASE: what NAME costs beyond BASE (e.g. a feature switched off in
+BASE): --pairs pairs (default 4) of runs, the two of a pair at the same time in two ROS
+domains (the machine's other load then weighs on both); each pair's difference (whole and
+per thread) and their mean, median, spread and Pi 4 estimate. Needs two cores.
 
 --recording: what the recorder costs per message, by message type and for the mix of
 each chain (--messages per type, --repeat runs; the median is kept).
@@ -113,6 +120,12 @@ class BenchCommand(Command):
         parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                             help='--profile: override a node parameter, as bringup --set '
                             '(repeatable)')
+        parser.add_argument('--against', default=None, metavar='NAME|PATH',
+                            help='--profile: measure it against this baseline profile, both '
+                            'at once, in --pairs pairs; prints each pair and the mean '
+                            'difference')
+        parser.add_argument('--pairs', type=int, default=None, metavar='N',
+                            help=f'--against: pairs of runs (default {PAIRS})')
         parser.add_argument('--idle', action='store_true',
                             help="--profile: the fixed cost instead: the profile's nodes "
                             'composed in this process and spun, none of their sources '
@@ -150,6 +163,9 @@ class BenchCommand(Command):
             raise EnbarrError('--frames is for --camera, --vision and --fusion')
         if args.model is not None and not args.vision:
             raise EnbarrError('--model is for --vision')
+        if (args.against is not None or args.pairs is not None) and (
+                args.profile is None or args.idle):
+            raise EnbarrError('--against and --pairs are for --profile (without --idle)')
         if args.camera:
             result = _camera(args)
         elif args.avoidance:
@@ -245,6 +261,16 @@ def _profile(args: argparse.Namespace) -> dict:
     warmup = profile_run.DEFAULT_WARMUP if args.warmup is None else args.warmup
     check_seconds('--seconds', seconds)
     check_seconds('--warmup', warmup)
+    if args.pairs is not None and args.against is None:
+        raise EnbarrError('--pairs is for --against')
+    if args.against is not None:
+        if args.record:
+            raise EnbarrError('--record does not go with --against')
+        pairs = PAIRS if args.pairs is None else args.pairs
+        if not 1 <= pairs <= MAX_PAIRS:
+            raise EnbarrError(f'--pairs must be 1..{MAX_PAIRS}, got {pairs}')
+        return profile_run.compare(args.profile, args.against, args.set, warmup, seconds,
+                                   pairs)
     return profile_run.measure(args.profile, args.set, warmup, seconds, args.record)
 
 

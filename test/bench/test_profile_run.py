@@ -172,6 +172,33 @@ def test_recorded_in_refuses_a_bag_it_cannot_read(tmp_path: Path) -> None:
         bp.recorded_in(tmp_path, 0, 1)
 
 
+def _run(cpu: float, threads: dict[tuple[str, str], float], wall: float = 10.0) -> bp.Run:
+    return bp.Run(wall, cpu, {}, threads, {}, {}, (0, 1), 0, 8.0)
+
+
+def test_difference_is_whole_and_per_thread_shares() -> None:
+    run = _run(1.6, {('bringup', 'executor'): 0.5, ('bringup', 'simulator_loop'): 1.1})
+    base = _run(1.2, {('bringup', 'executor'): 0.3, ('bringup', 'simulator_loop'): 0.9,
+                      ('bringup', 'python'): 0.0005}, wall=8.0)
+    d = bp.difference(run, base)
+    assert d['cpu_core_fraction'] == pytest.approx(0.16 - 0.15)
+    assert d['executor'] == pytest.approx(0.05 - 0.0375)
+    assert d['simulator_loop'] == pytest.approx(0.11 - 0.1125)
+    assert 'python' not in d            # below a tenth of a percent either way
+
+
+def test_pairs_summary_and_domains() -> None:
+    s = bp.summarize_pairs([0.02, 0.03, 0.016, 0.022])
+    assert s['pairs'] == 4 and s['mean'] == pytest.approx(0.022)
+    assert s['median'] == pytest.approx(0.021) and (s['min'], s['max']) == (0.016, 0.03)
+    assert s['pi4_core_fraction_estimate'] == pytest.approx(0.132)
+    assert s['stdev'] == pytest.approx(0.00589, abs=1e-5)
+    assert bp.summarize_pairs([0.01])['stdev'] is None
+    for d in ('0', '7', '100', '101', '232'):
+        other = bp.other_domain(d)
+        assert other != d and 0 <= int(other) <= 232
+
+
 # -- the command (e2e: processes) -------------------------------------------------------------
 
 @pytest.mark.e2e
@@ -185,6 +212,14 @@ def test_recorded_in_refuses_a_bag_it_cannot_read(tmp_path: Path) -> None:
     (['--profile', 'saucer_sim', '--idle', '--record'], '--record does not go with --idle'),
     (['--profile', 'saucer_sim', '--idle', '--seconds', '-1'], '--seconds must be a positive'),
     (['--profile', 'saucer_sim', '--set', 'nobody.rate=5'], "no node 'nobody'"),
+    (['--chain', 'rov', '--against', 'saucer_sim'], '--against and --pairs are for --profile'),
+    (['--profile', 'saucer_sim', '--idle', '--pairs', '2'], '--against and --pairs are for'),
+    (['--profile', 'saucer_sim', '--pairs', '2'], '--pairs is for --against'),
+    (['--profile', 'saucer_sim', '--against', 'saucer_sim', '--pairs', '0'],
+     '--pairs must be 1..50'),
+    (['--profile', 'saucer_sim', '--against', 'saucer_sim', '--record'],
+     '--record does not go with --against'),
+    (['--profile', 'saucer_sim', '--against', 'no_such_base'], "'no_such_base' not found"),
     (['--profile', 'saucer_sim', '--warmup', '30', '--set', 'simulator.rate=-5'],
      r'bringup --profile saucer_sim exited early \(code 2\): enbarr bringup: error: .*rate'),
 ])
@@ -218,6 +253,24 @@ def test_bench_profile_runs_a_recorded_profile() -> None:
     assert r['writer_cpu_us_per_recorded_message'] > 0.0
     assert isinstance(r['cpu_us_per_recorded_message'], float)
     assert r['machine']
+
+
+@pytest.mark.e2e
+@pytest.mark.alone   # two vessels at once, and its second domain is the next one: no worker beside
+def test_bench_against_a_baseline_runs_pairs_at_once() -> None:
+    base = Path(__file__).resolve().parents[2] / 'params/bench/saucer_ca_sim_baseline.yaml'
+    result = enbarr('bench', '--profile', 'saucer_ca_sim', '--against', str(base),
+                    '--pairs', '1', '--warmup', '5', '--seconds', '2', timeout=240)
+    assert result.returncode == 0, result.stderr
+    r = json.loads(result.stdout)
+    assert (r['profile'], r['against']) == ('saucer_ca_sim', 'saucer_ca_sim_baseline')
+    (run,) = r['runs']
+    assert 0.0 < run['against'] and 0.0 < run['profile']
+    d = run['difference']
+    assert d['cpu_core_fraction'] == pytest.approx(run['profile'] - run['against'], abs=2e-4)
+    assert 'executor' in d             # the perception's thread: it runs only in the profile
+    assert r['difference']['pairs'] == 1
+    assert r['difference']['mean'] == d['cpu_core_fraction']
 
 
 SPLIT_PROFILE = split_profile()
