@@ -49,6 +49,18 @@ def test_layout_as_a_generic_point_cloud_reader_sees_it() -> None:
     assert (f8('vx'), f8('vy'), f8('cov_xy'), f8('cov_vyvy')) == (0.2, -0.1, 0.002, 0.05)
 
 
+def test_a_message_from_elsewhere_decodes_as_one_written_here() -> None:
+    """Fields that are not our own objects (a message off DDS) take the checked path."""
+    for classes in (False, True):
+        here = ob.to_cloud([BUOY, WALL], 3, 'odom', classes=classes)
+        there = ob.to_cloud([BUOY, WALL], 3, 'odom', classes=classes)
+        there.fields = [PointField(name=f.name, offset=f.offset, datatype=f.datatype,
+                                   count=f.count) for f in there.fields]
+        assert ob._own_rows(here) is not None and ob._own_rows(there) is None
+        assert ob.from_cloud(here) == ob.from_cloud(there) == [BUOY, WALL]
+        assert bytes(here.data) == ob.to_array([BUOY, WALL], classes).tobytes()
+
+
 def test_fields_are_found_by_name_not_position() -> None:
     msg = ob.to_cloud([BUOY, WALL], 0, 'odom')
     msg.fields = list(reversed(msg.fields))
