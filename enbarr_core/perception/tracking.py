@@ -246,20 +246,25 @@ def front_of(z: SegmentFit, t: CircleTrack) -> CircleFit | None:
                      (var, 0.0, var), z.rms, fallback=True)
 
 
-def assign(cost: Vector, gate: float) -> list[tuple[int, int]]:
-    """Return the (row, column) pairs of least total cost, pairs above ``gate`` ruled out."""
-    if cost.size == 0:
+def assign(cost: Vector | Sequence[Sequence[float]], gate: float) -> list[tuple[int, int]]:
+    """Return the (row, column) pairs of least total cost, pairs above ``gate`` ruled out.
+
+    ``cost``: an array or a list of rows (the tracker's: a few tracks and measurements, read
+    in floats; numpy and the solver only when a gate is contested).
+    """
+    rows = cost.tolist() if isinstance(cost, np.ndarray) else cost
+    if not rows or not rows[0]:
         return []
-    inside = cost <= gate
-    if (inside.sum(axis=0) <= 1).all() and (inside.sum(axis=1) <= 1).all():
+    pairs = [(i, j) for i, row in enumerate(rows) for j, c in enumerate(row) if c <= gate]
+    if len({i for i, _ in pairs}) == len(pairs) == len({j for _, j in pairs}):
         # Obstacles apart (the usual scan): no track has two measurements in its gate and no
         # measurement two tracks, so the best assignment takes every pair in a gate and the
         # solver has nothing to decide.
-        rows, cols = np.nonzero(inside)
-        return list(zip(rows.tolist(), cols.tolist()))
-    c = np.where(inside, cost, _RULED_OUT)
-    rows, cols = linear_sum_assignment(c)
-    return [(int(i), int(j)) for i, j in zip(rows, cols) if cost[i, j] <= gate]
+        return pairs
+    a = np.array(rows, dtype=float)
+    c = np.where(a <= gate, a, _RULED_OUT)
+    r, k = linear_sum_assignment(c)
+    return [(int(i), int(j)) for i, j in zip(r, k) if a[i, j] <= gate]
 
 
 class Tracker:
@@ -320,11 +325,10 @@ class Tracker:
         # break a track. As a measurement of track i it is the centre one radius behind the
         # segment's point nearest the prediction, with the radius as its uncertainty.
         fronts = [[front_of(z, t) for z in short] for t in self.circles]
-        cost = np.array([[t.innovation(z) for z in measured]
-                         + [t.innovation(f) if f is not None else math.inf for f in row]
-                         for t, row in zip(self.circles, fronts)])
-        width = len(measured) + len(short)
-        pairs = assign(cost.reshape(len(self.circles), width), s.gate)
+        cost = [[t.innovation(z) for z in measured]
+                + [t.innovation(f) if f is not None else math.inf for f in row]
+                for t, row in zip(self.circles, fronts)]
+        pairs = assign(cost, s.gate)
         used = set()
         hit = set()
         for i, j in pairs:

@@ -222,6 +222,7 @@ def test_assign_is_the_least_cost_set_of_pairs_in_the_gates(seed):
                                                       else zip(perm, range(cols)))
                                   if cost[i, j] <= 9.0]])
         got = assign(cost, 9.0)
+        assert assign(cost.tolist(), 9.0) == got      # the tracker's rows of floats
         assert got == sorted(got)
         assert len({i for i, _ in got}) == len(got) == len({j for _, j in got})
         assert all(cost[i, j] <= 9.0 for i, j in got)
