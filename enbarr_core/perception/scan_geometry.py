@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 from dataclasses import dataclass
+import functools
 import math
 
 import numpy as np
@@ -30,6 +31,14 @@ Vector = NDArray[np.float64]
 #: RPLidar turns and the ``rplidar`` plugin publishes (``enbarr_plugins/lidar/rplidar.py``);
 #: ``at_stamp``: all at the scan's stamp.
 SWEEPS = ('clockwise_from_zero', 'at_stamp')
+
+
+@functools.lru_cache(maxsize=32)
+def _array(values: tuple[float, ...]) -> Vector:
+    """Return ``values`` as an array, made once per tuple (read only: it is shared)."""
+    out = np.array(values, dtype=float)
+    out.flags.writeable = False
+    return out
 
 
 @dataclass(frozen=True)
@@ -57,8 +66,8 @@ class RangeNoise:
 
     def sigma(self, r: Vector) -> Vector:
         """Return the range standard deviation [m] at ranges ``r`` [m]."""
-        band = np.searchsorted(np.asarray(self.limits), r, side='right')
-        out: Vector = np.asarray(self.fractions)[band] * r
+        band = np.searchsorted(_array(self.limits), r, side='right')
+        out: Vector = _array(self.fractions)[band] * r
         return out
 
     def sigma_at(self, r: float) -> float:

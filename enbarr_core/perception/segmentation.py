@@ -59,9 +59,18 @@ def breakpoint_distance(r_prev: Vector, dphi: Vector, lam: float, sigma_r: Vecto
 def _breaks(r_prev: Vector, gap: NDArray[np.intp], d: Vector, increment: float,
             s: BreakpointSettings) -> NDArray[np.bool_]:
     """Whether each consecutive pair is a breakpoint; ``gap``: rays between them, + 1."""
+    if int(gap.max()) == 1:
+        # No ray missing (the usual scan): one angle, so D_max's two sines are numbers, and
+        # no gap can exceed max_gap. The same arithmetic, (r sin dphi) / sin(lam - dphi).
+        step = abs(increment)
+        if not step < s.lam:
+            return np.ones(len(d), dtype=bool)
+        dmax = r_prev * math.sin(step) / math.sin(s.lam - step) + 3.0 * s.noise.sigma(r_prev)
+        out: NDArray[np.bool_] = d > dmax
+        return out
     dphi = gap.astype(np.float64) * abs(increment)
     dmax = breakpoint_distance(r_prev, dphi, s.lam, s.noise.sigma(r_prev))
-    out: NDArray[np.bool_] = (gap > s.max_gap + 1) | (d > dmax)
+    out = (gap > s.max_gap + 1) | (d > dmax)
     return out
 
 

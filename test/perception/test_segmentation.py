@@ -44,6 +44,24 @@ def test_the_breakpoint_distance_is_the_papers_and_a_wide_gap_always_breaks(apar
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
+def test_a_scan_without_missing_rays_breaks_where_the_papers_bound_says():
+    """_breaks' path for gaps of one ray: the bound of each pair written out from the paper."""
+    from enbarr_core.perception.segmentation import _breaks
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        r = rng.uniform(0.2, 12.0, 300)
+        d = rng.uniform(0.0, 0.4, 300)
+        gap = np.ones(300, dtype=np.intp)
+        sigma = np.array([NOISE_FRACTIONS[sum(x >= lim for lim in NOISE_LIMITS)] * x
+                          for x in r])
+        bound = r * math.sin(INC) / math.sin(LAM - INC) + 3.0 * sigma
+        got = _breaks(r, gap, d, INC, SETTINGS)
+        assert got.tolist() == (d > bound).tolist()
+        assert 0 < got.sum() < 300
+    wide = BreakpointSettings(0.5 * INC, 2, SETTINGS.noise)   # rays further apart than lambda
+    assert _breaks(r, gap, d, INC, wide).all()
+
+
 def test_two_buoys_one_behind_the_other_split_exactly_where_the_breakpoint_says():
     outcomes = set()
     for behind in np.linspace(0.0, 1.0, 21):
