@@ -96,15 +96,23 @@ class ScanPoints:
             self.angle_increment)
 
 
+@functools.lru_cache(maxsize=8)
+def _ray_directions(angle_min: float, angle_increment: float, rays: int) -> Vector:
+    """Return the unit vector of every ray (rays, 2), made once per scan geometry (shared)."""
+    theta = angle_min + np.arange(rays) * angle_increment
+    out = np.column_stack((np.cos(theta), np.sin(theta)))
+    out.flags.writeable = False
+    return out
+
+
 def scan_points(ranges: Vector, angle_min: float, angle_increment: float) -> ScanPoints:
     """Return the finite rays of a scan as points in its frame (REP-117 values dropped)."""
     ranges = np.asarray(ranges, dtype=float)
     index = np.flatnonzero(np.isfinite(ranges))
     r = ranges[index]
-    theta = angle_min + index * angle_increment
-    laser = np.empty((len(index), 2))
-    laser[:, 0] = r * np.cos(theta)
-    laser[:, 1] = r * np.sin(theta)
+    # a lidar's rays keep their angles from scan to scan: their directions are kept too
+    laser = _ray_directions(float(angle_min), float(angle_increment), len(ranges))[index]
+    laser *= r[:, None]
     return ScanPoints(index, r, laser, len(ranges), float(angle_increment))
 
 
