@@ -9,8 +9,9 @@ assignment).
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+import math
 
 import numpy as np
 from numpy.typing import NDArray
@@ -74,6 +75,21 @@ class LidarMount:
         out: Vector = laser @ self.rotation[:2, :2].T + self.translation[:2]
         return out
 
+    def to_world(self, laser: Vector, eta: Sequence[float]) -> Vector:
+        """Points (N, 2) in the lidar's plane -> the world, all with one pose ``eta`` [x, y, psi].
+
+        :func:`to_world` of :meth:`to_base` composed into one affine map: p_w = A p + b with
+        A = R(psi) M and b = R(psi) t + (x, y) (M, t: the mount's plane part).
+        """
+        x, y, psi = eta
+        c, s = math.cos(psi), math.sin(psi)
+        (m00, m01), (m10, m11) = self.rotation[:2, :2].tolist()
+        tx, ty = self.translation[:2].tolist()
+        a = np.array(((c * m00 - s * m10, c * m01 - s * m11),
+                      (s * m00 + c * m10, s * m01 + c * m11)))
+        out: Vector = laser @ a.T + (x + c * tx - s * ty, y + s * tx + c * ty)
+        return out
+
 
 class ScanObstacles:
     """The pipeline, with its tracks between scans. ``settings`` may be swapped live."""
@@ -116,7 +132,10 @@ class ScanObstacles:
             return None
         if len(scan.r) == 0:
             return [], 0, 0
-        world = to_world(mount.to_base(scan.laser), eta)
+        if len(eta) == 1:   # every ray at one pose: the mount and the pose are one transform
+            world = mount.to_world(scan.laser, eta[0].tolist())
+        else:
+            world = to_world(mount.to_base(scan.laser), eta)
         pieces = [c for c in clusters(scan, s.breakpoints) if len(c) >= s.min_cluster_points]
         if not pieces:
             return [], len(scan.r), 0

@@ -104,6 +104,21 @@ def test_one_time_is_posed_as_in_an_array_of_times():
     assert 20 < refused < 500      # both ways refused some: gaps, and beyond the history
 
 
+def test_a_mount_and_one_pose_map_points_as_the_two_steps_do():
+    """LidarMount.to_world (one affine map) against to_base then to_world, tilted mounts too."""
+    from scipy.spatial.transform import Rotation
+    from enbarr_core.perception.pipeline import LidarMount
+    from enbarr_core.perception.scan_geometry import to_world
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        r = Rotation.from_euler('xyz', rng.uniform(-0.3, 0.3, 3) * (1, 1, 10)).as_matrix()
+        mount = LidarMount(r, rng.uniform(-0.5, 0.5, 3))
+        laser = rng.uniform(-5.0, 5.0, (40, 2))
+        eta = rng.uniform(-3.0, 3.0, 3)
+        np.testing.assert_allclose(mount.to_world(laser, eta.tolist()),
+                                   to_world(mount.to_base(laser), eta), atol=1e-12)
+
+
 def measure(ranges, time_increment, mount, poses, stamp=0, scan_time=0.0,
             sweep='clockwise_from_zero'):
     from enbarr_core.perception.fitting import FitSettings
