@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 from enbarr_interfaces.obstacles import Obstacle
 
 from enbarr_core.perception.fitting import CircleFit, fit_clusters, FitSettings, SegmentFit
-from enbarr_core.perception.scan_geometry import (PoseHistory, ray_offsets_ns, scan_points,
-                                                  SWEEPS, to_world)
+from enbarr_core.perception.scan_geometry import (all_at_stamp, PoseHistory, ray_offsets_ns,
+                                                  scan_points, SWEEPS, to_world)
 from enbarr_core.perception.segmentation import BreakpointSettings, clusters
 from enbarr_core.perception.tracking import Tracker, TrackerSettings
 
@@ -120,7 +120,7 @@ class ScanObstacles:
         """
         s = self._settings
         scan = scan_points(ranges, angle_min, angle_increment)
-        if len(scan.r) == 0:
+        if len(scan.r) == 0 or all_at_stamp(time_increment, scan_time, s.sweep):
             ray_times = np.array([stamp_ns], dtype=np.int64)
         else:
             offsets = ray_offsets_ns(scan.index, angle_min, angle_increment, time_increment,

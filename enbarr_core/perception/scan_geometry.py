@@ -116,6 +116,11 @@ def scan_points(ranges: Vector, angle_min: float, angle_increment: float) -> Sca
     return ScanPoints(index, r, laser, len(ranges), float(angle_increment))
 
 
+def all_at_stamp(time_increment: float, scan_time: float, sweep: str) -> bool:
+    """Whether :func:`ray_offsets_ns` puts every ray of such a scan at its stamp."""
+    return time_increment == 0.0 and not (sweep == 'clockwise_from_zero' and scan_time > 0.0)
+
+
 def ray_offsets_ns(index: NDArray[np.intp], angle_min: float, angle_increment: float,
                    time_increment: float, scan_time: float, sweep: str) -> NDArray[np.int64]:
     """Return when each ray ``index`` was taken after the scan's stamp [ns].
@@ -125,7 +130,7 @@ def ray_offsets_ns(index: NDArray[np.intp], angle_min: float, angle_increment: f
     """
     if time_increment != 0.0:
         t = index * (time_increment * 1e9)
-    elif sweep == 'clockwise_from_zero' and scan_time > 0.0:
+    elif not all_at_stamp(time_increment, scan_time, sweep):
         bearing = angle_min + index * angle_increment
         t = np.mod(-bearing, 2.0 * math.pi) * (scan_time * 1e9 / (2.0 * math.pi))
     else:
