@@ -215,6 +215,8 @@ def run_bench(args: list[str], ns: argparse.Namespace, tmp: Path) -> str:
         return run_as_written(args, ns, tmp)   # seconds: one process, no ROS graph
     if ns.profile is not None:
         load_profile(ns.profile)
+        if ns.against is not None:   # the baseline too
+            load_profile(str(ROOT / ns.against) if (ROOT / ns.against).exists() else ns.against)
         return f'bench --profile {ns.profile}: profile loaded (a whole-profile run is long)'
     return f'bench --chain {ns.chain}: parsed (a chain is one of its choices); not run: its ' \
         'fixed phases take tens of seconds whatever the options'
