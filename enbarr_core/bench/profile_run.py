@@ -43,9 +43,9 @@ import random
 import re
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
-import statistics
 import tempfile
 import threading
 import time

@@ -78,6 +78,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import math
+import threading
 from typing import NamedTuple, Protocol
 
 import daqp
@@ -95,7 +96,6 @@ _SIDES = 16                                 # the speed limit's polygon
 _DIRECTIONS = np.array([[math.cos(k * math.pi / 8), math.sin(k * math.pi / 8)]
                         for k in range(_SIDES // 2)])
 _DIRECTION_PAIRS = tuple((float(cx), float(cy)) for cx, cy in _DIRECTIONS)
-_DIRECTION_ROWS = list(_DIRECTION_PAIRS)
 _HALF = _SIDES // 2
 _INSCRIBED = math.cos(math.pi / _SIDES)     # its apothem / circumradius
 _INF = 1e30                                 # daqp's "no bound"
@@ -326,14 +326,18 @@ class _DaqpRows:
         return float(x[0]), float(x[1]), int(exitflag)
 
 
-_DAQP: dict[int, _DaqpRows] = {}
+#: The kept arrays, per thread (two filters stepping on two threads never share them).
+_DAQP = threading.local()
 
 
 def _daqp_rows(k: int) -> _DaqpRows:
-    """Return the kept arrays for k obstacle rows (one set per k, made on first use)."""
-    rows = _DAQP.get(k)
+    """Return this thread's kept arrays for k obstacle rows (made on first use)."""
+    kept: dict[int, _DaqpRows] | None = getattr(_DAQP, 'rows', None)
+    if kept is None:
+        kept = _DAQP.rows = {}
+    rows = kept.get(k)
     if rows is None:
-        rows = _DAQP[k] = _DaqpRows(k)
+        rows = kept[k] = _DaqpRows(k)
     return rows
 
 
