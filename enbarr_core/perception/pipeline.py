@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+import functools
 import math
 
 import numpy as np
@@ -84,11 +85,21 @@ class LidarMount:
         x, y, psi = eta
         c, s = math.cos(psi), math.sin(psi)
         (m00, m01), (m10, m11) = self.rotation[:2, :2].tolist()
-        tx, ty = self.translation[:2].tolist()
         a = np.array(((c * m00 - s * m10, c * m01 - s * m11),
                       (s * m00 + c * m10, s * m01 + c * m11)))
-        out: Vector = laser @ a.T + (x + c * tx - s * ty, y + s * tx + c * ty)
+        out: Vector = laser @ a.T + self.origin(x, y, psi)
         return out
+
+    @functools.cached_property
+    def _plane_translation(self) -> tuple[float, float]:
+        tx, ty = self.translation[:2].tolist()
+        return tx, ty
+
+    def origin(self, x: float, y: float, psi: float) -> tuple[float, float]:
+        """Return where the lidar is in the world [m] with ``base_link`` at (x, y, psi)."""
+        tx, ty = self._plane_translation
+        c, s = math.cos(psi), math.sin(psi)
+        return x + c * tx - s * ty, y + s * tx + c * ty
 
 
 class ScanObstacles:
@@ -141,7 +152,6 @@ class ScanObstacles:
             return [], len(scan.r), 0
         # Where the lidar was and its range noise, at each kept cluster's middle ray only: in
         # floats, the few clusters of a scan cost less than arrays over all its rays.
-        tx, ty = mount.translation[:2].tolist()
         noise = s.breakpoints.noise
         last = len(eta) - 1
         mids = [int(c[len(c) // 2]) for c in pieces]
@@ -150,8 +160,7 @@ class ScanObstacles:
         ranges_at = scan.r[mids].tolist()
         sensors, sigmas, start, n = [], [], [], 0
         for c, (x, y, psi), r in zip(pieces, poses_at, ranges_at):
-            cos, sin = math.cos(psi), math.sin(psi)
-            sensors.append((x + cos * tx - sin * ty, y + sin * tx + cos * ty))
+            sensors.append(mount.origin(x, y, psi))
             sigmas.append(noise.sigma_at(r))
             start.append(n)
             n += len(c)

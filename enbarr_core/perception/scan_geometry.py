@@ -223,7 +223,6 @@ class PoseHistory:
             out[:, k] = np.interp(qr, rel, eta[:, k])
         return out
 
-
     def _at_one(self, stamp_ns: int, tolerance_ns: int) -> tuple[float, float, float] | None:
         """Return :meth:`at` of one time as floats (the same interpolation as np.interp)."""
         t = self._t

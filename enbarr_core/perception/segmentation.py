@@ -45,8 +45,17 @@ class BreakpointSettings:
         self.noise.validate()
 
 
-def breakpoint_distance(r_prev: Vector, dphi: Vector, lam: float, sigma_r: Vector) -> Vector:
-    """Return D_max [m] (module docstring); -1 where ``dphi`` >= lambda (always a break)."""
+def breakpoint_distance(r_prev: Vector, dphi: Vector | float, lam: float,
+                        sigma_r: Vector) -> Vector:
+    """Return D_max [m] (module docstring); -1 where ``dphi`` >= lambda (always a break).
+
+    ``dphi`` one angle for every pair (a float: no ray missing) or one per pair.
+    """
+    if isinstance(dphi, float):   # the usual scan: the two sines are numbers
+        if not dphi < lam:
+            return np.full(np.shape(r_prev), -1.0)
+        one: Vector = r_prev * math.sin(dphi) / math.sin(lam - dphi) + 3.0 * sigma_r
+        return one
     ok = dphi < lam
     if ok.all():   # no ray missing more than lambda: the common case, without the masks
         d: Vector = r_prev * np.sin(dphi) / np.sin(lam - dphi) + 3.0 * sigma_r
@@ -59,15 +68,10 @@ def breakpoint_distance(r_prev: Vector, dphi: Vector, lam: float, sigma_r: Vecto
 def _breaks(r_prev: Vector, gap: NDArray[np.intp], d: Vector, increment: float,
             s: BreakpointSettings) -> NDArray[np.bool_]:
     """Whether each consecutive pair is a breakpoint; ``gap``: rays between them, + 1."""
-    if int(gap.max()) == 1:
-        # No ray missing (the usual scan): one angle, so D_max's two sines are numbers, and
-        # no gap can exceed max_gap. The same arithmetic, (r sin dphi) / sin(lam - dphi).
-        step = abs(increment)
-        if not step < s.lam:
-            return np.ones(len(d), dtype=bool)
-        dmax = r_prev * math.sin(step) / math.sin(s.lam - step) + 3.0 * s.noise.sigma(r_prev)
-        out: NDArray[np.bool_] = d > dmax
-        return out
+    if int(gap.max()) == 1:   # no ray missing: one angle, and no gap exceeds max_gap
+        within: NDArray[np.bool_] = d > breakpoint_distance(
+            r_prev, float(abs(increment)), s.lam, s.noise.sigma(r_prev))
+        return within
     dphi = gap.astype(np.float64) * abs(increment)
     dmax = breakpoint_distance(r_prev, dphi, s.lam, s.noise.sigma(r_prev))
     out = (gap > s.max_gap + 1) | (d > dmax)
