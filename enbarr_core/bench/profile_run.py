@@ -485,15 +485,30 @@ def other_domain(domain: str) -> str:
     return str(d - 1 if d > 100 else d + 1)
 
 
+def thread_kind(name: str) -> str:
+    """Return a thread's name without the numbers a run gives it (a DDS thread's port)."""
+    return re.sub(r'(\.\d+)+$', '', name)
+
+
 def difference(run: Run, base: Run) -> dict[str, float]:
-    """Return the shares of a core by which ``run`` exceeds ``base``: whole, and per thread."""
+    """Return the shares of a core by which ``run`` exceeds ``base``: whole, and per thread.
+
+    Threads are grouped by :func:`thread_kind` (the two runs' DDS ports differ). Every group
+    of either run is listed, one missing from a run counting as 0 there, and
+    ``threads_other`` is the process time in no thread read (threads that ended; the process
+    and its threads are read a clock tick apart), so the groups add up to the whole, to
+    their rounding.
+    """
     out = {'cpu_core_fraction': round(run.cpu / run.wall - base.cpu / base.wall, 4)}
-    names = {name for _, name in run.per_thread} | {name for _, name in base.per_thread}
-    for name in sorted(names):
-        a = sum(c for (_, n), c in run.per_thread.items() if n == name) / run.wall
-        b = sum(c for (_, n), c in base.per_thread.items() if n == name) / base.wall
-        if abs(a - b) >= 0.001:
-            out[name] = round(a - b, 4)
+    shares: dict[str, float] = {'threads_other': 0.0}
+    for one, sign in ((run, 1.0), (base, -1.0)):
+        for (_, name), c in one.per_thread.items():
+            kind = thread_kind(name)
+            shares[kind] = shares.get(kind, 0.0) + sign * c / one.wall
+        in_threads = sum(one.per_thread.values())
+        shares['threads_other'] += sign * (one.cpu - in_threads) / one.wall
+    for kind in sorted(shares):
+        out[kind] = round(shares[kind], 4)
     return out
 
 

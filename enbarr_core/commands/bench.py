@@ -39,7 +39,8 @@ profile's fixed cost instead (its nodes composed and spun, no source started).
 --profile NAME --against BASE: what NAME costs beyond BASE (e.g. a feature switched off in
 BASE): --pairs pairs (default 4) of runs, the two of a pair at the same time in two ROS
 domains (the machine's other load then weighs on both); each pair's difference (whole and
-per thread) and their mean, median, spread and Pi 4 estimate. Needs two cores.
+per kind of thread, DDS ports dropped from names; they add up to the whole) and their mean,
+median, spread and Pi 4 estimate. Needs two cores.
 
 --recording: what the recorder costs per message, by message type and for the mix of
 each chain (--messages per type, --repeat runs; the median is kept).
