@@ -23,6 +23,13 @@ the gate of its ends): the line is averaged, the ends are the union's; several p
 wall (cut by a buoy in front) extend one track. Tracks that grow into each other merge (the
 older id stays). The same hits and misses confirm and drop them.
 
+A short segment near a circle track is taken as that circle's seen *front* (a far buoy's
+few points fit a line as well as a circle in one scan): it corrects the track's position and
+stamp, but it is no hit and does not reset the misses. Only circles keep a circle track
+alive, so fronts bridge a few scans of such flicker and never sustain a circle by
+themselves: a circle that once fitted a buoy's short arc too large would otherwise slide
+along the wall behind it, fed by the wall's short pieces, for as long as the wall is seen.
+
 Each obstacle carries the stamp of the last scan that measured it.
 """
 
@@ -108,13 +115,18 @@ class CircleTrack:
         # nu^T S^-1 nu with the 2x2 inverse written out
         return float((s11 * nu0 * nu0 - 2.0 * s01 * nu0 * nu1 + s00 * nu1 * nu1) / det)
 
-    def update(self, z: CircleFit, stamp_ns: int, alpha: float) -> None:
-        """Correct with ``z`` measured at ``stamp_ns``; smooth the radius with weight alpha."""
+    def update(self, z: CircleFit, stamp_ns: int, alpha: float, *, circle: bool = True) -> None:
+        """Correct with ``z`` measured at ``stamp_ns``; smooth the radius with weight alpha.
+
+        ``circle`` False: ``z`` is a seen front (:func:`front_of`), which corrects the state
+        and the stamp but is no hit, and does not reset the misses (module docstring).
+        """
         r = np.array([[z.cov[0], z.cov[1]], [z.cov[1], z.cov[2]]])
         self.kf.update(np.array([[z.x], [z.y]]), R=r)
         self.radius += alpha * (z.radius - self.radius)
-        self.hits += 1
-        self.misses = 0
+        if circle:
+            self.hits += 1
+            self.misses = 0
         self.stamp_ns = stamp_ns
 
     def obstacle(self) -> Obstacle:
@@ -332,14 +344,14 @@ class Tracker:
         used = set()
         hit = set()
         for i, j in pairs:
+            used.add(j)
             if j < len(measured):
                 self.circles[i].update(measured[j], stamp_ns, s.radius_smoothing)
-            else:
+                hit.add(i)
+            else:   # its radius was not measured, nor that it is a circle: a miss
                 front = fronts[i][j - len(measured)]
                 assert front is not None
-                self.circles[i].update(front, stamp_ns, 0.0)   # its radius was not measured
-            used.add(j)
-            hit.add(i)
+                self.circles[i].update(front, stamp_ns, 0.0, circle=False)
         for i, t in enumerate(self.circles):
             if i not in hit:
                 t.misses += 1

@@ -163,11 +163,35 @@ def test_a_short_segment_at_a_tracked_buoy_is_its_front_not_a_wall():
     front = SegmentFit(2.72, -0.25, 2.72, 0.25, 0.03, 6)
     tracker.update([], [front], N * PERIOD_NS)
     assert tracker.segments == [] and tracker.circles == [track]
-    assert track.misses == 0 and track.stamp_ns == N * PERIOD_NS
+    # the front places it and stamps it, but is not a circle: no hit, a miss
+    assert track.stamp_ns == N * PERIOD_NS and (track.hits, track.misses) == (N, 1)
     assert track.kf.x[0, 0] == pytest.approx(3.0, abs=0.05)
+    tracker.update([buoy], [], (N + 1) * PERIOD_NS)
+    assert (track.hits, track.misses) == (N + 1, 0)
     # a long segment there is a wall in front of it, not the buoy
-    tracker.update([], [SegmentFit(2.6, -2.0, 2.6, 2.0, 0.03, 40)], (N + 1) * PERIOD_NS)
+    tracker.update([], [SegmentFit(2.6, -2.0, 2.6, 2.0, 0.03, 40)], (N + 2) * PERIOD_NS)
     assert len(tracker.segments) == 1 and track.misses == 1
+
+
+def test_fronts_alone_do_not_keep_a_circle_alive():
+    # A buoy's short arc once fitted far too large (0.66 m): then only the wall behind it is
+    # seen, in pieces short enough to be that circle's front. They must not carry the circle
+    # along the wall (ca_ten_buoys did so for 44 s): after M scans of fronts it is dropped,
+    # and the pieces are the wall's.
+    from enbarr_core.perception.fitting import SegmentFit
+    tracker = Tracker(TRACKER)
+    big = CircleFit(1.0, 2.6, 0.66, (0.01, 0.0, 0.01), 0.01)
+    for k in range(N):
+        tracker.update([big], [], k * PERIOD_NS)
+    (ghost,) = tracker.circles
+    for k in range(N, N + M):
+        x = 1.0 + 0.1 * (k - N)   # the wall y = 3.225 seen in 1.2 m pieces, moving along
+        assert ghost in tracker.circles
+        tracker.update([], [SegmentFit(x - 0.6, 3.225, x + 0.6, 3.225, 0.01, 20)],
+                       k * PERIOD_NS)
+    assert tracker.circles == []
+    tracker.update([], [SegmentFit(1.0, 3.225, 2.2, 3.225, 0.01, 20)], (N + M) * PERIOD_NS)
+    assert len(tracker.segments) == 1
 
 
 def test_the_constant_velocity_model_is_bar_shaloms():
