@@ -8,10 +8,12 @@ Every ``frame`` named here is a frame of the profile's tree (``frames`` section,
 The mapping from the messages of the original Enbarr README is in ``docs/interfaces.md``.
 
 Topic names are relative, so a profile's ``namespace`` and ``remappings`` apply to them.
-``fast=True`` marks the topics of the control chains (IMU -> thrusters, pose -> azimuths)
-and the io requests: ``EnbarrNode.create_topic_publisher`` reads it, and between nodes
-composed in one process these topics travel as direct calls (see ``enbarr_interfaces.links``),
-and they reach DDS only when something outside the process subscribes.
+``fast=True`` marks the topics of the control chains (IMU -> thrusters, pose -> azimuths,
+scan -> obstacles -> guidance) and the io requests: ``EnbarrNode.create_topic_publisher``
+reads it, and between nodes composed in one process these topics travel as direct calls (see
+``enbarr_interfaces.links``), and they reach DDS only when something outside the process
+subscribes. A fast topic's subscriber runs on its publisher's thread: the scan's perception
+on the simulator's thread or the RPLidar driver's reader thread.
 """
 
 from __future__ import annotations
@@ -258,7 +260,7 @@ SCAN = TopicSpec(
     "One lidar revolution in the lidar's own frame, as a real driver publishes it: "
     'angle_min..angle_max counter-clockwise from +x; REP-117: -inf too close, +inf no '
     "return, NaN no sample. Where the lidar sits is the frame tree's (base_link -> laser on "
-    '/tf_static); consumers transform the scan with it.')
+    '/tf_static); consumers transform the scan with it.', fast=True)
 OBSTACLES = TopicSpec(
     'obstacles', PointCloud2, SENSOR_QOS, 'm, m/s, m^2', WORLD_FRAME,
     'Tracked obstacles, one point per obstacle (a capsule: segment x,y-x2,y2 with radius), '

@@ -195,8 +195,10 @@ class ScanObstaclesNode(EnbarrNode):
         self.pipeline: ScanObstacles | None = None
         self.poses = PoseHistory()
         # Poses arrive on the control chain's thread (a fast topic: the observer's publish
-        # calls us), scans on the executor's. The chain must never wait for a scan's
-        # processing: a pose only takes _pose_lock, and a scan holds it only to copy them.
+        # calls us), scans on the lidar's (also fast: the simulated lidar's simulator thread,
+        # the RPLidar driver's reader thread; the executor's when the lidar is in another
+        # process). The chain must never wait for a scan's processing: a pose only takes
+        # _pose_lock, and a scan holds it only to copy them.
         self._pose_lock = threading.Lock()
         self._lock = threading.Lock()   # the pipeline: scans and parameter changes
         self._mounts: dict[str, LidarMount] = {}
