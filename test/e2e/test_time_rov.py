@@ -27,7 +27,10 @@ from support.participant import Participant
 from support.processes import bringup, DRIVE_AHEAD, split_profile
 from support.waiting import wait_until
 
-pytestmark = pytest.mark.e2e
+# alone: "control continues" is judged in real time (no neutral output in 3 s), which a
+# starved control group breaks by itself: beside a second worker's vessel one run went neutral
+# (2026-11-27) with nothing early injected to blame. It runs with the machine to itself.
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 SPLIT_PROFILE = split_profile({'restart_limit': 0},
                               thruster_control={'parameters': {'command_timeout': 1.0}},
