@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-import platform
 import random
 import re
 import shutil
@@ -51,6 +50,7 @@ import threading
 import time
 from typing import Any, NamedTuple
 
+from enbarr_core.bench.chain import machine
 from enbarr_core.framework.errors import EnbarrError
 
 PI4_FACTOR = 6.0
@@ -472,8 +472,7 @@ def measure(profile: str, sets: list[str], warmup: float, seconds: float,
                 result['cpu_us_per_recorded_message'] = None
                 result['writer_cpu_us_per_recorded_message'] = None
         shutil.rmtree(work / 'bag', ignore_errors=True)
-    result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
-                        f'{platform.python_version()}'
+    result['machine'] = machine()
     return result
 
 
@@ -569,6 +568,5 @@ def compare(profile: str, baseline: str, sets: list[str], warmup: float, seconds
                          'difference': difference(run, base)})
     result['runs'] = rows
     result['difference'] = summarize_pairs([r['difference']['cpu_core_fraction'] for r in rows])
-    result['machine'] = f'{platform.machine()} {os.cpu_count()} cpu, Python ' \
-                        f'{platform.python_version()}'
+    result['machine'] = machine()
     return result
