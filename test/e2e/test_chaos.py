@@ -12,7 +12,11 @@ import pytest
 
 from support.cli import enbarr
 
-pytestmark = pytest.mark.e2e
+# alone: each fault is timed in real time, and a removal fault is watched for 5 s at most. In
+# CI beside a second worker (2026-11-27) the sigkill fault saw no neutral output in its 2 s
+# window (the window was then the whole watch): the thruster driver's process, starved, went
+# neutral late. It runs with the machine to itself.
+pytestmark = [pytest.mark.e2e, pytest.mark.alone]
 
 
 @pytest.fixture(scope='module')
@@ -42,7 +46,8 @@ def test_each_removal_fault_reaches_neutral_and_is_timed(
     Whether that time is within 0.5 s is the benchmark's verdict (``docs/benchmarks.md``:
     0.25-0.35 s on a quiet machine, the 0.25 s command watchdog plus its 0.1 s period); on a
     loaded 2-core machine the watchdog's process may be scheduled late, so a test bounds it
-    only by what no scheduling delay explains (5 s: twenty watchdog timeouts).
+    only by what no scheduling delay explains (5 s: twenty watchdog timeouts, and how long
+    ``enbarr chaos`` watches a removal fault for its neutral output).
     """
     faults = {f['fault']: f for f in run[1]['per_fault']}
     assert set(faults) == {'sigkill:control', 'sigstop:control'}

@@ -14,7 +14,7 @@ import pytest
 from enbarr_core.commands.main import main as enbarr_main
 from enbarr_core.bringup.profile import load_profile
 from enbarr_core.framework.errors import EnbarrError
-from enbarr_core.tools.chaos import judge, plan as chaos
+from enbarr_core.tools.chaos import judge, plan as chaos, removal
 from enbarr_core.tools.chaos.storm import Call
 from enbarr_core.tools.chaos.tree import NEUTRAL_LOG
 
@@ -66,6 +66,53 @@ def test_already_neutral_at_the_fault_is_safe_at_once() -> None:
     assert judge.judge_removal('sigkill:control', obs, T0).passed
     # ... and driving again after it does not undo that it was safe at the fault
     assert judge.time_to_neutral(obs + [(T0 + int(0.3 * S), False)], T0) == 0.0
+
+
+class FakeClock:
+    """Wall time for ``removal.watch``: ``sleep`` advances it; events appear at their time."""
+
+    def __init__(self, events: list[tuple[int, bool]]) -> None:
+        self.now = T0
+        self.all = events
+        self.sleeps: list[float] = []
+
+    def sleep(self, s: float) -> None:
+        self.sleeps.append(s)
+        self.now += int(s * S)
+
+    def seen(self) -> list[tuple[int, bool]]:
+        return [e for e in self.all if e[0] <= self.now]
+
+
+def test_a_late_neutral_is_watched_for_and_measured_late() -> None:
+    # A starved driver's watchdog fires 3.2 s after the fault: past the 2 s window.
+    clock = FakeClock(outputs([-0.1, 0.1, 3.2], 3.2))
+    seen, watched = removal.watch(clock.seen, T0, 2.0, sleep=clock.sleep,
+                                  clock=lambda: clock.now)
+    assert 3.2 <= watched < 3.3
+    v = removal.judged('sigkill:control', seen, T0, watched)
+    assert not v.passed and v.time_to_safe_s == pytest.approx(3.2)
+
+
+def test_a_neutral_in_the_window_ends_the_watch_with_the_window() -> None:
+    clock = FakeClock(outputs([-0.1, 0.3], 0.3))
+    seen, watched = removal.watch(clock.seen, T0, 2.0, sleep=clock.sleep,
+                                  clock=lambda: clock.now)
+    assert watched == pytest.approx(2.0)
+    assert removal.judged('sigkill:control', seen, T0, watched).passed
+
+
+def test_no_neutral_is_watched_up_to_the_limit_and_says_what_was_seen() -> None:
+    clock = FakeClock(outputs([-0.4, -0.1, 0.05]))
+    seen, watched = removal.watch(clock.seen, T0, 2.0, sleep=clock.sleep,
+                                  clock=lambda: clock.now)
+    assert watched == pytest.approx(removal.WATCH_LIMIT_S)
+    assert removal.WATCH_LIMIT_S == 5.0  # the e2e test's bound (test/e2e/test_chaos.py)
+    v = removal.judged('sigstop:control', seen, T0, watched)
+    assert not v.passed and v.time_to_safe_s is None
+    assert v.detail == ('no neutral actuator output after the fault; watched 5.0 s: '
+                        '1 actuator outputs after the fault, none neutral; the last before it '
+                        '0.100 s earlier')
 
 
 def test_extra_condition_fails_an_in_time_neutral() -> None:

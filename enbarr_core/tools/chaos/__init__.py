@@ -35,7 +35,8 @@ subscriber in this process and the bag observe:
     (``storm``: an unanswered call is a failure, judged with the others).
 ``sigstop`` / ``sigkill``
     The control group SIGSTOPped (SIGCONT after the window) / SIGKILLed (the supervisor
-    restarts it). Safe: actuators neutral within 0.5 s.
+    restarts it). Safe: actuators neutral within 0.5 s. When none is seen in the window the
+    fault is watched on, 5 s at most (a starved driver is measured late, not missed).
 ``disk``
     A second run recording to a 160 MiB tmpfs in a private mount namespace (needs root,
     else skipped), filled to the last byte once control runs. Safe: control not disrupted

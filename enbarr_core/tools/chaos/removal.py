@@ -6,6 +6,7 @@ the actuator outputs' own stamps and the drivers' 'neutral' log lines.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import os
 from pathlib import Path
 import signal
@@ -19,6 +20,10 @@ from enbarr_core.tools.chaos.plan import CONTROL_GROUP
 from enbarr_core.tools.chaos.tree import neutral_log_times, Tree
 
 RESET_TIMEOUT = 45.0            # s, control back after a restart of the control group
+#: A removal fault is watched for a neutral output at least this long after the fault [s]:
+#: beyond the window, so that a driver starved on a loaded machine, whose watchdog fires
+#: late, is measured late (and failed by its time) rather than not seen at all.
+WATCH_LIMIT_S = 5.0
 
 
 def neutral_events(obs: Observer, tree: Tree) -> list[tuple[int, bool]]:
@@ -30,14 +35,51 @@ def neutral_events(obs: Observer, tree: Tree) -> list[tuple[int, bool]]:
     return sorted([*obs.actuators, *neutral_log_times(tree.text)])
 
 
+def watch(events: Callable[[], list[tuple[int, bool]]], fault_ns: int, window: float,
+          *, sleep: Callable[[float], None] = time.sleep,
+          clock: Callable[[], int] = time.time_ns) -> tuple[list[tuple[int, bool]], float]:
+    """Watch ``events`` after a fault at ``fault_ns``: the window, then on to a neutral output.
+
+    Returns the events and the time watched [s] once ``window`` has passed and a neutral
+    output is seen, or once ``WATCH_LIMIT_S`` has passed without one.
+    """
+    sleep(max(0.0, window - (clock() - fault_ns) * 1e-9))
+    while True:
+        seen = events()
+        waited = (clock() - fault_ns) * 1e-9
+        if judge.time_to_neutral(seen, fault_ns) is not None or waited >= WATCH_LIMIT_S:
+            return seen, waited
+        sleep(min(0.05, WATCH_LIMIT_S - waited))
+
+
+def judged(name: str, events: list[tuple[int, bool]], fault_ns: int,
+           watched_s: float) -> Verdict:
+    """Judge a removal fault on ``events``; when no neutral came, say what was seen."""
+    if judge.time_to_neutral(events, fault_ns) is not None:
+        return judge.judge_removal(name, events, fault_ns)
+    before = [t for t, _ in events if t < fault_ns]
+    after = [t for t, _ in events if t >= fault_ns]
+    last = (f'the last before it {(fault_ns - max(before)) * 1e-9:.3f} s earlier' if before
+            else 'none before it')
+    return judge.judge_removal(
+        name, events, fault_ns,
+        extra=f'watched {watched_s:.1f} s: {len(after)} actuator outputs after the fault, '
+              f'none neutral; {last}')
+
+
 def sigstop(obs: Observer, tree: Tree, window: float, name: str) -> Verdict:
-    """SIGSTOP the control group for the window, then SIGCONT: neutral within 0.5 s."""
+    """SIGSTOP the control group for the window (longer while nothing is neutral), SIGCONT.
+
+    Neutral within 0.5 s.
+    """
     pid = tree.wait_group(CONTROL_GROUP, 5.0)
     fault = time.time_ns()
     os.kill(pid, signal.SIGSTOP)
-    time.sleep(max(1.0, window))
-    os.kill(pid, signal.SIGCONT)
-    return judge.judge_removal(name, neutral_events(obs, tree), fault)
+    try:
+        events, watched = watch(lambda: neutral_events(obs, tree), fault, max(1.0, window))
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    return judged(name, events, fault, watched)
 
 
 def sigkill(obs: Observer, tree: Tree, window: float, name: str) -> Verdict:
@@ -45,8 +87,8 @@ def sigkill(obs: Observer, tree: Tree, window: float, name: str) -> Verdict:
     pid = tree.wait_group(CONTROL_GROUP, 5.0)
     fault = time.time_ns()
     os.kill(pid, signal.SIGKILL)
-    time.sleep(max(1.0, window))
-    v = judge.judge_removal(name, neutral_events(obs, tree), fault)
+    events, watched = watch(lambda: neutral_events(obs, tree), fault, max(1.0, window))
+    v = judged(name, events, fault, watched)
     try:
         tree.wait_group(CONTROL_GROUP, 30.0, other_than=pid)
     except EnbarrError as err:
