@@ -63,6 +63,16 @@ def tier_of(item: pytest.Item) -> tuple[str | None, str | None]:
     return ('node' if uses_node else 'unit'), None
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Build matplotlib's font cache before any test, where no tier guard is on.
+
+    Where the cache does not exist yet (a fresh machine or CI runner, a new user), the first
+    ``import matplotlib.pyplot`` runs ``fc-list``: a process, which ``_unit_tier_guard``
+    refuses in a unit test (2026-11-27, a new VM: every plot test of the unit tier failed).
+    """
+    import matplotlib.font_manager  # noqa: F401 - the import builds the cache
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Give every test its tier marker (see the module docstring); refuse two or none."""
     problems = []
