@@ -20,7 +20,8 @@ card keeps up with. A raw image subscribed before its sibling appeared is droppe
 Topics from the ROS graph are subscribed as ``ros2 bag record`` does (``recording.qos``): with
 the reliability and durability every publisher offers, so that a latched topic (``mode``,
 ``guidance/path_available``) is recorded from its first message even when that was
-published before the recorder subscribed, and a reliable topic is recorded reliably. The
+published before the recorder subscribed (it comes a few milliseconds later: ``latched_pending``
+lists what has not come yet), and a reliable topic is recorded reliably. The
 offered profiles go to the bag's ``offered_qos_profiles``; latched topics are repeated at the
 start of every file of a split bag.
 
@@ -242,6 +243,10 @@ class RecorderNode(EnbarrNode, Recorder):
         self._last_received = 0.0  # monotonic time of the last message queued [s]
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._subscribed: set[str] = set()
+        # Latched topics subscribed over DDS whose first message has not come yet: a latched
+        # message published before the subscription arrives later, by the middleware's
+        # late-joiner repair (``latched_pending``).
+        self._latched_waiting: set[str] = set()
         self._raw_images: dict[str, Any] = {}  # raw image topic -> its subscription
         self.skipped_raw: set[str] = set()  # raw images left out for their compressed sibling
         self._mixed_warned: set[str] = set()
@@ -495,11 +500,33 @@ class RecorderNode(EnbarrNode, Recorder):
             self._offer(name, types[0], offers)
             put = self._put
             entry = (name, types[0], None)  # raw: the bytes as DDS carried them, exact
-            sub = self.create_subscription(cls, name, lambda data, e=entry: put(
-                (e, self._stamp(), data)), request_profile(offers), raw=True)
+            callback = lambda data, e=entry: put((e, self._stamp(), data))  # noqa: E731
+            if r.transient_local:
+                self._latched_waiting.add(name)
+                callback = self._first_latched(name, callback)
+            sub = self.create_subscription(cls, name, callback, request_profile(offers),
+                                           raw=True)
             if types[0] == IMAGE_TYPE:
                 self._raw_images[name] = sub
         self._warn_missing()
+
+    def _first_latched(self, name: str, callback: Any) -> Any:
+        """Wrap ``callback`` of latched topic ``name``: its arrival ends ``latched_pending``."""
+        def on_message(data: Any) -> None:
+            self._latched_waiting.discard(name)
+            callback(data)
+        return on_message
+
+    def latched_pending(self) -> list[str]:
+        """List the latched topics subscribed whose first message has not arrived yet.
+
+        A latched message published before the recorder subscribed comes by the middleware's
+        late-joiner repair, some milliseconds of wall time later (Fast DDS: its first
+        heartbeat); if the topic changes meanwhile, only the new value comes. A run on
+        simulated time (``enbarr scenario``) waits for this before its clock moves. A topic
+        whose publisher has published nothing yet stays listed.
+        """
+        return sorted(self._latched_waiting)
 
     def missing_topics(self) -> list[str]:
         """List the selected topics that have not appeared (none: all are recorded)."""

@@ -15,7 +15,8 @@ A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenari
 The nodes are built exactly as ``bringup`` builds them, in one process, but time is
 simulated: every node's ROS clock is set to the simulated time, and the runner steps the
 simulator itself (instead of its real-time loop), then lets the executor run whatever timers
-and callbacks became due. Nothing waits for the wall clock, so a scenario runs as fast as the
+and callbacks became due. Nothing waits for the wall clock (but the start, until the recorder
+has the latched topics' messages: ``wait_for_latched``), so a scenario runs as fast as the
 machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
 
 The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
@@ -48,6 +49,8 @@ from enbarr_core.framework.errors import EnbarrError, ProfileError
 from enbarr_core.tools.targets import judge, parse_targets, Target
 
 T0_NS = 1_000_000_000  # simulated time starts at 1 s (0 is 'unset' in many stamps)
+#: Wall time [s] a scenario waits at start for the recorder's latched topics.
+LATCHED_WAIT_S = 0.5
 SCENARIO_KEYS = ('duration', 'kind', 'settle_time', 'settle_band', 'targets')
 SCENARIO_KINDS = ('station_keeping', 'path', 'run')  # run: modes and saturation only
 
@@ -194,6 +197,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
         run_due = _run_due(c.executor)
         run_due()
+        wait_for_latched(c.nodes, run_due)
         dt_ns = sim.period_ns
         end = now + int(spec.duration * 1e9)
         while now < end:
@@ -240,6 +244,28 @@ def simulated_time(clocks: list[Any]) -> Callable[[int], None]:
         msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 1_000_000_000)
         source.clock_callback(msg)
     return set_time
+
+
+def wait_for_latched(nodes: list[Any], run_due: Callable[[], None],
+                     timeout: float = LATCHED_WAIT_S) -> list[str]:
+    """Before simulated time moves: let the recorder receive every latched topic's message.
+
+    A latched message published at start (the controller's ``mode``) reaches the recorder,
+    which subscribed after it, some milliseconds of wall time later (the middleware's
+    late-joiner repair). Simulated time does not wait for that: at 30 times real time the next
+    mode had replaced it before it came, and the bag started without the initial mode
+    (2026-11-27). Waits ``timeout`` [s] of wall time at most (a latched topic whose publisher
+    published nothing yet never arrives); returns the topics still pending.
+    """
+    from enbarr_core.bringup.compose import RECORDER_NODE
+    recorder = next((n for n in nodes if n.get_name() == RECORDER_NODE), None)
+    if recorder is None:
+        return []
+    deadline = time.monotonic() + timeout
+    while recorder.latched_pending() and time.monotonic() < deadline:
+        time.sleep(0.001)
+        run_due()
+    return recorder.latched_pending()
 
 
 def _run_due(executor: Any) -> Callable[[], None]:

@@ -275,6 +275,28 @@ def test_a_latched_topic_published_before_the_start_is_recorded(context, executo
                                                  QosDurability.TRANSIENT_LOCAL)
 
 
+def test_a_latched_topic_is_pending_until_its_first_message_came(context, executor, spin,
+                                                                tmp_path) -> None:
+    """What ``enbarr scenario`` waits for before its simulated clock moves: a latched message
+    published before the recorder subscribed comes by the middleware's late-joiner repair,
+    milliseconds later; a value published before then replaces it in the writer's history.
+    At 30 times real time the scenarios' bags started without their initial mode
+    (2026-11-27)."""
+    from enbarr_core.tools.scenario import wait_for_latched
+    source = probe(context, executor, 'source')
+    pub = source.create_topic_publisher(LATCHED_TOPIC)
+    pub.publish(String(data='manual'))
+    rec = recorder(context, executor, tmp_path / 'bag', '/test/latched')
+    rec.start()
+    assert rec.latched_pending() == ['/test/latched']
+    assert wait_for_latched([source, rec], lambda: executor.spin_once(timeout_sec=0.0),
+                            timeout=TIMEOUT) == []
+    pub.publish(String(data='automatic'))  # the mode changes at once
+    assert spin(executor, lambda: rec.written >= 2, TIMEOUT), f'{rec.written} written'
+    msgs = close(executor, rec)
+    assert [m.data for _, m in msgs['/test/latched']] == ['manual', 'automatic']
+
+
 def test_a_reliable_topic_is_subscribed_reliably(context, executor, spin, tmp_path) -> None:
     source = probe(context, executor, 'source')
     pub = source.create_topic_publisher(RELIABLE_TOPIC)
