@@ -17,6 +17,15 @@ to. World frame: ENU (z up), so weight acts along world -z and buoyancy along wo
 attitude is a unit quaternion ``[x, y, z, w]`` rotating body vectors into the world frame;
 eta = (p, q), nu = [u, v, w, p, q, r].
 
+The free surface (``height`` > 0): the water's surface is the world plane z = 0, and the
+displaced volume a prism of that height centred on the CB, so the buoyancy is B times the
+submerged fraction s = clamp(1/2 - z_b / height, 0, 1) (z_b: the CB's world height; the hull
+taken as level for the fraction). A vessel of B > W then floats with the fraction W / B under
+water, and one pushed up loses buoyancy as it emerges instead of rising into the air. The
+emerged part's CB moves along the vertical, parallel to the force, so the moment stays
+(s B) r_b x k. ``height`` 0 is deep water (s = 1 everywhere), as for a vehicle that never
+surfaces. Waves, the surface's added mass and damping are not modelled.
+
 Reference: T. I. Fossen, Handbook of Marine Craft Hydrodynamics and Motion Control, 2nd ed.,
 Wiley 2021 (chapter 3 rigid-body kinetics, chapter 4 restoring forces, chapter 6 added mass).
 
@@ -121,6 +130,7 @@ class RigidBodyParams:
     d_lin: tuple[float, ...]  # linear damping, positive [N s/m x3, N m s/rad x3]
     d_quad: tuple[float, ...]  # quadratic damping, positive [N s^2/m^2 x3, N m s^2/rad^2 x3]
     gravity: float = 9.81  # g [m/s^2]
+    height: float = 0.0  # of the displaced volume, for the free surface [m]; 0: deep water
 
     @property
     def weight(self) -> float:
@@ -142,6 +152,9 @@ class RigidBodyParams:
         buoyancy = number('buoyancy', self.buoyancy)
         if buoyancy < 0.0:
             raise ValueError(f'buoyancy: must be >= 0 N, got {buoyancy}')
+        height = number('height', self.height)
+        if height < 0.0:
+            raise ValueError(f'height: must be >= 0 m (0: deep water), got {height}')
         r_g = vector('r_g', self.r_g, (3,), finite=True)
         vector('r_b', self.r_b, (3,), finite=True)
         for name in ('added_mass', 'd_lin', 'd_quad'):
@@ -167,8 +180,8 @@ class RigidBodyParams:
         """Build and validate parameters from a mapping whose keys are the field names.
 
         Sequences (lists, tuples, arrays) are accepted for the vector fields, and a nested 3x3
-        list for ``inertia``; ``gravity`` is optional. Unknown or missing keys raise ValueError
-        naming them.
+        list for ``inertia``; ``gravity`` and ``height`` are optional. Unknown or missing keys
+        raise ValueError naming them.
         """
         names = [f.name for f in fields(cls)]
         unknown = sorted(str(k) for k in set(d) - set(names))
@@ -178,11 +191,11 @@ class RigidBodyParams:
         kwargs: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in d:
-                if f.name == 'gravity':
+                if f.name in ('gravity', 'height'):
                     continue
                 raise ValueError(f'{f.name}: missing')
             value = d[f.name]
-            if f.name in ('mass', 'buoyancy', 'gravity'):
+            if f.name in ('mass', 'buoyancy', 'gravity', 'height'):
                 kwargs[f.name] = number(f.name, value)
             else:
                 if f.name == 'inertia' and _shape(value) == (3, 3):
@@ -254,6 +267,27 @@ class RigidBodyModel:
         self._dq = tuple(self._d_quad.tolist())
         self._net_up = self._B - self._W  # net vertical force B - W [N]
         self._h = tuple((self._B * r_b - self._W * r_g).tolist())  # B r_b - W r_g [N m]
+        self._height = float(params.height)  # 0: deep water, no free surface
+        self._rb = tuple(r_b.tolist())
+        self._Wrg = tuple((self._W * r_g).tolist())
+
+    def submerged(self, z_b: float) -> float:
+        """Submerged fraction of the displaced volume with the CB at world height ``z_b`` [m]."""
+        if self._height <= 0.0:
+            return 1.0
+        s = 0.5 - z_b / self._height
+        return 0.0 if s < 0.0 else 1.0 if s > 1.0 else s
+
+    def _restoring_terms(self, pz: float, r20: float, r21: float,
+                         r22: float) -> tuple[float, float, float, float]:
+        """(s B - W, s B r_b - W r_g) at CO height ``pz``, k = (r20, r21, r22) = R^T e_z."""
+        if self._height <= 0.0:
+            hx, hy, hz = self._h
+            return self._net_up, hx, hy, hz
+        bx, by, bz = self._rb
+        bs = self._B * self.submerged(pz + r20 * bx + r21 * by + r22 * bz)
+        gx, gy, gz = self._Wrg
+        return bs - self._W, bs * bx - gx, bs * by - gy, bs * bz - gz
 
     @property
     def M(self) -> Matrix:
@@ -286,33 +320,38 @@ class RigidBodyModel:
         nu = np.asarray(nu, dtype=float)
         return np.diag(self._d_lin + self._d_quad * np.abs(nu))
 
-    def restoring(self, q: ArrayLike) -> Vector:
+    def restoring(self, q: ArrayLike, p: ArrayLike | None = None) -> Vector:
         """Restoring vector g(eta) (6,) [N, N m] at attitude ``q`` (Fossen 2021, ch. 4).
 
-        f_g = R^T [0, 0, -W], f_b = R^T [0, 0, B] (ENU: z up),
+        f_g = R^T [0, 0, -W], f_b = R^T [0, 0, s B] (ENU: z up),
         g = -[f_g + f_b; r_g x f_g + r_b x f_b]. It sits on the left-hand side, so the force
-        acting on the vehicle is -g.
+        acting on the vehicle is -g. ``s``: the submerged fraction with the CO at ``p`` (world
+        [m]; None: fully submerged), 1 in deep water (``height`` 0).
         """
         R = quat_to_rotmat(quat_normalize(q))
+        s = 1.0 if p is None else self.submerged(
+            float(vector('p', p, 3)[2] + (R @ self._r_b)[2]))
         f_g = R.T @ np.array([0.0, 0.0, -self._W])
-        f_b = R.T @ np.array([0.0, 0.0, self._B])
+        f_b = R.T @ np.array([0.0, 0.0, s * self._B])
         return -np.concatenate(
             (f_g + f_b, np.cross(self._r_g, f_g) + np.cross(self._r_b, f_b)))
 
     def nu_dot(self, q: ArrayLike, nu: ArrayLike, tau: ArrayLike,
                tau_ext: ArrayLike | None = None,
-               current: ArrayLike | None = None) -> Vector:
+               current: ArrayLike | None = None, p: ArrayLike | None = None) -> Vector:
         """Body acceleration nu_dot (6,) [m/s^2, rad/s^2] at attitude ``q`` and velocity ``nu``.
 
         nu_dot = M^-1 (tau + tau_ext - C(nu) nu - D(nu) nu - g(eta)); ``tau`` [N, N m]. With a
         ``current`` v_c (3,) [m/s] in the world frame, the relative-velocity form of the module
-        docstring.
+        docstring. ``p``: the CO's position (world [m]) for the free surface; None: fully
+        submerged.
         """
         qv = vector('q', q, 4)
         nuv = vector('nu', nu, 6)
         tau_l = self._total_tau(tau, tau_ext)
         vc = self._current(current)
-        x = [0.0, 0.0, 0.0, *qv.tolist(), *nuv.tolist()]
+        pz = -math.inf if p is None else float(vector('p', p, 3)[2])
+        x = [0.0, 0.0, pz, *qv.tolist(), *nuv.tolist()]
         return np.array(self._f(x, tau_l, vc)[7:])
 
     def step(self, state: RigidBodyState, tau: ArrayLike, dt: float,
@@ -384,7 +423,7 @@ class RigidBodyModel:
     def _f(self, x: list[float], tau: list[float],
            vc: tuple[float, float, float] | None = None) -> list[float]:
         """Time derivative of x = [p(3), q(4), nu(6)] as a list of 13 floats."""
-        _, _, _, qx, qy, qz, qw, u, v, w, wx, wy, wz = x
+        _, _, pz, qx, qy, qz, qw, u, v, w, wx, wy, wz = x
         # R(q) of a possibly non-unit q: the RK4 stage quaternions drift off the unit sphere by
         # O(dt^2); dividing by |q|^2 keeps every stage's R a rotation.
         s = 2.0 / (qx * qx + qy * qy + qz * qz + qw * qw)
@@ -402,9 +441,8 @@ class RigidBodyModel:
         qdz = 0.5 * (qw * wz + qx * wy - qy * wx)
         qdw = -0.5 * (qx * wx + qy * wy + qz * wz)
         dl, dq = self._dl, self._dq
-        n_up = self._net_up
-        hx, hy, hz = self._h
         if vc is None:
+            n_up, hx, hy, hz = self._restoring_terms(pz, r20, r21, r22)
             # C(nu) nu = [omega x a; v x a + omega x b], [a; b] = M nu (Fossen 2021, Thm 3.2)
             a0, a1, a2, b0, b1, b2 = [m0 * u + m1 * v + m2 * w + m3 * wx + m4 * wy + m5 * wz
                                       for m0, m1, m2, m3, m4, m5 in self._M_rows]
@@ -457,8 +495,7 @@ class RigidBodyModel:
         n1 = -ma[1] * (wz * uc - wx * wc)
         n2 = -ma[2] * (wx * vcb - wy * uc)
         dl, dq = self._dl, self._dq
-        n_up = self._net_up
-        hx, hy, hz = self._h
+        n_up, hx, hy, hz = self._restoring_terms(x[2], r20, r21, r22)
         return (
             tau[0] - (wy * a2 - wz * a1) - (wy * c2 - wz * c1)
             - (dl[0] + dq[0] * abs(ur)) * ur + n_up * r20 + n0,

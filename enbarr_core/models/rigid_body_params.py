@@ -3,10 +3,11 @@
 The velocity control loop (its model feed-forward) and the ROV simulator both declare
 ``vehicle.mass``, ``vehicle.inertia``, ``vehicle.added_mass``, ``vehicle.d_lin`` and
 ``vehicle.d_quad`` (``VEHICLE_SPECS``); the simulator also the restoring forces
-``vehicle.r_g``, ``vehicle.r_b`` and ``vehicle.buoyancy`` (``RESTORING_SPECS``). They are vessel
-data: a profile gives them once (the common ``parameters: vehicle:`` block reaches both nodes)
-and they are required (``ParamSpec(required=True)``): a node started without them refuses to
-start, naming the parameter. Vectors are [surge, sway, heave, roll, pitch, yaw], FLU.
+``vehicle.r_g``, ``vehicle.r_b``, ``vehicle.buoyancy`` and, for the free surface,
+``vehicle.height`` (``RESTORING_SPECS``). They are vessel data: a profile gives them once
+(the common ``parameters: vehicle:`` block reaches both nodes) and all but ``vehicle.height``
+(0: deep water) are required (``ParamSpec(required=True)``): a node started without them
+refuses to start, naming the parameter. Vectors are [surge, sway, heave, roll, pitch, yaw], FLU.
 """
 
 from __future__ import annotations
@@ -34,4 +35,7 @@ RESTORING_SPECS = [
     ParamSpec('vehicle.r_b', [0.0], 'Centre of buoyancy in base_link', 'm', -100.0, 100.0,
               required=True),
     ParamSpec('vehicle.buoyancy', 0.0, 'Buoyancy B = rho g V', 'N', 0.0, 1e6, required=True),
+    ParamSpec('vehicle.height', 0.0, 'Height of the displaced volume, centred on the CB: the '
+              'buoyancy falls as it emerges at the free surface (0: deep water, none)', 'm',
+              0.0, 100.0),
 ]

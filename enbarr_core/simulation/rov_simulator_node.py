@@ -8,6 +8,12 @@ to it), then the truth at the IMU on ``sim/imu`` (which drives the whole IMU -> 
 chain synchronously through the link bus) and, decimated, ``sim/odometry`` (velocity over
 ground, as a DVL locked on the bottom measures it).
 
+The free surface (``vehicle.height`` > 0, ``models.rigid_body``): the water ends at z = 0 of
+odom. The buoyancy falls as the hull emerges, and a thruster gives thrust only in the water:
+its thrust scales from full at one propeller diameter (``PROPELLER_DIAMETER``) below the
+surface to none at the surface and above, so that a vehicle at full upward thrust porpoises at
+the surface instead of flying out of it. ``vehicle.height`` 0 is deep water, as before.
+
 The thrust's age is measured on the node's ROS clock, the clock the simulated time of
 ``enbarr scenario`` overrides, so a scenario run does not depend on the machine's speed.
 ``sim/thrust`` carries no stamp the simulator uses (its arrival on that clock is what counts),
@@ -33,7 +39,7 @@ from enbarr_interfaces import convert, topics
 
 from enbarr_core.allocation.fixed import allocation_matrix
 from enbarr_core.framework.frames import format_heading
-from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
+from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler, quat_to_rotmat
 from enbarr_core.models.rigid_body import RigidBodyModel, RigidBodyParams, RigidBodyState
 from enbarr_core.models.rigid_body_params import RESTORING_SPECS, VEHICLE_SPECS
 from enbarr_core.framework.checks import floats
@@ -49,6 +55,9 @@ from enbarr_core.allocation.layout_params import declare_thrusters
 # vehicle fell behind its feed-forward (docs/benchmarks.md). 100 steps (0.25 s) skip only
 # real stalls.
 MAX_CATCH_UP = 100
+#: A thruster loses its thrust over this depth below the free surface [m]: the propeller
+#: diameter of a Blue Robotics T200 (76 mm), the thruster of the BlueROV2 class.
+PROPELLER_DIAMETER = 0.076
 
 SPECS = [
     ParamSpec('rate', 400.0, 'Integration and IMU truth rate', 'Hz', 1.0, 2000.0,
@@ -68,7 +77,16 @@ SPECS = [
               math.pi),
 ]
 
-VEHICLE_FIELDS = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad')
+VEHICLE_FIELDS = ('mass', 'inertia', 'r_g', 'r_b', 'buoyancy', 'added_mass', 'd_lin', 'd_quad',
+                  'height')
+
+
+def in_water(depths: np.ndarray, band: float = PROPELLER_DIAMETER) -> np.ndarray:
+    """Share of each thruster's thrust [0..1] at ``depths`` [m] below the surface (< 0: above).
+
+    Full from ``band`` below the surface down, none at the surface and above, linear between.
+    """
+    return np.clip(depths / band, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -108,6 +126,7 @@ class RovSimulatorNode(EnbarrNode):
         self._lock = threading.Lock()
         self.thrusters = declare_thrusters(self)
         self._B = allocation_matrix(self.thrusters)
+        self._thruster_r = np.array([t.position for t in self.thrusters])  # (n, 3) body [m]
         self._index = {t.name: i for i, t in enumerate(self.thrusters)}
         self._model: RigidBodyModel | None = None
         self.thrust_period = IntervalMeter()  # arrivals of sim/thrust on the node's clock
@@ -160,11 +179,23 @@ class RovSimulatorNode(EnbarrNode):
 
     @property
     def tau(self) -> np.ndarray:
-        """Generalized force of the thrusters now [N, N m] (zero when their signal is stale)."""
+        """Generalized force of the thrusters now [N, N m] (zero when their signal is stale).
+
+        With the free surface, each thruster's thrust times its share in the water
+        (``in_water``) at the present state.
+        """
         last = self._thrust_ns
         if last is None or self.now_ns() - last > self._thrust_timeout_ns:
             return np.zeros(6)
-        return self._B @ self._thrust
+        if self.settings.vehicle.height <= 0.0:
+            return self._B @ self._thrust
+        return self._B @ (self._thrust * in_water(self.thruster_depths()))
+
+    def thruster_depths(self) -> np.ndarray:
+        """Depth of each thruster below the free surface [m] (negative: above it)."""
+        s = self.state
+        k_world_z = quat_to_rotmat(s.q)[2]  # the world z row of R: z of R r for each r
+        return -(s.p[2] + self._thruster_r @ k_world_z)
 
     def step(self) -> None:
         """Advance the vehicle to the clock's present and publish the truth at the IMU.
@@ -186,7 +217,7 @@ class RovSimulatorNode(EnbarrNode):
             state = self.state
             for _ in range(n):
                 state = model.step(state, tau, dt, current=current)
-            nu_dot = model.nu_dot(state.q, state.nu, tau, current=current)
+            nu_dot = model.nu_dot(state.q, state.nu, tau, current=current, p=state.p)
             self.state = state
         self.time_ns = now
         self.steps += n

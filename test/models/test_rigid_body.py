@@ -233,6 +233,66 @@ def test_positively_buoyant_vessel_rises_at_terminal_velocity():
     np.testing.assert_allclose(state.p[:2], 0.0, atol=1e-12)
 
 
+# -- the free surface (height > 0) -----------------------------------------------------------
+
+def test_submerged_fraction_of_a_prism_centred_on_the_cb():
+    model = RigidBodyModel(params(height=0.25))
+    for z_b, s in ((-1.0, 1.0), (-0.125, 1.0), (-0.0625, 0.75), (0.0, 0.5), (0.0625, 0.25),
+                   (0.125, 0.0), (2.0, 0.0)):
+        assert model.submerged(z_b) == pytest.approx(s)
+    assert RigidBodyModel(params()).submerged(5.0) == 1.0  # height 0: deep water
+
+
+def test_free_surface_fast_path_equals_matrix_form():
+    """At any height of the CO (fully under, emerging, out), with and without a current, the
+    fast path takes the buoyancy the matrix form does: s B at r_b, s from the CB's height."""
+    model = RigidBodyModel(params(height=0.25))
+    rng = np.random.default_rng(7)
+    for z in np.linspace(-0.3, 0.3, 13):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        nu, tau = rng.normal(size=6), rng.normal(size=6) * 10.0
+        p = np.array([rng.normal(), rng.normal(), z])
+        expected = np.linalg.solve(model.M, tau - model.coriolis(nu) @ nu
+                                   - model.damping(nu) @ nu - model.restoring(q, p))
+        np.testing.assert_allclose(model.nu_dot(q, nu, tau, p=p), expected, rtol=1e-10,
+                                   atol=1e-10)
+        # In a current only the hydrodynamic terms change: the restoring difference is the same.
+        current = np.array([0.3, -0.2, 0.05])
+        diff = model.nu_dot(q, nu, tau, current=current, p=p) - model.nu_dot(
+            q, nu, tau, current=current)
+        np.testing.assert_allclose(
+            diff, np.linalg.solve(model.M, model.restoring(q) - model.restoring(q, p)),
+            rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.sim
+def test_positively_buoyant_vessel_floats_with_w_over_b_submerged():
+    """B > W with a free surface: the vessel rises, breaks the surface and settles where
+    s B = W, the CB at z = h (1/2 - W/B); in deep water (height 0) it would still be rising
+    at 0.33 m/s after the minute (test_positively_buoyant_vessel_rises_at_terminal_velocity).
+    """
+    h = 0.2
+    prm = RigidBodyParams(
+        mass=10.0, inertia=(0.2, 0.3, 0.3), r_g=(0.0, 0.0, -0.02), r_b=(0.0, 0.0, 0.0),
+        buoyancy=10.0 * G + 5.0, added_mass=(5.0, 8.0, 8.0, 0.1, 0.1, 0.1),
+        d_lin=(4.0, 6.0, 5.0, 0.1, 0.1, 0.1), d_quad=(20.0, 20.0, 30.0, 1.0, 1.0, 1.0),
+        height=h)
+    model = RigidBodyModel(prm)
+    state = RigidBodyState.at_rest(p=(0.0, 0.0, -2.0), yaw=0.7)
+    highest = -math.inf
+    for _ in range(60):
+        state = simulate(model, state, np.zeros(6), 1.0)
+        highest = max(highest, float(state.p[2]))
+    z_eq = h * (0.5 - 10.0 * G / (10.0 * G + 5.0))   # -0.0903 m
+    assert state.p[2] == pytest.approx(z_eq, abs=1e-4)
+    assert abs(state.nu[2]) < 1e-3
+    assert z_eq < highest < h / 2  # overshot the float line, never left the water
+    deep = simulate(RigidBodyModel(dataclasses.replace(prm, height=0.0)),
+                    RigidBodyState.at_rest(p=(0.0, 0.0, -2.0)), np.zeros(6), 20.0)
+    assert deep.p[2] > 3.0  # without the surface: 4.7 m above it
+
+
 # -- energy and skew-symmetry -----------------------------------------------------------------
 
 def test_coriolis_is_skew_symmetric():
@@ -354,6 +414,7 @@ def test_specific_force_rolled_at_rest_and_in_free_fall():
     ('d_quad', (1.0, 1.0, 1.0, 1.0, float('nan'), 1.0)),
     ('d_quad', 'abc'),
     ('gravity', 0.0),
+    ('height', -0.1),
 ])
 def test_validate_names_the_bad_field(field, value):
     prm = params(**{field: value, **({'r_g': (0.3, 0.0, -0.3)} if field == 'inertia' else {})})
@@ -582,7 +643,7 @@ def test_kinetic_energy_by_hand():
 def test_from_mapping_unknown_keys_message_lists_both_sides():
     with pytest.raises(ValueError, match=(
             r'^massa, x: unknown key\(s\); expected mass, inertia, r_g, r_b, buoyancy, '
-            r'added_mass, d_lin, d_quad, gravity$')):
+            r'added_mass, d_lin, d_quad, gravity, height$')):
         RigidBodyParams.from_mapping({**ROV, 'x': 1.0, 'massa': 2.0})
 
 

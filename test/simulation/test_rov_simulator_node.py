@@ -11,13 +11,13 @@ import pytest
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import Imu, MagneticField
+from sensor_msgs.msg import Imu, JointState, MagneticField
 from support.nodes import TIMEOUT, add, probe
 from support.rov import G, overrides, sim_parameters
 from support.saucer import SimClock
 
 from enbarr_core.framework.errors import ConfigurationError
-from enbarr_core.framework.kinematics import quat_to_euler
+from enbarr_core.framework.kinematics import quat_from_euler, quat_to_euler
 from enbarr_core.models.rigid_body import RigidBodyState
 from enbarr_core.simulation.rov_simulator_node import RovSimulatorNode
 from enbarr_interfaces import convert, topics
@@ -243,6 +243,71 @@ def test_profile_vehicle_surge_coast_follows_the_quadratic_damping_solution(cont
         np.testing.assert_allclose(p, np.array(p0) + s * heading, rtol=0.0, atol=TOL)
         assert rot.as_euler('ZYX')[0] == pytest.approx(psi0, abs=TOL)
     assert abs(u) < 0.6 * speed           # it really slowed down (2 s, quadratic drag)
+
+
+# -- the free surface -------------------------------------------------------------------------
+#
+# Pinned to the sources, not read from the code: the BlueROV2 is 254 mm high (Blue Robotics'
+# technical details), a T200's propeller 76 mm across (its data sheet), and the profile's
+# thrusters give 51.5 N forward (5.25 kgf at 16 V, the profile's header).
+
+HULL, PROPELLER, THRUST = 0.254, 0.076, 51.5
+VERTICAL = ('vert_front_right', 'vert_front_left', 'vert_rear_right', 'vert_rear_left')
+
+
+def surface_sim(context: Any, executor: Any, p0: list[float],
+                rpy0: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RovSimulatorNode:
+    """The profile's ROV at ``p0`` with every vertical thruster at full upward thrust."""
+    params = {**sim_parameters('simulator'), 'rate': RATE, 'initial.position': p0,
+              'initial.rpy': list(rpy0)}
+    assert params['vehicle.height'] == HULL
+    sim = add(executor, RovSimulatorNode(node_name='simulator', context=context,
+                                         parameter_overrides=overrides(params)))
+    msg = JointState()
+    msg.name = list(VERTICAL)
+    msg.effort = [THRUST] * 4
+    sim._on_thrust(msg)
+    return sim
+
+
+def test_thrusters_lose_their_thrust_in_the_last_propeller_diameter(context, executor):
+    sim = surface_sim(context, executor, [0.0, 0.0, -1.0])
+    for z, share in ((-1.0, 1.0), (-PROPELLER, 1.0), (-PROPELLER / 2, 0.5), (0.0, 0.0),
+                     (0.05, 0.0)):
+        sim.state = RigidBodyState.at_rest(p=(0.0, 0.0, z))
+        assert sim.tau[2] == pytest.approx(4 * THRUST * share)
+        assert sim.tau[3] == pytest.approx(0.0, abs=1e-9)  # level: no roll moment
+    # Rolled 20 deg to port-side-down (about +x, FLU): the left thrusters (y = +0.218 m)
+    # sit higher, 0.218 sin 20 deg = 7.5 cm above the CO.
+    sim.state = RigidBodyState(np.array([0.0, 0.0, -0.05]), quat_from_euler(
+        math.radians(20.0), 0.0, 0.0), np.zeros(6))
+    rot = Rotation.from_euler('x', 20.0, degrees=True)
+    for name, depth in zip(sim._index, sim.thruster_depths()):
+        r = sim_parameters()[f'thrusters.{name}.position']
+        assert depth == pytest.approx(0.05 - rot.apply(r)[2])
+    # The right (lower) side keeps its thrust, the left (0.025 m above the surface) none:
+    # a moment that rights the roll.
+    assert sim.tau[3] < -1.0
+
+
+def test_full_upward_thrust_holds_the_rov_at_the_surface(context, executor):
+    """206 N up against the neutral hull: it climbs at 2.29 m/s (d_lin w + d_quad w|w| =
+    206 N), breaches, falls back and settles where the thrust left and the buoyancy left
+    balance the weight. Without the free surface it would be 45 m up after the 20 s."""
+    sim = surface_sim(context, executor, [0.0, 0.0, -1.0])
+    clock = SimClock(sim)
+    heights = []
+    for _ in range(round(20.0 * RATE)):
+        clock.advance(1.0 / RATE)
+        sim.step()
+        heights.append(float(sim.state.p[2]))
+    # Level, thrusters at the CO's height z: 4 T min(1, -z / d) + B (1/2 - z / h) = W, B = W.
+    z_eq = -0.5 / (4 * THRUST / (MASS * G_SIM * PROPELLER) + 1.0 / HULL)   # -1.79 cm
+    # A jump, not a flight: below the height its kinetic energy at 2.29 m/s would reach,
+    # (m + Z_wdot) w^2 / (2 m g) = 0.61 m (0.31 m here: the model keeps the water's damping).
+    assert HULL / 2 < max(heights) < 0.61
+    last = heights[-round(2.0 * RATE):]
+    assert max(last) < 0.0 and np.mean(last) == pytest.approx(z_eq, abs=0.005)
 
 
 # -- thrust_timeout against the measured thrust period (valid but harmful) -------------------
