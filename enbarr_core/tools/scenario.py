@@ -15,9 +15,11 @@ A scenario is a vessel profile (``params/scenarios/NAME.yaml``) with a ``scenari
 The nodes are built exactly as ``bringup`` builds them, in one process, but time is
 simulated: every node's ROS clock is set to the simulated time, and the runner steps the
 simulator itself (instead of its real-time loop), then lets the executor run whatever timers
-and callbacks became due. Nothing waits for the wall clock (but the start, until the recorder
-has the latched topics' messages: ``wait_for_latched``), so a scenario runs as fast as the
-machine computes it; stamps, timers, watchdogs and recorded times are all simulated time.
+and callbacks became due. A simulated camera's frames are rendered in step too
+(``stepped_renderers``), not on its wall-clock thread. Nothing waits for the wall clock (but
+the start, until the recorder has the latched topics' messages: ``wait_for_latched``), so a
+scenario runs as fast as the machine computes it; stamps, timers, watchdogs and recorded
+times are all simulated time.
 
 The run is recorded (rosbag2/MCAP) into the output directory: the topics the metrics and the
 plot read (``metrics.METRIC_TOPICS``, ``metrics.PLOT_TOPICS``; with the collision avoidance
@@ -195,6 +197,7 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
         now = T0_NS
         set_time(now)
         c.start(skip=[sim])  # the simulator is stepped here, not by its real-time loop
+        renderers = stepped_renderers(c.nodes)  # and the simulated cameras' frames
         run_due = _run_due(c.executor)
         run_due()
         wait_for_latched(c.nodes, run_due)
@@ -205,6 +208,9 @@ def run(name: str, output: str | None = None, overrides: list[str] | tuple[str, 
             set_time(now)
             sim.step()
             run_due()  # everything due at this instant: timers, ROS messages, and theirs
+            for r in renderers:
+                if r.render_pending():  # a frame due at this instant, and what reads it
+                    run_due()
         wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
     from enbarr_core.recording.bag import read_bag
     from enbarr_core.tools.metrics import compute_metrics, plot_run
@@ -244,6 +250,17 @@ def simulated_time(clocks: list[Any]) -> Callable[[int], None]:
         msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 1_000_000_000)
         source.clock_callback(msg)
     return set_time
+
+
+def stepped_renderers(nodes: list[Any]) -> list[Any]:
+    """Take the nodes that render on their own wall-clock thread (``sim_camera``) off it.
+
+    Each is asked to leave its frames to the caller (``render_in_caller``); the run renders
+    every due frame in step (``render_pending``), so that no frame is skipped because
+    simulated time ran ahead of the renderer and a run repeats whatever the machine.
+    """
+    return [n for n in nodes if callable(getattr(n, 'render_in_caller', None))
+            and n.render_in_caller()]
 
 
 def wait_for_latched(nodes: list[Any], run_due: Callable[[], None],

@@ -29,7 +29,11 @@ of the node clock (simulated time in a scenario). A frame is rendered at one ins
 truth's pose and the world at that stamp (``EnbarrNode.world_time``), and carries that stamp.
 Rendering and encoding take milliseconds, so they run on the node's own thread: the truth's
 callback only hands the latest due frame over (a frame still waiting when the next is due is
-replaced and counted, ``skipped``), and the executor is never held by the camera.
+replaced and counted, ``skipped``), and the executor is never held by the camera. On
+simulated time the scenario runner renders each due frame itself instead, right after the
+step that made it due (``render_in_caller``, ``render_pending``): simulated time would run
+ahead of a renderer on the wall clock, skipping frames by the machine's speed, and a run would
+not repeat.
 """
 
 from __future__ import annotations
@@ -268,17 +272,33 @@ class SimCameraNode(TruthSensor):
         with self._lock:
             return self._due is None and not self._rendering
 
-    def _render_due(self) -> None:
+    def render_in_caller(self) -> bool:
+        """Stop the render thread: the caller renders each due frame (``render_pending``).
+
+        For a run on simulated time (``enbarr scenario``). False, and nothing changes, for the
+        checkerboard scene, whose frames follow the node clock on their own.
+        """
+        if self.settings.board is not None:
+            return False
+        self._loop.stop()
+        return True
+
+    def render_pending(self) -> bool:
+        """Render the due frame now, if there is one; True when one was rendered."""
         with self._lock:
             due, self._due = self._due, None
             if due is None or not self.started:
-                return
+                return False
             self._rendering = True
         try:
             self._render(due)
         finally:
             with self._lock:
                 self._rendering = False
+        return True
+
+    def _render_due(self) -> None:
+        self.render_pending()
 
     def _render(self, due: tuple[Any, float, float, float, float, float]) -> None:
         stamp, now, x, y, psi, z = due

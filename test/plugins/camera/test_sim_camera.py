@@ -198,3 +198,23 @@ def test_a_missing_frame_a_tilted_mount_and_bad_parameters_are_named(context):
     with pytest.raises(ConfigurationError, match='lens_file: .*nothing.yaml'):
         SimCameraNode(context=context, parameter_overrides=[
             Parameter('lens_file', value='/nonexistent/nothing.yaml')])
+
+
+def test_frames_rendered_in_the_callers_step_are_all_rendered(context, executor, spin):
+    """On simulated time (``enbarr scenario``) the caller renders each due frame: its thread
+    is stopped, ``render_pending`` renders the due one once and says so, and no frame is
+    skipped: 16 frames in 1 s of truth, each at its stamp."""
+    rig = Rig(context, executor, spin, World([BASIN]), width=64, height=48, focal_length=50.0)
+    node = rig.node
+    assert node.render_in_caller() and not node._loop.running
+    assert not node.render_pending()  # nothing due yet
+    for _ in range(101):
+        n = node.truths
+        rig.truth.publish(odometry_msg(rig.clock.ns, [0.0, 0.0, 0.0]))
+        assert spin(executor, lambda: node.truths == n + 1, TIMEOUT)
+        if node.render_pending():
+            assert spin(executor, lambda: len(rig.jpeg) == node.frames, TIMEOUT)
+        rig.clock.advance(0.01)
+    assert node.frames == 16 and node.skipped == 0 and not node.render_pending()
+    assert [seconds(m) for m in rig.jpeg] == pytest.approx([k / 15 for k in range(16)],
+                                                          abs=0.01)
