@@ -17,14 +17,18 @@ def test_measure_reports_each_case() -> None:
     assert set(figures['us_per_step']) == {'far', 'engaged', 'daqp_solve', 'force_far',
                                            'force_engaged'}
     assert all(v > 0.0 for v in figures['us_per_step'].values())
+    # Within the rounding of the printed figures (us to 0.1, core % to 0.001, Pi 4 % to 0.01):
+    # on a fast machine 6 x 0.059 % prints as 0.35, 1.1 % off 0.354 (CI, 2026-11-27).
     worst = max(figures['us_per_step']['far'], figures['us_per_step']['engaged'])
-    assert figures['core_percent_at_50hz'] == pytest.approx(worst * 50e-6 * 100, rel=0.01)
+    assert figures['core_percent_at_50hz'] == pytest.approx(worst * 50e-6 * 100, rel=0.01,
+                                                            abs=1e-3)
     assert figures['pi4_estimate_core_percent_at_50hz'] == pytest.approx(
-        6 * figures['core_percent_at_50hz'], rel=0.01)
+        6 * figures['core_percent_at_50hz'], rel=0.01, abs=0.01)
     force = max(figures['us_per_step']['force_far'], figures['us_per_step']['force_engaged'])
-    assert figures['force_core_percent_at_50hz'] == pytest.approx(force * 50e-6 * 100, rel=0.01)
+    assert figures['force_core_percent_at_50hz'] == pytest.approx(force * 50e-6 * 100, rel=0.01,
+                                                                  abs=1e-3)
     assert figures['force_pi4_estimate_core_percent_at_50hz'] == pytest.approx(
-        6 * figures['force_core_percent_at_50hz'], rel=0.01)
+        6 * figures['force_core_percent_at_50hz'], rel=0.01, abs=0.01)
 
 
 @pytest.mark.e2e

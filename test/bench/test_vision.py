@@ -29,7 +29,7 @@ def test_the_frames_and_the_model_are_what_the_benchmark_claims_to_measure(tmp_p
         for key in ('ms_per_frame_p50', 'ms_per_frame_p90', 'ms_per_frame_max'):
             assert math.isfinite(f[key]) and f[key] > 0.0
         assert f['pi4_core_fraction_estimate'] == pytest.approx(
-            f['core_fraction_at_15_hz'] * 6.0, rel=2e-2)
+            f['core_fraction_at_15_hz'] * 6.0, rel=2e-2, abs=1e-3)  # printed to 0.001
 
 
 def test_the_command_prints_one_json_line(capsys):
