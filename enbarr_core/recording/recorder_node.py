@@ -502,7 +502,8 @@ class RecorderNode(EnbarrNode, Recorder):
             entry = (name, types[0], None)  # raw: the bytes as DDS carried them, exact
             callback = lambda data, e=entry: put((e, self._stamp(), data))  # noqa: E731
             if r.transient_local:
-                self._latched_waiting.add(name)
+                with self._lock:
+                    self._latched_waiting.add(name)
                 callback = self._first_latched(name, callback)
             sub = self.create_subscription(cls, name, callback, request_profile(offers),
                                            raw=True)
@@ -513,7 +514,9 @@ class RecorderNode(EnbarrNode, Recorder):
     def _first_latched(self, name: str, callback: Any) -> Any:
         """Wrap ``callback`` of latched topic ``name``: its arrival ends ``latched_pending``."""
         def on_message(data: Any) -> None:
-            self._latched_waiting.discard(name)
+            if name in self._latched_waiting:
+                with self._lock:
+                    self._latched_waiting.discard(name)
             callback(data)
         return on_message
 
@@ -526,7 +529,8 @@ class RecorderNode(EnbarrNode, Recorder):
         simulated time (``enbarr scenario``) waits for this before its clock moves. A topic
         whose publisher has published nothing yet stays listed.
         """
-        return sorted(self._latched_waiting)
+        with self._lock:
+            return sorted(self._latched_waiting)
 
     def missing_topics(self) -> list[str]:
         """List the selected topics that have not appeared (none: all are recorded)."""

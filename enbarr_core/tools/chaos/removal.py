@@ -20,9 +20,9 @@ from enbarr_core.tools.chaos.plan import CONTROL_GROUP
 from enbarr_core.tools.chaos.tree import neutral_log_times, Tree
 
 RESET_TIMEOUT = 45.0            # s, control back after a restart of the control group
-#: A removal fault is watched for a neutral output at least this long after the fault [s]:
-#: beyond the window, so that a driver starved on a loaded machine, whose watchdog fires
-#: late, is measured late (and failed by its time) rather than not seen at all.
+#: A removal fault with no neutral output yet is watched up to this long after the fault [s]:
+#: past its window, so that a driver starved on a loaded machine, whose watchdog fires late,
+#: is measured late (and failed by its time) rather than not seen at all.
 WATCH_LIMIT_S = 5.0
 
 
