@@ -36,7 +36,8 @@ class ChaosCommand(Command):
         parser.add_argument('old_profile', nargs='?', metavar='PROFILE',
                             action=DeprecatedAlias, replacement='--profile {}')
         parser.add_argument('--duration', type=float, default=2.0, metavar='S',
-                            help='observation window after each fault (default 2 s)')
+                            help='observation window after each fault (default 2 s; a removal '
+                            'fault with no neutral output yet is watched up to 5 s)')
         parser.add_argument('--faults', default='', metavar='a,b,...',
                             help=f'fault kinds or names to inject (default all: '
                             f'{",".join(KINDS)}; a name such as future+20s:imu/data_raw)')
