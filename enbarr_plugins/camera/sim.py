@@ -190,7 +190,8 @@ class SimCameraNode(TruthSensor):
             self.camera = SimulatedCamera(s.model, mount, Look(seed=s.seed))
         except ValueError as err:
             raise ConfigurationError(f'node {self.get_name()!r}: {err}') from err
-        self._loop = self.create_rate_loop(s.frame_rate * POLLS_PER_FRAME, self._render_due)
+        self._loop = self.create_rate_loop(s.frame_rate * POLLS_PER_FRAME,
+                                            self.render_pending)
         self.create_topic_subscription(topics.SIM_ODOMETRY, self._on_truth)
 
     def _init_board(self, board: Board) -> None:
@@ -296,9 +297,6 @@ class SimCameraNode(TruthSensor):
             with self._lock:
                 self._rendering = False
         return True
-
-    def _render_due(self) -> None:
-        self.render_pending()
 
     def _render(self, due: tuple[Any, float, float, float, float, float]) -> None:
         stamp, now, x, y, psi, z = due
